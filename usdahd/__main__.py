@@ -1,0 +1,5 @@
+import sys
+
+from usdahd.cli import main
+
+sys.exit(main())

@@ -1,0 +1,82 @@
+"""Lighting-model registry: one module per encoding, looked up by name.
+
+``get(name)`` returns the model module (see ``usdahd.models.base`` for what it defines);
+``names()`` lists them; ``fit(sh, model=...)`` is the public entry point.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from usdahd.errors import InputError, ModelError
+from usdahd.models.base import Fit, TextureLayout  # noqa: F401  (re-exported)
+
+#: name -> module path. Add a model by adding a line here.
+REGISTRY = {
+    "ahd": "usdahd.models.ahd",
+    "hhd": "usdahd.models.hhd",
+    "hlsh": "usdahd.models.hlsh",
+    "ahd_classic": "usdahd.models.ahd_classic",
+    "hemisphere": "usdahd.models.hemisphere",
+    "sh_l1": "usdahd.models.sh_l1",
+    "sh_l2": "usdahd.models.sh_l2",
+    "ambient_cube": "usdahd.models.ambient_cube",
+    "hl2": "usdahd.models.hl2",
+}
+
+
+def names() -> list[str]:
+    """Registered model names whose module is importable, in registry order."""
+    out = []
+    for name in REGISTRY:
+        try:
+            get(name)
+        except ModelError:
+            continue
+        out.append(name)
+    return out
+
+
+def get(name: str):
+    """The model module registered as ``name``; ModelError if unknown."""
+    try:
+        path = REGISTRY[name]
+    except KeyError:
+        raise ModelError(
+            f"unknown model {name!r}; choose one of: {', '.join(REGISTRY)}"
+        ) from None
+    try:
+        return importlib.import_module(path)
+    except ModuleNotFoundError as exc:
+        if exc.name == path:
+            raise ModelError(f"model {name!r} is registered but not implemented yet") from None
+        raise
+
+
+def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None = None, **options):
+    """Fit a lighting model to tangent-space incident radiance SH.
+
+    sh : (..., 3, 9) float32/float64 radiance SH, z = surface normal, zero below the horizon.
+    model : a registry name (``names()``); ratio : ``"luminance"`` or ``"rgb"`` for IrradZ
+    models (default luminance); solver : one of the model's ``SOLVERS`` (default its
+    ``DEFAULT_SOLVER``).
+    returns : :class:`usdahd.models.base.Fit`.
+    """
+    mod = get(model)
+    sh = np.asarray(sh)
+    if sh.ndim < 2 or sh.shape[-2:] != (3, 9):
+        raise InputError(f"SH must have shape (..., 3, 9) (RGB x 9 coefficients), got {sh.shape}")
+    if not np.issubdtype(sh.dtype, np.floating):
+        sh = sh.astype(np.float64)
+    ratio = ratio or mod.RATIOS[0]
+    if ratio not in mod.RATIOS:
+        raise ModelError(f"model {model!r} supports ratio {', '.join(mod.RATIOS)}, not {ratio!r}")
+    solver = solver or mod.DEFAULT_SOLVER
+    if solver not in mod.SOLVERS:
+        raise ModelError(
+            f"model {model!r} has solvers {', '.join(mod.SOLVERS)}, not {solver!r}"
+        )
+    params = mod.fit(sh, ratio=ratio, solver=solver, **options)
+    return Fit(model=model, ratio=ratio, solver=solver, params=params)

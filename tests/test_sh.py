@@ -86,3 +86,12 @@ def test_hemisphere_quadrature_area():
     d, w = sh.hemisphere_quadrature(8)
     assert abs(w.sum() - 2 * np.pi) < 1e-12
     assert (d[:, 2] > 0).all()
+
+
+def test_hemispherical_gram_exact_and_symmetric():
+    g = sh.hemispherical_gram()
+    np.testing.assert_allclose(g, g.T, atol=1e-15)
+    np.testing.assert_allclose(g, sh.hemispherical_gram(40), atol=1e-13)
+    # Y00 * Y00 over the hemisphere = 1/2.
+    assert abs(g[0, 0] - 0.5) < 1e-14
+    assert np.linalg.eigvalsh(g).min() > 0

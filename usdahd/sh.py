@@ -157,3 +157,15 @@ def fibonacci_sphere(n: int, hemisphere: bool = False) -> np.ndarray:
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec. 709 luminance of (..., 3) -> (...,)."""
     return np.asarray(rgb) @ LUMINANCE
+
+
+def hemispherical_gram(n_theta: int = 8) -> np.ndarray:
+    """Gram matrix of the 9 SH basis functions over the upper hemisphere, by exact quadrature.
+
+    G[k, l] = integral_{z>0} Y_k Y_l dw. The product of two basis functions is a polynomial of
+    degree <= 4, so an 8 x 16 Gauss-Legendre product rule is exact to rounding.
+    returns : (9, 9) float64, symmetric positive definite.
+    """
+    d, w = hemisphere_quadrature(n_theta)
+    y = basis(d)
+    return np.einsum("nk,nl,n->kl", y, y, w)

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from usdahd import models, sh as shmod
+from usdahd import models
+from usdahd import sh as shmod
 from usdahd.errors import InputError
 
 
@@ -24,8 +25,12 @@ def add_parser(sub):
         ),
     )
     p.add_argument("sh", help=".npy file, or .npz with an array named 'sh'")
-    p.add_argument("--model", default="hhd", help="lighting model (default hhd): %(choices)s",
-                   choices=list(models.REGISTRY))
+    p.add_argument(
+        "--model",
+        default="hhd",
+        help="lighting model (default hhd): %(choices)s",
+        choices=list(models.REGISTRY),
+    )
     p.add_argument("--ratio", default=None, help="luminance or rgb (IrradZ models)")
     p.add_argument("--solver", default=None, help="solver name (default: the model's)")
     p.add_argument("-o", "--output", help="write fitted parameters to this .npz")
@@ -70,8 +75,9 @@ def run(args) -> int:
     data = load_sh(args.sh)
     fitted = models.fit(data, args.model, ratio=args.ratio, solver=args.solver)
     flat = data.reshape(-1, 3, 9).astype(np.float64)
-    rel = hemispherical_rmse(flat, models.fit(flat, args.model, ratio=fitted.ratio,
-                                              solver=fitted.solver))
+    rel = hemispherical_rmse(
+        flat, models.fit(flat, args.model, ratio=fitted.ratio, solver=fitted.solver)
+    )
     report = {
         "file": args.sh,
         "model": fitted.model,

@@ -44,9 +44,7 @@ def get(name: str):
     try:
         path = REGISTRY[name]
     except KeyError:
-        raise ModelError(
-            f"unknown model {name!r}; choose one of: {', '.join(REGISTRY)}"
-        ) from None
+        raise ModelError(f"unknown model {name!r}; choose one of: {', '.join(REGISTRY)}") from None
     try:
         return importlib.import_module(path)
     except ModuleNotFoundError as exc:
@@ -75,8 +73,6 @@ def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None 
         raise ModelError(f"model {model!r} supports ratio {', '.join(mod.RATIOS)}, not {ratio!r}")
     solver = solver or mod.DEFAULT_SOLVER
     if solver not in mod.SOLVERS:
-        raise ModelError(
-            f"model {model!r} has solvers {', '.join(mod.SOLVERS)}, not {solver!r}"
-        )
+        raise ModelError(f"model {model!r} has solvers {', '.join(mod.SOLVERS)}, not {solver!r}")
     params = mod.fit(sh, ratio=ratio, solver=solver, **options)
     return Fit(model=model, ratio=ratio, solver=solver, params=params)

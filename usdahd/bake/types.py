@@ -30,6 +30,9 @@ class MeshData:
     uv_name : name of the lightmap UV primvar read (or to author), e.g. "st".
     material : (t,) int32 index into the scene's material table.
     face : (t,) int32 index of the source polygon of each triangle.
+    corner : (t, 3) int32 index of each triangle corner into the source mesh's
+        faceVertexIndices (so per-corner data such as an unwrapped UV set can be authored back
+        as a faceVarying primvar).
     bake : whether this mesh receives a lightmap (False: occluder only).
     """
 
@@ -41,6 +44,7 @@ class MeshData:
     uv_name: str
     material: np.ndarray
     face: np.ndarray
+    corner: np.ndarray
     bake: bool = True
     warnings: list[str] = field(default_factory=list)
 

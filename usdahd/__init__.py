@@ -10,6 +10,12 @@ created; numerics (``usdahd.sh``, ``usdahd.models``) do not need pxr.
 """
 
 from usdahd._version import __version__
-from usdahd.models import fit
+from usdahd.usd import plugin as _plugin
+
+# Before anything else can create a stage: USD reads schema plugins once, when its schema
+# registry is first built. Raises usdahd.errors.SchemaError if the schema ends up unusable.
+_plugin.register()
+
+from usdahd.models import fit  # noqa: E402
 
 __all__ = ["__version__", "fit"]

@@ -1,0 +1,516 @@
+"""Typed access to the AhdLightmapAPI schema: apply it, read bake inputs, write and read results.
+
+This is the only module that writes ``ahdLightmap:*`` properties; the baker and the validator go
+through it. Property names, fallbacks and docs are defined in ``schema/schema.usda`` (see
+``docs/schema.md``); the constants below mirror it and tests/test_schema.py keeps them in sync.
+
+- :class:`BakeInputs` — what a TD authors before baking (every field has the schema fallback).
+- :class:`BakeResults` — what a bake writes: one file per texture role (``models.base.ROLES``)
+  plus the SH sidecar, resolution, decode factors, tangent frame, hashes, settings, version.
+- :func:`apply`, :func:`has_api`, :func:`prims_with_api`, :func:`read_inputs`,
+  :func:`write_inputs`, :func:`write_results`, :func:`read_results`, :func:`input_problems`,
+  :func:`result_problems`.
+
+Apply the API and write results in an override layer that sublayers the source scene (set that
+layer as the stage's edit target); texture paths are authored relative to that layer
+(``@./lightmaps/...@``) so the override layer and its ``lightmaps/`` folder move together.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+from usdahd.errors import SchemaError
+from usdahd.models import REGISTRY
+from usdahd.models.base import ROLES
+from usdahd.usd.plugin import API_NAME, SCHEMA_TYPE_NAME, register
+
+register()  # idempotent; the schema must be known before any prim definition is queried
+
+from pxr import Gf, Sdf, Usd  # noqa: E402
+
+__all__ = [
+    "API_NAME",
+    "SCHEMA_TYPE_NAME",
+    "NAMESPACE",
+    "FORMAT_VERSION",
+    "KNOWN_FORMAT_VERSIONS",
+    "MODELS",
+    "RATIOS",
+    "TANGENT_FRAMES",
+    "SIDECAR_ROLE",
+    "FILE_ROLES",
+    "COLOR_SPACES",
+    "FACTORS",
+    "SH_SIDECAR_CHANNELS",
+    "BakeInputs",
+    "BakeResults",
+    "apply",
+    "has_api",
+    "prims_with_api",
+    "read_inputs",
+    "write_inputs",
+    "input_problems",
+    "write_results",
+    "read_results",
+    "result_problems",
+    "is_baked",
+    "property_name",
+    "file_property_name",
+]
+
+#: Property namespace of every schema property.
+NAMESPACE = "ahdLightmap"
+#: Texture and property layout version this code writes (``ahdLightmap:baked:formatVersion``).
+FORMAT_VERSION = 1
+#: Versions this code can read; 0 (the fallback) means "not baked".
+KNOWN_FORMAT_VERSIONS = (1,)
+#: allowedTokens of ``ahdLightmap:model`` / ``ahdLightmap:baked:model`` (= models.REGISTRY).
+MODELS = tuple(REGISTRY)
+#: allowedTokens of ``ahdLightmap:ratio`` / ``ahdLightmap:baked:ratio``.
+RATIOS = ("luminance", "rgb", "none")
+#: allowedTokens of ``ahdLightmap:baked:tangentFrame``.
+TANGENT_FRAMES = ("mikktspace_uv",)
+#: Role name of the radiance SH sidecar (``ahdLightmap:sidecar:sh``), next to the texture ROLES.
+SIDECAR_ROLE = "sh"
+#: Every file-valued role: texture roles of models.base.ROLES, then the sidecar.
+FILE_ROLES = tuple(ROLES) + (SIDECAR_ROLE,)
+#: colorSpace metadata (Gf.ColorSpaceNames) authored on each file property.
+COLOR_SPACES = {
+    "iz": "lin_rec709_scene",
+    "direction": "raw",
+    "ratio": "raw",
+    "ambient": "lin_rec709_scene",
+    "directional": "lin_rec709_scene",
+    "coefficients": "raw",
+    "coefficientsL1": "raw",
+    SIDECAR_ROLE: "raw",
+}
+#: Scalar decode factors (a model's ``encode`` returns them by these names) and their fallbacks.
+FACTORS = {"izScale": 1.0, "colorScale": 1.0, "ratioScale": 1.0}
+#: Channel names of the SH sidecar EXR (float32): radiance SH of R, G, B (coefficient order of
+#: usdahd.sh, so reshape (..., 3, 9)), then coverage A (1 = texel baked, 0 = empty). Look
+#: channels up by name: EXR files store them sorted.
+SH_SIDECAR_CHANNELS = tuple(f"{c}{k}" for c in "RGB" for k in range(9)) + ("A",)
+
+
+def property_name(key: str) -> str:
+    """Full property name of a schema key: ``"baked:izScale"`` -> ``ahdLightmap:baked:izScale``."""
+    return f"{NAMESPACE}:{key}"
+
+
+def file_property_name(role: str) -> str:
+    """Asset-valued property of a file role (``ahdLightmap:texture:<role>`` or the sidecar)."""
+    if role == SIDECAR_ROLE:
+        return property_name("sidecar:sh")
+    if role not in ROLES:
+        raise SchemaError(f"unknown texture role {role!r}; roles are {', '.join(FILE_ROLES)}")
+    return property_name(f"texture:{role}")
+
+
+# --------------------------------------------------------------------------------------- inputs
+
+
+@dataclass(frozen=True)
+class BakeInputs:
+    """Bake settings of one prim (``ahdLightmap:*`` inputs); defaults are the schema fallbacks.
+
+    bake : whether the prim gets a lightmap; model : a name in MODELS; ratio : one of RATIOS
+    (models without an ambient ratio treat it as "none"); solver : "" for the model's default;
+    uv_primvar : lightmap UV primvar name; resolution : texels per side (0: from
+    texel_density); texel_density : texels per metre; samples : paths per texel; bounces :
+    maximum indirect bounces.
+    """
+
+    bake: bool = True
+    model: str = "hhd"
+    ratio: str = "luminance"
+    solver: str = ""
+    uv_primvar: str = "st"
+    resolution: int = 0
+    texel_density: float = 16.0
+    samples: int = 256
+    bounces: int = 3
+
+    def replace(self, **changes) -> BakeInputs:
+        """A copy with some fields changed (e.g. command-line overrides)."""
+        return replace(self, **changes)
+
+
+#: BakeInputs field -> schema key.
+INPUT_KEYS = {
+    "bake": "bake",
+    "model": "model",
+    "ratio": "ratio",
+    "solver": "solver",
+    "uv_primvar": "uvPrimvar",
+    "resolution": "resolution",
+    "texel_density": "texelDensity",
+    "samples": "samples",
+    "bounces": "bounces",
+}
+_INPUT_TYPES = {
+    "bake": bool,
+    "model": str,
+    "ratio": str,
+    "solver": str,
+    "uv_primvar": str,
+    "resolution": int,
+    "texel_density": float,
+    "samples": int,
+    "bounces": int,
+}
+
+
+def input_problems(inputs: BakeInputs) -> list[str]:
+    """Every reason these inputs cannot be baked, one sentence each (empty list: fine)."""
+    out = []
+    for f in fields(BakeInputs):
+        v = getattr(inputs, f.name)
+        want = _INPUT_TYPES[f.name]
+        ok = isinstance(v, want) or (want is float and isinstance(v, int))
+        if not ok or (want is int and isinstance(v, bool)):
+            out.append(f"{property_name(INPUT_KEYS[f.name])} must be {want.__name__}, got {v!r}")
+    if out:
+        return out
+    if inputs.model not in MODELS:
+        out.append(f"{property_name('model')} = {inputs.model!r} is not one of {', '.join(MODELS)}")
+    if inputs.ratio not in RATIOS:
+        out.append(f"{property_name('ratio')} = {inputs.ratio!r} is not one of {', '.join(RATIOS)}")
+    if not inputs.uv_primvar or any(c.isspace() for c in inputs.uv_primvar):
+        out.append(f"{property_name('uvPrimvar')} = {inputs.uv_primvar!r} is not a primvar name")
+    if inputs.resolution < 0:
+        out.append(f"{property_name('resolution')} = {inputs.resolution} must be >= 0")
+    if not (math.isfinite(inputs.texel_density) and inputs.texel_density > 0):
+        out.append(f"{property_name('texelDensity')} = {inputs.texel_density} must be > 0")
+    if inputs.samples < 1:
+        out.append(f"{property_name('samples')} = {inputs.samples} must be >= 1")
+    if inputs.bounces < 0:
+        out.append(f"{property_name('bounces')} = {inputs.bounces} must be >= 0")
+    return out
+
+
+def _prim_label(prim) -> str:
+    return f"<{prim.GetPath()}>"
+
+
+def apply(prim: Usd.Prim) -> None:
+    """Apply AhdLightmapAPI to a mesh prim in the current edit target (idempotent).
+
+    Raises SchemaError naming the prim when it is not a Mesh (or is invalid).
+    """
+    if not prim or not prim.IsValid():
+        raise SchemaError(f"cannot apply {API_NAME}: invalid prim {prim}")
+    if prim.HasAPI(API_NAME):
+        return
+    ok = prim.CanApplyAPI(API_NAME)
+    if not ok:
+        why = getattr(ok, "whyNot", "") or "see docs/schema.md"
+        raise SchemaError(f"cannot apply {API_NAME} to {_prim_label(prim)}: {why}")
+    if not prim.ApplyAPI(API_NAME):
+        raise SchemaError(f"ApplyAPI({API_NAME}) failed on {_prim_label(prim)}")
+
+
+def has_api(prim: Usd.Prim) -> bool:
+    """Whether AhdLightmapAPI is applied to ``prim``."""
+    return bool(prim) and prim.HasAPI(API_NAME)
+
+
+def prims_with_api(stage: Usd.Stage) -> list[Usd.Prim]:
+    """Every prim of ``stage`` (instance proxies included) with AhdLightmapAPI applied."""
+    rng = Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+    return [p for p in rng if p.HasAPI(API_NAME)]
+
+
+def _attr(prim, key: str) -> Usd.Attribute:
+    name = property_name(key)
+    attr = prim.GetAttribute(name)
+    if not attr:
+        raise SchemaError(
+            f"{_prim_label(prim)} has no {name}: apply {API_NAME} first (usdahd.usd.schema.apply)"
+        )
+    return attr
+
+
+def _get(prim, key: str):
+    return _attr(prim, key).Get()
+
+
+def _require_api(prim) -> None:
+    if not has_api(prim):
+        raise SchemaError(
+            f"{_prim_label(prim)} does not have {API_NAME} applied; apply it in an override "
+            "layer (usdahd.usd.schema.apply) or bake the prim with usdahd bake"
+        )
+
+
+def read_inputs(prim: Usd.Prim, *, validate: bool = True) -> BakeInputs:
+    """The prim's bake inputs (authored values, else schema fallbacks).
+
+    With ``validate`` (default) invalid values raise SchemaError listing every problem; the
+    validator passes ``validate=False`` and reports :func:`input_problems` itself.
+    """
+    _require_api(prim)
+    values = {}
+    for fname, key in INPUT_KEYS.items():
+        v = _get(prim, key)
+        want = _INPUT_TYPES[fname]
+        values[fname] = want(v) if v is not None else getattr(BakeInputs, fname)
+    inputs = BakeInputs(**values)
+    if validate:
+        problems = input_problems(inputs)
+        if problems:
+            raise SchemaError(f"{_prim_label(prim)}: " + "; ".join(problems))
+    return inputs
+
+
+def write_inputs(prim: Usd.Prim, inputs: BakeInputs | None = None, **values) -> None:
+    """Author bake inputs on a prim that has the API (in the current edit target).
+
+    Either pass ``inputs`` (every field is authored) or keyword fields of BakeInputs (only
+    those are authored), e.g. ``write_inputs(prim, model="ahd", resolution=256)``.
+    Invalid values raise SchemaError before anything is authored.
+    """
+    _require_api(prim)
+    unknown = set(values) - set(INPUT_KEYS)
+    if unknown:
+        raise SchemaError(
+            f"unknown bake input(s) {', '.join(sorted(unknown))}; known: {', '.join(INPUT_KEYS)}"
+        )
+    if inputs is not None and values:
+        raise SchemaError("pass either a BakeInputs or keyword values, not both")
+    if inputs is not None:
+        values = {f.name: getattr(inputs, f.name) for f in fields(BakeInputs)}
+    merged = read_inputs(prim, validate=False).replace(**values)
+    problems = input_problems(merged)
+    if problems:
+        raise SchemaError(f"{_prim_label(prim)}: " + "; ".join(problems))
+    for fname in values:
+        _set(prim, INPUT_KEYS[fname], getattr(merged, fname))
+
+
+def _set(prim, key: str, value) -> None:
+    attr = _attr(prim, key)
+    if not attr.Set(value):
+        raise SchemaError(f"could not author {attr.GetPath()} = {value!r}")
+
+
+# -------------------------------------------------------------------------------------- results
+
+
+@dataclass
+class BakeResults:
+    """What a bake wrote for one prim (the ``ahdLightmap:texture:*``, ``sidecar:sh`` and
+    ``baked:*`` properties).
+
+    model, ratio, solver : what the textures were encoded with (decoders use these).
+    uv_primvar : the UV primvar the textures are laid out in.
+    resolution : (width, height) of every texture.
+    textures : role (FILE_ROLES) -> file. For :func:`write_results` a filesystem path
+        (absolute, or relative to the current directory); from :func:`read_results` the
+        resolved absolute path, or the authored asset path if it does not resolve.
+    asset_paths : role -> asset path as authored (``./lightmaps/...``); filled by read_results.
+    factors : decode factors by FACTORS name (missing ones are their fallbacks).
+    tangent_frame : one of TANGENT_FRAMES.
+    content_hash : "sha256:<hex>" over everything the bake depends on.
+    part_hashes : part name (geometry, uv, lights, materials, settings, ...) -> hash.
+    settings : every setting used (JSON-serialisable).
+    generator : e.g. "usdahd 0.1.0".
+    format_version : layout version (FORMAT_VERSION).
+    """
+
+    model: str
+    ratio: str
+    solver: str
+    uv_primvar: str
+    resolution: tuple[int, int]
+    textures: dict[str, str]
+    factors: dict[str, float] = field(default_factory=dict)
+    tangent_frame: str = "mikktspace_uv"
+    content_hash: str = ""
+    part_hashes: dict[str, str] = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+    generator: str = ""
+    format_version: int = FORMAT_VERSION
+    asset_paths: dict[str, str] = field(default_factory=dict)
+
+    def factor(self, name: str) -> float:
+        """A decode factor, or its schema fallback when not set."""
+        if name not in FACTORS:
+            raise SchemaError(f"unknown decode factor {name!r}; known: {', '.join(FACTORS)}")
+        return float(self.factors.get(name, FACTORS[name]))
+
+
+def result_problems(results: BakeResults) -> list[str]:
+    """Every reason these results are not a valid bake record, one sentence each."""
+    out = []
+    if results.model not in MODELS:
+        out.append(f"baked model {results.model!r} is not one of {', '.join(MODELS)}")
+    if results.ratio not in RATIOS:
+        out.append(f"baked ratio {results.ratio!r} is not one of {', '.join(RATIOS)}")
+    if results.tangent_frame not in TANGENT_FRAMES:
+        out.append(
+            f"tangent frame {results.tangent_frame!r} is not one of {', '.join(TANGENT_FRAMES)}"
+        )
+    res = tuple(results.resolution)
+    if len(res) != 2 or any(not isinstance(r, int) or r <= 0 for r in res):
+        out.append(f"resolution {results.resolution!r} must be two positive integers")
+    if results.format_version not in KNOWN_FORMAT_VERSIONS:
+        out.append(
+            f"format version {results.format_version} is not one of "
+            f"{', '.join(map(str, KNOWN_FORMAT_VERSIONS))}"
+        )
+    if not results.uv_primvar:
+        out.append("the UV primvar the textures use is empty")
+    for role in results.textures:
+        if role not in FILE_ROLES:
+            out.append(f"unknown texture role {role!r}; roles are {', '.join(FILE_ROLES)}")
+    for name, v in results.factors.items():
+        if name not in FACTORS:
+            out.append(
+                f"decode factor {name!r} has no schema property (known: {', '.join(FACTORS)}); "
+                "add it to schema/schema.usda"
+            )
+        elif not (isinstance(v, int | float) and math.isfinite(v)):
+            out.append(f"decode factor {name} = {v!r} is not a finite number")
+    for name in FACTORS:
+        v = results.factors.get(name, FACTORS[name])
+        if isinstance(v, int | float) and math.isfinite(v) and v <= 0:
+            out.append(f"decode factor {name} = {v} must be > 0")
+    return out
+
+
+def _layer_dir(prim) -> Path:
+    layer = prim.GetStage().GetEditTarget().GetLayer()
+    if layer.anonymous or not layer.realPath:
+        raise SchemaError(
+            f"cannot author texture paths relative to anonymous layer {layer.identifier}; "
+            "save the override layer first or pass layer_dir"
+        )
+    return Path(layer.realPath).resolve().parent
+
+
+def relative_asset_path(path: str | os.PathLike, layer_dir: str | os.PathLike) -> str:
+    """Asset path of ``path`` relative to ``layer_dir``: ``./lightmaps/a.exr`` or ``../x.exr``.
+
+    Forward slashes on every platform; a path below the layer directory starts with ``./`` so
+    USD anchors it to the layer rather than searching for it.
+    """
+    rel = os.path.relpath(Path(path).resolve(), Path(layer_dir).resolve()).replace(os.sep, "/")
+    return rel if rel.startswith("../") else f"./{rel}"
+
+
+def _json(value, what: str) -> str:
+    try:
+        return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise SchemaError(f"{what} must be JSON-serialisable: {exc}") from None
+
+
+def write_results(
+    prim: Usd.Prim, results: BakeResults, layer_dir: str | os.PathLike | None = None
+) -> None:
+    """Author a bake's results on ``prim`` (applies the API if needed) in the edit target.
+
+    Texture files are authored relative to ``layer_dir`` (default: the directory of the edit
+    target layer) with their colorSpace metadata; roles not in ``results.textures`` are
+    cleared (blocked if a weaker layer still has an opinion) so a re-bake with another model
+    leaves no stale texture behind. Every ``baked:*`` property is authored explicitly so the
+    layer is self-describing without the plugin. Raises SchemaError on invalid results.
+    """
+    problems = result_problems(results)
+    if problems:
+        raise SchemaError(f"{_prim_label(prim)}: invalid bake results: " + "; ".join(problems))
+    layer_dir = Path(layer_dir) if layer_dir is not None else _layer_dir(prim)
+    settings = _json(results.settings, "bake settings")
+    part_hashes = _json(results.part_hashes, "part hashes")
+    apply(prim)
+    for role in FILE_ROLES:
+        attr = prim.GetAttribute(file_property_name(role))
+        if role in results.textures:
+            asset = relative_asset_path(results.textures[role], layer_dir)
+            if not attr.Set(Sdf.AssetPath(asset)):
+                raise SchemaError(f"could not author {attr.GetPath()} = @{asset}@")
+            attr.SetColorSpace(COLOR_SPACES[role])
+        else:
+            attr.Clear()
+            if attr.HasAuthoredValue():
+                attr.Block()
+    _set(prim, "baked:resolution", Gf.Vec2i(*(int(r) for r in results.resolution)))
+    _set(prim, "baked:model", results.model)
+    _set(prim, "baked:ratio", results.ratio)
+    _set(prim, "baked:solver", results.solver)
+    _set(prim, "baked:uvPrimvar", results.uv_primvar)
+    _set(prim, "baked:tangentFrame", results.tangent_frame)
+    for name in FACTORS:
+        _set(prim, f"baked:{name}", results.factor(name))
+    _set(prim, "baked:contentHash", results.content_hash)
+    _set(prim, "baked:partHashes", part_hashes)
+    _set(prim, "baked:settings", settings)
+    _set(prim, "baked:generator", results.generator)
+    _set(prim, "baked:formatVersion", int(results.format_version))
+
+
+def is_baked(prim: Usd.Prim) -> bool:
+    """Whether ``prim`` has the API and a bake record (formatVersion != 0)."""
+    return has_api(prim) and int(_get(prim, "baked:formatVersion") or 0) != 0
+
+
+def _parse_json(prim, key: str):
+    text = _get(prim, key) or "{}"
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise SchemaError(f"{_prim_label(prim)}: {property_name(key)} is not JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise SchemaError(f"{_prim_label(prim)}: {property_name(key)} must be a JSON object")
+    return value
+
+
+def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None:
+    """The prim's bake record, or None when it was never baked (formatVersion 0).
+
+    ``textures`` holds resolved absolute paths (the authored asset path when it does not
+    resolve, e.g. a missing file or a UDIM pattern); ``asset_paths`` the authored strings.
+    With ``validate`` an invalid record raises SchemaError (see :func:`result_problems`).
+    """
+    _require_api(prim)
+    if not is_baked(prim):
+        return None
+    textures, assets = {}, {}
+    for role in FILE_ROLES:
+        attr = prim.GetAttribute(file_property_name(role))
+        if not attr.HasAuthoredValue():
+            continue
+        value = attr.Get()
+        if value is None or not value.path:
+            continue
+        assets[role] = value.path
+        textures[role] = value.resolvedPath or value.path
+    factors = {name: float(_get(prim, f"baked:{name}")) for name in FACTORS}
+    res = _get(prim, "baked:resolution")
+    results = BakeResults(
+        model=str(_get(prim, "baked:model")),
+        ratio=str(_get(prim, "baked:ratio")),
+        solver=str(_get(prim, "baked:solver")),
+        uv_primvar=str(_get(prim, "baked:uvPrimvar")),
+        resolution=(int(res[0]), int(res[1])),
+        textures=textures,
+        factors=factors,
+        tangent_frame=str(_get(prim, "baked:tangentFrame")),
+        content_hash=str(_get(prim, "baked:contentHash")),
+        part_hashes=_parse_json(prim, "baked:partHashes"),
+        settings=_parse_json(prim, "baked:settings"),
+        generator=str(_get(prim, "baked:generator")),
+        format_version=int(_get(prim, "baked:formatVersion")),
+        asset_paths=assets,
+    )
+    if validate:
+        problems = result_problems(results)
+        if problems:
+            raise SchemaError(f"{_prim_label(prim)}: invalid bake record: " + "; ".join(problems))
+    return results

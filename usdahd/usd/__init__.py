@@ -1,4 +1,1 @@
-"""Everything that touches pxr: plugin registration, schema helpers, scene extraction, authoring.
-
-Numerics (``usdahd.sh``, ``usdahd.models``) never import this package.
-"""
+"""USD stage access: scene extraction, schema helpers, authoring, validation rules."""

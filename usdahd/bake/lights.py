@@ -1,0 +1,416 @@
+"""Light sources in UsdLux units, with the sampling routines the integrator needs (numpy only).
+
+Units (UsdLux "light units", applied in :mod:`usdahd.usd.scene` when a light is built):
+``L = intensity * 2^exposure * color (* blackbody(colorTemperature)) * diffuse``;
+``normalize`` divides L by the world-space emitting area of sphere/disk/rect/cylinder lights and
+makes a DistantLight's intensity its illuminance at normal incidence. Every class below stores
+the final world-space emitted radiance ``radiance`` (3,) (or, for delta lights, the quantity
+documented on the class), so the integrator never sees UsdLux attributes.
+
+Common vectorized interface (``m`` query points / rays, float64):
+
+- ``sample(p, u) -> (dirs (m,3), dist (m,), value (m,3), pdf (m,))``: a direction from ``p``
+  towards the light. For area/infinite lights ``value`` is the radiance arriving along it (zero
+  for back faces) and ``pdf`` its solid-angle density (0 when invalid). For delta lights
+  (``delta = True``) ``pdf`` is 1 and ``value`` is the integral of radiance over the
+  (vanishing) solid angle, i.e. the irradiance at normal incidence.
+- ``intersect(o, d) -> (hit (m,) bool, t (m,), radiance (m,3))``: does a ray see the emitter,
+  at which distance (inf for distant/dome), with which radiance (front faces only).
+- ``pdf(o, d, t) -> (m,)``: the solid-angle pdf ``sample`` would have produced that direction
+  with (only called where ``intersect`` hit).
+
+Lights do not occlude each other or geometry (they are not in the BVH), the usual convention.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from usdahd.sampling import concentric_disk, orthonormal_basis, sample_discrete, to_world
+
+TWO_PI = 2.0 * np.pi
+
+
+def _norm(v):
+    return np.sqrt(np.einsum("...i,...i->...", v, v))
+
+
+def _cone_dirs(axis, one_minus_cos_max, u):
+    """Uniform cone sampling around per-query unit ``axis`` (m,3); stable for tiny cones."""
+    z = 1.0 - u[..., 0] * one_minus_cos_max
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(u[..., 0] * one_minus_cos_max * (1.0 + z), 0.0, None))  # sqrt(1-z^2)
+    local = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+    return to_world(local, orthonormal_basis(axis))
+
+
+@dataclass
+class Light:
+    """Base: ``path`` (prim path), ``radiance`` (3,) float64 (meaning per subclass)."""
+
+    path: str
+    radiance: np.ndarray
+    delta = False
+    infinite = False
+    #: False for lights that NEE need not sample (a uniform dome is better covered by
+    #: hemisphere sampling alone).
+    sampled = True
+
+    def power_hint(self) -> float:  # pragma: no cover - informational
+        return float(np.mean(self.radiance))
+
+
+@dataclass
+class SphereLight(Light):
+    """Uniformly emitting sphere: ``center`` (3,), ``radius`` (world units)."""
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    radius: float = 0.5
+
+    def _omc(self, p):
+        w = self.center - p
+        d2 = np.einsum("ij,ij->i", w, w)
+        r2 = self.radius * self.radius
+        outside = d2 > r2
+        sin2 = np.where(outside, r2 / np.where(outside, d2, 1.0), 1.0)
+        cos_max = np.sqrt(np.clip(1.0 - sin2, 0.0, None))
+        omc = sin2 / (1.0 + cos_max)  # 1 - cos_max without cancellation
+        return w, d2, outside, omc
+
+    def sample(self, p, u):
+        w, d2, outside, omc = self._omc(p)
+        axis = w / np.sqrt(np.maximum(d2, 1e-300))[:, None]
+        dirs = _cone_dirs(axis, omc, u)
+        t = self._hit_t(p, dirs)
+        t = np.where(np.isfinite(t), t, np.sqrt(d2))
+        pdf = np.where(outside, 1.0 / (TWO_PI * np.maximum(omc, 1e-300)), 0.0)
+        value = np.where(outside[:, None], self.radiance[None, :], 0.0)
+        return dirs, t, value, pdf
+
+    def _hit_t(self, o, d):
+        oc = o - self.center
+        b = np.einsum("ij,ij->i", oc, d)
+        c = np.einsum("ij,ij->i", oc, oc) - self.radius * self.radius
+        disc = b * b - c
+        ok = (disc >= 0) & (c > 0)
+        t = -b - np.sqrt(np.where(ok, disc, 0.0))
+        return np.where(ok & (t > 0), t, np.inf)
+
+    def intersect(self, o, d):
+        t = self._hit_t(o, d)
+        hit = np.isfinite(t)
+        rad = np.where(hit[:, None], self.radiance[None, :], 0.0)
+        return hit, t, rad
+
+    def pdf(self, o, d, t):
+        _, _, outside, omc = self._omc(o)
+        return np.where(outside, 1.0 / (TWO_PI * np.maximum(omc, 1e-300)), 0.0)
+
+
+@dataclass
+class PointLight(Light):
+    """A SphereLight with ``treatAsPoint``: delta light at ``center``.
+
+    ``radiance`` here is the radiant intensity I = L * pi * r^2 (the far field of the sphere it
+    replaces, so both give the same irradiance I cos / d^2 outside the sphere).
+    """
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    delta = True
+
+    def sample(self, p, u):
+        w = self.center - p
+        dist = _norm(w)
+        dirs = w / np.maximum(dist, 1e-300)[:, None]
+        value = self.radiance[None, :] / np.maximum(dist * dist, 1e-300)[:, None]
+        return dirs, dist, value, np.ones(len(p))
+
+    def intersect(self, o, d):
+        n = len(o)
+        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+
+    def pdf(self, o, d, t):
+        return np.zeros(len(o))
+
+
+@dataclass
+class _PlanarLight(Light):
+    """Rect or disk: ``center`` (3,), half-axes ``ex``, ``ey`` (3,) world vectors,
+    emission direction ``normal`` (3,) unit (the light's -Z in world space)."""
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ex: np.ndarray = field(default_factory=lambda: np.array([0.5, 0, 0]))
+    ey: np.ndarray = field(default_factory=lambda: np.array([0, 0.5, 0]))
+    normal: np.ndarray = field(default_factory=lambda: np.array([0, 0, -1.0]))
+
+    def __post_init__(self):
+        g = np.array(
+            [[self.ex @ self.ex, self.ex @ self.ey], [self.ey @ self.ex, self.ey @ self.ey]]
+        )
+        self._ginv = np.linalg.inv(g)
+        n = np.cross(self.ex, self.ey)
+        self._pn = n / np.linalg.norm(n)
+
+    @property
+    def area(self) -> float:
+        raise NotImplementedError
+
+    def _unit(self, u):
+        raise NotImplementedError
+
+    def _inside(self, a, b):
+        raise NotImplementedError
+
+    def sample(self, p, u):
+        ab = self._unit(u)
+        q = self.center + ab[:, :1] * self.ex + ab[:, 1:2] * self.ey
+        w = q - p
+        dist = _norm(w)
+        dirs = w / np.maximum(dist, 1e-300)[:, None]
+        cos_l = -(dirs @ self.normal)
+        front = cos_l > 0
+        pdf = np.where(front, dist * dist / (self.area * np.where(front, cos_l, 1.0)), 0.0)
+        value = np.where(front[:, None], self.radiance[None, :], 0.0)
+        return dirs, dist, value, pdf
+
+    def intersect(self, o, d):
+        den = d @ self._pn
+        ok = np.abs(den) > 1e-12
+        t = np.where(ok, ((self.center - o) @ self._pn) / np.where(ok, den, 1.0), -1.0)
+        q = o + t[:, None] * d - self.center
+        rhs = np.stack([q @ self.ex, q @ self.ey], axis=-1)
+        ab = rhs @ self._ginv.T
+        front = -(d @ self.normal) > 0
+        hit = ok & (t > 0) & front & self._inside(ab[:, 0], ab[:, 1])
+        t = np.where(hit, t, np.inf)
+        return hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0)
+
+    def pdf(self, o, d, t):
+        cos_l = -(d @ self.normal)
+        ok = (cos_l > 0) & np.isfinite(t)
+        return np.where(ok, t * t / (self.area * np.where(ok, cos_l, 1.0)), 0.0)
+
+
+@dataclass
+class RectLight(_PlanarLight):
+    """UsdLuxRectLight: width along ``2*ex``, height along ``2*ey``, emits towards ``normal``."""
+
+    @property
+    def area(self) -> float:
+        return float(4.0 * np.linalg.norm(np.cross(self.ex, self.ey)))
+
+    def _unit(self, u):
+        return 2.0 * u - 1.0
+
+    def _inside(self, a, b):
+        return (np.abs(a) <= 1.0) & (np.abs(b) <= 1.0)
+
+
+@dataclass
+class DiskLight(_PlanarLight):
+    """UsdLuxDiskLight: ellipse ``center + a ex + b ey``, a^2 + b^2 <= 1, emits to ``normal``."""
+
+    @property
+    def area(self) -> float:
+        return float(np.pi * np.linalg.norm(np.cross(self.ex, self.ey)))
+
+    def _unit(self, u):
+        return concentric_disk(u)
+
+    def _inside(self, a, b):
+        return a * a + b * b <= 1.0
+
+
+@dataclass
+class CylinderLight(Light):
+    """UsdLuxCylinderLight: axis ``axis`` (unit, the light's X), ``half_length``, ``radius``.
+    Emits outwards from the side only (no end caps), as the schema says."""
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    axis: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0]))
+    half_length: float = 0.5
+    radius: float = 0.5
+
+    def __post_init__(self):
+        f = orthonormal_basis(self.axis[None, :])[0]
+        self._e1, self._e2 = f[0], f[1]
+
+    @property
+    def area(self) -> float:
+        return float(TWO_PI * self.radius * 2.0 * self.half_length)
+
+    def sample(self, p, u):
+        x = (2.0 * u[:, 0] - 1.0) * self.half_length
+        phi = TWO_PI * u[:, 1]
+        radial = np.cos(phi)[:, None] * self._e1 + np.sin(phi)[:, None] * self._e2
+        q = self.center + x[:, None] * self.axis + self.radius * radial
+        w = q - p
+        dist = _norm(w)
+        dirs = w / np.maximum(dist, 1e-300)[:, None]
+        cos_l = -np.einsum("ij,ij->i", dirs, radial)
+        front = cos_l > 0
+        pdf = np.where(front, dist * dist / (self.area * np.where(front, cos_l, 1.0)), 0.0)
+        return dirs, dist, np.where(front[:, None], self.radiance[None, :], 0.0), pdf
+
+    def _hit(self, o, d):
+        oc = o - self.center
+        op = oc - (oc @ self.axis)[:, None] * self.axis
+        dp = d - (d @ self.axis)[:, None] * self.axis
+        a = np.einsum("ij,ij->i", dp, dp)
+        b = np.einsum("ij,ij->i", op, dp)
+        c = np.einsum("ij,ij->i", op, op) - self.radius**2
+        disc = b * b - a * c
+        ok = (a > 1e-18) & (disc >= 0) & (c > 0)
+        t = (-b - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, a, 1.0)
+        x = (oc + t[:, None] * d) @ self.axis
+        hit = ok & (t > 0) & (np.abs(x) <= self.half_length)
+        return hit, np.where(hit, t, np.inf), oc + t[:, None] * d - x[:, None] * self.axis
+
+    def intersect(self, o, d):
+        hit, t, _ = self._hit(o, d)
+        return hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0)
+
+    def pdf(self, o, d, t):
+        hit, t2, radial = self._hit(o, d)
+        cos_l = -np.einsum("ij,ij->i", d, radial) / self.radius
+        ok = hit & (cos_l > 0)
+        return np.where(ok, t2 * t2 / (self.area * np.where(ok, cos_l, 1.0)), 0.0)
+
+
+@dataclass
+class DistantLight(Light):
+    """UsdLuxDistantLight. ``direction`` (3,) unit vector *towards* the light (its +Z).
+
+    ``half_angle`` > 0: a disc of radiance ``radiance`` subtending that half-angle (radians).
+    ``half_angle`` == 0: a delta light whose ``radiance`` holds the illuminance at normal
+    incidence.
+    """
+
+    direction: np.ndarray = field(default_factory=lambda: np.array([0, 0, 1.0]))
+    half_angle: float = 0.0
+    infinite = True
+
+    def __post_init__(self):
+        self.delta = self.half_angle <= 0.0
+        s = np.sin(self.half_angle / 2.0)
+        self._omc = 2.0 * s * s  # 1 - cos(half_angle)
+        self._cos_max = 1.0 - self._omc
+
+    def sample(self, p, u):
+        n = len(p)
+        if self.delta:
+            dirs = np.broadcast_to(self.direction, (n, 3)).copy()
+            return dirs, np.full(n, np.inf), np.broadcast_to(self.radiance, (n, 3)), np.ones(n)
+        axis = np.broadcast_to(self.direction, (n, 3))
+        dirs = _cone_dirs(axis, self._omc, u)
+        pdf = np.full(n, 1.0 / (TWO_PI * self._omc))
+        return dirs, np.full(n, np.inf), np.broadcast_to(self.radiance, (n, 3)), pdf
+
+    def intersect(self, o, d):
+        n = len(o)
+        if self.delta:
+            return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+        hit = d @ self.direction >= self._cos_max
+        return hit, np.full(n, np.inf), np.where(hit[:, None], self.radiance[None, :], 0.0)
+
+    def pdf(self, o, d, t):
+        if self.delta:
+            return np.zeros(len(o))
+        hit = d @ self.direction >= self._cos_max
+        return np.where(hit, 1.0 / (TWO_PI * self._omc), 0.0)
+
+
+@dataclass
+class DomeLight(Light):
+    """UsdLuxDomeLight: uniform ``radiance`` (3,), optionally times a latlong ``image``.
+
+    image : (h, w, 3) float32 linear radiance multipliers or None (OpenEXR latlong layout:
+        column 0 = longitude +pi, row 0 = latitude +pi/2, longitude 0 = local +Z, pi/2 = +X,
+        pole = local +Y).
+    rotation : (3, 3) world-from-dome rotation (dome transform and pole alignment).
+    Textured domes are importance sampled by a piecewise-constant 2-D CDF over
+    luminance * sin(theta); uniform domes are left to hemisphere sampling (``sampled`` False).
+    """
+
+    image: np.ndarray | None = None
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    infinite = True
+
+    def __post_init__(self):
+        self.sampled = self.image is not None
+        if self.image is None:
+            return
+        img = np.asarray(self.image, dtype=np.float64)
+        h, w = img.shape[:2]
+        self._img = img
+        theta = np.pi * (np.arange(h) + 0.5) / h
+        lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+        wgt = np.maximum(lum, 0.0) * np.sin(theta)[:, None]
+        if not np.any(wgt > 0):
+            wgt = np.ones_like(wgt) * np.sin(theta)[:, None]
+        flat = wgt.reshape(-1)
+        self._pmf = flat / flat.sum()
+        self._cdf = np.cumsum(self._pmf)
+        self._cdf[-1] = 1.0
+        self._inv_rot = np.linalg.inv(self.rotation)
+
+    def _lookup(self, d):
+        loc = d @ self._inv_rot.T
+        loc /= np.maximum(_norm(loc), 1e-300)[:, None]
+        h, w = self._img.shape[:2]
+        lat = np.arcsin(np.clip(loc[:, 1], -1.0, 1.0))
+        lon = np.arctan2(loc[:, 0], loc[:, 2])
+        x = np.clip(((np.pi - lon) / TWO_PI * w).astype(np.int64), 0, w - 1)
+        y = np.clip(((0.5 * np.pi - lat) / np.pi * h).astype(np.int64), 0, h - 1)
+        return x, y
+
+    def eval(self, d):
+        """Radiance arriving along world directions ``d`` (m,3) -> (m,3)."""
+        if self.image is None:
+            return np.broadcast_to(self.radiance, d.shape).copy()
+        x, y = self._lookup(d)
+        return self._img[y, x, :3] * self.radiance[None, :]
+
+    def sample(self, p, u):
+        n = len(p)
+        h, w = self._img.shape[:2]
+        # Reuse u[:,0] for the pixel choice and a stratified remainder for the jitter.
+        idx = sample_discrete(self._cdf, u[:, 0])
+        lo = np.where(idx > 0, self._cdf[np.maximum(idx - 1, 0)], 0.0)
+        frac = np.clip((u[:, 0] - lo) / np.maximum(self._pmf[idx], 1e-300), 0.0, 1.0 - 1e-12)
+        y, x = np.divmod(idx, w)
+        theta = np.pi * (y + frac) / h
+        lon = np.pi - TWO_PI * (x + u[:, 1]) / w
+        lat = 0.5 * np.pi - theta
+        loc = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], axis=-1)
+        dirs = loc @ self.rotation.T
+        dirs /= _norm(dirs)[:, None]
+        pdf = self._pmf[idx] * (h * w) / (2.0 * np.pi * np.pi * np.maximum(np.sin(theta), 1e-12))
+        value = self._img[y, x, :3] * self.radiance[None, :]
+        return dirs, np.full(n, np.inf), value, pdf
+
+    def intersect(self, o, d):
+        n = len(o)
+        return np.ones(n, bool), np.full(n, np.inf), self.eval(d)
+
+    def pdf(self, o, d, t):
+        if self.image is None:
+            return np.zeros(len(o))
+        h, w = self._img.shape[:2]
+        x, y = self._lookup(d)
+        loc = d @ self._inv_rot.T
+        sin_t = np.sqrt(np.clip(1.0 - (loc[:, 1] / np.maximum(_norm(loc), 1e-300)) ** 2, 0, 1))
+        return self._pmf[y * w + x] * (h * w) / (2.0 * np.pi * np.pi * np.maximum(sin_t, 1e-12))
+
+
+LIGHT_TYPES = (
+    SphereLight,
+    PointLight,
+    RectLight,
+    DiskLight,
+    CylinderLight,
+    DistantLight,
+    DomeLight,
+)

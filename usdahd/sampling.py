@@ -1,0 +1,152 @@
+"""Direction samplers with their pdfs and low-discrepancy point sets (numpy only).
+
+Every sampler maps uniform numbers ``u`` in [0, 1)^2 to unit directions and returns the
+solid-angle pdf of the direction it produced, so callers can combine strategies with
+multiple importance sampling. Local frames are z-up: ``z`` is the surface normal.
+
+Low discrepancy: the R2 sequence (Roberts 2018, the 2-D generalisation of the golden ratio
+sequence) gives one well-spread point set that all texels share; each texel gets an
+independent Cranley-Patterson rotation (a random toroidal shift), which keeps the point set's
+stratification while making per-texel estimates independent and unbiased.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+#: Plastic number: the R2 sequence's generator (x^3 = x + 1).
+_PLASTIC = 1.324717957244746025960908854
+R2_ALPHA = np.array([1.0 / _PLASTIC, 1.0 / (_PLASTIC * _PLASTIC)])
+
+
+def r2_sequence(n: int, offset: int = 0) -> np.ndarray:
+    """First ``n`` points of the R2 low-discrepancy sequence in [0, 1)^2.
+
+    returns : (n, 2) float64.
+    """
+    i = np.arange(offset + 1, offset + n + 1, dtype=np.float64)[:, None]
+    return np.mod(0.5 + i * R2_ALPHA[None, :], 1.0)
+
+
+def cranley_patterson(points: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """Toroidally shift one point set by one random offset per group.
+
+    points : (s, d) in [0,1); shifts : (m, d) in [0,1).
+    returns : (m, s, d) float64 in [0,1).
+    """
+    return np.mod(points[None, :, :] + shifts[:, None, :], 1.0)
+
+
+def uniform_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform directions on the z >= 0 hemisphere (equal-area map: z = u0).
+
+    u : (..., 2).  returns : dirs (..., 3), pdf (...,) = 1/(2 pi).
+    """
+    z = u[..., 0]
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+    return d, np.full(z.shape, 1.0 / TWO_PI)
+
+
+def cosine_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine-weighted directions on the z >= 0 hemisphere (Malley's method).
+
+    u : (..., 2).  returns : dirs (..., 3), pdf (...,) = z / pi.
+    """
+    r = np.sqrt(u[..., 0])
+    phi = TWO_PI * u[..., 1]
+    z = np.sqrt(np.clip(1.0 - u[..., 0], 0.0, None))
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+    return d, z / np.pi
+
+
+def uniform_sphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform directions on the unit sphere.
+
+    u : (..., 2).  returns : dirs (..., 3), pdf (...,) = 1/(4 pi).
+    """
+    z = 1.0 - 2.0 * u[..., 0]
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+    return d, np.full(z.shape, 1.0 / (4.0 * np.pi))
+
+
+def uniform_cone(u: np.ndarray, cos_max: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform directions in the cone of half-angle acos(cos_max) around +z.
+
+    u : (..., 2); cos_max : broadcastable to (...,), in [-1, 1).
+    returns : dirs (..., 3), pdf (...,) = 1 / (2 pi (1 - cos_max)).
+    """
+    cos_max = np.asarray(cos_max, dtype=np.float64)
+    z = 1.0 - u[..., 0] * (1.0 - cos_max)
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+    pdf = np.broadcast_to(1.0 / (TWO_PI * (1.0 - cos_max)), z.shape)
+    return d, np.array(pdf)
+
+
+def cone_pdf(cos_max: np.ndarray | float) -> np.ndarray:
+    """Solid-angle pdf of :func:`uniform_cone`."""
+    return 1.0 / (TWO_PI * (1.0 - np.asarray(cos_max, dtype=np.float64)))
+
+
+def concentric_disk(u: np.ndarray) -> np.ndarray:
+    """Shirley-Chiu concentric map of the unit square onto the unit disk (area preserving).
+
+    u : (..., 2).  returns : (..., 2) points with |p| <= 1, uniform in area.
+    """
+    a = 2.0 * u[..., 0] - 1.0
+    b = 2.0 * u[..., 1] - 1.0
+    first = np.abs(a) > np.abs(b)
+    safe_a = np.where(a == 0, 1.0, a)
+    safe_b = np.where(b == 0, 1.0, b)
+    r = np.where(first, a, b)
+    theta = np.where(first, (np.pi / 4) * (b / safe_a), (np.pi / 2) - (np.pi / 4) * (a / safe_b))
+    return np.stack([r * np.cos(theta), r * np.sin(theta)], axis=-1)
+
+
+def orthonormal_basis(n: np.ndarray) -> np.ndarray:
+    """Right-handed orthonormal frames whose third row is ``n`` (Duff et al. 2017, branchless).
+
+    n : (..., 3) unit vectors.  returns : (..., 3, 3) rows = tangent, bitangent, n.
+    """
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    t = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
+    bt = np.stack([b, sign + y * y * a, -y], axis=-1)
+    return np.stack([t, bt, n], axis=-2)
+
+
+def to_world(local: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """Local (frame) coordinates to world: ``local @ frame``.
+
+    local : (..., 3); frame : (..., 3, 3) rows = axes.  returns : (..., 3).
+    """
+    return np.einsum("...i,...ij->...j", local, frame)
+
+
+def to_local(world: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """World directions into frame coordinates: ``frame @ world``."""
+    return np.einsum("...ij,...j->...i", frame, world)
+
+
+def sample_discrete(cdf: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Indices drawn from a discrete distribution given its normalized CDF.
+
+    cdf : (k,) non-decreasing, last element 1.  u : (...,) in [0,1).
+    returns : (...,) int64 in [0, k).
+    """
+    idx = np.searchsorted(cdf, u, side="right")
+    return np.minimum(idx, cdf.shape[0] - 1)
+
+
+def balance_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
+    """MIS balance-heuristic weight of strategy a: ``pa / (pa + pb)`` (0 where both are 0)."""
+    den = pdf_a + pdf_b
+    return np.divide(pdf_a, den, out=np.zeros_like(den, dtype=np.float64), where=den > 0)

@@ -71,8 +71,9 @@ FORMAT_VERSION = 1
 KNOWN_FORMAT_VERSIONS = (1,)
 #: allowedTokens of ``ahdLightmap:model`` / ``ahdLightmap:baked:model`` (= models.REGISTRY).
 MODELS = tuple(REGISTRY)
-#: allowedTokens of ``ahdLightmap:ratio`` / ``ahdLightmap:baked:ratio``.
-RATIOS = ("luminance", "rgb", "none")
+#: allowedTokens of ``ahdLightmap:ratio`` / ``ahdLightmap:baked:ratio`` (IrradZ ratio types,
+#: "none", and the sh_l1 variants, which models.sh_l1 takes in the ratio slot).
+RATIOS = ("luminance", "rgb", "none", "linear", "nonlinear", "8bit")
 #: allowedTokens of ``ahdLightmap:baked:tangentFrame``.
 TANGENT_FRAMES = ("mikktspace_uv",)
 #: Role name of the radiance SH sidecar (``ahdLightmap:sidecar:sh``), next to the texture ROLES.
@@ -91,7 +92,14 @@ COLOR_SPACES = {
     SIDECAR_ROLE: "raw",
 }
 #: Scalar decode factors (a model's ``encode`` returns them by these names) and their fallbacks.
-FACTORS = {"izScale": 1.0, "colorScale": 1.0, "ratioScale": 1.0}
+FACTORS = {
+    "izScale": 1.0,
+    "ratioScale": 1.0,
+    "ambientScale": 1.0,
+    "directionalScale": 1.0,
+    "coefficientsScale": 1.0,
+    "l0Scale": 1.0,
+}
 #: Channel names of the SH sidecar EXR (float32): radiance SH of R, G, B (coefficient order of
 #: usdahd.sh, so reshape (..., 3, 9)), then coverage A (1 = texel baked, 0 = empty). Look
 #: channels up by name: EXR files store them sorted.

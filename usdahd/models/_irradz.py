@@ -1,0 +1,785 @@
+"""Shared machinery of the IrradZ lighting models (AHD, HHD, HLSH): fit, evaluate, encode.
+
+IrradZ parameters per texel (Sloan & Silvennoinen 2018; Roughton et al. 2024 §2.2):
+``iz`` (n, 3) irradiance in local z, ``direction`` d (n, 3) unit with d_z >= 1/127, and the
+ambient ratio ``ambient_ratio`` w_a, (n, 1) (``ratio="luminance"``) or (n, 3) (``"rgb"``).
+The model colours are ``C_a = I_z w_a`` and ``C_d = I_z (1 - w_a) / d_z`` so that
+``I(z) = I_z`` exactly for every w_a, in every channel.
+
+- AHD:  I(n) = C_a + max(0, n.d) C_d
+- HHD:  I(n) = (n_z + 1)/2 C_a + max(0, n.d) C_d        (2024 Eq 6)
+- HLSH: I(n) = C_a + (n.d) C_d, w_a unconstrained       (2024 Eq 12)
+
+Solvers (each documented with cost and error in docs/models.md):
+
+``golden``       2024 §4.2: golden-section search for d_z along the optimal-linear phi, with the
+                 closed-form ratio (Eq 33) at every step, hemispherical Gram error.
+``golden_phi``   the same with an outer golden-section search on phi.
+``2018_sphere``  2018 Eq 9-12: optimal linear direction, colours on the null-space line of the
+                 I_z constraint, t clamped to [t_min, t_max]; E(t) is quadratic, so closed form;
+                 spherical (identity Gram) error.
+``2018_hemi``    the same with the hemispherical Gram error.
+``direct``       HHD from linear SH (2024 Eq 7-11 with the corrected Eq 10 and 56), HLSH by the
+                 IrradZ-constrained least squares (Eq 19-22, corrected G_BY signs, Eq 20 over
+                 Omega+).
+
+Numerical safeguards (each tested): per-texel normalisation by max |coefficient|; the ratio is
+solved as C_d (equivalently c = C_d / I_z, bounded by 1/d_z) rather than in the literal Eq 31-33
+form whose terms grow like 1/d_z^2; non-finite input -> black output and ``invalid = 1``;
+I_z <= IZ_TINY (relative) -> w_a = 1, d = z; I_z < 0 -> 0; d_z >= DZ_FLOOR;
+w_a >= WA_ONE -> d = z.
+
+The fitted parameters are float32 ``iz``, ``direction``, ``ambient_ratio`` and ``invalid``
+((n, 1), 1.0 where the input texel held NaN/Inf and was output black).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from usdahd import encoding
+from usdahd import sh as shm
+from usdahd.errors import InputError, UsageError
+from usdahd.models.base import TextureLayout
+
+# ---------------------------------------------------------------------------------------------
+# Tolerances, in one place, with the reason for each.
+#: Smallest d_z: an 8-bit hemi-octahedral code cannot decode anything closer to the horizon
+#: (encoding.OCT_CODE_MAX), and C_d = I_z (1 - w_a) / d_z must stay finite.
+DZ_FLOOR = 1.0 / 127.0
+#: I_z at or below this fraction of the texel's max |coefficient| is treated as zero light:
+#: w_a = 1, d = z (w_a = C_a / I_z is meaningless there). 1e-7 ~ float32 epsilon.
+IZ_TINY = 1e-7
+#: w_a this close to 1 means no directional light: d is set to z (its value is then arbitrary
+#: and would only add quantization noise and interpolation artifacts).
+WA_ONE = 1.0 - 1e-7
+#: Golden-section settings: a coarse uniform scan of d_z brackets the minimum (E(d_z) is not
+#: always unimodal), then golden-section iterations shrink the bracket by 0.618 each; 8 + 16
+#: steps locate d_z to ~3e-4, far below the 8-bit direction quantization (~1e-2).
+GOLDEN_SCAN = 8
+GOLDEN_ITERS = 16
+#: Outer phi search (golden_phi): half-width of the phi interval around the optimal-linear phi,
+#: scan and golden steps. The optimal-linear phi is also evaluated, so the result is never worse.
+PHI_HALF_WIDTH = np.pi / 3.0
+PHI_SCAN = 6
+PHI_ITERS = 10
+#: Largest float32, for clipping rescaled outputs of x1e200 inputs.
+F32_MAX = float(np.finfo(np.float32).max)
+
+KINDS = ("ahd", "hhd", "hlsh")
+SOLVERS = {
+    "ahd": ("golden", "golden_phi", "2018_sphere", "2018_hemi"),
+    "hhd": ("golden", "golden_phi", "direct", "2018_sphere", "2018_hemi"),
+    "hlsh": ("direct",),
+}
+
+# ---------------------------------------------------------------------------------------------
+# Constants of the models in (normalized) irradiance SH. Each is checked by quadrature in
+# tests/test_models_irradz.py and tests/test_irradz_corrections.py.
+SQRT_PI = np.sqrt(np.pi)
+#: Irradiance SH of a unit ambient light (AHD): constant 1 -> Y00 coefficient 2 sqrt(pi).
+AMB_AHD = np.array([2.0 * SQRT_PI, 0, 0, 0, 0, 0, 0, 0, 0])
+#: Irradiance SH of a unit hemisphere light around z (HHD): radiance SH of 2024 Eq 42
+#: [sqrt(pi), 0, sqrt(3 pi)/2, 0, 0...] times the cosine factors [1, 2/3, 1/4]; the band-1
+#: value is sqrt(3 pi)/3 (2024 Eq 43 prints sqrt(3) pi / 3, which is wrong).
+AMB_HHD = np.array([SQRT_PI, 0, np.sqrt(3.0 * np.pi) / 3.0, 0, 0, 0, 0, 0, 0])
+#: I_z from the radiance l_1^0 of hemispherical data, 2/sqrt(3 pi) (2024 Eq 28 prints
+#: 2/(sqrt(3) pi), which is wrong).
+IZ_FROM_L10 = 2.0 / np.sqrt(3.0 * np.pi)
+#: G_BY of 2024 Eq 21 with corrected signs: rows B = (1 - z, x, y), columns the 9 SH functions,
+#: integrated over the upper hemisphere.
+G_BY = np.zeros((3, 9))
+G_BY[0, 0] = SQRT_PI / 2.0
+G_BY[0, 2] = np.sqrt(np.pi / 12.0)
+G_BY[0, 6] = -np.sqrt(5.0 * np.pi) / 8.0
+G_BY[1, 3] = -np.sqrt(np.pi / 3.0)
+G_BY[1, 7] = -np.sqrt(15.0 * np.pi) / 8.0
+G_BY[2, 1] = -np.sqrt(np.pi / 3.0)
+G_BY[2, 5] = -np.sqrt(15.0 * np.pi) / 8.0
+#: 2024 Eq 20 (over Omega+): integral of B(w) w_z over the upper hemisphere = (pi/3, 0, 0).
+B_Z = np.array([np.pi / 3.0, 0.0, 0.0])
+#: G_B = integral over Omega+ of B B^T = (2 pi / 3) I.
+G_B_SCALE = 2.0 * np.pi / 3.0
+
+#: Off-diagonal index pairs of the hemispherical Gram matrix (all others are zero, tested).
+GRAM_PAIRS = np.array([[0, 2], [1, 5], [2, 6], [3, 7]])
+GRAM_I = GRAM_PAIRS[:, 0].copy()
+GRAM_J = GRAM_PAIRS[:, 1].copy()
+
+
+def gram_hemi() -> np.ndarray:
+    """Hemispherical Gram matrix (9, 9) float64 (usdahd.sh.hemispherical_gram, cached)."""
+    global _GRAM
+    if _GRAM is None:
+        _GRAM = shm.hemispherical_gram()
+    return _GRAM
+
+
+_GRAM = None
+
+
+def _sparse_gram(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(diag (9,), off (4,)) for the GRAM_PAIRS structure; identity -> (ones, zeros)."""
+    return np.ascontiguousarray(np.diag(g)), np.array([g[i, j] for i, j in GRAM_PAIRS])
+
+
+# ---------------------------------------------------------------------------------------------
+# numba kernels. The directional light of colour C_d in direction d has irradiance SH
+# C_d * pi * conv(Y(d)); with the I_z constraint C_a = I_z - d_z C_d the model is
+#   M = I_z a + C_d u,   u = pi conv(Y(d)) - d_z a,
+# so for a target t the hemispherical error is E(C_d) = e0 - 2 C_d p + C_d^2 q with
+# e0 = r^T G r, r = t - I_z a, p = u^T G r, q = u^T G u: quadratic, minimised in closed form
+# (this is Eq 33 solved for C_d = c I_z; w_a = 1 - c d_z) and clipped to the feasible
+# interval C_d in [0, I_z / d_z] <=> w_a in [0, 1] <=> 2018's t in [t_min, t_max].
+
+_PK0 = np.pi * shm.C0
+_PK1 = np.pi * (2.0 / 3.0) * shm.C1
+_PK2 = np.pi * 0.25 * shm.C2
+_PK20 = np.pi * 0.25 * shm.C20
+_PK22 = np.pi * 0.25 * shm.C22
+
+
+@njit(cache=True, fastmath=False)
+def _dir_error(dx, dy, dz, gt, e0, iz, nc, amb, gd, go, constrain, u, cd):
+    """Error of the best colours for direction d; writes C_d per channel into cd."""
+    u[0] = _PK0 - dz * amb[0]
+    u[1] = -_PK1 * dy - dz * amb[1]
+    u[2] = _PK1 * dz - dz * amb[2]
+    u[3] = -_PK1 * dx - dz * amb[3]
+    u[4] = _PK2 * dx * dy - dz * amb[4]
+    u[5] = -_PK2 * dy * dz - dz * amb[5]
+    u[6] = _PK20 * (3.0 * dz * dz - 1.0) - dz * amb[6]
+    u[7] = -_PK2 * dx * dz - dz * amb[7]
+    u[8] = _PK22 * (dx * dx - dy * dy) - dz * amb[8]
+    q = 0.0
+    for k in range(9):
+        q += gd[k] * u[k] * u[k]
+    q += 2.0 * (go[0] * u[0] * u[2] + go[1] * u[1] * u[5] + go[2] * u[2] * u[6])
+    q += 2.0 * go[3] * u[3] * u[7]
+    err = 0.0
+    for c in range(nc):
+        p = 0.0
+        for k in range(9):
+            p += gt[c, k] * u[k]
+        x = p / q if q > 0.0 else 0.0
+        if constrain:
+            hi = iz[c] / dz
+            if x > hi:
+                x = hi
+            if x < 0.0:
+                x = 0.0
+        cd[c] = x
+        err += e0[c] - 2.0 * x * p + x * x * q
+    return err
+
+
+@njit(cache=True, fastmath=False)
+def _search_dz(phi, lo, gt, e0, iz, nc, amb, gd, go, constrain, n_scan, n_iter, u, cd, cd_best):
+    """Scan + golden-section search of d_z in [lo, 1] at azimuth phi; best C_d in cd_best."""
+    cph = np.cos(phi)
+    sph = np.sin(phi)
+    best_e = np.inf
+    best_z = 1.0
+    best_j = 0
+    step = (1.0 - lo) / (n_scan - 1)
+    for j in range(n_scan):
+        z = lo + step * j
+        s = np.sqrt(max(0.0, 1.0 - z * z))
+        e = _dir_error(s * cph, s * sph, z, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+        if e < best_e:
+            best_e = e
+            best_z = z
+            best_j = j
+            cd_best[:] = cd
+    a = lo + step * max(best_j - 1, 0)
+    b = lo + step * min(best_j + 1, n_scan - 1)
+    g = 0.6180339887498949
+    x1 = b - g * (b - a)
+    x2 = a + g * (b - a)
+    s1 = np.sqrt(max(0.0, 1.0 - x1 * x1))
+    s2 = np.sqrt(max(0.0, 1.0 - x2 * x2))
+    f1 = _dir_error(s1 * cph, s1 * sph, x1, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+    f2 = _dir_error(s2 * cph, s2 * sph, x2, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+    for _ in range(n_iter):
+        if f1 < f2:
+            b = x2
+            x2 = x1
+            f2 = f1
+            x1 = b - g * (b - a)
+            s1 = np.sqrt(max(0.0, 1.0 - x1 * x1))
+            f1 = _dir_error(s1 * cph, s1 * sph, x1, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+        else:
+            a = x1
+            x1 = x2
+            f1 = f2
+            x2 = a + g * (b - a)
+            s2 = np.sqrt(max(0.0, 1.0 - x2 * x2))
+            f2 = _dir_error(s2 * cph, s2 * sph, x2, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+    z = 0.5 * (a + b)
+    s = np.sqrt(max(0.0, 1.0 - z * z))
+    e = _dir_error(s * cph, s * sph, z, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
+    if e < best_e:
+        best_e = e
+        best_z = z
+        cd_best[:] = cd
+    return best_z, best_e
+
+
+_IZ_K = 2.0 / np.sqrt(3.0 * np.pi)
+_BC_K = 2.0 / np.sqrt(np.pi)
+_GB0 = SQRT_PI / 2.0
+_GB2 = np.sqrt(np.pi / 12.0)
+_GB6 = -np.sqrt(5.0 * np.pi) / 8.0
+_GB1 = -np.sqrt(np.pi / 3.0)
+_GB2X = -np.sqrt(15.0 * np.pi) / 8.0
+_GBS = 2.0 * np.pi / 3.0
+_COS1 = 2.0 / 3.0
+_COS2 = 0.25
+_LUM_R, _LUM_G, _LUM_B = (float(v) for v in shm.LUMINANCE)
+_CHUNK = 256
+
+#: solver codes of the kernel
+_FIXED, _GOLDEN, _GOLDEN_PHI, _DIRECT = 0, 1, 2, 3
+_KIND = {"ahd": 0, "hhd": 1, "hlsh": 2}
+
+
+@njit(cache=True, fastmath=False)
+def _floor_dir(d):
+    """In place: d_z >= DZ_FLOOR keeping the azimuth; returns True if d was moved."""
+    if d[2] >= DZ_FLOOR:
+        return False
+    nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
+    s = np.sqrt(1.0 - DZ_FLOOR * DZ_FLOOR)
+    if nxy > 0.0:
+        d[0] = d[0] / nxy * s
+        d[1] = d[1] / nxy * s
+    else:
+        d[0] = s
+        d[1] = 0.0
+    d[2] = DZ_FLOOR
+    return True
+
+
+@njit(cache=True, fastmath=False)
+def _set_unit(d, x, y, z):
+    nv = np.sqrt(x * x + y * y + z * z)
+    if nv > 0.0:
+        d[0] = x / nv
+        d[1] = y / nv
+        d[2] = z / nv
+    else:
+        d[0] = 0.0
+        d[1] = 0.0
+        d[2] = 1.0
+
+
+@njit(cache=True, fastmath=False)
+def _prep_gt(t, iz, nc, amb, gd, go, gt, e0, r):
+    """gt[c] = G (t_c - I_z,c a), e0[c] = (t_c - I_z,c a)^T G (t_c - I_z,c a)."""
+    for c in range(nc):
+        for k in range(9):
+            r[k] = t[c, k] - iz[c] * amb[k]
+        e = 0.0
+        for k in range(9):
+            gt[c, k] = gd[k] * r[k]
+            e += gd[k] * r[k] * r[k]
+        for m in range(4):
+            a = GRAM_I[m]
+            b = GRAM_J[m]
+            gt[c, a] += go[m] * r[b]
+            gt[c, b] += go[m] * r[a]
+            e += 2.0 * go[m] * r[a] * r[b]
+        e0[c] = e
+
+
+@njit(cache=True, fastmath=False)
+def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, u, cd, cdp, cdb):
+    """Golden d_z at phi0, then an outer scan + golden search of phi around it."""
+    bz, e = _search_dz(
+        phi0, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdb
+    )
+    bphi = phi0
+    pa = phi0 - PHI_HALF_WIDTH
+    pstep = 2.0 * PHI_HALF_WIDTH / (PHI_SCAN - 1)
+    bj = -1
+    for j in range(PHI_SCAN):
+        ph = pa + pstep * j
+        z, ej = _search_dz(
+            ph, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+        )
+        if ej < e:
+            e, bz, bphi, bj = ej, z, ph, j
+            cdb[:] = cdp
+    if bj >= 0:
+        a = pa + pstep * max(bj - 1, 0)
+        b = pa + pstep * min(bj + 1, PHI_SCAN - 1)
+    else:
+        a = phi0 - pstep
+        b = phi0 + pstep
+    g = 0.6180339887498949
+    for _ in range(PHI_ITERS):
+        x1 = b - g * (b - a)
+        x2 = a + g * (b - a)
+        z1, f1 = _search_dz(
+            x1, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+        )
+        if f1 < e:
+            e, bz, bphi = f1, z1, x1
+            cdb[:] = cdp
+        z2, f2 = _search_dz(
+            x2, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+        )
+        if f2 < e:
+            e, bz, bphi = f2, z2, x2
+            cdb[:] = cdp
+        if f1 < f2:
+            b = x2
+        else:
+            a = x1
+    return bz, bphi
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_bad):
+    """The whole per-texel fit. x : (n, 3, 9) float64 radiance SH; outputs float32
+    iz (n, 3), direction (n, 3), ambient ratio (n, 1|3), invalid (n,). See :func:`fit`."""
+    n = x.shape[0]
+    nc = 3 if rgb else 1
+    nchunk = (n + _CHUNK - 1) // _CHUNK
+    for ch in prange(nchunk):
+        xn = np.empty((3, 9))
+        t = np.empty((3, 9))
+        iz = np.empty(3)
+        st = np.empty((3, 9))  # signal: luminance (1 row) or rgb (3 rows) target irradiance
+        siz = np.empty(3)
+        gt = np.empty((3, 9))
+        e0 = np.empty(3)
+        r = np.empty(9)
+        u = np.empty(9)
+        cd = np.empty(3)
+        cdb = np.empty(3)
+        cdp = np.empty(3)
+        wa = np.empty(3)
+        lr = np.empty(9)
+        d = np.empty(3)
+        for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+            # -- normalise, detect NaN/Inf
+            m = 0.0
+            finite = True
+            for c in range(3):
+                for k in range(9):
+                    v = x[i, c, k]
+                    if not np.isfinite(v):
+                        finite = False
+                    elif abs(v) > m:
+                        m = abs(v)
+            if not finite or m == 0.0:
+                for c in range(3):
+                    out_iz[i, c] = 0.0
+                    out_d[i, c] = 0.0
+                for c in range(nc):
+                    out_wa[i, c] = 1.0
+                out_d[i, 2] = 1.0
+                out_bad[i] = 0.0 if finite else 1.0
+                continue
+            out_bad[i] = 0.0
+            inv = 1.0 / m
+            for c in range(3):
+                for k in range(9):
+                    xn[c, k] = x[i, c, k] * inv
+                    t[c, k] = xn[c, k] * (1.0 if k == 0 else (_COS1 if k < 4 else _COS2))
+                iz[c] = max(_IZ_K * xn[c, 2], 0.0)  # I_z < 0 (ringing, leaks) -> 0
+            for k in range(9):
+                lr[k] = _LUM_R * xn[0, k] + _LUM_G * xn[1, k] + _LUM_B * xn[2, k]
+            liz = _LUM_R * iz[0] + _LUM_G * iz[1] + _LUM_B * iz[2]
+            if rgb:
+                for c in range(3):
+                    siz[c] = iz[c]
+                    for k in range(9):
+                        st[c, k] = t[c, k]
+            else:
+                siz[0] = liz
+                for k in range(9):
+                    st[0, k] = _LUM_R * t[0, k] + _LUM_G * t[1, k] + _LUM_B * t[2, k]
+            for c in range(nc):
+                wa[c] = 1.0
+            if liz <= IZ_TINY:
+                d[0] = 0.0
+                d[1] = 0.0
+                d[2] = 1.0
+            elif kind == 2:  # HLSH direct (Eq 22), direction from luminance, w_a per channel
+                lt0 = _LUM_R * t[0, 0] + _LUM_G * t[1, 0] + _LUM_B * t[2, 0]
+                lt1 = _LUM_R * t[0, 1] + _LUM_G * t[1, 1] + _LUM_B * t[2, 1]
+                lt2 = _LUM_R * t[0, 2] + _LUM_G * t[1, 2] + _LUM_B * t[2, 2]
+                lt3 = _LUM_R * t[0, 3] + _LUM_G * t[1, 3] + _LUM_B * t[2, 3]
+                lt5 = _LUM_R * t[0, 5] + _LUM_G * t[1, 5] + _LUM_B * t[2, 5]
+                lt6 = _LUM_R * t[0, 6] + _LUM_G * t[1, 6] + _LUM_B * t[2, 6]
+                lt7 = _LUM_R * t[0, 7] + _LUM_G * t[1, 7] + _LUM_B * t[2, 7]
+                ca = (_GB0 * lt0 + _GB2 * lt2 + _GB6 * lt6 - liz * (np.pi / 3.0)) / _GBS
+                cx = (_GB1 * lt3 + _GB2X * lt7) / _GBS
+                cy = (_GB1 * lt1 + _GB2X * lt5) / _GBS
+                sz = liz - ca
+                if sz < 0.0:  # w_a > 1: C_d < 0 and the direction flips, d_z stays >= 0
+                    _set_unit(d, -cx, -cy, -sz)
+                else:
+                    _set_unit(d, cx, cy, sz)
+                _floor_dir(d)
+                for c in range(nc):
+                    b0 = (
+                        _GB0 * st[c, 0] + _GB2 * st[c, 2] + _GB6 * st[c, 6] - siz[c] * (np.pi / 3.0)
+                    ) / _GBS
+                    b1 = (_GB1 * st[c, 3] + _GB2X * st[c, 7]) / _GBS
+                    b2 = (_GB1 * st[c, 1] + _GB2X * st[c, 5]) / _GBS
+                    s = d[2] * d[2] * (siz[c] - b0) + d[2] * (d[0] * b1 + d[1] * b2)
+                    wa[c] = (siz[c] - s) / siz[c] if siz[c] > IZ_TINY else 1.0
+            else:
+                need_ratio = True
+                if solver == _DIRECT:  # HHD from linear SH, Eq 8, 56 (stable form), 10, 11
+                    bc = _BC_K * lr[0]
+                    bx = -_IZ_K * lr[3]
+                    by = -_IZ_K * lr[1]
+                    bz = _IZ_K * lr[2]
+                    disc = (bc - 2.0 * bz) ** 2 + 3.0 * (bx * bx + by * by)
+                    ca = ((2.0 * bc - bz) - np.sqrt(disc)) / 3.0
+                    ca = min(max(ca, 0.0), liz)
+                    _set_unit(d, bx, by, liz - ca)
+                    moved = _floor_dir(d)
+                    if not rgb and not moved:
+                        wa[0] = ca / liz
+                        need_ratio = False
+                else:  # optimal linear direction (-l11, -l1-1, l10) of luminance
+                    _set_unit(d, -lr[3], -lr[1], lr[2])
+                    _floor_dir(d)
+                if need_ratio:
+                    _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
+                    if solver == _GOLDEN or solver == _GOLDEN_PHI:
+                        phi0 = np.arctan2(d[1], d[0])
+                        if solver == _GOLDEN:
+                            bz, _e = _search_dz(
+                                phi0,
+                                DZ_FLOOR,
+                                gt,
+                                e0,
+                                siz,
+                                nc,
+                                amb,
+                                gd,
+                                go,
+                                True,
+                                GOLDEN_SCAN,
+                                GOLDEN_ITERS,
+                                u,
+                                cd,
+                                cdb,
+                            )
+                            bphi = phi0
+                        else:
+                            bz, bphi = _search_phi(
+                                phi0, gt, e0, siz, nc, amb, gd, go, u, cd, cdp, cdb
+                            )
+                        sn = np.sqrt(max(0.0, 1.0 - bz * bz))
+                        d[0] = sn * np.cos(bphi)
+                        d[1] = sn * np.sin(bphi)
+                        d[2] = bz
+                        _floor_dir(d)
+                    else:
+                        _dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
+                    for c in range(nc):
+                        # w_a = 1 - c d_z with c = C_d / I_z (bounded): never divides by d_z
+                        if siz[c] > IZ_TINY:
+                            wa[c] = (siz[c] - cdb[c] * d[2]) / siz[c]
+                        else:
+                            wa[c] = 1.0
+                for c in range(nc):
+                    wa[c] = min(max(wa[c], 0.0), 1.0)
+            # -- no directional light left -> d = z
+            flat = True
+            for c in range(nc):
+                if kind == 2:
+                    if abs(wa[c] - 1.0) > 1.0 - WA_ONE:
+                        flat = False
+                elif wa[c] < WA_ONE:
+                    flat = False
+            if flat:
+                for c in range(nc):
+                    wa[c] = 1.0
+                d[0] = 0.0
+                d[1] = 0.0
+                d[2] = 1.0
+            for c in range(3):
+                out_iz[i, c] = min(iz[c] * m, F32_MAX)
+                out_d[i, c] = d[c]
+            for c in range(nc):
+                out_wa[i, c] = wa[c]
+
+
+# ---------------------------------------------------------------------------------------------
+# Reference (numpy) formulas, used by the solvers and as test oracles.
+
+
+def directional_sh(d: np.ndarray) -> np.ndarray:
+    """Irradiance SH of a unit directional light (C_d = 1) in directions d: pi conv(Y(d)).
+
+    d : (..., 3) unit. returns (..., 9) float64. Evaluates to the band-2 truncation of
+    max(0, n.d).
+    """
+    return np.pi * shm.basis(np.asarray(d, dtype=np.float64)) * shm.COSINE_FACTORS
+
+
+def ambient_sh(kind: str) -> np.ndarray:
+    """Irradiance SH (9,) of the unit ambient term: constant (ahd, hlsh) or hemisphere (hhd)."""
+    return AMB_HHD if kind == "hhd" else AMB_AHD
+
+
+def linear_sh(d: np.ndarray) -> np.ndarray:
+    """Irradiance SH of the linear function n.d (HLSH's directional term). (..., 9) float64."""
+    y = shm.basis(np.asarray(d, dtype=np.float64)) * (4.0 * np.pi / 3.0)
+    y[..., [0, 4, 5, 6, 7, 8]] = 0.0
+    return y
+
+
+def colors(params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C_a, C_d, d) from IrradZ params, float64, broadcast to (..., 3)."""
+    iz = np.asarray(params["iz"], dtype=np.float64)
+    d = np.asarray(params["direction"], dtype=np.float64)
+    wa = np.asarray(params["ambient_ratio"], dtype=np.float64)
+    dz = np.maximum(d[..., 2:3], DZ_FLOOR)
+    return iz * wa, iz * (1.0 - wa) / dz, d
+
+
+def model_sh(kind: str, params: dict) -> np.ndarray:
+    """Irradiance SH (..., 3, 9) of the fitted model (band-2 truncation for ahd/hhd)."""
+    ca, cd, d = colors(params)
+    if kind == "hlsh":
+        dirs = linear_sh(d)
+        amb = AMB_AHD
+    else:
+        dirs = directional_sh(d)
+        amb = ambient_sh(kind)
+    return ca[..., None] * amb + cd[..., None] * dirs[..., None, :]
+
+
+def sh_error(kind: str, sh: np.ndarray, params: dict, gram: np.ndarray | None = None):
+    """SH-domain squared error per texel and channel: (m - t)^T G (m - t), G hemispherical.
+
+    sh : (..., 3, 9) radiance; returns (..., 3) float64 (integral over the hemisphere of the
+    squared irradiance difference, for the band-2 truncations).
+    """
+    g = gram_hemi() if gram is None else gram
+    r = model_sh(kind, params) - np.asarray(sh, dtype=np.float64) * shm.COSINE_FACTORS
+    return np.einsum("...k,kl,...l->...", r, g, r)
+
+
+def wa_literal(a, d_sh, i, gram):
+    """2024 Eq 33 as printed: w_a = (a - d)^T G (i - d) / (a - d)^T G (a - d).
+
+    a : (9,) ambient irradiance SH; d_sh : (..., 9) = pi conv(Y(d)) / d_z (terms ~ 1/d_z);
+    i : (..., 9) target / I_z. Reference for tests; the solvers use :func:`wa_bounded`.
+    """
+    am = a - d_sh
+    num = np.einsum("...k,kl,...l->...", am, gram, i - d_sh)
+    den = np.einsum("...k,kl,...l->...", am, gram, am)
+    return num / den
+
+
+def wa_bounded(a, dir_sh, dz, i, gram):
+    """Eq 33 solved for c = C_d / I_z (bounded by 1/d_z): w_a = 1 - c d_z. Same shapes as
+    :func:`wa_literal` with dir_sh = pi conv(Y(d)) (no 1/d_z) and dz (...,)."""
+    u = dir_sh - dz[..., None] * a
+    r = i - a
+    c = np.einsum("...k,kl,...l->...", u, gram, r) / np.einsum("...k,kl,...l->...", u, gram, u)
+    return 1.0 - c * dz
+
+
+def nullspace_colors(iz, dz, t):
+    """2018 Eq 11: (C_a, C_d) = I_z/(d_z^2+1) (1, d_z) + t (-d_z, 1)."""
+    base = iz / (dz * dz + 1.0)
+    return base - t * dz, base * dz + t
+
+
+def nullspace_bounds(iz, dz):
+    """[t_min, t_max] of 2018 Eq 11 for C_a >= 0 and C_d >= 0 (I_z >= 0)."""
+    base = iz / (dz * dz + 1.0)
+    return -base * dz, base / dz
+
+
+# ---------------------------------------------------------------------------------------------
+# Direct solves.
+
+
+def hhd_direct_linear(l0, l1m1, l10, l11):
+    """HHD from linear radiance SH (2024 Eq 8, 56 in the cancellation-free form, 10, 11).
+
+    Inputs (...,) float. returns C_a, C_d, d (..., 3) (no clamping; C_d may be 0 -> d NaN is
+    avoided: d = z where C_d <= 0).
+    """
+    k = 2.0 / np.sqrt(3.0 * np.pi)
+    bc = (2.0 / SQRT_PI) * l0
+    bx = -k * l11
+    by = -k * l1m1
+    bz = k * l10
+    disc = (bc - 2.0 * bz) ** 2 + 3.0 * (bx * bx + by * by)
+    ca = ((2.0 * bc - bz) - np.sqrt(disc)) / 3.0
+    cd = bc - 2.0 * ca
+    v = np.stack([bx, by, bz - ca], axis=-1)
+    nv = np.linalg.norm(v, axis=-1, keepdims=True)
+    ok = nv > 0
+    d = np.where(ok, v / np.where(ok, nv, 1.0), np.array([0.0, 0.0, 1.0]))
+    return ca, cd, d
+
+
+def hlsh_direct(t, iz):
+    """HLSH IrradZ-constrained least squares (2024 Eq 22): b = 3/(2 pi) (G_BY i - I_z B_z).
+
+    t : (..., 9) target irradiance SH; iz : (...,). returns (..., 3) = (C_a, c_x, c_y).
+    """
+    return (t @ G_BY.T - iz[..., None] * B_Z) / G_B_SCALE
+
+
+# ---------------------------------------------------------------------------------------------
+# Fit.
+
+
+def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **options) -> dict:
+    """Fit an IrradZ model to tangent-space radiance SH.
+
+    sh : (..., 3, 9) float radiance SH (hemispherical: zero below the horizon).
+    kind : "ahd", "hhd" or "hlsh"; ratio : "luminance" or "rgb"; solver : see SOLVERS[kind].
+    returns dict of float32 arrays: iz (..., 3), direction (..., 3),
+    ambient_ratio (..., 1 or 3), invalid (..., 1) (1.0 where the input held NaN/Inf; those
+    texels are output black: iz = 0, w_a = 1, d = z).
+    """
+    if options:
+        raise UsageError(f"unknown fit option(s) for {kind}: {', '.join(sorted(options))}")
+    if kind not in KINDS:
+        raise UsageError(f"unknown IrradZ model {kind!r}; choose one of {', '.join(KINDS)}")
+    if solver not in SOLVERS[kind]:
+        raise UsageError(f"model {kind!r} has solvers {', '.join(SOLVERS[kind])}, not {solver!r}")
+    if ratio not in ("luminance", "rgb"):
+        raise UsageError(f"ratio must be 'luminance' or 'rgb', not {ratio!r}")
+    sh = np.asarray(sh)
+    if sh.ndim < 2 or sh.shape[-2:] != (3, 9):
+        raise InputError(f"SH must have shape (..., 3, 9) (RGB x 9 coefficients), got {sh.shape}")
+    if not (np.issubdtype(sh.dtype, np.floating) or np.issubdtype(sh.dtype, np.integer)):
+        raise InputError(f"SH must be a real floating-point array, got dtype {sh.dtype}")
+    lead = sh.shape[:-2]
+    x = np.ascontiguousarray(sh.reshape(-1, 3, 9), dtype=np.float64)
+    n = x.shape[0]
+    nc = 3 if ratio == "rgb" else 1
+    out_iz = np.empty((n, 3), np.float32)
+    out_d = np.empty((n, 3), np.float32)
+    out_wa = np.empty((n, nc), np.float32)
+    out_bad = np.empty(n, np.float32)
+    gram = np.eye(9) if solver == "2018_sphere" else gram_hemi()
+    gd, go = _sparse_gram(gram)
+    code = {"golden": _GOLDEN, "golden_phi": _GOLDEN_PHI, "direct": _DIRECT}.get(solver, _FIXED)
+    if n:
+        _fit_kernel(
+            x, _KIND[kind], nc == 3, code, ambient_sh(kind), gd, go, out_iz, out_d, out_wa, out_bad
+        )
+    out = {"iz": out_iz, "direction": out_d, "ambient_ratio": out_wa, "invalid": out_bad[:, None]}
+    return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluate, layout, encode, decode.
+
+
+def _expand(p, ndim):
+    """Append axes before the last one so the parameter's leading shape is a *prefix* of the
+    normals' leading shape (one texel, many normals), then numpy-broadcast."""
+    while p.ndim < ndim:
+        p = p[..., None, :]
+    return p
+
+
+def evaluate(kind: str, params: dict, normals, *, albedo=None) -> np.ndarray:
+    """Normalized irradiance (..., 3) float32 at tangent-space unit normals.
+
+    params : IrradZ params with leading shape P; normals : (..., 3) with leading shape P or
+    P + extra axes (several normals per texel), or anything numpy-broadcastable.
+    albedo : (..., 3) adds the 2024 App. A self-bounce via usdahd.hemi.self_bounce.
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    ca, cd, d = colors(params)
+    nd = max(n.ndim, ca.ndim)
+    ca, cd, d = (_expand(x, nd) for x in (ca, cd, d))
+    ndotd = np.sum(n * d, axis=-1, keepdims=True)
+    if kind == "hlsh":
+        out = ca + ndotd * cd
+    elif kind == "hhd":
+        out = 0.5 * (n[..., 2:3] + 1.0) * ca + np.maximum(ndotd, 0.0) * cd
+    else:
+        out = ca + np.maximum(ndotd, 0.0) * cd
+    if albedo is not None:
+        out = out + _self_bounce(_expand(np.asarray(params["iz"]), nd), n, albedo)
+    return out.astype(np.float32)
+
+
+def _self_bounce(iz, normals, albedo):
+    try:
+        from usdahd.hemi import self_bounce
+    except ImportError:
+        raise NotImplementedError(
+            "self-bounce (2024 App. A) needs usdahd.hemi.self_bounce, which is not available "
+            "yet; evaluate without albedo"
+        ) from None
+    return self_bounce(iz, normals, albedo)
+
+
+def layout(kind: str, ratio: str) -> list[TextureLayout]:
+    """Textures of an IrradZ model: iz (half RGB), direction (2 x snorm8), ratio (1|3 x 8-bit)."""
+    rch = ("R",) if ratio == "luminance" else ("R", "G", "B")
+    rfmt = "snorm8" if kind == "hlsh" else "unorm8"
+    return [
+        TextureLayout("iz", ("R", "G", "B"), "half", "lin_rec709_scene"),
+        TextureLayout("direction", ("R", "G"), "snorm8", "raw"),
+        TextureLayout("ratio", rch, rfmt, "raw"),
+    ]
+
+
+#: HLSH w_a is stored as SNORM8 of w_a / ratioScale, ratioScale a power of two >= max |w_a|,
+#: at most this (beyond it w_a is clamped; a linear model with |w_a| > 16 is a texel with almost
+#: no light in z, where the ratio barely matters for I(z) which stays exact).
+HLSH_RATIO_SCALE_MAX = 16.0
+
+
+def encode(kind: str, params: dict, *, ratio: str):
+    """Quantize params -> ({"iz": float16 (...,3), "direction": int8 (...,2),
+    "ratio": uint8|int8 (...,1|3)}, factors). factors: izScale (always), ratioScale (hlsh)."""
+    iz = np.asarray(params["iz"], dtype=np.float64)
+    wa = np.asarray(params["ambient_ratio"], dtype=np.float64)
+    want = 1 if ratio == "luminance" else 3
+    if wa.shape[-1] != want:
+        raise InputError(
+            f"ambient_ratio has {wa.shape[-1]} channel(s); ratio={ratio!r} needs {want}"
+        )
+    half, s = encoding.encode_half(iz)
+    factors = {"izScale": s}
+    if kind == "hlsh":
+        m = float(np.max(np.abs(wa))) if wa.size else 1.0
+        r = float(min(2.0 ** np.ceil(np.log2(max(m, 1.0))), HLSH_RATIO_SCALE_MAX))
+        q = encoding.quantize_snorm8(wa / r)
+        factors["ratioScale"] = r
+    else:
+        q = encoding.quantize_unorm8(wa)
+    return {"iz": half, "direction": encoding.encode_direction(params["direction"]), "ratio": q}, (
+        factors
+    )
+
+
+def decode(kind: str, channels: dict, *, ratio: str, factors: dict) -> dict:
+    """Stored channels -> float32 params, as an engine does it."""
+    for role in ("iz", "direction", "ratio"):
+        if role not in channels:
+            raise InputError(f"IrradZ {kind} decode needs a {role!r} channel set")
+    iz = encoding.decode_half(channels["iz"], factors.get("izScale", 1.0))
+    d = encoding.decode_direction(channels["direction"])
+    if kind == "hlsh":
+        wa = encoding.dequantize_snorm8(channels["ratio"]) * np.float32(
+            factors.get("ratioScale", 1.0)
+        )
+    else:
+        wa = encoding.dequantize_unorm8(channels["ratio"])
+    return {"iz": iz, "direction": d, "ambient_ratio": wa}

@@ -1,0 +1,136 @@
+"""Shared pieces of the linear-basis models (hemisphere, sh_l1, sh_l2, ambient_cube, hl2).
+
+Every model here is linear in its colours: ``I(n) = sum_k w_k(n) C_k`` with fixed basis
+functions ``w_k``. Fitting from tangent-space radiance SH is then a fixed linear map: the
+hemispherical least-squares optimum ``C = Gb^-1 P i`` with ``Gb = int_{Omega+} w w^T`` and
+``P = int_{Omega+} w Y^T``, applied to the irradiance SH ``i = conv(sh)``. It is exact (no
+point sampling): Gb and P are computed once, in closed form or by exact quadrature.
+
+Conventions shared by these models (see docs/models-linear.md):
+
+- params ``coefficients`` : (..., N, 3) float32, basis k x RGB (the texture stores them as
+  ``N x 3`` float16 channels ``<basis>.R, <basis>.G, <basis>.B`` in that order);
+- params ``invalid`` : (..., 1) float32, 1.0 where the input texel held NaN/Inf (its colours are
+  then 0: black output, never propagated);
+- ``evaluate`` returns float32 (..., 3); with ``albedo`` it adds the self-bounce of 2024 App. A
+  (:func:`usdahd.hemi.self_bounce`) with I_z = the model's own irradiance in z.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from usdahd import encoding, hemi
+from usdahd import sh as shm
+from usdahd.errors import InputError, ModelError
+from usdahd.models.base import TextureLayout
+
+#: Largest float32: fitted values are clipped to it (inputs near 1e200 would overflow).
+F32_MAX = float(np.finfo(np.float32).max)
+CHANNELS = ("R", "G", "B")
+
+
+def prepare(sh) -> tuple[np.ndarray, np.ndarray]:
+    """Validate radiance SH; zero non-finite texels.
+
+    sh : (..., 3, 9) float. returns (x (..., 3, 9) float64, invalid (...,) bool).
+    """
+    x = np.asarray(sh)
+    if x.ndim < 2 or x.shape[-2:] != (3, 9):
+        raise InputError(f"SH must have shape (..., 3, 9) (RGB x 9 coefficients), got {x.shape}")
+    if not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer)):
+        raise InputError(f"SH must be a float array, got dtype {x.dtype}")
+    x = x.astype(np.float64)
+    bad = ~np.all(np.isfinite(x), axis=(-2, -1))
+    if bad.any():
+        x = np.where(bad[..., None, None], 0.0, x)
+    return x, bad
+
+
+def check_choice(kind: str, value: str, allowed: tuple[str, ...], model: str) -> None:
+    """ModelError unless ``value`` is one of ``allowed``."""
+    if value not in allowed:
+        raise ModelError(f"model {model!r} supports {kind} {', '.join(allowed)}, not {value!r}")
+
+
+def finish(coeffs: np.ndarray, bad: np.ndarray, **extra) -> dict:
+    """float64 coefficients (..., N, 3) -> float32 params dict with ``invalid`` (..., 1)."""
+    c = np.clip(np.where(bad[..., None, None], 0.0, coeffs), -F32_MAX, F32_MAX)
+    out = {"coefficients": c.astype(np.float32), "invalid": bad[..., None].astype(np.float32)}
+    out.update(extra)
+    return out
+
+
+def irradiance_sh(x: np.ndarray) -> np.ndarray:
+    """Radiance SH (..., 3, 9) -> normalized irradiance SH (..., 3, 9)."""
+    return x * shm.COSINE_FACTORS
+
+
+def apply_fit_matrix(f: np.ndarray, irr: np.ndarray) -> np.ndarray:
+    """(N, 9) fit matrix and irradiance SH (..., 3, 9) -> coefficients (..., N, 3)."""
+    return np.einsum("kj,...cj->...kc", f, irr)
+
+
+def normals_array(normals) -> np.ndarray:
+    """Validate normals (..., 3) -> float64."""
+    n = np.asarray(normals, dtype=np.float64)
+    if n.ndim < 1 or n.shape[-1] != 3:
+        raise InputError(f"normals must have shape (..., 3), got {n.shape}")
+    return n
+
+
+def with_self_bounce(eval_fn, params: dict, normals, albedo) -> np.ndarray:
+    """``eval_fn(params, n)`` (float64) plus, with an albedo, 2024 App. A self-bounce.
+
+    I_z for the self-bounce is the model's own irradiance in z (exact I_z for models fitted with
+    the IrradZ constraint, the reconstructed value otherwise). returns float32 (..., 3).
+    """
+    n = normals_array(normals)
+    out = eval_fn(params, n)
+    if albedo is not None:
+        z = np.zeros(np.broadcast_shapes(n.shape, out.shape[:-1] + (3,)))
+        z[..., 2] = 1.0
+        out = out + hemi.self_bounce(eval_fn(params, z), n, albedo)
+    return out.astype(np.float32)
+
+
+def coefficients_layout(names: tuple[str, ...]) -> TextureLayout:
+    """The ``coefficients`` texture: N x RGB float16 channels ``<name>.R`` ... (raw)."""
+    channels = tuple(f"{b}.{c}" for b in names for c in CHANNELS)
+    return TextureLayout("coefficients", channels, "half", "raw")
+
+
+def encode_coefficients(params: dict, role: str = "coefficients") -> tuple[dict, dict]:
+    """(..., N, 3) coefficients -> float16 (..., 3N) channels and ``<role>Scale`` factor."""
+    c = np.asarray(params["coefficients"], dtype=np.float64)
+    flat = c.reshape(c.shape[:-2] + (c.shape[-2] * c.shape[-1],))
+    h, s = encoding.encode_half(flat)
+    return {role: h}, {f"{role}Scale": s}
+
+
+def decode_coefficients(
+    channels: dict, factors: dict | None, n_basis: int, role: str = "coefficients"
+) -> np.ndarray:
+    """float16 (..., 3N) channels -> float32 coefficients (..., N, 3)."""
+    if role not in channels:
+        raise InputError(f"missing texture role {role!r} (have {', '.join(channels) or 'none'})")
+    h = np.asarray(channels[role])
+    if h.shape[-1] != 3 * n_basis:
+        raise InputError(f"{role} texture must have {3 * n_basis} channels, got {h.shape[-1]}")
+    c = encoding.decode_half(h, (factors or {}).get(f"{role}Scale", 1.0))
+    return c.reshape(c.shape[:-1] + (n_basis, 3))
+
+
+def valid_flag(shape) -> np.ndarray:
+    """Decoded params carry ``invalid`` = 0 (the texture has no flag channel)."""
+    return np.zeros(tuple(shape) + (1,), np.float32)
+
+
+def hemisphere_fit_matrix(basis_sh: np.ndarray) -> np.ndarray:
+    """Least-squares fit matrix over Omega+ for a basis spanned by SH functions.
+
+    basis_sh : (N, 9) each basis function as SH coefficients. returns (N, 9): C = F i.
+    """
+    g = hemi.HEMISPHERE_GRAM
+    gb = basis_sh @ g @ basis_sh.T
+    return np.linalg.solve(gb, basis_sh @ g)

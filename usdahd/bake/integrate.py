@@ -11,9 +11,10 @@ Light transport (Lambertian surfaces, material albedo, emission on front faces):
   per-texel Cranley-Patterson rotation, mapped uniformly onto the hemisphere (pdf 1/2pi).
 - Direct light: delta lights (treatAsPoint spheres, zero-angle distant lights) get one exact
   shadow ray per texel; area/cone/textured-dome lights get ``samples`` light samples per texel
-  (light chosen uniformly), combined with the hemisphere rays that hit them by the balance
-  heuristic. Uniform domes and emissive meshes are reached by hemisphere rays only (their pdf
-  would match hemisphere sampling anyway).
+  (light chosen uniformly), combined with the hemisphere rays that hit them by the power
+  heuristic (beta = 2: for small, bright lights the hemisphere strategy's share, which it
+  samples only rarely, vanishes quadratically instead of linearly). Uniform domes and
+  emissive meshes are reached by hemisphere rays only (no light sampling for them yet).
 - Indirect: at each surface hit, one NEE sample (light chosen uniformly among sampleable lights,
   MIS against cosine sampling) plus one cosine-sampled continuation ray, for up to ``bounces``
   reflections; Russian roulette on the albedo from reflection ``RR_DEPTH`` on.
@@ -306,7 +307,7 @@ class _Ctx:
             o = self.tr.offset(Pf[idx], NGf[idx], d)
             vis = ~self.tr.occluded(o, d, _shorten(dist), rng=rng)
             pl = pdf / m
-            w = pl / (pl + INV_2PI)
+            w = _power(pl, INV_2PI)
             contrib[idx[vis]] = (val * (w / pl)[:, None])[vis]
             Y[idx] = shmod.basis(loc)
         C = contrib.reshape(n, s, 3)
@@ -336,7 +337,7 @@ class _Ctx:
             w = np.ones(int(vis.sum()))
             if lt.sampled:
                 pl = lt.pdf(o[vis], d[vis], tl[vis]) * sel_area
-                w = pdf_dir[vis] / (pdf_dir[vis] + pl)
+                w = _power(pdf_dir[vis], pl)
             L[vis] += w[:, None] * rad[vis]
         surf = np.nonzero(~miss)[0]
         if len(surf) == 0:
@@ -396,7 +397,7 @@ class _Ctx:
                 else:
                     pl = pdf / n_nee
                     pb = cos / np.pi
-                    f = val * (cos / np.pi / (pl + pb))[:, None]
+                    f = val * (_power(pl, pb) * cos / np.pi / pl)[:, None]
                 out[idx[vis]] += f[vis]
         # continuation / MIS partner: cosine sampling about the shading normal
         if self.lights.visible or self.tr.has_emission or depth < self.bounces:
@@ -410,6 +411,13 @@ class _Ctx:
                 sel = 1.0 / max(1, n_nee)
                 out[idx] += self.incoming(o, d[idx], hits, pdf[idx], sel, depth, rng)
         return out
+
+
+def _power(pa, pb):
+    """MIS power heuristic (beta 2) weight of strategy a."""
+    a2 = pa * pa
+    den = a2 + pb * pb
+    return np.divide(a2, den, out=np.zeros_like(den), where=den > 0)
 
 
 def _shorten(dist):

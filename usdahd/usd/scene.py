@@ -169,7 +169,11 @@ class Scene:
                 if k.startswith("_"):
                     continue
                 lh.update(k.encode())
-                lh.update(v.encode() if isinstance(v, str) else np.asarray(v).tobytes())
+                a = None if v is None or isinstance(v, str) else np.asarray(v)
+                if a is None or a.dtype == object:
+                    lh.update(repr(v).encode())
+                else:
+                    lh.update(np.ascontiguousarray(a).tobytes())
         out["lights"] = lh.hexdigest()
         out["materials"] = _digest("\n".join(m.key() for m in self.materials).encode())
         return out

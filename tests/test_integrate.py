@@ -1,0 +1,347 @@
+"""Analytic lighting cases for the integrator (issue 4 accuracy list).
+
+Tolerances: Monte Carlo cases use the plain ``mc`` estimator (unbiased), bake ``N_TEX``
+independent texels (each with its own Cranley-Patterson rotation and random streams) and
+require |mean - exact| < Z * SE + float32 slack, where SE is the sample standard deviation of
+the per-texel estimates over sqrt(N_TEX) — the estimator's own variance, measured in the test.
+Z = 5 makes a false failure a < 1e-6 event. Cases without randomness (delta lights, uniform dome
+with the regression estimator) are checked to FLOAT_TOL.
+"""
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+
+from usdahd import sh
+from usdahd.bake.integrate import bake_texels
+from usdahd.bake.trace import Tracer
+from usdahd.bake.types import Texels
+from usdahd.usd.scene import load_scene
+
+Z = 5.0
+N_TEX = 48
+FLOAT_TOL = 2e-5  # float32 positions/directions and SH accumulation
+
+
+def _stage():
+    st = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(st, "Z")
+    return st
+
+
+def _quad(st, path, corners, material=None):
+    m = UsdGeom.Mesh.Define(st, path)
+    m.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
+    m.CreateFaceVertexCountsAttr([4])
+    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    if material is not None:
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material)
+    return m
+
+
+def _ground(st, s=50.0, z=0.0, material=None):
+    return _quad(st, "/ground", [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], material)
+
+
+def _material(st, path, albedo=(0.5, 0.5, 0.5), emission=(0, 0, 0)):
+    mat = UsdShade.Material.Define(st, path)
+    sh_ = UsdShade.Shader.Define(st, path + "/pbr")
+    sh_.CreateIdAttr("UsdPreviewSurface")
+    sh_.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*albedo))
+    sh_.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
+    mat.CreateSurfaceOutput().ConnectToSource(sh_.ConnectableAPI(), "surface")
+    return mat
+
+
+def _texels(points, normal=(0, 0, 1)):
+    p = np.asarray(points, np.float32).reshape(-1, 3)
+    n = len(p)
+    nrm = np.asarray(normal, np.float64)
+    frame = np.eye(3) if np.allclose(nrm, [0, 0, 1]) else None
+    if frame is None:
+        from usdahd.sampling import orthonormal_basis
+
+        frame = orthonormal_basis(nrm[None])[0]
+    return Texels(
+        (n, 1),
+        np.zeros((n, 2), np.int32),
+        p,
+        np.tile(nrm, (n, 1)).astype(np.float32),
+        np.tile(frame, (n, 1, 1)).astype(np.float32),
+        np.zeros(n, np.int32),
+        np.ones(n, bool),
+    )
+
+
+def _bake(st, tex, **kw):
+    scene = load_scene(st)
+    tr = Tracer(scene)
+    kw.setdefault("samples", 128)
+    kw.setdefault("bounces", 0)
+    out, stats = bake_texels(scene, tr, tex, **kw)
+    return out, stats
+
+
+def _check_mc(values, exact, rel_slack=FLOAT_TOL):
+    v = np.asarray(values, np.float64)
+    mean = v.mean()
+    se = v.std(ddof=1) / np.sqrt(len(v))
+    tol = Z * se + rel_slack * abs(exact) + 1e-9
+    assert abs(mean - exact) < tol, (mean, exact, se)
+
+
+def _same_point(p, n=N_TEX):
+    return np.tile(np.asarray(p, np.float32), (n, 1))
+
+
+# ----------------------------------------------------------------------------- cases
+
+
+def test_uniform_dome_gives_iz_one_and_hemisphere_sh():
+    st = _stage()
+    _ground(st)
+    UsdLux.DomeLight.Define(st, "/dome")  # intensity fallback 1, colour 1
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0), 8)), estimator="regression", samples=64)
+    np.testing.assert_allclose(sh.iz(out), 1.0, atol=FLOAT_TOL)
+    d, w = sh.hemisphere_quadrature(16)
+    exact = sh.basis(d).T @ w  # SH of the hemisphere indicator
+    np.testing.assert_allclose(out[:, 0, :], np.tile(exact, (8, 1)), atol=FLOAT_TOL)
+
+
+def test_uniform_dome_mc_estimator_unbiased():
+    st = _stage()
+    _ground(st)
+    UsdLux.DomeLight.Define(st, "/dome")
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0))), estimator="mc", samples=32)
+    _check_mc(sh.iz(out)[:, 1], 1.0)
+
+
+@pytest.mark.parametrize("normalize", [True, False])
+@pytest.mark.parametrize("tilt", [0.0, 60.0])
+def test_distant_light(normalize, tilt):
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.DistantLight.Define(st, "/sun")
+    lt.CreateIntensityAttr(3.0)
+    lt.CreateNormalizeAttr(normalize)
+    lt.CreateAngleAttr(2.0)
+    UsdGeom.Xformable(lt).AddRotateXOp().Set(tilt)
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0))), estimator="mc", samples=32)
+    half = np.radians(1.0)
+    e_normal = 3.0 if normalize else 3.0 * np.pi * np.sin(half) ** 2
+    # A uniform disc fully above the horizon: E = pi L sin^2(a) cos(theta) exactly.
+    _check_mc(sh.iz(out)[:, 0], e_normal * np.cos(np.radians(tilt)) / np.pi)
+
+
+def test_distant_delta_exact_and_direction():
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.DistantLight.Define(st, "/sun")
+    lt.CreateIntensityAttr(2.0)
+    lt.CreateNormalizeAttr(True)
+    lt.CreateAngleAttr(0.0)
+    x = UsdGeom.Xformable(lt)
+    x.AddRotateZOp().Set(30.0)
+    x.AddRotateXOp().Set(50.0)
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0), 4)), samples=16)
+    to_light = np.array(
+        UsdGeom.Xformable(lt).ComputeLocalToWorldTransform(0).TransformDir(Gf.Vec3d(0, 0, 1))
+    )
+    np.testing.assert_allclose(sh.iz(out)[:, 0], 2.0 * to_light[2] / np.pi, rtol=FLOAT_TOL)
+    # linear band (-l1^1, -l1^-1, l1^0) points at the light
+    lin = np.stack([-out[:, 0, 3], -out[:, 0, 1], out[:, 0, 2]], axis=-1)
+    lin /= np.linalg.norm(lin, axis=1, keepdims=True)
+    assert np.all(lin @ to_light > np.cos(np.radians(0.1)))  # float32 SH
+
+
+def test_distant_cone_direction_points_at_light():
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.DistantLight.Define(st, "/sun")
+    UsdGeom.Xformable(lt).AddRotateYOp().Set(-40.0)
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0), 8)), samples=64)
+    to_light = np.array([np.sin(np.radians(-40.0)), 0, np.cos(np.radians(-40.0))])
+    lin = np.stack([-out[:, 0, 3], -out[:, 0, 1], out[:, 0, 2]], axis=-1)
+    lin /= np.linalg.norm(lin, axis=1, keepdims=True)
+    assert np.all(lin @ to_light > np.cos(np.radians(0.5)))  # cone half-angle 0.265 deg
+
+
+@pytest.mark.parametrize("normalize", [True, False])
+@pytest.mark.parametrize("point", [False, True])
+def test_sphere_light(normalize, point):
+    r, h, x = 0.5, 2.0, 1.0
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.SphereLight.Define(st, "/bulb")
+    lt.CreateRadiusAttr(r)
+    lt.CreateIntensityAttr(10.0)
+    lt.CreateNormalizeAttr(normalize)
+    lt.CreateTreatAsPointAttr(point)
+    UsdGeom.Xformable(lt).AddTranslateOp().Set(Gf.Vec3d(0, 0, h))
+    out, _ = _bake(st, _texels(_same_point((x, 0, 0))), estimator="mc", samples=32)
+    L = 10.0 / (4 * np.pi * r * r) if normalize else 10.0
+    d = np.hypot(x, h)
+    exact = L * r * r * h / d**3
+    if point:
+        np.testing.assert_allclose(sh.iz(out)[:, 0], exact, rtol=FLOAT_TOL)
+    else:
+        _check_mc(sh.iz(out)[:, 0], exact)
+
+
+def _polygon_iz(p, verts, radiance):
+    """Lambert's polygon formula, normalized: Iz = L/(2 pi) sum_i gamma_i n . unit(vi x vi+1)."""
+    v = np.asarray(verts, np.float64) - p
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    tot = 0.0
+    for i in range(len(v)):
+        a, b = v[i], v[(i + 1) % len(v)]
+        c = np.cross(a, b)
+        tot += np.arccos(np.clip(a @ b, -1, 1)) * c[2] / np.linalg.norm(c)
+    return radiance * abs(tot) / (2 * np.pi)
+
+
+@pytest.mark.parametrize("normalize", [False, True])
+def test_rect_light(normalize):
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.RectLight.Define(st, "/panel")
+    lt.CreateWidthAttr(2.0)
+    lt.CreateHeightAttr(1.0)
+    lt.CreateIntensityAttr(4.0)
+    lt.CreateNormalizeAttr(normalize)
+    UsdGeom.Xformable(lt).AddTranslateOp().Set(Gf.Vec3d(0.3, 0.2, 1.5))  # emits along -Z
+    p = np.array([0.0, 0.0, 0.0])
+    out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=32)
+    L = 4.0 / 2.0 if normalize else 4.0
+    verts = [(-0.7, -0.3, 1.5), (1.3, -0.3, 1.5), (1.3, 0.7, 1.5), (-0.7, 0.7, 1.5)]
+    _check_mc(sh.iz(out)[:, 0], _polygon_iz(p, verts, L))
+
+
+def test_disk_light_coaxial():
+    R, h = 0.75, 1.25
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.DiskLight.Define(st, "/disk")
+    lt.CreateRadiusAttr(R)
+    lt.CreateIntensityAttr(5.0)
+    UsdGeom.Xformable(lt).AddTranslateOp().Set(Gf.Vec3d(0, 0, h))
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0))), estimator="mc", samples=32)
+    _check_mc(sh.iz(out)[:, 0], 5.0 * R * R / (h * h + R * R))
+
+
+def test_emissive_quad_and_back_facing():
+    st = _stage()
+    _ground(st)
+    mat = _material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    # corners ordered clockwise seen from above: the front face points down (-Z)
+    verts = [(-0.5, -0.5, 1.0), (-0.5, 0.5, 1.0), (0.5, 0.5, 1.0), (0.5, -0.5, 1.0)]
+    _quad(st, "/emitter", verts, mat)
+    p = np.array([0.2, 0.0, 0.0])
+    out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=64)
+    exact = _polygon_iz(p, verts, 1.0)
+    for c, le in enumerate((2.0, 1.0, 0.5)):
+        _check_mc(sh.iz(out)[:, c], le * exact)
+    # flip the quad: its back faces the texel -> no light at all
+    st2 = _stage()
+    _ground(st2)
+    mat2 = _material(st2, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    _quad(st2, "/emitter", verts[::-1], mat2)
+    out2, _ = _bake(st2, _texels(_same_point(p, 4)), samples=64)
+    assert np.all(out2 == 0)
+
+
+def test_back_facing_rect_light_gives_zero():
+    st = _stage()
+    _ground(st)
+    lt = UsdLux.RectLight.Define(st, "/panel")
+    lt.CreateIntensityAttr(100.0)
+    x = UsdGeom.Xformable(lt)
+    x.AddTranslateOp().Set(Gf.Vec3d(0, 0, 1))
+    x.AddRotateXOp().Set(180.0)  # now emits along +Z, away from the ground
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0), 4)), samples=64, bounces=2)
+    assert np.all(out == 0)
+
+
+def _box(st, half, material, inward=True):
+    """Closed cube of half-size ``half`` centred at the origin, faces pointing inward."""
+    m = UsdGeom.Mesh.Define(st, "/box")
+    s = half
+    p = [(x, y, z) for x in (-s, s) for y in (-s, s) for z in (-s, s)]
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    if inward:
+        quads = [q[::-1] for q in quads]
+    m.CreatePointsAttr(p)
+    m.CreateFaceVertexCountsAttr([4] * 6)
+    m.CreateFaceVertexIndicesAttr([i for q in quads for i in q])
+    UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material)
+    return m
+
+
+def test_white_furnace():
+    rho, le = 0.5, 1.0
+    st = _stage()
+    _box(st, 1.0, _material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3))
+    rng = np.random.default_rng(3)
+    pts = np.c_[rng.uniform(-0.8, 0.8, (N_TEX, 2)), np.full(N_TEX, -1.0)]
+    out, stats = _bake(st, _texels(pts), estimator="mc", samples=32, bounces=40)
+    # truncation after 40 bounces: rho^41 ~ 5e-13, negligible
+    _check_mc(sh.iz(out)[:, 0], le / (1 - rho))
+    assert not stats["invalid"].any()
+    out_r, _ = _bake(st, _texels(pts[:8]), estimator="regression", samples=32, bounces=40)
+    _check_mc(sh.iz(out_r)[:, 0], le / (1 - rho))
+
+
+def test_texels_inside_geometry_flagged_invalid():
+    st = _stage()
+    _ground(st)
+    _box(st, 0.5, _material(st, "/mat/g"), inward=False)  # closed box standing on the floor
+    UsdLux.DomeLight.Define(st, "/dome")
+    pts = np.array([[0.0, 0.0, -0.0], [3.0, 0.0, 0.0]], np.float32)
+    # the box spans z in [-0.5, 0.5]: the first texel sits inside it
+    out, stats = _bake(st, _texels(pts), samples=64)
+    assert stats["invalid"].tolist() == [True, False]
+    assert stats["backface_fraction"][0] > 0.9
+
+
+def test_deterministic_for_seed_and_bounces_add_light():
+    st = _stage()
+    _ground(st, material=_material(st, "/mat/g", albedo=(0.8, 0.8, 0.8)))
+    _box(st, 0.5, _material(st, "/mat/b", albedo=(0.8, 0.8, 0.8)), inward=False)
+    UsdGeom.Xformable(st.GetPrimAtPath("/box")).AddTranslateOp().Set(Gf.Vec3d(1.2, 0, 0.5))
+    lt = UsdLux.DistantLight.Define(st, "/sun")
+    UsdGeom.Xformable(lt).AddRotateYOp().Set(-60.0)
+    tex = _texels(_same_point((0.0, 0.0, 0.0), 6))
+    a, sa = _bake(st, tex, samples=32, bounces=2, seed=7)
+    b, _ = _bake(st, tex, samples=32, bounces=2, seed=7)
+    c, _ = _bake(st, tex, samples=32, bounces=2, seed=8)
+    d0, s0 = _bake(st, tex, samples=32, bounces=0, seed=7)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert sh.iz(a)[:, 0].mean() > sh.iz(d0)[:, 0].mean()  # the lit box face bounces light
+    assert s0["rays"] < sa["rays"]
+
+
+def test_adaptive_saves_rays_on_easy_texels():
+    st = _stage()
+    _ground(st)
+    UsdLux.DomeLight.Define(st, "/dome")
+    tex = _texels(_same_point((0, 0, 0), 16))
+    out, stats = _bake(st, tex, samples=256, adaptive=True, adaptive_tol=0.05)
+    assert stats["rays_saved"] > 0
+    assert np.all(stats["samples"] < 256)
+    np.testing.assert_allclose(sh.iz(out)[:, 0], 1.0, atol=1e-4)
+
+
+def test_progress_callback_and_bad_arguments():
+    st = _stage()
+    _ground(st)
+    UsdLux.DomeLight.Define(st, "/dome")
+    calls = []
+    _bake(st, _texels(_same_point((0, 0, 0), 4)), progress=lambda d, t: calls.append((d, t)))
+    assert calls and calls[-1][0] > 0 and calls[-1][1] >= calls[-1][0] * 0.5
+    from usdahd.errors import UsageError
+
+    with pytest.raises(UsageError, match="estimator"):
+        _bake(st, _texels(_same_point((0, 0, 0), 2)), estimator="nope")
+    with pytest.raises(UsageError, match="samples"):
+        _bake(st, _texels(_same_point((0, 0, 0), 2)), samples=0)

@@ -434,8 +434,9 @@ def _():
     return {"fvc_mismatch.usda": text(stage)}
 
 
-@case("face_with_two_vertices", "/World/Bad: a face with faceVertexCounts 2 (fewer than 3).", 1,
-      "faceVertexCounts", prim="/World/Bad")  # fmt: skip
+@case("face_with_two_vertices", "/World/Bad: two extra faces with faceVertexCounts 2 (fewer than "
+      "3): skip those faces with a warning, as Hydra does, and bake the rest.", 0, "vertices",
+      prim="/World/Bad")  # fmt: skip
 def _():
     stage, mesh = with_bad_plane("A two-vertex face.")
     mesh.GetFaceVertexCountsAttr().Set(Vt.IntArray([4, 4, 4, 2, 2]))
@@ -722,7 +723,7 @@ def _():
 
 
 @case("animated_points", "/World/Bad has time-sampled points only (no default value): bake one "
-      "time (the start time code) and warn.", 0, "animated", prim="/World/Bad")  # fmt: skip
+      "time (the start time code) and warn.", 0, "time sample", prim="/World/Bad")  # fmt: skip
 def _():
     stage, mesh = with_bad_plane("Animated points.")
     stage.SetStartTimeCode(1)

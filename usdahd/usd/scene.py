@@ -723,17 +723,19 @@ class _Extractor:
             self.warn(f"{path}: light filters are not supported (ignored)")
         if prim.HasAPI(UsdLux.ShapingAPI):
             sh = UsdLux.ShapingAPI(prim)
-            shaping = [
-                sh.GetShapingConeAngleAttr(),
-                sh.GetShapingFocusAttr(),
-                sh.GetShapingIesFileAttr(),
-            ]
-            for a in shaping:
-                if a and a.HasAuthoredValue():
-                    what = "IES profiles" if "ies" in a.GetName() else "shaping (cone/focus)"
-                    self.warn(
-                        f"{path}: {what} not supported (ignored)", key=f"shaping:{path}:{what}"
-                    )
+            cone = g(sh.GetShapingConeAngleAttr(), 90.0)
+            focus = g(sh.GetShapingFocusAttr(), 0.0)
+            ies = g(sh.GetShapingIesFileAttr())
+            planar = prim.IsA(UsdLux.RectLight) or prim.IsA(UsdLux.DiskLight)
+            limit = (
+                90.0
+                if planar or prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight)
+                else 180.0
+            )  # cones at least this wide restrict nothing
+            if cone < limit or focus != 0.0:
+                self.warn(f"{path}: shaping (cone/focus) not supported (ignored)")
+            if ies is not None and (ies.path or ""):
+                self.warn(f"{path}: IES profiles not supported (ignored)")
         sa = prim.GetAttribute("inputs:shadow:enable")
         if sa and sa.HasAuthoredValue() and not sa.Get():
             self.warn(f"{path}: shadow:enable = false is not supported (shadows are cast)")

@@ -91,9 +91,11 @@ def test_fit_encode_decode_roundtrip(name, ratio, solver):
     dec = mod.decode(channels, ratio=ratio, factors=factors)
     assert set(dec) == set(f.params)
     d, _ = cap_quadrature(0.0, None, 8, 16)
-    n = d[:, None, None, :]
+    n = np.broadcast_to(d, (4, 5, len(d), 3))  # several normals per texel (prefix shape)
     before, after = f.evaluate(n), mod.evaluate(dec, n)
-    assert before.shape == after.shape == (len(d), 4, 5, 3) and after.dtype == np.float32
+    assert before.shape == after.shape == (4, 5, len(d), 3) and after.dtype == np.float32
+    one = f.evaluate(np.broadcast_to(d[7], (4, 5, 3)))  # one normal per texel
+    np.testing.assert_allclose(one, before[:, :, 7], rtol=1e-6, atol=1e-6 * np.abs(one).max())
     if ratio == "8bit" and solver == "hemisphere":  # |L1| > L0 is clamped (documented)
         assert np.all(np.isfinite(after))
         return
@@ -227,7 +229,10 @@ def test_sh_l1_project_is_truncation_and_linear_eval():
     x4[..., 4:] = 0
     n, _ = cap_quadrature(0.0, None, 4, 8)
     np.testing.assert_allclose(
-        sh_l1.evaluate(f, n[:, None]), sh.irradiance(x4, n[:, None]), rtol=1e-5, atol=1e-6
+        sh_l1.evaluate(f, np.broadcast_to(n, (2,) + n.shape)),
+        sh.irradiance(x4[:, None], n[None]),
+        rtol=1e-5,
+        atol=1e-6,
     )
 
 

@@ -79,8 +79,24 @@ def normals_array(normals) -> np.ndarray:
     return n
 
 
+def expand(p, n: np.ndarray, core_ndim: int) -> np.ndarray:
+    """Broadcast a parameter against normals with the texel shape as a *prefix*.
+
+    p : (P..., *core) with ``core_ndim`` trailing per-texel axes; n : (P..., E..., 3) (several
+    normals per texel) or plain numpy-broadcastable. Axes are inserted after P so that
+    ``p`` becomes (P..., 1..., *core) (the convention of the IrradZ models and ``usdahd fit``).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    while p.ndim - core_ndim < n.ndim - 1:
+        p = np.expand_dims(p, p.ndim - core_ndim)
+    return p
+
+
 def with_self_bounce(eval_fn, params: dict, normals, albedo) -> np.ndarray:
     """``eval_fn(params, n)`` (float64) plus, with an albedo, 2024 App. A self-bounce.
+
+    Params have leading (texel) shape P; normals (..., 3) have leading shape P or P + extra
+    axes (several normals per texel, see :func:`expand`).
 
     I_z for the self-bounce is the model's own irradiance in z (exact I_z for models fitted with
     the IrradZ constraint, the reconstructed value otherwise). returns float32 (..., 3).
@@ -88,7 +104,7 @@ def with_self_bounce(eval_fn, params: dict, normals, albedo) -> np.ndarray:
     n = normals_array(normals)
     out = eval_fn(params, n)
     if albedo is not None:
-        z = np.zeros(np.broadcast_shapes(n.shape, out.shape[:-1] + (3,)))
+        z = np.zeros(out.shape[:-1] + (3,))
         z[..., 2] = 1.0
         out = out + hemi.self_bounce(eval_fn(params, z), n, albedo)
     return out.astype(np.float32)

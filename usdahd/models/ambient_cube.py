@@ -128,7 +128,7 @@ def weights(normals: np.ndarray) -> np.ndarray:
 
 
 def _eval(params, n):
-    c = np.asarray(params["coefficients"], dtype=np.float64)
+    c = _linear.expand(params["coefficients"], n, 2)
     return np.einsum("...k,...kc->...c", weights(n), c)
 
 

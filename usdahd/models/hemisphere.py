@@ -50,7 +50,7 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
 
 
 def _eval(params, n):
-    c = np.asarray(params["ambient"], dtype=np.float64)
+    c = _linear.expand(params["ambient"], n, 1)
     return c * (0.5 * (1.0 + n[..., 2:3]))
 
 

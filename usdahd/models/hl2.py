@@ -115,7 +115,7 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
 
 
 def _eval(params, n):
-    c = np.asarray(params["coefficients"], dtype=np.float64)
+    c = _linear.expand(params["coefficients"], n, 2)
     return np.einsum("...k,...kc->...c", weights(n), c)
 
 

@@ -121,7 +121,7 @@ def nonlinear_irradiance(l0: np.ndarray, l1: np.ndarray, normals: np.ndarray) ->
 
 
 def _eval(params, n):
-    c = np.asarray(params["coefficients"], dtype=np.float64)
+    c = _linear.expand(params["coefficients"], n, 2)
     if "nonlinear" in params:
         l0, l1 = to_enlighten(c)
         return nonlinear_irradiance(l0, l1, n)

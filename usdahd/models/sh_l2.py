@@ -102,7 +102,7 @@ def evaluate_enlighten(matrix: np.ndarray, normals: np.ndarray, *, clamp: bool =
 
 
 def _eval(params, n):
-    c = np.asarray(params["coefficients"], dtype=np.float64)
+    c = _linear.expand(params["coefficients"], n, 2)
     return np.einsum("...k,...kc->...c", shm.basis(n) * shm.COSINE_FACTORS, c)
 
 

@@ -269,8 +269,10 @@ class _Ctx:
             )
         Y = shmod.basis(loc).reshape(n, s, 9)
         R = radiance.reshape(n, s, 3)
-        acc.hemi[active] += (2.0 * np.pi) * np.einsum("nsc,nsk->nck", R, Y)
-        acc.gram[active] += (2.0 * np.pi) * np.einsum("nsk,nsl->nkl", Y, Y)
+        Yt = Y.transpose(0, 2, 1)
+        acc.hemi[active] += (2.0 * np.pi) * np.matmul(Yt, R).transpose(0, 2, 1)
+        if self.estimator == "regression":
+            acc.gram[active] += (2.0 * np.pi) * np.matmul(Yt, Y)
         acc.back[active] += back.reshape(n, s).sum(axis=1)
         acc.count[active] += s
         ylum = (2.0 * np.pi * shmod.IZ_FROM_L10) * (R @ shmod.LUMINANCE) * Y[..., 2]
@@ -312,7 +314,7 @@ class _Ctx:
             Y[idx] = shmod.basis(loc)
         C = contrib.reshape(n, s, 3)
         Yr = Y.reshape(n, s, 9)
-        c = np.einsum("nsc,nsk->nck", C, Yr)
+        c = np.matmul(Yr.transpose(0, 2, 1), C).transpose(0, 2, 1)
         y = shmod.IZ_FROM_L10 * (C @ shmod.LUMINANCE) * Yr[..., 2]
         return c, y
 

@@ -1,0 +1,126 @@
+"""Image round trips through OpenImageIO: exact values, channel names, colour-space metadata."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from usdahd import images
+from usdahd.errors import ImageError, UsageError
+
+pytest.importorskip("OpenImageIO")
+
+RNG = np.random.default_rng(11)
+
+
+def random_pixels(fmt, shape):
+    if fmt == "half":
+        return (RNG.standard_normal(shape) * 100).astype(np.float16)
+    if fmt == "float":
+        return (RNG.standard_normal(shape) * 1e3).astype(np.float32)
+    if fmt == "unorm8":
+        return RNG.integers(0, 256, shape, dtype=np.uint8)
+    return RNG.integers(-128, 128, shape, dtype=np.int8)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "ext", "channels", "color_space"),
+    [
+        ("half", ".exr", ("R", "G", "B"), "lin_rec709_scene"),
+        ("half", ".exr", tuple(f"c{k}.{c}" for k in range(9) for c in "RGB"), "raw"),
+        ("float", ".exr", ("R", "G", "B"), "lin_rec709_scene"),
+        ("unorm8", ".png", ("R", "G", "B"), "raw"),
+        ("unorm8", ".png", ("R", "G", "B", "A"), "raw"),  # no premultiplication
+        ("unorm8", ".png", ("X", "Y"), "raw"),
+        ("unorm8", ".png", ("R", "G", "B"), "srgb_rec709_scene"),
+        ("unorm8", ".tif", ("Y",), "raw"),
+        ("snorm8", ".tif", ("X", "Y"), "raw"),
+        ("snorm8", ".tif", ("R", "G", "B"), "raw"),
+    ],
+)
+def test_round_trip_exact(tmp_path, fmt, ext, channels, color_space):
+    px = random_pixels(fmt, (7, 5, len(channels)))
+    if fmt == "snorm8":
+        px[0, 0, 0], px[0, 1, 0] = -128, 127  # extremes survive
+    path = tmp_path / f"img{ext}"
+    images.write(path, px, color_space=color_space, channels=channels, attributes={"izScale": 2.5})
+    img = images.read(path)
+    assert img.format == fmt
+    assert img.pixels.dtype == px.dtype and img.pixels.shape == px.shape
+    assert np.array_equal(img.pixels, px)
+    assert img.channels == channels
+    assert img.color_space == color_space
+    if ext != ".png":
+        assert img.attributes.get("izScale") == pytest.approx(2.5)
+    # no temp files left behind
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
+
+
+def test_exr_compression_and_channel_selection(tmp_path):
+    px = random_pixels("half", (4, 6, 3))
+    path = tmp_path / "a.exr"
+    images.write(path, px, color_space="lin_rec709_scene", compression="piz")
+    img = images.read(path, channels=("B", "R"))
+    assert img.attributes["compression"] == "piz"
+    assert np.array_equal(img.pixels, px[..., [2, 0]])
+    assert np.array_equal(img.channel("R"), px[..., 0])
+    with pytest.raises(ImageError, match="missing channels"):
+        images.read(path, channels=("Z",))
+
+
+def test_float32_cast_to_half_and_2d(tmp_path):
+    px = RNG.standard_normal((3, 4)).astype(np.float32)
+    path = tmp_path / "g.exr"
+    images.write(path, px, color_space="raw", format="half")
+    img = images.read(path)
+    assert img.pixels.shape == (3, 4, 1) and img.format == "half"
+    assert np.array_equal(img.pixels[..., 0], px.astype(np.float16))
+
+
+def test_atomic_write_keeps_previous_file_on_failure(tmp_path):
+    path = tmp_path / "keep.exr"
+    good = random_pixels("half", (2, 2, 3))
+    images.write(path, good, color_space="raw")
+    before = path.read_bytes()
+    bad = good.astype(np.float32)
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ImageError, match="NaN"):
+        images.write(path, bad, color_space="raw")
+    assert path.read_bytes() == before
+
+
+def test_read_float_linearizes_srgb(tmp_path):
+    px = np.array([[[0, 128, 255]]], dtype=np.uint8)
+    path = tmp_path / "s.png"
+    images.write(path, px, color_space="srgb_rec709_scene")
+    f = images.read_float(path)
+    c = px / 255.0
+    expect = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(f, expect, atol=1e-6)
+    np.testing.assert_allclose(images.read_float(path, linearize=False), c, atol=1e-7)
+
+
+def test_bad_inputs_raise_clear_errors(tmp_path):
+    with pytest.raises(ImageError, match="no such image file"):
+        images.read(tmp_path / "missing.exr")
+    (tmp_path / "junk.exr").write_bytes(b"not an image")
+    with pytest.raises(ImageError, match="cannot read image"):
+        images.read(tmp_path / "junk.exr")
+    with pytest.raises(ImageError, match="cannot hold snorm8"):
+        images.write(tmp_path / "d.png", random_pixels("snorm8", (2, 2, 2)), color_space="raw")
+    with pytest.raises(ImageError, match="quantize first"):
+        images.write(
+            tmp_path / "d.tif", np.zeros((2, 2, 2), np.float32), color_space="raw", format="snorm8"
+        )
+    with pytest.raises(ImageError, match="unsupported extension"):
+        images.write(tmp_path / "d.jpg", random_pixels("unorm8", (2, 2, 3)), color_space="raw")
+    with pytest.raises(ImageError, match="cannot store int32"):
+        images.write(tmp_path / "d.exr", np.zeros((2, 2, 3), np.int32), color_space="raw")
+    with pytest.raises(ImageError, match="3 channels but 2"):
+        images.write(
+            tmp_path / "d.exr", random_pixels("half", (2, 2, 3)), color_space="raw", channels="RG"
+        )
+    with pytest.raises(UsageError, match="unknown image format"):
+        images.write(
+            tmp_path / "d.exr", random_pixels("half", (2, 2, 3)), color_space="raw", format="f8"
+        )

@@ -1,0 +1,261 @@
+"""Texture files through OpenImageIO: the only module that reads or writes images.
+
+Formats (chosen from the array dtype, see ``FORMAT_DTYPES``):
+
+========  ==========  ===============================  ====================================
+format    dtype       files                            use
+========  ==========  ===============================  ====================================
+half      float16     .exr (zip compression)           HDR irradiance, SH coefficients
+float     float32     .exr (zip), .tif                 debug / sidecar images
+unorm8    uint8       .png, .tif                       quantized ratios
+snorm8    int8        .tif (SampleFormat = signed)     quantized directions
+========  ==========  ===============================  ====================================
+
+Pixels are ``(height, width, channels)`` numpy arrays, row 0 = top of the image (the
+``usdahd.bake.types`` convention). Values are stored bit-exactly: no colour conversion, no
+alpha (un)premultiplication, no dithering.
+
+Colour space: written as ``oiio:ColorSpace`` (EXR ``colorInteropID``; for PNG an sRGB chunk
+when it is sRGB) and, because PNG and TIFF keep no such tag for data textures, also as the
+``usdahd:ColorSpace`` attribute and in ``ImageDescription`` (``usdahd {"colorSpace": "raw",
+"channels": [...], "attributes": {...}}``, JSON, which also carries channel names and extra
+attributes through TIFF/PNG); :func:`read` takes the first of these it finds. Names are
+Gf.ColorSpaceNames tokens (``lin_rec709_scene``, ``srgb_rec709_scene``, ``raw``, ...).
+
+Writes are atomic (temp file + rename, :func:`usdahd.io_util.atomic_path`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from usdahd.errors import ImageError, UsageError
+from usdahd.io_util import atomic_path
+
+FORMAT_DTYPES = {
+    "half": np.float16,
+    "float": np.float32,
+    "unorm8": np.uint8,
+    "snorm8": np.int8,
+}
+_OIIO_TYPES = {"half": "half", "float": "float", "unorm8": "uint8", "snorm8": "int8"}
+#: Which formats each file extension can hold bit-exactly.
+EXTENSION_FORMATS = {
+    ".exr": ("half", "float"),
+    ".png": ("unorm8",),
+    ".tif": ("unorm8", "snorm8", "half", "float"),
+    ".tiff": ("unorm8", "snorm8", "half", "float"),
+}
+DEFAULT_COMPRESSION = {".exr": "zip", ".tif": "zip", ".tiff": "zip", ".png": None}
+_DESCRIPTION_PREFIX = "usdahd"
+
+
+@dataclass
+class Image:
+    """A decoded image. pixels : (h, w, c) in the stored dtype (see FORMAT_DTYPES)."""
+
+    pixels: np.ndarray
+    channels: tuple[str, ...]
+    color_space: str | None
+    format: str
+    attributes: dict = field(default_factory=dict)
+
+    def channel(self, name: str) -> np.ndarray:
+        """One channel (h, w) by name."""
+        try:
+            return self.pixels[..., self.channels.index(name)]
+        except ValueError:
+            raise ImageError(f"image has no channel {name!r}; it has {self.channels}") from None
+
+
+def _oiio():
+    import OpenImageIO as oiio
+
+    return oiio
+
+
+def format_of(pixels: np.ndarray) -> str:
+    """The format name of an array's dtype (ImageError if it is not one we store)."""
+    for name, dt in FORMAT_DTYPES.items():
+        if pixels.dtype == dt:
+            return name
+    raise ImageError(
+        f"cannot store {pixels.dtype} pixels; use one of float16 (half), float32, uint8, int8"
+    )
+
+
+def default_channels(n: int) -> tuple[str, ...]:
+    return {1: ("Y",), 2: ("X", "Y"), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}.get(
+        n, tuple(f"c{i}" for i in range(n))
+    )
+
+
+def write(
+    path: str | os.PathLike,
+    pixels: np.ndarray,
+    *,
+    color_space: str,
+    channels: tuple[str, ...] | list[str] | None = None,
+    format: str | None = None,
+    compression: str | None = None,
+    attributes: dict | None = None,
+) -> None:
+    """Write ``pixels`` (h, w, c) or (h, w) atomically to ``path``.
+
+    format : one of FORMAT_DTYPES; default from the dtype. If given and the dtype differs, float
+        arrays are cast to half/float; integer formats must already be quantized (ImageError).
+    color_space : Gf.ColorSpaceNames token stored with the file (see module doc).
+    channels : channel names (default R,G,B[,A] / X,Y / Y / c0..).
+    compression : EXR/TIFF compression (default "zip": lossless).
+    attributes : extra metadata (str/int/float values), e.g. decode factors.
+    """
+    oiio = _oiio()
+    path = os.fspath(path)
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    if pixels.ndim != 3 or min(pixels.shape) < 1:
+        raise ImageError(f"{path}: pixels must be (height, width, channels), got {pixels.shape}")
+    if format is None:
+        format = format_of(pixels)
+    if format not in FORMAT_DTYPES:
+        raise UsageError(f"unknown image format {format!r}; use one of {tuple(FORMAT_DTYPES)}")
+    want = np.dtype(FORMAT_DTYPES[format])
+    if pixels.dtype != want:
+        if format in ("half", "float") and np.issubdtype(pixels.dtype, np.floating):
+            pixels = pixels.astype(want)
+        else:
+            raise ImageError(
+                f"{path}: format {format} needs {want} pixels (quantize first), got {pixels.dtype}"
+            )
+    if format in ("half", "float") and not np.isfinite(pixels).all():
+        raise ImageError(f"{path}: pixels contain NaN or infinity (or overflow float16)")
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in EXTENSION_FORMATS:
+        raise ImageError(f"{path}: unsupported extension {ext!r}; use .exr, .png or .tif")
+    if format not in EXTENSION_FORMATS[ext]:
+        raise ImageError(
+            f"{path}: {ext} files cannot hold {format} data; use one of "
+            f"{[e for e, f in EXTENSION_FORMATS.items() if format in f]}"
+        )
+    h, w, c = pixels.shape
+    channels = tuple(channels) if channels is not None else default_channels(c)
+    if len(channels) != c:
+        raise ImageError(f"{path}: {c} channels but {len(channels)} channel names")
+
+    spec = oiio.ImageSpec(w, h, c, _OIIO_TYPES[format])
+    spec.channelnames = channels
+    spec.alpha_channel = -1
+    spec.attribute("oiio:ColorSpace", color_space)
+    spec.attribute("usdahd:ColorSpace", color_space)
+    extra = dict(attributes or {})
+    desc = {"colorSpace": color_space, "channels": list(channels), "attributes": extra}
+    spec.attribute("ImageDescription", f"{_DESCRIPTION_PREFIX} {json.dumps(desc)}")
+    spec.attribute("oiio:UnassociatedAlpha", 1)  # never premultiply data channels
+    spec.attribute("Software", "usdahd")
+    comp = compression if compression is not None else DEFAULT_COMPRESSION[ext]
+    if comp:
+        spec.attribute("compression", comp)
+    for key, value in extra.items():
+        spec.attribute(key, value)
+
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise ImageError(f"{path}: OpenImageIO cannot write {ext} files: {oiio.geterror()}")
+        try:
+            if not out.open(str(tmp), spec):
+                raise ImageError(f"{path}: cannot open for writing: {out.geterror()}")
+            if not out.write_image(np.ascontiguousarray(pixels)):
+                raise ImageError(f"{path}: write failed: {out.geterror()}")
+        finally:
+            out.close()
+
+
+def _parse_description(text: str) -> dict:
+    if not isinstance(text, str) or not text.startswith(_DESCRIPTION_PREFIX + " "):
+        return {}
+    try:
+        out = json.loads(text[len(_DESCRIPTION_PREFIX) + 1 :])
+    except ValueError:
+        return {}
+    return out if isinstance(out, dict) else {}
+
+
+def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | None = None) -> Image:
+    """Read an image as stored (half, float, uint8 or int8 pixels (h, w, c)).
+
+    channels : names to return, in this order (ImageError if one is missing). Files written by
+    :func:`write` give back their channel names and colour space; other files report
+    OpenImageIO's (``color_space`` None if unknown). Other pixel types (uint16, ...) are
+    returned as float32.
+    """
+    oiio = _oiio()
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ImageError(f"{path}: no such image file")
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(path, config)
+    if inp is None:
+        raise ImageError(f"{path}: cannot read image: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        base = str(spec.format)
+        fmt = {v: k for k, v in _OIIO_TYPES.items()}.get(base)
+        if fmt is None:
+            fmt = "float"
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, _OIIO_TYPES[fmt])
+        if pixels is None:
+            raise ImageError(f"{path}: cannot decode pixels: {inp.geterror()}")
+    finally:
+        inp.close()
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    attrs = {p.name: p.value for p in spec.extra_attribs}
+    desc = _parse_description(attrs.get("ImageDescription", ""))
+    color_space = attrs.get("usdahd:ColorSpace") or desc.get("colorSpace")
+    if not color_space:
+        color_space = attrs.get("oiio:ColorSpace") or None
+    for key, value in (desc.get("attributes") or {}).items():
+        attrs.setdefault(key, value)
+    names = tuple(spec.channelnames)
+    stored = desc.get("channels")
+    if isinstance(stored, list) and len(stored) == len(names):
+        names = tuple(str(c) for c in stored)
+    image = Image(pixels, names, color_space, fmt, attrs)
+    if channels is not None:
+        missing = [c for c in channels if c not in names]
+        if missing:
+            raise ImageError(f"{path}: missing channels {missing}; the file has {names}")
+        idx = [names.index(c) for c in channels]
+        image = Image(pixels[..., idx], tuple(channels), color_space, fmt, attrs)
+    return image
+
+
+def read_float(path: str | os.PathLike, *, linearize: bool = True) -> np.ndarray:
+    """Pixels (h, w, c) as float32 for sampling (material and dome textures).
+
+    8-bit images become [0, 1] (int8: [-1, 1]); with ``linearize`` an image whose colour space
+    is sRGB (OpenImageIO's guess for PNG/JPEG, or as tagged) is converted to linear Rec.709.
+    """
+    image = read(path)
+    px = image.pixels
+    if px.dtype == np.uint8:
+        out = px.astype(np.float32) / 255.0
+    elif px.dtype == np.int8:
+        out = np.maximum(px.astype(np.float32) / 127.0, -1.0)
+    else:
+        out = px.astype(np.float32)
+    cs = (image.color_space or "").lower()
+    if linearize and ("srgb" in cs and "lin" not in cs):
+        rgb = out[..., : min(3, out.shape[-1])]
+        out[..., : rgb.shape[-1]] = np.where(
+            rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4
+        )
+    return out

@@ -64,8 +64,11 @@ GOLDEN_ITERS = 16
 PHI_HALF_WIDTH = np.pi / 3.0
 PHI_SCAN = 6
 PHI_ITERS = 10
-#: Largest float32, for clipping rescaled outputs of x1e200 inputs.
+#: Largest float32.
 F32_MAX = float(np.finfo(np.float32).max)
+#: Largest I_z output: x1e200 inputs are clipped here, leaving float32 headroom for
+#: C_d <= 127 I_z and for the float16 pre-scale's rounding (no real light gets near it).
+IZ_MAX = 1e36
 
 KINDS = ("ahd", "hhd", "hlsh")
 SOLVERS = {
@@ -384,10 +387,9 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
                 out_bad[i] = 0.0 if finite else 1.0
                 continue
             out_bad[i] = 0.0
-            inv = 1.0 / m
             for c in range(3):
                 for k in range(9):
-                    xn[c, k] = x[i, c, k] * inv
+                    xn[c, k] = x[i, c, k] / m  # not * (1/m): 1/m overflows for subnormal m
                     t[c, k] = xn[c, k] * (1.0 if k == 0 else (_COS1 if k < 4 else _COS2))
                 iz[c] = max(_IZ_K * xn[c, 2], 0.0)  # I_z < 0 (ringing, leaks) -> 0
             for k in range(9):
@@ -508,7 +510,7 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
                 d[1] = 0.0
                 d[2] = 1.0
             for c in range(3):
-                out_iz[i, c] = min(iz[c] * m, F32_MAX)
+                out_iz[i, c] = min(iz[c] * m, IZ_MAX)
                 out_d[i, c] = d[c]
             for c in range(nc):
                 out_wa[i, c] = wa[c]
@@ -583,13 +585,21 @@ def wa_literal(a, d_sh, i, gram):
     return num / den
 
 
-def wa_bounded(a, dir_sh, dz, i, gram):
-    """Eq 33 solved for c = C_d / I_z (bounded by 1/d_z): w_a = 1 - c d_z. Same shapes as
-    :func:`wa_literal` with dir_sh = pi conv(Y(d)) (no 1/d_z) and dz (...,)."""
+def c_bounded(a, dir_sh, dz, i, gram):
+    """Eq 33 solved for c = C_d / I_z = (1 - w_a) / d_z, bounded by 1/d_z for w_a in [0, 1]:
+    c = u^T G (i - a) / u^T G u with u = pi conv(Y(d)) - d_z a (no 1/d_z anywhere).
+
+    a : (9,); dir_sh : (..., 9) = pi conv(Y(d)); dz : (...,); i : (..., 9) target / I_z.
+    Reference (numpy, any float dtype) of what the numba kernel does per texel.
+    """
     u = dir_sh - dz[..., None] * a
     r = i - a
-    c = np.einsum("...k,kl,...l->...", u, gram, r) / np.einsum("...k,kl,...l->...", u, gram, u)
-    return 1.0 - c * dz
+    return np.einsum("...k,kl,...l->...", u, gram, r) / np.einsum("...k,kl,...l->...", u, gram, u)
+
+
+def wa_bounded(a, dir_sh, dz, i, gram):
+    """w_a = 1 - c d_z with c from :func:`c_bounded`."""
+    return 1.0 - c_bounded(a, dir_sh, dz, i, gram) * dz
 
 
 def nullspace_colors(iz, dz, t):

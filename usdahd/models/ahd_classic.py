@@ -35,7 +35,7 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     return {
         "ambient": ca.astype(np.float32),
         "direction": p["direction"],
-        "directional": np.clip(cd, 0.0, _irradz.F32_MAX).astype(np.float32),
+        "directional": cd.astype(np.float32),
         "invalid": p["invalid"],
     }
 

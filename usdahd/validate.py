@@ -36,7 +36,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402,I001
+from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402,I001
 
 from usdahd import encoding, models
 from usdahd import sh as shm
@@ -343,7 +343,7 @@ def _bake_key(prim, results) -> tuple:
         except OSError:
             stamps.append((role, path, None, None))
     rec = (results.model, results.ratio, results.resolution, tuple(sorted(results.factors.items())))
-    return (id(prim.GetStage()), str(prim.GetPath()), rec, tuple(stamps))
+    return (str(prim.GetPath()), rec, tuple(stamps))
 
 
 def load_bake(prim) -> Bake:
@@ -966,32 +966,51 @@ def check_encoding_error(prim) -> list[Finding]:
 
 
 class _SceneCache:
-    """Scene hash parts per (stage, uv name), dropped when the stage changes."""
+    """Scene hash parts per (stage layers, uv name).
+
+    The key is every used layer's identifier with its file's size and mtime, so a stage whose
+    layers changed on disk is re-read; stages with unsaved (dirty) or anonymous layers are not
+    cached at all (an in-memory edit must never see an older scene).
+    """
 
     def __init__(self):
-        self._data = {}
-        self._listeners = {}
+        self._data: OrderedDict = OrderedDict()
+
+    @staticmethod
+    def key(stage, uv_name: str):
+        parts = []
+        for layer in stage.GetUsedLayers():
+            if layer.anonymous and layer != stage.GetSessionLayer():
+                return None
+            if layer.dirty and not layer.anonymous:
+                return None
+            if layer.anonymous:
+                if not layer.empty:
+                    return None
+                continue
+            try:
+                st = os.stat(layer.realPath)
+            except OSError:
+                return None
+            parts.append((layer.identifier, st.st_size, st.st_mtime_ns))
+        return (tuple(sorted(parts)), uv_name)
 
     def get(self, stage, uv_name: str):
-        key = (id(stage), uv_name)
-        with _LOCK:
-            if key in self._data:
-                return self._data[key]
         from usdahd.usd.scene import load_scene
 
+        key = self.key(stage, uv_name)
+        if key is not None:
+            with _LOCK:
+                if key in self._data:
+                    self._data.move_to_end(key)
+                    return self._data[key]
         parts = load_scene(stage, uv_name=uv_name).hash_parts()
-        with _LOCK:
-            self._data[key] = parts
-            if id(stage) not in self._listeners:
-                self._listeners[id(stage)] = Tf.Notice.Register(
-                    Usd.Notice.ObjectsChanged, self._changed, stage
-                )
+        if key is not None:
+            with _LOCK:
+                self._data[key] = parts
+                while len(self._data) > 8:
+                    self._data.popitem(last=False)
         return parts
-
-    def _changed(self, notice, stage):
-        with _LOCK:
-            for k in [k for k in self._data if k[0] == id(stage)]:
-                del self._data[k]
 
     def clear(self):
         with _LOCK:

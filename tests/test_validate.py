@@ -1,0 +1,364 @@
+"""usdahd validate: the UsdValidation plugin, the rules on clean and one-defect assets, the CLI.
+
+Assets are synthetic bakes built in a temporary directory by tests/data/validate/make_assets.py
+(no committed binaries): every bad asset breaks exactly one rule.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Gf, Usd, UsdValidation  # noqa: I001
+
+import usdahd  # noqa: F401  (registers the plugins first)
+from usdahd import cli, encoding
+from usdahd import validate as V
+from usdahd.usd import plugin, schema
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "data" / "validate"))
+import make_assets as MA  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def assets(tmp_path_factory):
+    """{"clean": layer path, defect: layer path} for every defect of make_assets.DEFECTS."""
+    top = tmp_path_factory.mktemp("validate")
+    out = {"clean": MA.make_clean(top / "clean")}
+    for name in MA.DEFECTS:
+        out[name] = MA.make_bad(top / "bad" / name, name, top / "clean")
+    return out
+
+
+def _findings(layer: Path) -> list[V.Finding]:
+    from usdahd.commands.validate import _open, validate_stage
+
+    return validate_stage(_open(str(layer)))
+
+
+def _ours(findings, severities=("error", "warning")):
+    return [f for f in findings if f.rule in V.RULE_NAMES and f.severity in severities]
+
+
+# ------------------------------------------------------------------------------ the plugin
+
+
+def test_pluginfo_declares_every_rule_with_its_description():
+    info = json.loads(
+        "\n".join(
+            line
+            for line in (ROOT / "plugins/usdAhdValidators/plugInfo.json").read_text().splitlines()
+            if not line.lstrip().startswith("#")
+        )
+    )
+    (plug,) = info["Plugins"]
+    assert plug["Type"] == "python" and plug["Name"] == V.PLUGIN_NAME
+    declared = plug["Info"]["Validators"]
+    assert list(declared) == list(V.RULE_NAMES)
+    schema_types = json.loads(
+        (ROOT / "plugins/usdAhd/resources/plugInfo.json").read_text().split("\n", 3)[3]
+    )["Plugins"][0]["Info"]["Types"]
+    for rule in V.RULES:
+        d = declared[rule.name]
+        assert d["doc"] == rule.description
+        assert rule.description.endswith(".") and rule.description.count(". ") == 0
+        assert d["keywords"] == [V.KEYWORD]
+        # The TfType name, not the bare schema name: with the latter the validator never runs.
+        assert d["schemaTypes"] == [plugin.SCHEMA_TYPE_NAME]
+        assert plugin.SCHEMA_TYPE_NAME in schema_types
+
+
+def test_validators_registered_under_the_keyword():
+    reg = UsdValidation.ValidationRegistry()
+    names = {m.name for m in reg.GetValidatorMetadataForKeyword(V.KEYWORD)}
+    assert names == {V.validator_name(r) for r in V.RULE_NAMES}
+    for r in V.RULE_NAMES:
+        assert reg.GetOrLoadValidatorByName(V.validator_name(r)) is not None
+    assert V.register() == []  # idempotent
+
+
+def test_exception_in_a_rule_is_reported_not_raised(assets, monkeypatch):
+    def boom(prim):
+        raise RuntimeError("synthetic failure")
+
+    monkeypatch.setitem(V.CHECKS, "UVSet", boom)
+    stage = Usd.Stage.Open(str(assets["clean"]))
+    ctx = UsdValidation.ValidationContext(keywords=[V.KEYWORD])
+    errors = ctx.Validate(stage)  # must not raise: one exception would abort the whole run
+    bad = [V.finding_from_usd(e) for e in errors if e.GetName() == "InternalError"]
+    assert len(bad) == 1 and bad[0].rule == "UVSet" and "synthetic failure" in bad[0].message
+    assert cli.main(["validate", str(assets["clean"])]) == 2
+
+
+# ----------------------------------------------------------------------------------- rules
+
+
+def test_clean_asset_has_no_errors_or_warnings(assets):
+    found = _findings(assets["clean"])
+    assert _ours(found) == []
+    assert [f for f in found if f.severity != "info"] == []
+    iz = [f for f in found if f.rule == "IzCheck"]
+    assert [f.code for f in iz] == ["IzOk"]
+    assert iz[0].data["max_relative"] <= V.FORMAT_RELATIVE_TOLERANCE["half"]
+    assert iz[0].data["texels"] > 100
+    enc = [f for f in found if f.rule == "EncodingError"]
+    assert enc[0].data["relative_rmse"] < V.OPTIONS.rmse_warning
+
+
+@pytest.mark.parametrize("defect", list(MA.DEFECTS))
+def test_bad_asset_fails_exactly_its_rule(assets, defect):
+    rule = MA.DEFECTS[defect][0]
+    found = _ours(_findings(assets[defect]))
+    assert found, f"{defect}: no finding"
+    assert {f.rule for f in found} == {rule}, [(f.rule, f.message) for f in found]
+    for f in found:
+        assert f.prim == MA.PRIM and "Fix:" in f.message
+
+
+def test_bad_asset_details(assets):
+    iz = _ours(_findings(assets["corrupted_iz"]))[0]
+    assert iz.code == "IzMismatch" and iz.data["failing"] == 1
+    assert 0.009 < iz.data["max_relative"] < 0.011  # the texel was scaled by 1.01
+    ys, xs = MA._covered(assets["corrupted_iz"].parent)
+    assert tuple(iz.data["worst_texel"]) == (xs[7], ys[7])
+    stale = _ours(_findings(assets["moved_light"]))[0]
+    assert stale.data["changed"] == ["lights"]
+    tok = _ours(_findings(assets["bogus_token"]))[0]
+    assert tok.code == "TokenNotAllowed" and "ahdLightmap:ratio" in tok.message
+    enc = _ours(_findings(assets["mirrored_directions"]))[0]
+    assert enc.severity == "warning" and enc.data["relative_rmse"] > V.OPTIONS.rmse_warning
+
+
+def _edited_copy(assets, tmp_path, edit):
+    import shutil
+
+    d = tmp_path / "copy"
+    shutil.copytree(assets["clean"].parent, d)
+    layer = d / MA.LAYER
+    stage = Usd.Stage.Open(str(layer))
+    stage.SetEditTarget(stage.GetRootLayer())
+    edit(stage.GetPrimAtPath(MA.PRIM))
+    stage.GetRootLayer().Save()
+    return layer
+
+
+def test_changed_setting_is_stale_and_named(assets, tmp_path):
+    layer = _edited_copy(assets, tmp_path, lambda p: p.GetAttribute("ahdLightmap:model").Set("ahd"))
+    found = _ours(_findings(layer))
+    assert {f.rule for f in found} == {"Staleness"}
+    assert "ahdLightmap:model ('hhd' -> 'ahd')" in found[0].message
+
+
+def test_unknown_version_and_bad_resolution_are_schema_errors(assets, tmp_path):
+    def edit(p):
+        p.GetAttribute("ahdLightmap:baked:formatVersion").Set(7)
+
+    found = _ours(_findings(_edited_copy(assets, tmp_path, edit)))
+    assert any(f.rule == "SchemaValues" and f.code == "UnknownVersion" for f in found)
+
+    def edit2(p):
+        p.GetAttribute("ahdLightmap:baked:resolution").Set(Gf.Vec2i(0, 16))
+
+    found = _ours(_findings(_edited_copy(assets, tmp_path / "b", edit2)))
+    assert any(f.rule == "SchemaValues" and "resolution" in f.message for f in found)
+
+
+def test_colour_space_metadata_is_checked(assets, tmp_path):
+    layer = _edited_copy(
+        assets, tmp_path, lambda p: p.GetAttribute("ahdLightmap:texture:iz").SetColorSpace("raw")
+    )
+    found = _ours(_findings(layer))
+    assert [(f.rule, f.code) for f in found] == [("Textures", "ColorSpace")]
+
+
+# ------------------------------------------------------------------- numerics of the rules
+
+
+def test_half_tolerance_bounds_float16_rounding():
+    """FORMAT_RELATIVE_TOLERANCE["half"] bounds encode/decode error over the normal range."""
+    rng = np.random.default_rng(1)
+    x = np.concatenate(
+        [
+            10.0 ** rng.uniform(-4, 4.5, 200000),
+            # worst cases: just below the midpoint between two float16 values
+            (1.0 + (np.arange(1024) + 0.4999) / 1024.0) * 2.0 ** rng.integers(-14, 15, 1024),
+        ]
+    )
+    h, s = encoding.encode_half(x)
+    rel = np.abs(encoding.decode_half(h, s).astype(np.float64) - x) / x
+    assert rel.max() <= 2.0**-11 * (1 + 1e-6) <= V.FORMAT_RELATIVE_TOLERANCE["half"]
+
+
+def _coverage_brute(uv, res):
+    """Reference: every texel centre against every triangle with barycentric coordinates."""
+    w, h = res
+    ys, xs = np.mgrid[0:h, 0:w]
+    q = np.stack([(xs + 0.5) / w, 1.0 - (ys + 0.5) / h], axis=-1).reshape(-1, 2)
+    count = np.zeros(len(q), np.int32)
+    for a, b, c in uv:
+        m = np.array([b - a, c - a]).T
+        lam = np.linalg.solve(m, (q - a).T).T
+        count += ((lam >= 1e-9).all(axis=1) & (lam.sum(axis=1) <= 1 - 1e-9)).astype(np.int32)
+    return count.reshape(h, w)
+
+
+def test_texel_coverage_matches_brute_force_and_counts_shared_edges_once():
+    rng = np.random.default_rng(2)
+    uv = rng.uniform(0, 1, (40, 3, 2))
+    cov = V.texel_coverage(uv, (37, 29))
+    ref = _coverage_brute(uv, (37, 29))
+    # Centres within 1e-9 of an edge may differ (the reference excludes them).
+    assert (cov != ref).sum() <= 2
+    assert np.array_equal(
+        V._coverage_kernel_py(
+            np.ascontiguousarray(np.stack([uv[..., 0] * 37, (1 - uv[..., 1]) * 29], axis=-1)),
+            37,
+            29,
+        ),
+        cov,
+    )
+    # Two triangles of a quad whose diagonal passes through texel centres: each once.
+    quad = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
+    cov = V.texel_coverage(quad, (8, 8))
+    assert (cov == 1).all()
+
+
+def test_fan_triangulation():
+    tri = V._fan(np.array([3, 4, 5]))
+    assert tri.tolist() == [[0, 1, 2], [3, 4, 5], [3, 5, 6], [7, 8, 9], [7, 9, 10], [7, 10, 11]]
+
+
+# --------------------------------------------------------------------------------- the CLI
+
+
+def test_cli_exit_codes_and_output(assets, capsys):
+    assert cli.main(["validate", str(assets["clean"])]) == 0
+    assert cli.main(["validate", str(assets["corrupted_iz"])]) == 1
+    out = capsys.readouterr().out
+    assert f"<{MA.PRIM}> IzCheck:" in out and "Fix:" in out
+    # warnings pass unless --strict
+    assert cli.main(["validate", str(assets["mirrored_directions"])]) == 0
+    assert cli.main(["validate", "--strict", str(assets["mirrored_directions"])]) == 1
+    # a looser tolerance accepts the 1% corruption
+    assert cli.main(["validate", "--tolerance", "0.02", str(assets["corrupted_iz"])]) == 0
+    assert V.OPTIONS.iz_tolerance is None  # restored
+    assert cli.main(["validate", "--prim", MA.PRIM, str(assets["moved_light"])]) == 1
+    capsys.readouterr()
+    assert cli.main(["validate", "--json", str(assets["moved_light"])]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["exit_code"] == 1 and report["prims"] == [MA.PRIM]
+    stale = [f for f in report["findings"] if f["rule"] == "Staleness"]
+    assert stale[0]["data"]["changed"] == ["lights"]
+
+
+def test_cli_errors_and_rule_list(tmp_path, capsys, assets):
+    assert cli.main(["validate", str(tmp_path / "missing.usda")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(((\n")
+    assert cli.main(["validate", str(bad)]) == 2
+    assert cli.main(["validate", "--prim", "/Nope", str(assets["clean"])]) == 2
+    assert "no such prim" in capsys.readouterr().err
+    assert cli.main(["validate", "--list-rules"]) == 0
+    out = capsys.readouterr().out
+    for rule in V.RULES:
+        assert f"{rule.name}" in out and rule.description in out
+
+
+_PLAIN = textwrap.dedent(
+    """
+    import json, sys
+    from pxr import Usd, UsdValidation
+    reg = UsdValidation.ValidationRegistry()
+    metas = list(reg.GetValidatorMetadataForKeyword("UsdAhdValidators"))
+    metas += [reg.GetValidatorMetadata(n) for n in sys.argv[1].split(",")]
+    assert not [m for m in sys.modules if m.split(".")[0] == "usdahd"]  # nothing imported yet
+    ctx = UsdValidation.ValidationContext(metadata=metas, includeAllAncestors=False)
+    out = {}
+    for path in sys.argv[2:]:
+        found = []
+        stage = Usd.Stage.Open(path)  # keep it alive: error sites hold a weak pointer
+        for e in ctx.Validate(stage):
+            prims = [str(s.GetPrim().GetPath()) for s in e.GetSites() if s.GetPrim()]
+            found.append([e.GetValidator().GetMetadata().name, str(e.GetName()),
+                          str(e.GetType().displayName), prims, e.GetMessage()])
+        out[path] = sorted(found)
+    assert "usdahd.validate" in sys.modules  # loaded by Plug for the plugin, not by us
+    print(json.dumps(out))
+    """
+)
+
+
+def _plain_env():
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PXR_")}
+    env["PXR_PLUGINPATH_NAME"] = plugin.plugin_path()
+    # usdahd is importable the way an installed package is; the script never imports it.
+    env["PYTHONPATH"] = str(ROOT)
+    return env
+
+
+def test_plain_usd_validation_gives_the_same_findings(assets):
+    paths = [str(p) for p in assets.values()]
+    proc = subprocess.run(
+        [sys.executable, "-c", _PLAIN, ",".join(V.BUILTIN_VALIDATORS), *paths],
+        env=_plain_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=str(ROOT),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    plain = json.loads(proc.stdout.strip().splitlines()[-1])
+    sev = {"error": "Error", "warning": "Warn", "info": "Info"}
+    for p in paths:
+        ours = []
+        for f in _findings(Path(p)):
+            name = V.validator_name(f.rule) if f.rule in V.RULE_NAMES else f.rule
+            prims = [] if f.prim.startswith("@") else [f.prim]
+            ours.append([name, f.code, sev[f.severity], prims, f.message])
+        assert sorted(ours) == [list(x) for x in plain[p]], p
+
+
+def test_module_entry_point_subprocess(assets):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env.pop("PXR_PLUGINPATH_NAME", None)
+    codes = {}
+    for key in ("clean", "moved_light"):
+        proc = subprocess.run(
+            [sys.executable, "-m", "usdahd", "validate", "--quiet", str(assets[key])],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        codes[key] = (proc.returncode, proc.stdout)
+    assert codes["clean"] == (0, "")
+    assert codes["moved_light"][0] == 1 and "Staleness" in codes["moved_light"][1]
+
+
+# ------------------------------------------------------------------------- real bakes
+
+
+@pytest.mark.slow
+def test_fresh_bake_of_a_sample_validates_clean(tmp_path):
+    from usdahd import pipeline
+
+    src = ROOT / "samples" / "open_plane.usda"
+    out = tmp_path / "open_plane.lightmaps.usda"
+    try:
+        report = pipeline.bake(
+            src, pipeline.BakeOptions(output=str(out), resolution=16, samples=16, quiet=True)
+        )
+    except (NotImplementedError, AttributeError, NameError, ImportError) as exc:
+        pytest.skip(f"the baker is not complete yet: {exc}")
+    assert report["exit_code"] == 0
+    found = _findings(out)
+    assert [f for f in found if f.severity == "error"] == [], [f.message for f in found]
+    assert schema.prims_with_api(Usd.Stage.Open(str(out)))

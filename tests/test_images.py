@@ -124,3 +124,16 @@ def test_bad_inputs_raise_clear_errors(tmp_path):
         images.write(
             tmp_path / "d.exr", random_pixels("half", (2, 2, 3)), color_space="raw", format="f8"
         )
+
+
+def test_exr_many_channels_read_back_by_name_in_written_order(tmp_path):
+    # OpenEXR stores channels sorted by name; reading by name must undo that.
+    names = tuple(f"{c}{k}" for c in "RGB" for k in range(9)) + ("A",)
+    px = np.arange(2 * 3 * len(names), dtype=np.float32).reshape(2, 3, len(names))
+    path = tmp_path / "side.exr"
+    images.write(path, px, format="float", color_space="raw", channels=names)
+    back = images.read(path, channels=names)
+    np.testing.assert_array_equal(back.pixels, px)
+    whole = images.read(path)
+    for i, n in enumerate(names):
+        np.testing.assert_array_equal(whole.channel(n), px[..., i])

@@ -226,7 +226,10 @@ def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | Non
         attrs.setdefault(key, value)
     names = tuple(spec.channelnames)
     stored = desc.get("channels")
-    if isinstance(stored, list) and len(stored) == len(names):
+    # EXR keeps channel names but stores them sorted (OpenImageIO reads them in file order), so
+    # its own names are the truth; PNG/TIFF lose the names, so take those written in the
+    # description, which are in the order the pixels were written.
+    if isinstance(stored, list) and len(stored) == len(names) and set(stored) != set(names):
         names = tuple(str(c) for c in stored)
     image = Image(pixels, names, color_space, fmt, attrs)
     if channels is not None:

@@ -28,6 +28,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
         dir=target.parent,
     )
     os.close(fd)
+    # mkstemp creates 0600; give the file the permissions a plain open() would (umask).
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield Path(tmp)
         os.replace(tmp, target)

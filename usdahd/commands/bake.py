@@ -1,0 +1,133 @@
+"""``usdahd bake STAGE``: bake lightmaps and author AhdLightmapAPI in an override layer."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from usdahd import models
+from usdahd.errors import UsageError
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "bake",
+        help="bake directional lightmaps for a USD stage",
+        description=(
+            "Bake per-texel SH radiance for the meshes of a USD stage with Embree, fit a "
+            "directional lightmap model, write the textures under lightmaps/ beside the output "
+            "layer, and author AhdLightmapAPI on each mesh in an override layer that sublayers "
+            "the stage (the source layer is never modified). Meshes carrying the API with bake "
+            "enabled are baked; if none carry it, every visible mesh is. Re-running skips prims "
+            "whose inputs did not change."
+        ),
+    )
+    a = p.add_argument
+    a("stage", help="USD stage to bake (.usda/.usdc/.usd)")
+    a("-o", "--output", help="override layer to write (default STAGE_STEM.lightmaps.usda)")
+    a("--prim", action="append", metavar="PATH", help="bake only this prim (repeatable)")
+    a("--model", choices=list(models.REGISTRY), help="lighting model (default hhd)")
+    a("--ratio", help="luminance|rgb (IrradZ models); linear|nonlinear|8bit (sh_l1)")
+    a("--solver", help="solver (default: the model's)")
+    a("--uv", metavar="PRIMVAR", help="lightmap UV primvar name (default st)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--resolution", type=int, metavar="N", help="lightmap size N x N per mesh")
+    g.add_argument("--texel-density", type=float, metavar="T", help="texels per metre (default 16)")
+    a("--samples", type=int, metavar="N", help="hemisphere samples per texel (default 256)")
+    a("--bounces", type=int, metavar="N", help="indirect bounces (default 3)")
+    a("--seed", type=int, default=0, help="random seed (default 0)")
+    a("--padding", type=int, metavar="N", help="gutter dilation in texels (default 4)")
+    a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")
+    a("--denoise", action="store_true", help="denoise the SH with Intel Open Image Denoise")
+    a(
+        "--no-unwrap",
+        action="store_true",
+        help="fail on meshes without the UV set instead of unwrapping them with xatlas",
+    )
+    a("--force", action="store_true", help="re-bake prims even if unchanged")
+    a("--dry-run", action="store_true", help="report what would be baked; write nothing")
+    a("--json", action="store_true", help="print a machine-readable report on stdout")
+    a("--quiet", action="store_true", help="no progress or status on stderr")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    from usdahd.pipeline import BakeOptions, bake
+
+    for flag, low in (("samples", 1), ("resolution", 1), ("bounces", 0), ("padding", 0)):
+        v = getattr(args, flag)
+        if v is not None and v < low:
+            raise UsageError(f"--{flag} must be >= {low}, got {v}")
+    from usdahd.pipeline import MAX_RESOLUTION
+
+    if args.resolution is not None and args.resolution > MAX_RESOLUTION:
+        raise UsageError(
+            f"--resolution {args.resolution} exceeds the maximum {MAX_RESOLUTION} "
+            f"({args.resolution}^2 texels of SH would need "
+            f"{args.resolution**2 * 27 * 4 / 2**30:.0f} GiB); bake at most {MAX_RESOLUTION}"
+        )
+    if args.texel_density is not None and not args.texel_density > 0:
+        raise UsageError(f"--texel-density must be > 0, got {args.texel_density}")
+    opts = BakeOptions(
+        output=args.output,
+        prims=args.prim,
+        model=args.model,
+        ratio=args.ratio,
+        solver=args.solver,
+        uv=args.uv,
+        resolution=args.resolution,
+        texel_density=args.texel_density,
+        samples=args.samples,
+        bounces=args.bounces,
+        seed=args.seed,
+        padding=args.padding,
+        adaptive=args.adaptive,
+        denoise=args.denoise,
+        unwrap=not args.no_unwrap,
+        force=args.force,
+        dry_run=args.dry_run,
+        quiet=args.quiet,
+    )
+    report = bake(args.stage, opts)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    elif not args.quiet:
+        _print_report(report)
+    # Failures reach stderr even with --quiet or --json: CI logs must show why it exited 1.
+    for p in report["prims"]:
+        if p.get("status") == "failed":
+            print(f"usdahd bake: error: {p['error']}", file=sys.stderr)
+    return report["exit_code"]
+
+
+def _print_report(report) -> None:
+    for p in report["prims"]:
+        if p["status"] == "skipped":
+            print(f"{p['path']}: unchanged, skipped")
+        elif p["status"] == "kept":
+            print(f"{p['path']}: not selected, previous bake kept")
+        elif p["status"] == "failed":
+            print(f"{p['path']}: FAILED (see stderr)")
+        elif p["status"] == "planned":
+            print(
+                f"{p['path']}: would bake {p['resolution'][0]}x{p['resolution'][1]} "
+                f"({p.get('reason', '')})"
+            )
+        else:
+            print(
+                f"{p['path']}: {p['texels']} texels, {p['rays']} rays, {p['seconds']:.2f}s"
+                + (
+                    f", Iz max rel err {p['iz_max_rel_error']:.2e}"
+                    if "iz_max_rel_error" in p
+                    else ""
+                )
+            )
+        for w in p.get("warnings", []):
+            print(f"  warning: {w}")
+    for w in report.get("warnings", []):
+        print(f"warning: {w}")
+    if report.get("output"):
+        print(
+            f"output layer: {report['output']}" + ("" if report.get("written") else " (unchanged)")
+        )

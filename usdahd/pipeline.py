@@ -1,0 +1,686 @@
+"""``usdahd bake`` end to end: stage -> scene -> texels -> SH -> fit -> textures -> schema.
+
+The only orchestration module: each step lives in its own module (``usd/scene.py``,
+``bake/texels.py``, ``bake/integrate.py``, ``bake/post.py``, ``models/``, ``images.py``,
+``usd/schema.py``); this one decides what to bake, in what order, and what to skip.
+
+Nothing is written until a prim's bake succeeded; every file is written atomically (temp file
++ rename) and the override layer last, so an interrupted bake leaves the previous outputs valid.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from usdahd import models
+from usdahd._version import __version__
+from usdahd.errors import BakeError, InputError, StageError, UsageError
+
+#: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
+DEFAULTS = {
+    "model": "hhd",
+    "ratio": None,  # the model's first ratio type (luminance for IrradZ models)
+    "solver": None,  # the model's default solver
+    "uv": "st",
+    "resolution": 64,
+    "texel_density": None,
+    "samples": 256,
+    "bounces": 2,
+    "padding": 4,
+}
+#: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).
+MAX_RESOLUTION = 8192
+
+
+@dataclass
+class BakeOptions:
+    """Command-line level options; ``None`` means "not given" (fall back to defaults)."""
+
+    output: str | None = None
+    prims: list[str] | None = None
+    model: str | None = None
+    ratio: str | None = None
+    solver: str | None = None
+    uv: str | None = None
+    resolution: int | None = None
+    texel_density: float | None = None
+    samples: int | None = None
+    bounces: int | None = None
+    seed: int = 0
+    padding: int | None = None
+    adaptive: bool = False
+    denoise: bool = False
+    unwrap: bool = True
+    force: bool = False
+    dry_run: bool = False
+    quiet: bool = False
+
+
+@dataclass
+class PrimJob:
+    """One mesh to bake, with its resolved settings."""
+
+    path: str
+    mesh: object  # MeshData
+    settings: dict
+    resolution: tuple[int, int] = (0, 0)
+    unwrapped: bool = False
+    content_hash: str = ""
+    parts: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)
+    previous: object = None  # BakeResults of an unchanged previous bake
+    results: object = None  # BakeResults of this bake
+    uv_primvar_values: object = None  # (t, 3, 2) UVs to author when unwrapped
+    texels: object = None  # Texels
+    sh: object = None  # (n, 3, 9) float32 radiance SH
+    stats: dict = field(default_factory=dict)
+    charts: object = None  # (n,) int32 chart id per texel
+
+
+def default_output(stage_path: Path) -> Path:
+    """``dir/name.usda`` -> ``dir/name.lightmaps.usda``."""
+    return stage_path.with_name(stage_path.stem + ".lightmaps.usda")
+
+
+def sanitize(prim_path: str) -> str:
+    """A file-name stem for a prim path that cannot escape the output directory.
+
+    ``/World/Geo/wall_1`` -> ``World_Geo_wall_1-<hash8>``; the hash of the full path keeps
+    paths distinct that would collide after replacing separators (``/A/B_C`` vs ``/A_B/C``).
+    """
+    stem = re.sub(r"[^A-Za-z0-9_]+", "_", prim_path.strip("/"))[:80] or "root"
+    digest = hashlib.sha1(prim_path.encode()).hexdigest()[:8]
+    return f"{stem}-{digest}"
+
+
+def _status(opts: BakeOptions, msg: str) -> None:
+    if not opts.quiet:
+        print(msg, file=sys.stderr)
+
+
+# ------------------------------------------------------------------------------- settings
+
+
+def _authored_inputs(prim) -> dict:
+    """Bake inputs authored on ``prim`` (per-prim overrides), as BakeOptions field names."""
+    from usdahd.usd import schema
+
+    if not prim or not schema.has_api(prim):
+        return {}
+    rename = {"uv_primvar": "uv"}
+    out = {}
+    inputs = schema.read_inputs(prim)  # validates every value; SchemaError names the prim
+    for field_name, key in schema.INPUT_KEYS.items():
+        attr = prim.GetAttribute(schema.property_name(key))
+        if attr and attr.HasAuthoredValue():
+            out[rename.get(field_name, field_name)] = getattr(inputs, field_name)
+    if out.get("resolution") == 0:
+        del out["resolution"]  # 0 means "from texel density"
+    return out
+
+
+def resolve_settings(opts: BakeOptions, authored: dict) -> dict:
+    """Built-in defaults < CLI flags < per-prim authored schema inputs."""
+    s = dict(DEFAULTS)
+    for k in DEFAULTS:
+        v = getattr(opts, k, None)
+        if v is not None:
+            s[k] = v
+    if opts.texel_density is not None:
+        s["resolution"] = None
+    if opts.resolution is not None:
+        s["texel_density"] = None
+    for k, v in authored.items():
+        if k == "bake":
+            continue
+        s[k] = v
+        if k == "texel_density" and "resolution" not in authored:
+            s["resolution"] = None
+    mod = models.get(s["model"])
+    if s["ratio"] not in mod.RATIOS:
+        if opts.ratio is not None and "ratio" not in authored:
+            raise UsageError(
+                f"model {s['model']!r} supports --ratio {', '.join(mod.RATIOS)}, not {s['ratio']!r}"
+            )
+        s["ratio"] = mod.RATIOS[0]  # e.g. the schema fallback "luminance" on an SH model
+    if s["solver"] in (None, ""):
+        s["solver"] = mod.DEFAULT_SOLVER
+    if s["solver"] not in mod.SOLVERS:
+        raise UsageError(
+            f"model {s['model']!r} has solvers {', '.join(mod.SOLVERS)}, not {s['solver']!r}"
+        )
+    s["seed"] = opts.seed
+    s["adaptive"] = bool(opts.adaptive)
+    s["denoise"] = bool(opts.denoise)
+    return s
+
+
+def content_hash(parts: dict, prim_path: str, settings: dict) -> tuple[str, dict]:
+    """The hash a prim's bake depends on, and its named parts (stored for staleness checks).
+
+    parts : ``Scene.hash_parts()``; the prim's own geometry, every other mesh (shadows and
+    bounces), lights, materials, the prim's settings and the generator version.
+    returns : ("sha256:<hex>", {part name: hex}).
+    """
+    others = hashlib.sha256()
+    for k in sorted(parts):
+        if k not in (prim_path, "lights", "materials"):
+            others.update(k.encode() + parts[k].encode())
+    named = {
+        "geometry": parts.get(prim_path, ""),
+        "scene_geometry": others.hexdigest(),
+        "lights": parts.get("lights", ""),
+        "materials": parts.get("materials", ""),
+        "settings": hashlib.sha256(
+            json.dumps(settings, sort_keys=True, default=str).encode()
+        ).hexdigest(),
+        "generator": hashlib.sha256(f"usdahd {__version__}".encode()).hexdigest(),
+    }
+    total = hashlib.sha256(json.dumps(named, sort_keys=True).encode()).hexdigest()
+    return f"sha256:{total}", named
+
+
+def changed_parts(old: dict, new: dict) -> list[str]:
+    """Names of hash parts that differ (what changed since the bake)."""
+    return sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+
+
+# ------------------------------------------------------------------------------------ bake
+
+EXTENSIONS = {"half": ".exr", "float": ".exr", "unorm8": ".png", "snorm8": ".tif"}
+
+
+def _open_stage(path: Path):
+    from pxr import Sdf, Usd
+
+    # The layer registry keeps layers this process opened before; re-read them from disk so a
+    # second in-process bake sees files changed since (tests, long-lived pipeline tools).
+    cached = Sdf.Layer.Find(str(path))
+    if cached is not None:
+        cached.Reload(force=True)
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Exception as exc:  # pxr raises Tf.ErrorException
+        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+        raise StageError(f"{path}: not a readable USD stage ({first})") from None
+    if stage is None:
+        raise StageError(f"{path}: not a readable USD stage")
+    return stage
+
+
+def _previous_results(out: Path) -> dict:
+    """prim path -> BakeResults from an existing output layer (empty if none or unreadable)."""
+    if not out.is_file():
+        return {}
+    from usdahd.usd import schema
+
+    try:
+        stage = _open_stage(out)
+    except StageError:
+        return {}
+    prev = {}
+    for prim in schema.prims_with_api(stage):
+        try:
+            res = schema.read_results(prim)
+        except Exception:  # an invalid old record is simply re-baked
+            continue
+        if res is not None:
+            prev[str(prim.GetPath())] = res
+    return prev
+
+
+def _files_exist(res) -> bool:
+    return bool(res.textures) and all(Path(p).is_file() for p in res.textures.values())
+
+
+def _image_from_texels(values: np.ndarray, texels, fill=0) -> np.ndarray:
+    """Scatter per-texel values (n, c) into an image (h, w, c) (row 0 = top)."""
+    w, h = texels.resolution
+    img = np.full((h, w, values.shape[-1]), fill, dtype=values.dtype)
+    img[texels.xy[:, 1], texels.xy[:, 0]] = values
+    return img
+
+
+def _check_options(opts: BakeOptions) -> None:
+    """Flag combinations that are wrong for every prim: usage errors (exit 2) up front."""
+    mod = models.get(opts.model or DEFAULTS["model"])
+    if opts.ratio is not None and opts.ratio not in mod.RATIOS:
+        raise UsageError(
+            f"model {mod.NAME!r} supports --ratio {', '.join(mod.RATIOS)}, not {opts.ratio!r}"
+        )
+    if opts.solver is not None and opts.solver not in mod.SOLVERS:
+        raise UsageError(
+            f"model {mod.NAME!r} has --solver {', '.join(mod.SOLVERS)}, not {opts.solver!r}"
+        )
+    if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
+        raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
+
+
+def bake(stage_path, opts: BakeOptions | None = None) -> dict:
+    """Bake a stage; returns the report printed by ``usdahd bake --json``.
+
+    Raises InputError/StageError/UsageError (exit 2) for unusable input; per-prim failures are
+    reported in the result with ``exit_code`` 1.
+    """
+    from usdahd.usd import plugin
+
+    plugin.register()
+    opts = opts or BakeOptions()
+    _check_options(opts)
+    t_start = time.perf_counter()
+    src = Path(stage_path)
+    if not src.is_file():
+        raise InputError(f"{stage_path}: no such file")
+    out = Path(opts.output) if opts.output else default_output(src)
+    if out.suffix not in (".usda", ".usdc", ".usd"):
+        raise UsageError(f"-o {out}: the output layer must end in .usda, .usdc or .usd")
+    if out.resolve() == src.resolve():
+        raise UsageError(f"-o {out}: refusing to overwrite the source layer; choose another path")
+    stage = _open_stage(src)
+
+    from usdahd.usd import schema
+    from usdahd.usd.scene import load_scene
+
+    # Meshes carrying the API select themselves (bake on); else every visible mesh.
+    api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}
+    uv_default = opts.uv or DEFAULTS["uv"]
+    scene = load_scene(stage, uv_name=uv_default, prims=opts.prims)
+    if api_prims:
+        for m in scene.meshes:
+            if m.bake:
+                p = api_prims.get(m.path)
+                m.bake = bool(p) and bool(schema.read_inputs(p).bake)
+    prev = _previous_results(out)
+    report = {
+        "stage": str(src),
+        "output": str(out),
+        "prims": [],
+        "warnings": list(scene.warnings),
+        "written": False,
+    }
+    jobs = []
+    failed = 0
+    for i, mesh in enumerate(scene.meshes):
+        if not mesh.bake:
+            continue
+        entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
+        report["prims"].append(entry)
+        try:
+            job = _plan(scene, i, mesh, stage, opts)
+        except (InputError, UsageError) as exc:
+            entry.update(status="failed", error=str(exc))
+            failed += 1
+            continue
+        job.report = entry
+        entry["resolution"] = list(job.resolution)
+        if job.unwrapped:
+            entry["warnings"].append(
+                f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
+                f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
+            )
+        jobs.append(job)
+    if not jobs and not failed:
+        raise InputError(f"{src}: no mesh to bake (all meshes are occluders or have bake off)")
+    # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
+    # (the validator recomputes these from the output stage).
+    parts = scene.hash_parts()
+    for job in jobs:
+        job.content_hash, job.parts = content_hash(parts, job.path, job.settings)
+        old = prev.get(job.path)
+        unchanged = old is not None and old.content_hash == job.content_hash
+        if unchanged and not opts.force and _files_exist(old):
+            job.report["status"] = "skipped"
+            job.previous = old
+            continue
+        job.report["status"] = "planned"
+        if opts.force:
+            reason = "forced"
+        elif old is None:
+            reason = "no previous bake"
+        else:
+            what = changed_parts(old.part_hashes, job.parts)
+            reason = "changed: " + ", ".join(what) if what else "texture files missing"
+        job.report["reason"] = reason
+    # Prims not selected this time (--prim) or failing now keep their previous results: nothing
+    # already baked is lost (the validator reports them stale if their inputs changed).
+    planned = {j.path for j in jobs}
+    for path, old in prev.items():
+        if path not in planned and stage.GetPrimAtPath(path):
+            keep = PrimJob(path=path, mesh=None, settings={}, previous=old)
+            keep.report = {"path": path, "status": "kept"}
+            jobs.append(keep)
+    todo = [j for j in jobs if j.report["status"] == "planned"]
+    if opts.dry_run:
+        report["exit_code"] = 1 if failed else 0
+        report["seconds"] = time.perf_counter() - t_start
+        return report
+
+    if todo:
+        _bake_jobs(scene, todo, out, opts)
+    for j in todo:
+        if j.report["status"] == "failed":
+            failed += 1
+    if any(j.results is not None or j.previous is not None for j in jobs):
+        report["written"] = _author_layer(src, out, stage, jobs)
+    report["exit_code"] = 1 if failed else 0
+    report["seconds"] = time.perf_counter() - t_start
+    return report
+
+
+def _texels_per_unit(settings: dict, scene) -> float:
+    """Schema texel density is per metre; the mesh is in stage units."""
+    return float(settings["texel_density"]) * float(scene.meters_per_unit or 1.0)
+
+
+def _plan(scene, index: int, mesh, stage, opts: BakeOptions) -> PrimJob:
+    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
+    from usdahd.bake.texels import resolution_for_density
+    from usdahd.errors import SchemaError
+
+    prim = stage.GetPrimAtPath(mesh.path)
+    try:
+        authored = _authored_inputs(prim)
+    except SchemaError as exc:
+        raise InputError(str(exc)) from None
+    settings = resolve_settings(opts, authored)
+    uv_name = settings["uv"]
+    if uv_name != mesh.uv_name:
+        tc = scene.texcoords[index].get(uv_name) if index < len(scene.texcoords) else None
+        mesh.uv, mesh.uv_name = tc, uv_name
+    job = PrimJob(path=mesh.path, mesh=mesh, settings=settings)
+    if mesh.uv is None:
+        if not opts.unwrap:
+            raise InputError(
+                f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "
+                "(--no-unwrap); author the primvar, pick another with --uv, or drop --no-unwrap"
+            )
+        from usdahd.bake.unwrap import unwrap
+
+        if settings["resolution"]:
+            uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
+        else:
+            uv, res = unwrap(mesh, texels_per_unit=_texels_per_unit(settings, scene), padding=2)
+        mesh.uv = uv
+        job.unwrapped = True
+        job.uv_primvar_values = uv
+        job.resolution = tuple(int(r) for r in res)
+    elif settings["resolution"]:
+        r = int(settings["resolution"])
+        if r > MAX_RESOLUTION:
+            raise UsageError(
+                f"{mesh.path}: resolution {r} exceeds the maximum {MAX_RESOLUTION}; "
+                "lower --resolution or ahdLightmap:resolution"
+            )
+        job.resolution = (r, r)
+    else:
+        job.resolution = resolution_for_density(mesh, _texels_per_unit(settings, scene))
+    settings["resolution"] = list(job.resolution)
+    return job
+
+
+def _relative(path: Path, start: Path) -> str:
+    rel = os.path.relpath(path.resolve(), start.resolve()).replace(os.sep, "/")
+    return rel if rel.startswith("../") else f"./{rel}"
+
+
+def _author_uvs(stage, job) -> str | None:
+    """Author an unwrapped UV set as a faceVarying primvar; returns a warning or None."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    prim = stage.GetPrimAtPath(job.path)
+    mesh = UsdGeom.Mesh(prim)
+    n_fv = len(mesh.GetFaceVertexIndicesAttr().Get() or [])
+    corner = np.asarray(job.mesh.corner).reshape(-1)
+    uv = np.asarray(job.uv_primvar_values, dtype=np.float32).reshape(-1, 2)
+    values = np.zeros((n_fv, 2), dtype=np.float32)
+    values[corner] = uv
+    # A polygon's fan triangles share corners; xatlas may cut a polygon into two charts.
+    mismatch = int((np.abs(values[corner] - uv).max(axis=1) > 1e-6).sum())
+    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(
+        job.settings["uv"], Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying
+    )
+    pv.Set(Vt.Vec2fArray.FromNumpy(values))
+    if mismatch:
+        return (
+            f"{job.path}: {mismatch} unwrapped UV corners of split polygons could not be "
+            "represented in the faceVarying primvar; author a lightmap UV set for this mesh"
+        )
+    return None
+
+
+def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bool:
+    """Write the override layer atomically; returns False when its content is unchanged."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    from usdahd.usd import schema
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
+    os.close(fd)
+    os.unlink(tmp_name)  # Sdf wants to create the file itself
+    tmp = Path(tmp_name)
+    try:
+        layer = Sdf.Layer.CreateNew(str(tmp))
+        if layer is None:
+            raise BakeError(f"cannot create the output layer {out}")
+        src_root = source_stage.GetRootLayer()
+        layer.subLayerPaths.append(_relative(src, out.parent))
+        layer.documentation = (
+            f"Directional lightmaps baked by usdahd {__version__} for {src.name}; "
+            "regenerate with usdahd bake, do not edit by hand."
+        )
+        for key in ("defaultPrim", "upAxis", "metersPerUnit"):
+            if src_root.pseudoRoot.HasInfo(key):
+                layer.pseudoRoot.SetInfo(key, src_root.pseudoRoot.GetInfo(key))
+        ostage = Usd.Stage.Open(layer)
+        ostage.SetEditTarget(layer)
+        if not src_root.pseudoRoot.HasInfo("upAxis"):
+            UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
+        for job in sorted(jobs, key=lambda j: j.path):
+            res = job.results or job.previous
+            if res is None:
+                continue
+            prim = ostage.GetPrimAtPath(job.path)
+            if job.uv_primvar_values is not None:
+                warning = _author_uvs(ostage, job)
+                if warning and warning not in job.report.setdefault("warnings", []):
+                    job.report["warnings"].append(warning)
+            schema.write_results(prim, res, layer_dir=out.parent)
+        layer.Save()
+        new = tmp.read_bytes()
+        if out.is_file() and out.read_bytes() == new:
+            return False
+        os.replace(tmp, out)
+        return True
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _job_seed(seed: int, path: str) -> int:
+    """Independent, reproducible random stream per prim (does not depend on bake order)."""
+    return int.from_bytes(hashlib.sha256(f"{seed}:{path}".encode()).digest()[:4], "little")
+
+
+def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
+    """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats)."""
+    from usdahd.bake.integrate import bake_texels
+    from usdahd.bake.texels import rasterize
+    from usdahd.bake.trace import Tracer
+    from usdahd.errors import UsdAhdError
+    from usdahd.progress import Progress
+
+    t0 = time.perf_counter()
+    tracer = Tracer(scene)
+    _status(opts, f"BVH: {scene.triangle_count} triangles in {time.perf_counter() - t0:.2f}s")
+    for k, job in enumerate(jobs):
+        t1 = time.perf_counter()
+        try:
+            job.texels = rasterize(job.mesh, job.resolution)
+            if len(job.texels) == 0:
+                raise BakeError(
+                    f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "
+                    f"its UVs {job.settings['uv']!r} are degenerate or outside [0,1]"
+                )
+            bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
+            job.sh, job.stats = bake_texels(
+                scene,
+                tracer,
+                job.texels,
+                samples=int(job.settings["samples"]),
+                bounces=int(job.settings["bounces"]),
+                seed=_job_seed(opts.seed, job.path),
+                adaptive=bool(job.settings["adaptive"]),
+                progress=bar.update,
+            )
+            bar.close()
+        except UsdAhdError as exc:
+            job.report.update(status="failed", error=str(exc))
+            continue
+        st = job.texels.stats
+        job.report.update(
+            texels=len(job.texels),
+            rays=int(job.stats.get("rays", 0)),
+            rays_saved=int(job.stats.get("rays_saved", 0)),
+            invalid_texels=int(np.count_nonzero(job.stats.get("invalid", []))),
+            uv_overlap_texels=int(st.get("overlap_texels", 0)),
+            uv_outside_fraction=float(st.get("uv_outside_fraction", 0.0)),
+            trace_seconds=time.perf_counter() - t1,
+        )
+        if st.get("overlap_texels"):
+            job.report["warnings"].append(
+                f"{st['overlap_texels']} texels are covered by overlapping UV triangles"
+            )
+        if st.get("uv_outside_fraction"):
+            job.report["warnings"].append(
+                f"{100 * st['uv_outside_fraction']:.1f}% of UVs lie outside [0,1]"
+            )
+
+
+def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
+    """Trace, post-process, fit, encode and write textures for every job (atomically)."""
+    from usdahd.bake import post
+
+    _trace_jobs(scene, jobs, opts)
+    ok = [j for j in jobs if j.report.get("status") != "failed"]
+    from usdahd.bake.texels import chart_ids
+
+    # Order (docs/texels.md): fill invalid -> denoise -> stitch seams -> fit -> encode -> dilate.
+    for job in ok:
+        job.charts = chart_ids(job.mesh)[job.texels.triangle]
+        invalid = np.asarray(job.stats.get("invalid", np.zeros(len(job.texels), bool)))
+        if invalid.any():
+            job.sh, unfilled = post.fill_invalid(job.sh, job.texels, invalid, charts=job.charts)
+            if unfilled.any():
+                job.report["warnings"].append(
+                    f"{int(unfilled.sum())} texels inside geometry have no valid neighbour "
+                    "(the whole chart is enclosed); their lighting is unreliable"
+                )
+    if opts.denoise:
+        from usdahd.bake import denoise
+
+        for job in ok:
+            job.sh = denoise.denoise_sh(job.sh, job.texels, charts=job.charts)
+    if ok:
+        t0 = time.perf_counter()
+        seams = post.find_seams([j.mesh for j in ok], [j.texels.resolution for j in ok])
+        stitched = post.stitch([j.sh for j in ok], [j.texels for j in ok], seams)
+        for job, values in zip(ok, stitched, strict=True):
+            job.sh = np.asarray(values, dtype=np.float32)
+        _status(opts, f"seams: stitched in {time.perf_counter() - t0:.2f}s")
+    for job in ok:
+        try:
+            _encode_and_write(job, out, opts)
+        except (BakeError, InputError) as exc:
+            job.report.update(status="failed", error=str(exc))
+
+
+def _factor_attrs(factors: dict) -> dict:
+    """Decode factors also stored in each file's metadata (the schema is authoritative)."""
+    return {f"usdahd:{k}": float(v) for k, v in factors.items()}
+
+
+def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
+    """Fit the model, quantize, dilate, write textures + SH sidecar; set job.results."""
+    from usdahd import images
+    from usdahd import sh as shmod
+    from usdahd.bake import post
+    from usdahd.usd import schema
+
+    t0 = time.perf_counter()
+    s = job.settings
+    mod = models.get(s["model"])
+    fitted = models.fit(job.sh, s["model"], ratio=s["ratio"], solver=s["solver"])
+    channels, factors = mod.encode(fitted.params, ratio=s["ratio"])
+    decoded = mod.decode(channels, ratio=s["ratio"], factors=factors)
+    # The property the format exists for: I(z) after quantization equals the baked I_z.
+    z = np.broadcast_to(np.array([0.0, 0.0, 1.0], np.float32), (len(job.texels), 3))
+    got = mod.evaluate(decoded, z)
+    want = shmod.iz(job.sh.astype(np.float64))
+    scale = np.maximum(np.abs(want).max(axis=-1, keepdims=True), 1e-6)
+    err = np.abs(got - want) / scale
+    job.report["iz_max_rel_error"] = float(err.max()) if err.size else 0.0
+    if not np.isfinite(got).all():
+        raise BakeError(f"{job.path}: decoded lightmap contains NaN/Inf (please report a bug)")
+
+    lm_dir = out.parent / "lightmaps"
+    stem = sanitize(job.path)
+    w, h = job.texels.resolution
+    mask = np.zeros((h, w), bool)
+    mask[job.texels.xy[:, 1], job.texels.xy[:, 0]] = True
+    padding = int(s["padding"])
+    textures = {}
+    for lay in mod.layout(s["ratio"]):
+        values = np.asarray(channels[lay.role])
+        values = values.reshape(len(job.texels), -1)
+        img = post.dilate(_image_from_texels(values, job.texels), mask, padding)
+        img = img.astype(values.dtype, copy=False)
+        path = lm_dir / f"{stem}.{lay.role}{EXTENSIONS[lay.format]}"
+        images.write(
+            path,
+            img,
+            format=lay.format,
+            color_space=lay.color_space,
+            channels=lay.channels,
+            attributes=_factor_attrs(factors),
+        )
+        textures[lay.role] = str(path)
+    # The SH sidecar (float32, with coverage) the validator checks I_z against.
+    side = np.concatenate(
+        [
+            job.sh.reshape(len(job.texels), 27).astype(np.float32),
+            np.ones((len(job.texels), 1), np.float32),
+        ],
+        axis=1,
+    )
+    side_img = _image_from_texels(side, job.texels)
+    side_path = lm_dir / f"{stem}.sh.exr"
+    images.write(
+        side_path, side_img, format="float", color_space="raw", channels=schema.SH_SIDECAR_CHANNELS
+    )
+    textures[schema.SIDECAR_ROLE] = str(side_path)
+    job.results = schema.BakeResults(
+        model=s["model"],
+        ratio=s["ratio"],
+        solver=s["solver"],
+        uv_primvar=s["uv"],
+        resolution=(int(w), int(h)),
+        textures=textures,
+        factors={k: float(v) for k, v in factors.items()},
+        content_hash=job.content_hash,
+        part_hashes=job.parts,
+        settings=s,
+        generator=f"usdahd {__version__}",
+    )
+    job.report["status"] = "baked"
+    job.report["seconds"] = job.report.get("trace_seconds", 0.0) + time.perf_counter() - t0

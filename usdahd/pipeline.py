@@ -310,6 +310,11 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     }
     jobs = []
     failed = 0
+    # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
+    # the rest of the stage still bakes.
+    for path, msg in sorted(getattr(scene, "failed", {}).items()):
+        report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
+        failed += 1
     for i, mesh in enumerate(scene.meshes):
         if not mesh.bake:
             continue

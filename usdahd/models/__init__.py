@@ -66,6 +66,8 @@ def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None 
     sh = np.asarray(sh)
     if sh.ndim < 2 or sh.shape[-2:] != (3, 9):
         raise InputError(f"SH must have shape (..., 3, 9) (RGB x 9 coefficients), got {sh.shape}")
+    if not (np.issubdtype(sh.dtype, np.floating) or np.issubdtype(sh.dtype, np.integer)):
+        raise InputError(f"SH must be real numbers, got dtype {sh.dtype}")
     if not np.issubdtype(sh.dtype, np.floating):
         sh = sh.astype(np.float64)
     ratio = ratio or mod.RATIOS[0]

@@ -1,12 +1,16 @@
 """Ray-tracing throughput: end-to-end bake rays/s vs raw Embree trace-only rays/s, same run.
 
 Usage: PYTHONPATH=. python benchmarks/trace.py [--samples 64] [--bounces 2] [--texels 4096]
+       [--repeat 3] [--no-reference]
 
 For each scene (a small procedural room, a ~100k-triangle procedural scene, and
-../shared/scenes/classroom when present) it prints: triangles, BVH build time, raw INTERSECT
-and OCCLUDED rates (the same Tracer, both threads, random rays from the texel points), the
-end-to-end `bake_texels` rate (all rays traced / wall time, including sampling, shading and SH
-accumulation) and the ratio end-to-end / raw INTERSECT. Medians of ``--repeat`` runs.
+../shared/scenes/classroom when present) it prints, per tracer backend (``native`` = libembree4
+called from numba, the default; ``embreex`` = the pure-embreex numpy reference): triangles, BVH
+build time (and per million triangles), raw INTERSECT and OCCLUDED rates (both threads, the same
+random cosine rays from the texel points for both backends), the end-to-end ``bake_texels`` rate
+(all rays traced / wall time, including sampling, shading and SH accumulation) and the ratios
+end-to-end / raw INTERSECT of the same backend (``ratio``) and of embreex (``vs_ex``).
+Medians of ``--repeat`` runs; JIT kernels are warmed up (loaded from numba's cache) first.
 """
 
 from __future__ import annotations
@@ -101,20 +105,24 @@ def random_texels(scene, n, rng):
     )
 
 
-def raw_rates(tr, tex, n_rays, rng):
-    idx = rng.integers(len(tex), size=n_rays)
-    p = tex.position[idx].astype(np.float64)
-    ng = tex.geom_normal[idx].astype(np.float64)
-    d = to_world(cosine_hemisphere(rng.random((n_rays, 2)))[0], tex.frame[idx].astype(np.float64))
-    o = np.ascontiguousarray(tr.offset(p, ng, d), np.float32)
-    d = np.ascontiguousarray(d, np.float32)
-    tf = np.full(n_rays, np.inf, np.float32)
+def raw_rates(tr, o, d):
+    """Raw INTERSECT and OCCLUDED rays/s of ``tr`` on rays (o, d) (float32)."""
+    tf = np.full(len(o), np.inf, np.float32)
     t0 = time.perf_counter()
     tr._raw_intersect(o, d, tf.copy())
     t1 = time.perf_counter()
     tr._raw_occluded(o, d, tf.copy())
     t2 = time.perf_counter()
-    return n_rays / (t1 - t0), n_rays / (t2 - t1)
+    return len(o) / (t1 - t0), len(o) / (t2 - t1)
+
+
+def test_rays(tr, tex, n_rays, rng):
+    idx = rng.integers(len(tex), size=n_rays)
+    p = tex.position[idx].astype(np.float64)
+    ng = tex.geom_normal[idx].astype(np.float64)
+    d = to_world(cosine_hemisphere(rng.random((n_rays, 2)))[0], tex.frame[idx].astype(np.float64))
+    o = np.ascontiguousarray(tr.offset(p, ng, d), np.float32)
+    return o, np.ascontiguousarray(d, np.float32)
 
 
 def bench(name, stage, args):
@@ -122,25 +130,45 @@ def bench(name, stage, args):
     t0 = time.perf_counter()
     scene = load_scene(stage)
     t_load = time.perf_counter() - t0
-    builds, isect, occl, e2e = [], [], [], []
+    backends = ["native"] + ([] if args.no_reference else ["embreex"])
+    res = {b: {"build": [], "isect": [], "occl": [], "e2e": []} for b in backends}
+    res.setdefault("embreex", {"build": [], "isect": [], "occl": [], "e2e": []})
     for _ in range(args.repeat):
-        tr = Tracer(scene)
-        builds.append(tr.build_time)
         tex = random_texels(scene, args.texels, rng)
-        ri, ro = raw_rates(tr, tex, 1 << 20, rng)
-        isect.append(ri)
-        occl.append(ro)
-        t1 = time.perf_counter()
-        _, stats = bake_texels(scene, tr, tex, samples=args.samples, bounces=args.bounces)
-        e2e.append(stats["rays"] / (time.perf_counter() - t1))
-        tr.close()
+        trs = {b: Tracer(scene, backend=b) for b in ("native", "embreex")}
+        o, d = test_rays(trs["native"], tex, 1 << 20, rng)
+        for b, tr in trs.items():
+            res[b]["build"].append(tr.build_time)
+            raw_rates(tr, o[:1000], d[:1000])  # warm up (JIT cache load, thread pool)
+            ri, ro = raw_rates(tr, o, d)
+            res[b]["isect"].append(ri)
+            res[b]["occl"].append(ro)
+        for b in backends:
+            tr = trs[b]
+            bake_texels(scene, tr, _head(tex, 8), samples=4, bounces=1)
+            t1 = time.perf_counter()
+            _, stats = bake_texels(scene, tr, tex, samples=args.samples, bounces=args.bounces)
+            res[b]["e2e"].append(stats["rays"] / (time.perf_counter() - t1))
+        for tr in trs.values():
+            tr.close()
     med = statistics.median
     ntri = scene.triangle_count
-    print(
-        f"{name:10s} {ntri:9d} {t_load:7.2f} {med(builds):8.3f} {med(builds) / ntri * 1e6:9.2f} "
-        f"{med(isect) / 1e6:8.2f} {med(occl) / 1e6:8.2f} {med(e2e) / 1e6:8.2f} "
-        f"{med(e2e) / med(isect):6.2f}"
-    )
+    ex_isect = med(res["embreex"]["isect"])
+    for b in backends:
+        r = {k: med(v) for k, v in res[b].items()}
+        print(
+            f"{name:10s} {b:8s} {ntri:9d} {t_load:7.2f} {r['build']:8.3f} "
+            f"{r['build'] / ntri * 1e6:7.2f} {r['isect'] / 1e6:7.2f} {r['occl'] / 1e6:7.2f} "
+            f"{r['e2e'] / 1e6:7.2f} {r['e2e'] / r['isect']:6.2f} {r['e2e'] / ex_isect:6.2f}"
+        )
+
+
+def _head(tex, n):
+    n = min(n, len(tex))
+    return Texels(
+        (n, 1), tex.xy[:n], tex.position[:n], tex.geom_normal[:n], tex.frame[:n],
+        tex.triangle[:n], tex.center_inside[:n],
+    )  # fmt: skip
 
 
 def main(argv=None):
@@ -149,14 +177,15 @@ def main(argv=None):
     ap.add_argument("--bounces", type=int, default=2)
     ap.add_argument("--texels", type=int, default=4096)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-reference", action="store_true", help="skip the embreex bake")
     args = ap.parse_args(argv)
     print(
         f"samples={args.samples} bounces={args.bounces} texels={args.texels} "
         f"repeat={args.repeat} (medians; Mrays/s)"
     )
     print(
-        f"{'scene':10s} {'tris':>9s} {'load_s':>7s} {'build_s':>8s} {'s/Mtri':>9s} "
-        f"{'isect':>8s} {'occl':>8s} {'e2e':>8s} {'ratio':>6s}"
+        f"{'scene':10s} {'backend':8s} {'tris':>9s} {'load_s':>7s} {'build_s':>8s} "
+        f"{'s/Mtri':>7s} {'isect':>7s} {'occl':>7s} {'e2e':>7s} {'ratio':>6s} {'vs_ex':>6s}"
     )
     bench("room", room_stage(), args)
     bench("100k", big_stage(), args)

@@ -48,8 +48,27 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from numba import njit
 
 from usdahd import sh as shmod
+from usdahd.bake import embree_native
+from usdahd.bake.lights import (
+    light_intersect,
+    light_pdf,
+    light_sample,
+    nb_basis_apply,
+    pack_lights,
+)
+from usdahd.bake.trace import (
+    nb_albedo,
+    nb_emission,
+    nb_hit_point,
+    nb_occluded,
+    nb_offset,
+    nb_random,
+    nb_shading_normal,
+    nb_trace,
+)
 from usdahd.sampling import (
     cosine_hemisphere,
     orthonormal_basis,
@@ -61,6 +80,8 @@ from usdahd.sampling import (
 
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
 CHUNK_RAYS = 1 << 16
+#: Samples per chunk of the native kernel (memory is per texel there, ~1.4 kB).
+NATIVE_CHUNK_RAYS = 1 << 18
 #: Reflections before Russian roulette starts (bounces <= RR_DEPTH are never terminated).
 RR_DEPTH = 3
 #: Adaptive: number of passes the sample budget is split into, relative tolerance, floor.
@@ -133,7 +154,12 @@ def bake_texels(
         return out, _stats(tracer, rays0, t0, invalid, backfrac, used, 0)
     passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1
     per_pass = int(np.ceil(samples / passes))
-    chunk = max(1, CHUNK_RAYS // max(per_pass, 1))
+    native = getattr(tracer, "backend", "embreex") == "native"
+    if native:
+        ctx = _NativeCtx(scene, tracer, bounces, estimator)
+        chunk = max(64, NATIVE_CHUNK_RAYS // max(per_pass, 1))
+    else:
+        chunk = max(1, CHUNK_RAYS // max(per_pass, 1))
     est_rays_per_sample = None
     saved = 0
     for start in range(0, n, chunk):
@@ -144,16 +170,22 @@ def bake_texels(
         P = texels.position[sl].astype(np.float64)
         NG = texels.geom_normal[sl].astype(np.float64)
         F = texels.frame[sl].astype(np.float64)
-        ctx.direct_delta(P, NG, F, acc)
+        if native:
+            ctx.start_chunk(P, NG, F, rng)
+        else:
+            ctx.direct_delta(P, NG, F, acc)
         for k in range(passes):
             if len(active) == 0:
                 break
             s_k = min(per_pass, samples - k * per_pass)
             if s_k <= 0:
                 break
-            ctx.hemisphere_pass(
-                P[active], NG[active], F[active], s_k, k * per_pass, rng, acc, active
-            )
+            if native:
+                ctx.native_pass(s_k, k * per_pass, acc, active, k == 0)
+            else:
+                ctx.hemisphere_pass(
+                    P[active], NG[active], F[active], s_k, k * per_pass, rng, acc, active
+                )
             if passes > 1 and k < passes - 1:
                 done = acc.converged(active, adaptive_tol)
                 left = samples - (k + 1) * per_pass
@@ -415,6 +447,51 @@ class _Ctx:
         return out
 
 
+class _NativeCtx:
+    """Drives :func:`_native_pass` over the tracer's threads (backend "native")."""
+
+    def __init__(self, scene, tracer, bounces, estimator):
+        self.tr = tracer
+        lights = _Lights(scene.lights)
+        order = {id(lt): i for i, lt in enumerate(lights.all)}
+        tab = pack_lights(lights.all)
+        self.lt = (tab.kind, tab.par, tab.img, tab.pmf, tab.cdf, tab.delta, tab.infinite,
+                   tab.sampled)  # fmt: skip
+
+        def ids(group):
+            return np.array([order[id(lt)] for lt in group], np.int64)
+
+        self.lists = (ids(lights.nee), ids(lights.visible), ids(lights.delta), ids(lights.area))
+        self.cfg = np.array(
+            [bounces, tracer.offset_eps, tracer.has_transmission, tracer.has_emission,
+             estimator == "regression"],
+            np.float64,
+        )  # fmt: skip
+        self.tb = tracer.native_tables()
+        self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces
+
+    def start_chunk(self, P, NG, F, rng):
+        self.P, self.NG, self.F = P, NG, np.ascontiguousarray(F)
+        self.state = rng.integers(0, np.iinfo(np.uint64).max, len(P), dtype=np.uint64,
+                                  endpoint=True)  # fmt: skip
+
+    def native_pass(self, s, offset, acc, active, do_delta):
+        r2h = r2_sequence(s, offset)
+        r2n = r2_sequence(s, offset + 7919)
+        arrays = (acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back, acc.y_sum,
+                  acc.y_sq)  # fmt: skip
+        handle = self.tr.native_handle
+
+        def run(ids):
+            return _native_pass(
+                handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
+                s, r2h, r2n, self.state, do_delta, arrays,
+            )  # fmt: skip
+
+        rays = self.tr.run_parallel(run, np.asarray(active, np.int64))
+        self.tr.rays_traced += int(sum(rays))
+
+
 def _power(pa, pb):
     """MIS power heuristic (beta 2) weight of strategy a."""
     a2 = pa * pa
@@ -424,3 +501,284 @@ def _power(pa, pb):
 
 def _shorten(dist):
     return np.where(np.isfinite(dist), dist * (1.0 - SHADOW_SHORTEN), np.inf)
+
+
+# ----------------------------------------------------------------------------- native kernel
+# The same estimator as ``_Ctx`` above, fused per texel in numba and tracing through
+# libembree4 directly (backend "native"). Each call handles the texels ``ids`` of one chunk for
+# one pass and adds into the ``_Accum`` arrays at those rows only, so threads given disjoint
+# ``ids`` never touch the same memory. Random numbers: one splitmix64 stream per texel (state in
+# ``rng_state``), so results do not depend on threads or on how texels are split among them.
+
+_C0, _C1, _C2, _C20, _C22 = shmod.C0, shmod.C1, shmod.C2, shmod.C20, shmod.C22
+_LUM = (float(shmod.LUMINANCE[0]), float(shmod.LUMINANCE[1]), float(shmod.LUMINANCE[2]))
+_IZ = float(shmod.IZ_FROM_L10)
+_TWO_PI = 2.0 * np.pi
+
+
+@njit(cache=True, inline="always")
+def _sh9(Y, x, y, z):
+    Y[0] = _C0
+    Y[1] = -_C1 * y
+    Y[2] = _C1 * z
+    Y[3] = -_C1 * x
+    Y[4] = _C2 * x * y
+    Y[5] = -_C2 * y * z
+    Y[6] = _C20 * (3.0 * z * z - 1.0)
+    Y[7] = -_C2 * x * z
+    Y[8] = _C22 * (x * x - y * y)
+
+
+@njit(cache=True, inline="always")
+def _pw(a, b):
+    den = a * a + b * b
+    return a * a / den if den > 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _short(dist):
+    return dist * (1.0 - SHADOW_SHORTEN) if np.isfinite(dist) else np.inf
+
+
+@njit(cache=True, inline="always")
+def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u, v, pdf_dir, sel):
+    """``_Ctx.incoming`` unrolled into a loop: radiance (r, g, b) arriving at o along d whose
+    first hit is (t, tri, u, v); also returns the rays traced."""
+    kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
+    nee_idx, visible_idx = lists
+    bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
+    n_nee = nee_idx.shape[0]
+    gn_t = tb[1]
+    Lr = Lg = Lb = 0.0
+    br = bg = bb = 1.0
+    depth = 0
+    rays = 0
+    while True:
+        miss = tri < 0
+        for jj in range(visible_idx.shape[0]):
+            j = visible_idx[jj]
+            hit, tl, r, g, b = light_intersect(kind[j], par[j], img, ox, oy, oz, dx, dy, dz)
+            if not hit:
+                continue
+            if (miss if linf[j] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
+                w = 1.0
+                if lsampled[j]:
+                    pl = light_pdf(kind[j], par[j], pmf, ox, oy, oz, dx, dy, dz, tl) * sel
+                    w = _pw(pdf_dir, pl)
+                Lr += br * w * r
+                Lg += bg * w * g
+                Lb += bb * w * b
+        if miss:
+            break
+        gx, gy, gz = gn_t[tri, 0], gn_t[tri, 1], gn_t[tri, 2]
+        cos_in = dx * gx + dy * gy + dz * gz
+        if has_em and cos_in < 0.0:
+            er, eg, eb = nb_emission(tb, tri, u, v)
+            Lr += br * er
+            Lg += bg * eg
+            Lb += bb * eb
+        if depth + 1 > bounces:
+            break
+        ar, ag, ab = nb_albedo(tb, tri, u, v)
+        if not (ar > 0.0 or ag > 0.0 or ab > 0.0):
+            break
+        if depth + 1 > RR_DEPTH:
+            q = min(max(max(ar, ag, ab), 0.05), 1.0)
+            if not (nb_random(st) < q):
+                break
+            ar, ag, ab = ar / q, ag / q, ab / q
+        px, py, pz = nb_hit_point(tb, tri, u, v)
+        nx, ny, nz = nb_shading_normal(tb, tri, u, v)
+        side = 1.0 if cos_in < 0.0 else -1.0
+        gx, gy, gz = gx * side, gy * side, gz * side
+        nx, ny, nz = nx * side, ny * side, nz * side
+        if not (nx * gx + ny * gy + nz * gz > 0.0):
+            nx, ny, nz = gx, gy, gz
+        br, bg, bb = br * ar, bg * ag, bb * ab
+        depth += 1
+        # next-event estimation: one light chosen uniformly
+        if n_nee:
+            j = nee_idx[min(int(nb_random(st) * n_nee), n_nee - 1)]
+            u0 = nb_random(st)
+            u1 = nb_random(st)
+            lx, ly, lz, dist, r, g, b, pdf = light_sample(
+                kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
+            )
+            cos = lx * nx + ly * ny + lz * nz
+            if (
+                cos > 0.0
+                and lx * gx + ly * gy + lz * gz > 0.0
+                and pdf > 0.0
+                and (r > 0.0 or g > 0.0 or b > 0.0)
+            ):
+                qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
+                occ, k = nb_occluded(
+                    scene, rec, tb, eps, transmission, st, qx, qy, qz, lx, ly, lz, _short(dist)
+                )
+                rays += k
+                if not occ:
+                    if ldelta[j]:
+                        f = cos / np.pi * n_nee
+                    else:
+                        pl = pdf / n_nee
+                        f = _pw(pl, cos / np.pi) * cos / np.pi / pl
+                    Lr += br * r * f
+                    Lg += bg * g * f
+                    Lb += bb * b * f
+        # continuation ray (also the MIS partner of the NEE sample)
+        if not (visible_idx.shape[0] > 0 or has_em or depth < bounces):
+            break
+        u0 = nb_random(st)
+        u1 = nb_random(st)
+        rr = np.sqrt(u0)
+        phi = _TWO_PI * u1
+        cz = np.sqrt(max(1.0 - u0, 0.0))
+        dx, dy, dz = nb_basis_apply(nx, ny, nz, rr * np.cos(phi), rr * np.sin(phi), cz)
+        if not (dx * gx + dy * gy + dz * gz > 0.0):
+            break
+        ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)
+        t, tri, u, v, k = nb_trace(
+            scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, np.inf
+        )
+        rays += k
+        pdf_dir = cz / np.pi
+        sel = 1.0 / max(1, n_nee)
+    return Lr, Lg, Lb, rays
+
+
+@njit(cache=True, nogil=True)
+def _native_pass(scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_state, do_delta, acc):
+    """One pass of ``s`` hemisphere (+ light) samples for texels ``ids`` of a chunk.
+
+    P, NG : (n,3) f64; F : (n,3,3) f64; r2h, r2n : (s,2) R2 points for the hemisphere and the
+    light samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``.
+    returns : rays traced.
+    """
+    kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
+    delta_idx, area_idx = lists[2], lists[3]
+    gram, hemi, nee, delta, count, back, y_sum, y_sq = acc
+    eps, transmission, regression = cfg[1], cfg[2] != 0.0, cfg[4] != 0.0
+    n_area = area_idx.shape[0]
+    sel_area = 1.0 / max(1, n_area)
+    sub = (lists[0], lists[1])
+    gn_t = tb[1]
+    rec = embree_native.scratch()
+    st = np.empty(1, np.uint64)
+    Y = np.empty(9)
+    rays = 0
+    for ii in range(ids.shape[0]):
+        i = ids[ii]
+        st[0] = rng_state[i]
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
+        f = F[i]
+        if do_delta:
+            for jj in range(delta_idx.shape[0]):
+                j = delta_idx[jj]
+                dx, dy, dz, dist, r, g, b, _ = light_sample(
+                    kind[j], par[j], img, pmf, cdf, px, py, pz, 0.0, 0.0
+                )
+                lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
+                if not (lz > 0.0 and dx * ngx + dy * ngy + dz * ngz > 0.0):
+                    continue
+                qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
+                occ, k = nb_occluded(
+                    scene, rec, tb, eps, transmission, st, qx, qy, qz, dx, dy, dz, _short(dist)
+                )
+                rays += k
+                if occ:
+                    continue
+                lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
+                ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
+                _sh9(Y, lx, ly, lz)
+                for c9 in range(9):
+                    delta[i, 0, c9] += r * Y[c9]
+                    delta[i, 1, c9] += g * Y[c9]
+                    delta[i, 2, c9] += b * Y[c9]
+        cp0 = nb_random(st)
+        cp1 = nb_random(st)
+        cn0 = cn1 = 0.0
+        if n_area:
+            cn0 = nb_random(st)
+            cn1 = nb_random(st)
+        for k in range(s):
+            u0 = r2h[k, 0] + cp0
+            u0 = u0 - 1.0 if u0 >= 1.0 else u0
+            u1 = r2h[k, 1] + cp1
+            u1 = u1 - 1.0 if u1 >= 1.0 else u1
+            lz = u0
+            sn = np.sqrt(max(1.0 - lz * lz, 0.0))
+            phi = _TWO_PI * u1
+            lx, ly = sn * np.cos(phi), sn * np.sin(phi)
+            dx = lx * f[0, 0] + ly * f[1, 0] + lz * f[2, 0]
+            dy = lx * f[0, 1] + ly * f[1, 1] + lz * f[2, 1]
+            dz = lx * f[0, 2] + ly * f[1, 2] + lz * f[2, 2]
+            Rr = Rg = Rb = 0.0
+            if dx * ngx + dy * ngy + dz * ngz > 0.0:
+                ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
+                t, tri, hu, hv, kk = nb_trace(
+                    scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, np.inf
+                )
+                rays += kk
+                if tri >= 0 and dx * gn_t[tri, 0] + dy * gn_t[tri, 1] + dz * gn_t[tri, 2] > 0.0:
+                    back[i] += 1
+                Rr, Rg, Rb, kk = _path(
+                    scene, rec, tb, lt, sub, cfg, st, ox, oy, oz, dx, dy, dz,
+                    t, tri, hu, hv, INV_2PI, sel_area,
+                )  # fmt: skip
+                rays += kk
+            _sh9(Y, lx, ly, lz)
+            for c9 in range(9):
+                w = _TWO_PI * Y[c9]
+                hemi[i, 0, c9] += w * Rr
+                hemi[i, 1, c9] += w * Rg
+                hemi[i, 2, c9] += w * Rb
+            if regression:
+                for a in range(9):
+                    wa = _TWO_PI * Y[a]
+                    for b9 in range(a, 9):
+                        gram[i, a, b9] += wa * Y[b9]
+            ylum = _TWO_PI * _IZ * (_LUM[0] * Rr + _LUM[1] * Rg + _LUM[2] * Rb) * Y[2]
+            if n_area:
+                u0 = r2n[k, 0] + cn0
+                u0 = u0 - 1.0 if u0 >= 1.0 else u0
+                u1 = r2n[k, 1] + cn1
+                u1 = u1 - 1.0 if u1 >= 1.0 else u1
+                pick = min(int(nb_random(st) * n_area), n_area - 1) if n_area > 1 else 0
+                j = area_idx[pick]
+                dx, dy, dz, dist, r, g, b, pdf = light_sample(
+                    kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
+                )
+                lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
+                if (
+                    pdf > 0.0
+                    and lz > 0.0
+                    and dx * ngx + dy * ngy + dz * ngz > 0.0
+                    and (r > 0.0 or g > 0.0 or b > 0.0)
+                ):
+                    ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
+                    occ, kk = nb_occluded(
+                        scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz,
+                        _short(dist),
+                    )  # fmt: skip
+                    rays += kk
+                    if not occ:
+                        pl = pdf / n_area
+                        wgt = _pw(pl, INV_2PI) / pl
+                        lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
+                        ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
+                        _sh9(Y, lx, ly, lz)
+                        for c9 in range(9):
+                            nee[i, 0, c9] += r * wgt * Y[c9]
+                            nee[i, 1, c9] += g * wgt * Y[c9]
+                            nee[i, 2, c9] += b * wgt * Y[c9]
+                        ylum += _IZ * wgt * (_LUM[0] * r + _LUM[1] * g + _LUM[2] * b) * Y[2]
+            y_sum[i] += ylum
+            y_sq[i] += ylum * ylum
+        count[i] += s
+        rng_state[i] = st[0]
+        if regression:
+            for a in range(9):
+                for b9 in range(a):
+                    gram[i, a, b9] = gram[i, b9, a]
+    return rays

@@ -12,6 +12,13 @@ constructor because it is not thread-safe. ``robust=False`` (measured 13-50 % fa
 Alpha cut-outs (UsdPreviewSurface opacity/opacityThreshold) and stochastic opacity are handled
 by re-tracing rays from the transmissive hit, at most ``MAX_TRANSMIT`` times; shadow rays use the
 same loop only when the scene has transmissive materials (plain OCCLUDED otherwise).
+
+Backends (``backend=``): ``"native"`` calls the libembree4 shipped in the embreex wheel directly
+(:mod:`usdahd.bake.embree_native`; queries from numba without the GIL, and the integrator's
+fused kernel in :mod:`usdahd.bake.integrate`), ``"embreex"`` is the pure-embreex reference
+(batched numpy queries). ``"auto"`` (default) picks native when the library binds. Both give
+the same hits (same library, same build flags); ``native_tables()`` packs the per-triangle and
+material/texture tables for numba.
 """
 
 from __future__ import annotations
@@ -22,6 +29,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+from numba import njit
+
+from usdahd.bake import embree_native
 
 #: Re-traces through cut-out/transmissive surfaces before a ray is considered blocked.
 MAX_TRANSMIT = 8
@@ -42,8 +52,15 @@ class Tracer:
     ``rays_traced`` int (a running count).
     """
 
-    def __init__(self, scene, threads: int = 2):
+    def __init__(self, scene, threads: int = 2, backend: str = "auto"):
         t0 = time.perf_counter()
+        if backend not in ("auto", "native", "embreex"):
+            from usdahd.errors import UsageError
+
+            raise UsageError(f"unknown tracer backend {backend!r} (auto, native or embreex)")
+        if backend == "auto":
+            backend = "native" if embree_native.available() else "embreex"
+        self.backend = backend
         self.scene = scene
         self.threads = max(1, int(threads))
         pts, tris, mesh_id, local, mats, normals, tex = [], [], [], [], [], [], []
@@ -83,12 +100,16 @@ class Tracer:
         lo, hi = points.min(axis=0), points.max(axis=0)
         self.extent = float(np.linalg.norm(hi - lo))
         self.offset_eps = OFFSET_REL * max(self.extent, 1e-6)
-        self._embree = rtcore_scene.EmbreeScene(robust=False)
-        TriangleMesh(
-            self._embree,
-            np.ascontiguousarray(points, dtype=np.float32),
-            np.ascontiguousarray(self.triangles, dtype=np.int32),
-        )
+        self._embree = self._native = None
+        if backend == "native":
+            self._native = embree_native.NativeScene(points, self.triangles)
+        else:
+            self._embree = rtcore_scene.EmbreeScene(robust=False)
+            TriangleMesh(
+                self._embree,
+                np.ascontiguousarray(points, dtype=np.float32),
+                np.ascontiguousarray(self.triangles, dtype=np.int32),
+            )
         # Material tables.
         mt = scene.materials
         self.albedo = np.array([m.albedo for m in mt], np.float32).reshape(-1, 3)
@@ -99,8 +120,10 @@ class Tracer:
         self.has_emission = bool(np.any(self.emissive_materials[self.tri_material]))
         self.rays_traced = 0
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
-        # Commit the BVH now (first run is not thread-safe).
-        self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        self._tables = None
+        if self._embree is not None:
+            # Commit the BVH now (first run is not thread-safe).
+            self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self.build_time = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ raw queries
@@ -114,18 +137,52 @@ class Tracer:
         ]
         return [f.result() for f in futs]
 
+    def run_parallel(self, fn, ids):
+        """Run ``fn(part)`` on the tracer's threads over interleaved parts of ``ids`` (m,)
+        int64 (interleaving balances texels of different cost); returns the list of results."""
+        k = self.threads if self._pool is not None else 1
+        k = max(1, min(k, len(ids)))
+        if k == 1:
+            return [fn(ids)]
+        futs = [self._pool.submit(fn, np.ascontiguousarray(ids[i::k])) for i in range(k)]
+        return [f.result() for f in futs]
+
     def _raw_intersect(self, o, d, tfar):
-        def run(o_, d_, t_):
-            r = self._embree.run(o_, d_, dists=t_, output=1)
-            return r["tfar"], r["primID"], r["u"], r["v"]
+        if self._native is not None:
+
+            def run(o_, d_, t_):
+                m = len(o_)
+                out = (
+                    np.empty(m, np.float32),
+                    np.empty(m, np.int64),
+                    np.empty(m, np.float32),
+                    np.empty(m, np.float32),
+                )
+                embree_native.intersect_batch(self._native.handle, o_, d_, t_, *out)
+                return out[0], out[1].astype(np.int32), out[2], out[3]
+
+        else:
+
+            def run(o_, d_, t_):
+                r = self._embree.run(o_, d_, dists=t_, output=1)
+                return r["tfar"], r["primID"], r["u"], r["v"]
 
         parts = self._split(run, len(o), o, d, tfar)
         self.rays_traced += len(o)
         return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
     def _raw_occluded(self, o, d, tfar):
-        def run(o_, d_, t_):
-            return self._embree.run(o_, d_, dists=t_, query="OCCLUDED") != -1
+        if self._native is not None:
+
+            def run(o_, d_, t_):
+                out = np.empty(len(o_), bool)
+                embree_native.occluded_batch(self._native.handle, o_, d_, t_, out)
+                return out
+
+        else:
+
+            def run(o_, d_, t_):
+                return self._embree.run(o_, d_, dists=t_, query="OCCLUDED") != -1
 
         parts = self._split(run, len(o), o, d, tfar)
         self.rays_traced += len(o)
@@ -264,7 +321,258 @@ class Tracer:
         out[idx] = res
         return out
 
+    # ------------------------------------------------------------------ native tables
+    def native_tables(self):
+        """Per-triangle, material and texture tables for the numba kernels (cached).
+
+        returns a tuple (see :func:`surface_albedo` and friends for the layout):
+        ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f64,
+        ``tri_material`` (T,) i64, ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64
+        (albedo rgb, emission rgb, opacity, threshold), ``mat_tex`` (M,3) i64 texture index of
+        albedo/emission/opacity (-1: constant), ``tex_data`` (D,) f32 texels, ``tex_info``
+        (K,8) i64 (offset, h, w, c, wrap s, wrap t, channel count, 0), ``tex_chan`` (K,4) i64,
+        ``tex_sb`` (K,8) f64 (scale, bias).
+        """
+        if self._tables is not None:
+            return self._tables
+        mats = self.scene.materials
+        nm = max(1, len(mats))
+        mat_const = np.zeros((nm, 8))
+        mat_tex = np.full((nm, 3), -1, np.int64)
+        data, info, chan, sb = [np.zeros(1, np.float32)], [], [], []
+        off = 1
+        wrap_code = {"repeat": 0, "clamp": 1, "black": 1, "mirror": 2}
+        for i, m in enumerate(mats):
+            mat_const[i, 0:3] = m.albedo
+            mat_const[i, 3:6] = m.emission
+            mat_const[i, 6] = m.opacity
+            mat_const[i, 7] = m.opacity_threshold
+            for j, tex in enumerate((m.albedo_tex, m.emission_tex, m.opacity_tex)):
+                if tex is None:
+                    continue
+                h, w, c = tex.data.shape
+                mat_tex[i, j] = len(info)
+                info.append(
+                    [off, h, w, c, wrap_code.get(tex.wrap[0], 0), wrap_code.get(tex.wrap[1], 0)]
+                    + [len(tex.channels), 0]
+                )
+                ch = list(tex.channels)[:4]
+                chan.append(ch + [0] * (4 - len(ch)))
+                sb.append(np.r_[np.asarray(tex.scale, float)[:4], np.asarray(tex.bias, float)[:4]])
+                data.append(np.ascontiguousarray(tex.data, np.float32).reshape(-1))
+                off += tex.data.size
+        self._tables = (
+            np.ascontiguousarray(self.verts, np.float64),
+            self.geom_normal.astype(np.float64),
+            self.corner_normal.astype(np.float64),
+            self.tri_material.astype(np.int64),
+            self.tri_texcoord.astype(np.float64),
+            mat_const,
+            mat_tex,
+            np.concatenate(data),
+            np.array(info, np.int64).reshape(-1, 8),
+            np.array(chan, np.int64).reshape(-1, 4),
+            np.array(sb, np.float64).reshape(-1, 8),
+        )
+        return self._tables
+
+    @property
+    def native_handle(self) -> int:
+        """RTCScene address for :mod:`usdahd.bake.embree_native` (native backend only)."""
+        return self._native.handle if self._native is not None else 0
+
     def close(self):
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+# ----------------------------------------------------------------------------- numba side
+# Scalar per-ray versions of the methods above for the fused integrator kernel; ``tb`` is the
+# tuple returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.
+
+_U64 = np.uint64
+
+
+@njit(cache=True, inline="always")
+def nb_random(st):
+    """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
+    z = st[0] + _U64(0x9E3779B97F4A7C15)
+    st[0] = z
+    z = (z ^ (z >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> _U64(27))) * _U64(0x94D049BB133111EB)
+    z = z ^ (z >> _U64(31))
+    return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, inline="always")
+def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
+    """:meth:`Tracer.offset` for one ray."""
+    s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
+    sc = s * (eps + 1e-7 * max(abs(px), abs(py), abs(pz)))
+    return px + sc * nx, py + sc * ny, pz + sc * nz
+
+
+@njit(cache=True)
+def _wrap(i, n, mode):
+    if mode == 1:
+        return min(max(i, 0), n - 1)
+    if mode == 2:
+        i = i % (2 * n)
+        return 2 * n - 1 - i if i >= n else i
+    return i % n
+
+
+@njit(cache=True)
+def nb_texture(tb, k, s, t):
+    """Texture ``k`` at uv (s, t): the selected channels (up to 4; bilinear, scale/bias,
+    missing channels padded as :meth:`usdahd.usd.scene.Texture.sample`)."""
+    data, info, chan, sb = tb[7], tb[8], tb[9], tb[10]
+    off, h, w, c = info[k, 0], info[k, 1], info[k, 2], info[k, 3]
+    x = s * w - 0.5
+    y = (1.0 - t) * h - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    xi, yi = int(x0), int(y0)
+    xs0, xs1 = _wrap(xi, w, info[k, 4]), _wrap(xi + 1, w, info[k, 4])
+    ys0, ys1 = _wrap(yi, h, info[k, 5]), _wrap(yi + 1, h, info[k, 5])
+    v = np.ones(4)
+    for ch in range(min(c, 4)):
+        v[ch] = (
+            data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
+            + data[off + (ys0 * w + xs1) * c + ch] * fx * (1 - fy)
+            + data[off + (ys1 * w + xs0) * c + ch] * (1 - fx) * fy
+            + data[off + (ys1 * w + xs1) * c + ch] * fx * fy
+        )
+    if c == 1:
+        v[1] = v[0]
+        v[2] = v[0]
+    out = np.zeros(4)
+    for j in range(info[k, 6]):
+        q = chan[k, j]
+        out[j] = np.float32(v[q] * sb[k, q] + sb[k, 4 + q])
+    return out, info[k, 6]
+
+
+@njit(cache=True)
+def _uv(tb, tri, u, v):
+    tc = tb[4]
+    w0 = 1.0 - u - v
+    return (
+        w0 * tc[tri, 0, 0] + u * tc[tri, 1, 0] + v * tc[tri, 2, 0],
+        w0 * tc[tri, 0, 1] + u * tc[tri, 1, 1] + v * tc[tri, 2, 1],
+    )
+
+
+@njit(cache=True)
+def _material_rgb(tb, tri, u, v, which):
+    m = tb[3][tri]
+    k = tb[6][m, which]
+    mc = tb[5]
+    if k < 0:
+        return mc[m, 3 * which], mc[m, 3 * which + 1], mc[m, 3 * which + 2]
+    s, t = _uv(tb, tri, u, v)
+    val, nch = nb_texture(tb, k, s, t)
+    if nch == 1:
+        return val[0], val[0], val[0]
+    return val[0], val[1], val[2]
+
+
+@njit(cache=True)
+def nb_albedo(tb, tri, u, v):
+    """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
+    r, g, b = _material_rgb(tb, tri, u, v, 0)
+    return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
+
+
+@njit(cache=True)
+def nb_emission(tb, tri, u, v):
+    """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
+    return _material_rgb(tb, tri, u, v, 1)
+
+
+@njit(cache=True)
+def nb_transmits(tb, tri, u, v, st):
+    """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
+    m = tb[3][tri]
+    mc = tb[5]
+    k = tb[6][m, 2]
+    op = mc[m, 6]
+    if k >= 0:
+        s, t = _uv(tb, tri, u, v)
+        op = nb_texture(tb, k, s, t)[0][0]
+    elif op >= 1.0:
+        return False
+    th = np.float32(mc[m, 7])
+    op = np.float32(op)
+    if th > 0:
+        return op < th
+    if op < 1.0:
+        return nb_random(st) >= op
+    return False
+
+
+@njit(cache=True, inline="always")
+def nb_hit_point(tb, tri, u, v):
+    w = tb[0]
+    w0 = 1.0 - u - v
+    return (
+        w0 * w[tri, 0, 0] + u * w[tri, 1, 0] + v * w[tri, 2, 0],
+        w0 * w[tri, 0, 1] + u * w[tri, 1, 1] + v * w[tri, 2, 1],
+        w0 * w[tri, 0, 2] + u * w[tri, 1, 2] + v * w[tri, 2, 2],
+    )
+
+
+@njit(cache=True, inline="always")
+def nb_shading_normal(tb, tri, u, v):
+    cn = tb[2]
+    w0 = 1.0 - u - v
+    nx = w0 * cn[tri, 0, 0] + u * cn[tri, 1, 0] + v * cn[tri, 2, 0]
+    ny = w0 * cn[tri, 0, 1] + u * cn[tri, 1, 1] + v * cn[tri, 2, 1]
+    nz = w0 * cn[tri, 0, 2] + u * cn[tri, 1, 2] + v * cn[tri, 2, 2]
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln > 1e-12:
+        return nx / ln, ny / ln, nz / ln
+    g = tb[1]
+    return g[tri, 0], g[tri, 1], g[tri, 2]
+
+
+@njit(cache=True, inline="always")
+def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
+    """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, rays traced); tri -1 on miss."""
+    t, tri, u, v = embree_native.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    rays = 1
+    if not transmission:
+        return np.float64(t), tri, np.float64(u), np.float64(v), rays
+    t = np.float64(t)
+    u = np.float64(u)
+    v = np.float64(v)
+    travelled = 0.0
+    for _ in range(MAX_TRANSMIT):
+        if tri < 0 or not nb_transmits(tb, tri, u, v, st):
+            break
+        px, py, pz = nb_hit_point(tb, tri, np.float32(u), np.float32(v))
+        g = tb[1]
+        qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
+        done = travelled + t
+        t2, tri, u2, v2 = embree_native.intersect1(
+            scene, rec, qx, qy, qz, dx, dy, dz, np.float32(tfar - done)
+        )
+        rays += 1
+        travelled = done
+        t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
+    if tri < 0:
+        return np.inf, tri, u, v, rays
+    return np.float64(np.float32(travelled + t)), tri, u, v, rays
+
+
+@njit(cache=True, inline="always")
+def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
+    """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
+    if not transmission:
+        return embree_native.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar), 1
+    _, tri, _, _, rays = nb_trace(
+        scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
+    )
+    return tri >= 0, rays

@@ -9,7 +9,8 @@ called from numba, the default; ``embreex`` = the pure-embreex numpy reference):
 build time (and per million triangles), raw INTERSECT and OCCLUDED rates (both threads, the same
 random cosine rays from the texel points for both backends), the end-to-end ``bake_texels`` rate
 (all rays traced / wall time, including sampling, shading and SH accumulation) and the ratios
-end-to-end / raw INTERSECT of the same backend (``ratio``) and of embreex (``vs_ex``).
+end-to-end / raw INTERSECT of the same backend (``ratio``) and of embreex (``vs_ex``), each
+ratio from raw rates measured right before and after its bake (the machine may be shared).
 Medians of ``--repeat`` runs; JIT kernels are warmed up (loaded from numba's cache) first.
 """
 
@@ -131,8 +132,8 @@ def bench(name, stage, args):
     scene = load_scene(stage)
     t_load = time.perf_counter() - t0
     backends = ["native"] + ([] if args.no_reference else ["embreex"])
-    res = {b: {"build": [], "isect": [], "occl": [], "e2e": []} for b in backends}
-    res.setdefault("embreex", {"build": [], "isect": [], "occl": [], "e2e": []})
+    keys = ("build", "isect", "occl", "e2e", "ratio", "vs_ex")
+    res = {b: {k: [] for k in keys} for b in ("native", "embreex")}
     for _ in range(args.repeat):
         tex = random_texels(scene, args.texels, rng)
         trs = {b: Tracer(scene, backend=b) for b in ("native", "embreex")}
@@ -140,26 +141,31 @@ def bench(name, stage, args):
         for b, tr in trs.items():
             res[b]["build"].append(tr.build_time)
             raw_rates(tr, o[:1000], d[:1000])  # warm up (JIT cache load, thread pool)
-            ri, ro = raw_rates(tr, o, d)
-            res[b]["isect"].append(ri)
-            res[b]["occl"].append(ro)
+            bake_texels(scene, tr, _head(tex, 8), samples=4, bounces=1)
+        # raw and end-to-end back to back, so each ratio sees the same machine load
         for b in backends:
             tr = trs[b]
-            bake_texels(scene, tr, _head(tex, 8), samples=4, bounces=1)
+            ri, ro = raw_rates(tr, o, d)
             t1 = time.perf_counter()
             _, stats = bake_texels(scene, tr, tex, samples=args.samples, bounces=args.bounces)
-            res[b]["e2e"].append(stats["rays"] / (time.perf_counter() - t1))
+            e2e = stats["rays"] / (time.perf_counter() - t1)
+            ri2, ro2 = raw_rates(tr, o, d)
+            rx = raw_rates(trs["embreex"], o, d)[0] if b == "native" else ri
+            raw = 0.5 * (ri + ri2)
+            for k, v in zip(keys[1:], (raw, 0.5 * (ro + ro2), e2e, e2e / raw, e2e / rx)):
+                res[b][k].append(v)
+        if args.no_reference:
+            res["embreex"]["isect"].append(raw_rates(trs["embreex"], o, d)[0])
         for tr in trs.values():
             tr.close()
     med = statistics.median
     ntri = scene.triangle_count
-    ex_isect = med(res["embreex"]["isect"])
-    for b in backends:
-        r = {k: med(v) for k, v in res[b].items()}
+    for b in backends + (["embreex"] if args.no_reference else []):
+        r = {k: med(v) if v else float("nan") for k, v in res[b].items()}
         print(
             f"{name:10s} {b:8s} {ntri:9d} {t_load:7.2f} {r['build']:8.3f} "
             f"{r['build'] / ntri * 1e6:7.2f} {r['isect'] / 1e6:7.2f} {r['occl'] / 1e6:7.2f} "
-            f"{r['e2e'] / 1e6:7.2f} {r['e2e'] / r['isect']:6.2f} {r['e2e'] / ex_isect:6.2f}"
+            f"{r['e2e'] / 1e6:7.2f} {r['ratio']:6.2f} {r['vs_ex']:6.2f}"
         )
 
 

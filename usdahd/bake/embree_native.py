@@ -201,15 +201,22 @@ _rtc_occluded1 = _extern_call("rtcOccluded1")
 _load()  # the JIT resolves rtcIntersect1/rtcOccluded1 from the permanently loaded library
 
 
+def new_scratch() -> np.ndarray:
+    """A 16-byte aligned RTCRayHit record, (RAYHIT_FLOATS,) float32 (one per thread)."""
+    buf = np.zeros(RAYHIT_FLOATS + 4, np.float32)
+    off = ((16 - (buf.ctypes.data % 16)) % 16) // 4
+    return buf[off : off + RAYHIT_FLOATS]
+
+
 @njit(cache=True, nogil=True)
 def scratch():
-    """A 16-byte aligned RTCRayHit record, (RAYHIT_FLOATS,) float32 (one per thread)."""
+    """:func:`new_scratch` inside numba code."""
     buf = np.empty(RAYHIT_FLOATS + 4, np.float32)
     off = ((16 - (buf.ctypes.data % 16)) % 16) // 4
     return buf[off : off + RAYHIT_FLOATS]
 
 
-@njit(inline="always", cache=True)
+@njit(inline="always", cache=True, _nrt=False)
 def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     rec[0] = ox
     rec[1] = oy
@@ -226,7 +233,7 @@ def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     iv[11] = 0  # flags
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """Closest hit. rec : (RAYHIT_FLOATS,) float32 scratch (16-byte aligned).
 
@@ -242,7 +249,7 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     return rec[8], np.int64(iv[17]), rec[15], rec[16]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """True when anything lies along the ray in [0, tfar]."""
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)

@@ -483,9 +483,10 @@ class _NativeCtx:
         handle = self.tr.native_handle
 
         def run(ids):
+            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9))
             return _native_pass(
                 handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
-                s, r2h, r2n, self.state, do_delta, arrays,
+                s, r2h, r2n, self.state, do_delta, arrays, work,
             )  # fmt: skip
 
         rays = self.tr.run_parallel(run, np.asarray(active, np.int64))
@@ -516,7 +517,7 @@ _IZ = float(shmod.IZ_FROM_L10)
 _TWO_PI = 2.0 * np.pi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _sh9(Y, x, y, z):
     Y[0] = _C0
     Y[1] = -_C1 * y
@@ -529,18 +530,18 @@ def _sh9(Y, x, y, z):
     Y[8] = _C22 * (x * x - y * y)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _short(dist):
     return dist * (1.0 - SHADOW_SHORTEN) if np.isfinite(dist) else np.inf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u, v, pdf_dir, sel):
     """``_Ctx.incoming`` unrolled into a loop: radiance (r, g, b) arriving at o along d whose
     first hit is (t, tri, u, v); also returns the rays traced."""
@@ -646,12 +647,16 @@ def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u,
     return Lr, Lg, Lb, rays
 
 
-@njit(cache=True, nogil=True)
-def _native_pass(scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_state, do_delta, acc):
+@njit(cache=True, nogil=True, _nrt=False)
+def _native_pass(
+    scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_state, do_delta, acc, work
+):
     """One pass of ``s`` hemisphere (+ light) samples for texels ``ids`` of a chunk.
 
     P, NG : (n,3) f64; F : (n,3,3) f64; r2h, r2n : (s,2) R2 points for the hemisphere and the
-    light samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``.
+    light samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
+    work : per-thread scratch (RTCRayHit record, (1,) uint64 random state, (9,) f64). Compiled
+    without the NRT (``_nrt=False``): no allocation and no reference counting in the hot loop.
     returns : rays traced.
     """
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
@@ -662,9 +667,7 @@ def _native_pass(scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_stat
     sel_area = 1.0 / max(1, n_area)
     sub = (lists[0], lists[1])
     gn_t = tb[1]
-    rec = embree_native.scratch()
-    st = np.empty(1, np.uint64)
-    Y = np.empty(9)
+    rec, st, Y = work
     rays = 0
     for ii in range(ids.shape[0]):
         i = ids[ii]

@@ -394,7 +394,7 @@ class Tracer:
 _U64 = np.uint64
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_random(st):
     """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
     z = st[0] + _U64(0x9E3779B97F4A7C15)
@@ -405,7 +405,7 @@ def nb_random(st):
     return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     """:meth:`Tracer.offset` for one ray."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
@@ -413,7 +413,7 @@ def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     return px + sc * nx, py + sc * ny, pz + sc * nz
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _wrap(i, n, mode):
     if mode == 1:
         return min(max(i, 0), n - 1)
@@ -423,10 +423,20 @@ def _wrap(i, n, mode):
     return i % n
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
+def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
+    return (
+        data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
+        + data[off + (ys0 * w + xs1) * c + ch] * fx * (1 - fy)
+        + data[off + (ys1 * w + xs0) * c + ch] * (1 - fx) * fy
+        + data[off + (ys1 * w + xs1) * c + ch] * fx * fy
+    )
+
+
+@njit(cache=True, _nrt=False)
 def nb_texture(tb, k, s, t):
-    """Texture ``k`` at uv (s, t): the selected channels (up to 4; bilinear, scale/bias,
-    missing channels padded as :meth:`usdahd.usd.scene.Texture.sample`)."""
+    """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
+    scale/bias, missing channels padded as :meth:`usdahd.usd.scene.Texture.sample`)."""
     data, info, chan, sb = tb[7], tb[8], tb[9], tb[10]
     off, h, w, c = info[k, 0], info[k, 1], info[k, 2], info[k, 3]
     x = s * w - 0.5
@@ -437,25 +447,28 @@ def nb_texture(tb, k, s, t):
     xi, yi = int(x0), int(y0)
     xs0, xs1 = _wrap(xi, w, info[k, 4]), _wrap(xi + 1, w, info[k, 4])
     ys0, ys1 = _wrap(yi, h, info[k, 5]), _wrap(yi + 1, h, info[k, 5])
-    v = np.ones(4)
-    for ch in range(min(c, 4)):
-        v[ch] = (
-            data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
-            + data[off + (ys0 * w + xs1) * c + ch] * fx * (1 - fy)
-            + data[off + (ys1 * w + xs0) * c + ch] * (1 - fx) * fy
-            + data[off + (ys1 * w + xs1) * c + ch] * fx * fy
-        )
-    if c == 1:
-        v[1] = v[0]
-        v[2] = v[0]
-    out = np.zeros(4)
+    out = (0.0, 0.0, 0.0, 0.0)
     for j in range(info[k, 6]):
         q = chan[k, j]
-        out[j] = np.float32(v[q] * sb[k, q] + sb[k, 4 + q])
+        if q < c:
+            v = _bilinear(data, off, w, c, q, xs0, xs1, ys0, ys1, fx, fy)
+        elif c == 1 and q < 3:
+            v = _bilinear(data, off, w, c, 0, xs0, xs1, ys0, ys1, fx, fy)
+        else:
+            v = 1.0
+        v = np.float64(np.float32(v * sb[k, q] + sb[k, 4 + q]))
+        if j == 0:
+            out = (v, out[1], out[2], out[3])
+        elif j == 1:
+            out = (out[0], v, out[2], out[3])
+        elif j == 2:
+            out = (out[0], out[1], v, out[3])
+        else:
+            out = (out[0], out[1], out[2], v)
     return out, info[k, 6]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _uv(tb, tri, u, v):
     tc = tb[4]
     w0 = 1.0 - u - v
@@ -465,7 +478,7 @@ def _uv(tb, tri, u, v):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _material_rgb(tb, tri, u, v, which):
     m = tb[3][tri]
     k = tb[6][m, which]
@@ -479,20 +492,20 @@ def _material_rgb(tb, tri, u, v, which):
     return val[0], val[1], val[2]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
     r, g, b = _material_rgb(tb, tri, u, v, 0)
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
     return _material_rgb(tb, tri, u, v, 1)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def nb_transmits(tb, tri, u, v, st):
     """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
     m = tb[3][tri]
@@ -513,7 +526,7 @@ def nb_transmits(tb, tri, u, v, st):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_hit_point(tb, tri, u, v):
     w = tb[0]
     w0 = 1.0 - u - v
@@ -524,7 +537,7 @@ def nb_hit_point(tb, tri, u, v):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_shading_normal(tb, tri, u, v):
     cn = tb[2]
     w0 = 1.0 - u - v
@@ -538,7 +551,7 @@ def nb_shading_normal(tb, tri, u, v):
     return g[tri, 0], g[tri, 1], g[tri, 2]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, rays traced); tri -1 on miss."""
     t, tri, u, v = embree_native.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
@@ -567,7 +580,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     return np.float64(np.float32(travelled + t)), tri, u, v, rays
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
     if not transmission:

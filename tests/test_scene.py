@@ -5,7 +5,7 @@ import os
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
 from usdahd.bake.trace import Tracer
 from usdahd.errors import StageError
@@ -227,21 +227,303 @@ def test_errors(tmp_path):
     with pytest.raises(StageError, match="no visible"):
         load_scene(_stage())
     st = _stage()
-    _mesh(st, "/nan", [(0, 0, 0), (1, 0, 0), (float("nan"), 1, 0)], [3], [0, 1, 2])
-    with pytest.raises(StageError, match="/nan.*NaN"):
-        load_scene(st)
-    st = _stage()
-    _mesh(st, "/counts", QUAD, [4, 3], [0, 1, 2, 3])
-    with pytest.raises(StageError, match="/counts.*faceVertexCounts"):
-        load_scene(st)
-    st = _stage()
-    _mesh(st, "/range", QUAD, [4], [0, 1, 2, 9])
-    with pytest.raises(StageError, match="/range.*out of range"):
-        load_scene(st)
-    st = _stage()
     _mesh(st, "/m", QUAD, [4], [0, 1, 2, 3])
     with pytest.raises(StageError, match="/nowhere"):
         load_scene(st, prims=["/nowhere"])
+
+
+def _good_and(st):
+    """A valid quad /good next to the defect, so the stage itself stays usable."""
+    _mesh(st, "/good", QUAD, [4], [0, 1, 2, 3])
+    return st
+
+
+def _failed(st, path="/bad", **kw):
+    """load_scene must not raise; the mesh is recorded as failed and dropped."""
+    sc = load_scene(st, **kw)
+    assert path in sc.failed, (sc.failed, sc.warnings)
+    assert path not in [m.path for m in sc.meshes]
+    assert [m.path for m in sc.meshes] == ["/good"]
+    msg = sc.failed[path]
+    assert msg.startswith(path + ":") and "\n" not in msg
+    return msg
+
+
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize(
+    "pts, counts, idx, pattern",
+    [
+        ([(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2], "NaN"),
+        ([(0, 0, 0), (1, 0, 0), (INF, 1, 0)], [3], [0, 1, 2], "Inf"),
+        (QUAD, [4, 3], [0, 1, 2, 3], "faceVertexCounts sum to 7"),
+        (QUAD, [4], [0, 1, 2, 9], "faceVertexIndices out of range"),
+        (QUAD, [4], [0, 1, 2, -1], "faceVertexIndices out of range"),
+        (QUAD, [5, -1], [0, 1, 2, 3], "negative"),
+        ([(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)], [4], [0, 1, 2, 3], "zero surface area"),
+    ],
+)
+def test_bad_mesh_goes_to_failed(pts, counts, idx, pattern):
+    st = _good_and(_stage())
+    _mesh(st, "/bad", pts, counts, idx)
+    assert pattern in _failed(st)
+
+
+def test_bad_transforms_go_to_failed():
+    for op, value, pattern in [
+        ("scale", Gf.Vec3f(0, 0, 0), "not invertible"),
+        ("scale", Gf.Vec3f(1, 1, 0), "not invertible"),
+        ("translate", Gf.Vec3d(NAN, 0, 0), "NaN"),
+        ("translate", Gf.Vec3d(1e9, 0, 0), "precision"),
+    ]:
+        st = _good_and(_stage())
+        m = _mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3])
+        getattr(m, f"Add{op.capitalize()}Op")().Set(value)
+        assert pattern in _failed(st), op
+    # a rank-2 matrix (the bad_stages corpus case) and a zero-scaled parent
+    st = _good_and(_stage())
+    m = _mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3])
+    m.AddTransformOp().Set(Gf.Matrix4d(1, 0, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1))
+    assert "transform" in _failed(st)
+    st = _good_and(_stage())
+    UsdGeom.Xform.Define(st, "/grp").AddScaleOp().Set(Gf.Vec3f(0, 1, 1))
+    _mesh(st, "/grp/bad", QUAD, [4], [0, 1, 2, 3])
+    assert "not invertible" in _failed(st, "/grp/bad")
+
+
+def test_precision_rule_scales_with_size():
+    # a 1 cm quad 1 km from the origin is fine (ulp 6e-5 m: 160 ulps across) ...
+    st = _stage()
+    m = _mesh(st, "/far", [(x * 0.01, y * 0.01, 0) for x, y, _ in QUAD], [4], [0, 1, 2, 3])
+    m.AddTranslateOp().Set(Gf.Vec3d(1000.0, 0, 0))
+    sc = load_scene(st)
+    assert not sc.failed and np.isfinite(sc.meshes[0].points).all()
+    # ... a 1e-9 quad at the origin bakes with a "small" warning next to a 1 m quad
+    st = _good_and(_stage())
+    _mesh(st, "/tiny", [(x * 1e-9, y * 1e-9, 1e-9) for x, y, _ in QUAD], [4], [0, 1, 2, 3])
+    sc = load_scene(st)
+    assert not sc.failed and "/tiny" in [m.path for m in sc.meshes]
+    assert any("/tiny: very small" in w for w in sc.warnings)
+
+
+def test_degenerate_triangles_dropped_with_warning():
+    st = _stage()
+    pts = QUAD + [(2, 0, 0), (3, 0, 0)]
+    # quad, a triangle with a repeated vertex, a triangle of three collinear points
+    _mesh(st, "/m", pts, [4, 3, 3], [0, 1, 2, 3, 0, 0, 1, 1, 4, 5])
+    sc = load_scene(st)
+    md = sc.meshes[0]
+    assert md.triangles.shape == (2, 3) and md.face.tolist() == [0, 0]
+    np.testing.assert_array_equal(np.array([0, 1, 2, 3, 0, 0, 1, 1, 4, 5])[md.corner], md.triangles)
+    assert any("2 degenerate" in w for w in sc.warnings)
+
+
+def test_empty_meshes_skipped_with_warning():
+    st = _good_and(_stage())
+    UsdGeom.Mesh.Define(st, "/empty")
+    _mesh(st, "/nofaces", QUAD, [], [])
+    _mesh(st, "/lines", QUAD, [2, 2], [0, 1, 2, 3])
+    sc = load_scene(st)
+    assert [m.path for m in sc.meshes] == ["/good"] and not sc.failed
+    text = "\n".join(sc.warnings)
+    assert "/empty: empty mesh" in text and "/nofaces" in text and "/lines" in text
+
+
+def _uv(m, values, type_name=Sdf.ValueTypeNames.TexCoord2fArray, interp="faceVarying", idx=None):
+    pv = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", type_name, interp)
+    pv.Set(values)
+    if idx is not None:
+        pv.SetIndices(Vt.IntArray(idx))
+    return pv
+
+
+def test_bad_lightmap_uvs_go_to_failed():
+    fv = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    cases = [
+        (dict(values=[(0, 0, 0)] * 4, type_name=Sdf.ValueTypeNames.Float3Array), "float3[]"),
+        (dict(values=["a"] * 4, type_name=Sdf.ValueTypeNames.StringArray), "string[]"),
+        (dict(values=fv[:3]), "has 3 values, needs 4"),
+        (dict(values=[(0, 0)], interp="constant"), "constant interpolation"),
+        (dict(values=[(0, 0)], interp="uniform"), "uniform interpolation"),
+        (dict(values=fv[:3] + [(NAN, 0.5)]), "NaN"),
+        (dict(values=fv[:2], idx=[0, 1, 7, 1]), "indices out of range"),
+    ]
+    for kw, pattern in cases:
+        st = _good_and(_stage())
+        _uv(_mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3]), **kw)
+        msg = _failed(st)
+        assert pattern in msg and "primvars:st" in msg, (pattern, msg)
+    # the same primvar is only a warning when it is not the lightmap set (a material's)
+    st = _good_and(_stage())
+    _uv(_mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3]), values=[(0, 0, 0)] * 4,
+        type_name=Sdf.ValueTypeNames.Float3Array)  # fmt: skip
+    sc = load_scene(st, uv_name="uv2")
+    assert not sc.failed and len(sc.meshes) == 2
+
+
+def test_failed_outside_prims_selection_is_a_warning():
+    st = _good_and(_stage())
+    _mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    sc = load_scene(st, prims=["/good"])
+    assert not sc.failed
+    assert any(w.startswith("/bad: points contain NaN") for w in sc.warnings)
+    # a mesh whose only problem is fatal and which is the only one: failed, no raise
+    st = _stage()
+    _mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    sc = load_scene(st)
+    assert list(sc.failed) == ["/bad"] and sc.meshes == []
+
+
+def test_bad_instance_prototype_is_a_warning():
+    st = _good_and(_stage())
+    pi = UsdGeom.PointInstancer.Define(st, "/pi")
+    _mesh(st, "/pi/protos/m", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    pi.CreatePrototypesRel().SetTargets([Sdf.Path("/pi/protos/m")])
+    pi.CreateProtoIndicesAttr([0, 0])
+    pi.CreatePositionsAttr([Gf.Vec3f(0, 0, 2), Gf.Vec3f(0, 0, 3)])
+    sc = load_scene(st)
+    assert not sc.failed and [m.path for m in sc.meshes] == ["/good"]
+    text = "\n".join(sc.warnings)
+    assert "/pi/instance_0: points contain NaN" in text and "occluder dropped" in text
+    assert "/pi/instance_1" not in text  # one warning per prototype, not per instance
+
+
+def test_stage_metadata(tmp_path):
+    for mpu in (0.0, -1.0, INF):
+        st = _good_and(_stage())
+        UsdGeom.SetStageMetersPerUnit(st, mpu)
+        with pytest.raises(StageError, match="metersPerUnit"):
+            load_scene(st)
+    st = _good_and(_stage())
+    st.SetMetadata("upAxis", "X")
+    sc = load_scene(st)
+    assert sc.up_axis == "Y" and any("upAxis = 'X'" in w for w in sc.warnings)
+
+
+def test_composition_errors(tmp_path):
+    a, b = str(tmp_path / "a.usda"), str(tmp_path / "b.usda")
+    st = _good_and(Usd.Stage.CreateNew(a))
+    st.DefinePrim("/M").GetReferences().AddReference("./nowhere.usda")
+    st.Save()
+    sc = load_scene(a)
+    assert any("nowhere.usda" in w and "composition error" in w for w in sc.warnings)
+    other = Usd.Stage.CreateNew(b)
+    other.DefinePrim("/W").GetReferences().AddReference("./a.usda", "/W")
+    other.Save()
+    st.DefinePrim("/W").GetReferences().AddReference("./b.usda", "/W")
+    st.Save()
+    with pytest.raises(StageError, match="composition cycle"):
+        load_scene(a)
+
+
+def _light_stage(kind="SphereLight", **inputs):
+    st = _good_and(_stage())
+    lt = getattr(UsdLux, kind).Define(st, "/L")
+    for k, v in inputs.items():
+        lt.GetPrim().GetAttribute(f"inputs:{k}").Set(v) if lt.GetPrim().GetAttribute(
+            f"inputs:{k}"
+        ) else None
+        getattr(lt, f"Create{k[0].upper()}{k[1:]}Attr")(v)
+    return st, lt
+
+
+@pytest.mark.parametrize(
+    "inputs, pattern",
+    [
+        (dict(intensity=-1.0), "inputs:intensity is negative"),
+        (dict(intensity=NAN), "inputs:intensity is NaN"),
+        (dict(intensity=INF), "inputs:intensity is Inf"),
+        (dict(exposure=NAN), "inputs:exposure is NaN"),
+        (dict(exposure=200.0), "exposure"),
+        (dict(exposure=5000.0), "exposure"),
+        (dict(color=Gf.Vec3f(NAN, 1, 1)), "inputs:color is NaN"),
+        (dict(color=Gf.Vec3f(-1, 1, 1)), "inputs:color is negative"),
+        (dict(intensity=1e10, radius=1e-6), "overflows"),  # normalized by a tiny area
+    ],
+)
+def test_broken_lights_raise_naming_the_light(inputs, pattern):
+    normalize = inputs.pop("radius", None)
+    st, lt = _light_stage(**inputs)
+    if normalize:
+        lt.CreateRadiusAttr(normalize)
+        lt.CreateNormalizeAttr(True)
+    with pytest.raises(StageError, match="/L") as err:
+        load_scene(st)
+    assert pattern in str(err.value) and "\n" not in str(err.value)
+
+
+def test_light_edge_cases_warn():
+    st, _ = _light_stage(intensity=0.0)
+    sc = load_scene(st)
+    assert sc.lights == [] and any("/L: light emits nothing" in w for w in sc.warnings)
+    st, lt = _light_stage()
+    lt.AddScaleOp().Set(Gf.Vec3f(0, 0, 0))
+    sc = load_scene(st)
+    assert sc.lights == [] and any("not invertible" in w for w in sc.warnings)
+    st, lt = _light_stage()
+    lt.AddTranslateOp().Set(Gf.Vec3d(NAN, 0, 0))
+    with pytest.raises(StageError, match="/L: light world transform contains NaN"):
+        load_scene(st)
+
+
+def test_dome_texture_must_be_readable(tmp_path):
+    for name, content in (("missing.exr", None), ("text.exr", b"This is not an image")):
+        if content is not None:
+            (tmp_path / name).write_bytes(content)
+        layer = tmp_path / f"{name}.usda"
+        st = _good_and(Usd.Stage.CreateNew(str(layer)))
+        UsdLux.DomeLight.Define(st, "/Dome").CreateTextureFileAttr(Sdf.AssetPath(f"./{name}"))
+        st.Save()
+        with pytest.raises(StageError, match=f"/Dome: DomeLight texture:file ./{name}"):
+            load_scene(st)
+
+
+def test_dome_texture_nan_texels_replaced(tmp_path):
+    import OpenImageIO as oiio
+
+    img = np.ones((4, 8, 3), np.float32)
+    img[0, 0] = np.nan
+    img[1, 1] = -2.0
+    out = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
+    out.open(str(tmp_path / "sky.exr"), oiio.ImageSpec(8, 4, 3, "float"))
+    out.write_image(img)
+    out.close()
+    st = _good_and(Usd.Stage.CreateNew(str(tmp_path / "s.usda")))
+    UsdLux.DomeLight.Define(st, "/Dome").CreateTextureFileAttr(Sdf.AssetPath("./sky.exr"))
+    st.Save()
+    sc = load_scene(st)
+    dome = sc.lights[0]
+    assert np.isfinite(dome.image).all() and dome.image.min() >= 0
+    assert any("NaN/Inf" in w and "sky.exr" in w for w in sc.warnings)
+
+
+def _material(st, **inputs):
+    mat = UsdShade.Material.Define(st, "/Looks/M")
+    s = UsdShade.Shader.Define(st, "/Looks/M/s")
+    s.CreateIdAttr("UsdPreviewSurface")
+    for k, v in inputs.items():
+        typ = Sdf.ValueTypeNames.Float if k == "opacity" else Sdf.ValueTypeNames.Color3f
+        s.CreateInput(k, typ).Set(v)
+    mat.CreateSurfaceOutput().ConnectToSource(s.ConnectableAPI(), "surface")
+    m = st.GetPrimAtPath("/good")
+    UsdShade.MaterialBindingAPI.Apply(m).Bind(mat)
+    return st
+
+
+def test_material_values():
+    for inputs, pattern in [
+        (dict(emissiveColor=Gf.Vec3f(NAN, 0, 0)), "inputs:emissiveColor is NaN"),
+        (dict(emissiveColor=Gf.Vec3f(-1, 0, 0)), "inputs:emissiveColor (-1, 0, 0) must be"),
+        (dict(diffuseColor=Gf.Vec3f(INF, 0, 0)), "inputs:diffuseColor is Inf"),
+        (dict(opacity=NAN), "inputs:opacity is NaN"),
+    ]:
+        with pytest.raises(StageError, match="/Looks/M") as err:
+            load_scene(_material(_good_and(_stage()), **inputs))
+        assert pattern in str(err.value)
+    sc = load_scene(_material(_good_and(_stage()), diffuseColor=Gf.Vec3f(1.5, -0.5, 0.5)))
+    np.testing.assert_allclose(sc.materials[0].albedo, [1.0, 0.0, 0.5])
+    assert any("/Looks/M: inputs:diffuseColor (1.5, -0.5, 0.5)" in w for w in sc.warnings)
 
 
 @pytest.mark.skipif(not os.path.isdir(os.path.join(SCENES, "mcusd")), reason="no shared scenes")

@@ -13,6 +13,14 @@ occluders) and returns a :class:`Scene`:
   of that mesh read (the lightmap set is ``MeshData.uv``).
 - ``lights`` : :mod:`usdahd.bake.lights` objects in UsdLux units (see that module).
 - ``warnings`` : one string per unsupported feature met; never silent.
+- ``failed`` : prim path -> one-line message for meshes that cannot be used (NaN/Inf points,
+  inconsistent topology, a bad lightmap UV primvar, zero area, a non-invertible transform,
+  coordinates beyond float32 precision). They are dropped from ``meshes`` (they neither bake
+  nor occlude); the pipeline reports them as failed prims while the rest of the stage bakes.
+
+Whole-stage problems raise :class:`usdahd.errors.StageError`: an unreadable file, no meshes,
+a composition cycle, metersPerUnit <= 0 or non-finite, a light or emissive material with
+negative/NaN/Inf or overflowing emission, a DomeLight texture that cannot be read.
 
 Everything is evaluated at ``Usd.TimeCode.Default()``; attributes that only have time samples
 are read at their first sample (with a warning).
@@ -37,6 +45,33 @@ from usdahd.errors import StageError
 SMOOTH_COS_LIMIT = math.cos(math.radians(45.0))
 #: UsdPreviewSurface diffuseColor fallback.
 DEFAULT_ALBEDO = (0.18, 0.18, 0.18)
+#: Largest emitted radiance (or point-light intensity) accepted from a light or an emissive
+#: material. The integrator accumulates radiance x sample weights and squares it for variance
+#: estimates in float32 (max 3.4e38): 1e15^2 x 1e6 samples still fits. The sun's radiance is
+#: ~1.6e9 W/(m^2 sr), so no physical light comes near.
+MAX_RADIANCE = 1e15
+#: A mesh is unusable when its bounding-box diagonal spans fewer than this many float32 ulps
+#: of its largest world coordinate: the tracer stores float32 positions, so its vertices
+#: would snap to a grid coarser than 1/32 of its size (normals, texel positions and ray
+#: offsets wrong by > 3%). A 1 cm part passes up to ~5 km from the origin.
+MIN_SIZE_ULPS = 32.0
+#: A mesh whose diagonal is below this fraction of the scene's extent gets a warning: the
+#: tracer offsets ray origins by 1e-5 of the extent (trace.OFFSET_REL), i.e. by more than 10%
+#: of such a mesh, so its contact shadows and self-occlusion are unreliable.
+SMALL_MESH_REL = 1e-4
+#: A triangle is degenerate (dropped, with a warning) when twice its area is below this
+#: fraction of its mesh's squared bounding-box diagonal: three collinear float32 points give
+#: |cross| ~ 6e-8 x diag^2 from rounding, real slivers are far above 1e-10.
+DEGENERATE_AREA_REL = 1e-10
+#: Transform 3x3 blocks with |det| below this fraction of the product of their row lengths
+#: are treated as non-invertible (zero scale or rank < 3).
+SINGULAR_DET_REL = 1e-12
+#: Value types accepted for a lightmap UV primvar (2 components per value).
+UV_TYPES = ("texCoord2f[]", "texCoord2d[]", "texCoord2h[]", "float2[]", "double2[]", "half2[]")
+
+
+class _MeshFailure(Exception):
+    """A mesh cannot be used; the message names the prim and what to do (internal)."""
 
 
 @dataclass
@@ -136,6 +171,7 @@ class Scene:
     up_axis: str
     texcoords: list[dict[str, np.ndarray]] = field(default_factory=list)
     source: str = ""
+    failed: dict[str, str] = field(default_factory=dict)
 
     @property
     def baked_meshes(self) -> list[MeshData]:
@@ -194,23 +230,33 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
         others still occlude). Unknown paths raise StageError.
     bake_instances : also mark instance proxies / PointInstancer copies for baking (off by
         default: their primvars cannot be authored without de-instancing).
-    Raises StageError for unreadable or non-USD files, stages without meshes, NaN/Inf points,
-    inconsistent topology, and negative/NaN light intensities (each message names the prim).
+    Per-mesh problems do not raise: the mesh goes to ``Scene.failed`` (see the module doc).
+    Raises StageError for unreadable or non-USD files, stages without meshes, composition
+    cycles, a bad metersPerUnit, and broken lights or emissive materials (each message names
+    the prim or file and what to do).
     """
     stage, source = _open(stage)
+    mpu = _stage_checks(stage, source)
     ex = _Extractor(stage, uv_name)
+    _composition_warnings(stage, source, ex.warn)
     ex.run()
-    if not any(isinstance(m, MeshData) for m in ex.meshes) or not ex.meshes:
+    if not ex.meshes and not ex.failed:
         raise StageError(f"{source}: no visible UsdGeom meshes or gprims to bake or trace")
+    failed = dict(ex.failed)
     if prims is not None:
         roots = [str(p) for p in prims]
         for r in roots:
             if not stage.GetPrimAtPath(Sdf.Path(r)):
                 raise StageError(f"{source}: --prims path {r} does not exist on the stage")
+
+        def selected(path):
+            return any(path == r or path.startswith(r.rstrip("/") + "/") for r in roots)
+
         for m in ex.meshes:
-            m.bake = m.bake and any(
-                m.path == r or m.path.startswith(r.rstrip("/") + "/") for r in roots
-            )
+            m.bake = m.bake and selected(m.path)
+        for path in [p for p in failed if not selected(p)]:
+            ex.warn(f"{failed.pop(path)} (not selected: dropped from the occluders)")
+    ex.size_warnings()
     if bake_instances:
         for m, inst in zip(ex.meshes, ex.instanced):
             if inst and not ex.implicit.get(id(m), False):
@@ -221,18 +267,52 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
             f"{n} instanced mesh copies are traced as occluders only (not baked): "
             "their primvars cannot be authored without de-instancing"
         )
-    if not any(m.bake for m in ex.meshes):
+    if not any(m.bake for m in ex.meshes) and not failed:
         ex.warn("no mesh selected for baking (only occluders found)")
     return Scene(
         meshes=ex.meshes,
         materials=ex.materials,
         lights=ex.lights,
         warnings=ex.warnings,
-        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
-        up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+        meters_per_unit=mpu,
+        up_axis=ex.up_axis,
         texcoords=ex.texcoords,
         source=source,
+        failed=failed,
     )
+
+
+def _stage_checks(stage, source) -> float:
+    """Stage metadata the bake depends on; returns metersPerUnit. Raises StageError."""
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    if not (math.isfinite(mpu) and mpu > 0):
+        raise StageError(
+            f"{source}: stage metadata metersPerUnit = {mpu:g} must be a positive finite "
+            "number (1 = metres, 0.01 = centimetres); fix it in the root layer"
+        )
+    return mpu
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def _composition_warnings(stage, source, warn) -> None:
+    """Composition errors USD recovered from: cycles raise StageError, the rest warn."""
+    try:
+        errors = stage.GetCompositionErrors()
+    except AttributeError:  # pragma: no cover - USD < 23.11
+        return
+    for err in errors:
+        name = type(err).__name__
+        msg = _one_line(err)
+        if "Cycle" in name:
+            raise StageError(
+                f"{source}: composition cycle ({msg}); remove the reference, payload or "
+                "sublayer that points back to a layer already being composed"
+            )
+        warn(f"{source}: composition error, that part of the scene is missing: {msg}")
 
 
 def _open(stage):
@@ -270,6 +350,40 @@ class _Extractor:
         self.warnings: list[str] = []
         self._warned: set[str] = set()
         self._textures: dict = {}
+        self.failed: dict[str, str] = {}
+        self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
+        if self.up_axis not in ("Y", "Z"):
+            self.warn(
+                f"stage metadata upAxis = {self.up_axis!r} is not 'Y' or 'Z'; assuming 'Y' "
+                "(fix the upAxis metadata in the root layer)"
+            )
+            self.up_axis = "Y"
+
+    def fail(self, path: str, msg: str, bakeable: bool, key: str | None = None) -> None:
+        """A mesh is unusable: a failed prim if it would be baked, else a warning (once per
+        ``key``: one warning for all instances of a prototype)."""
+        if bakeable:
+            self.failed[path] = msg
+        else:
+            self.warn(f"{msg} (occluder dropped; same for its other instances)", key=key)
+
+    def size_warnings(self) -> None:
+        """Warn about baked meshes too small for the tracer's ray offsets (SMALL_MESH_REL)."""
+        if not self.meshes:
+            return
+        lo = np.min([m.points.min(axis=0) for m in self.meshes], axis=0)
+        hi = np.max([m.points.max(axis=0) for m in self.meshes], axis=0)
+        extent = float(np.linalg.norm(hi - lo))
+        for m in self.meshes:
+            if not m.bake:
+                continue
+            d = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
+            if d < SMALL_MESH_REL * extent:
+                self.warn(
+                    f"{m.path}: very small ({d:.3g} units across, {d / extent:.1e} of the "
+                    "scene's extent): ray offsets exceed 10% of its size, so its lighting is "
+                    "approximate; model it at a larger scale if it matters"
+                )
 
     def warn(self, msg: str, key: str | None = None):
         key = key or msg
@@ -315,12 +429,22 @@ class _Extractor:
                 self._light(prim)
             elif prim.IsA(UsdLux.PortalLight) or prim.IsA(UsdLux.PluginLight):
                 self.warn(f"{prim.GetPath()}: {prim.GetTypeName()} is not supported (ignored)")
-            if prim.IsA(UsdGeom.Mesh):
-                m = self.xf.GetLocalToWorldTransform(prim)
-                self._mesh(prim, np.array(m), str(prim.GetPath()), prim.IsInstanceProxy())
-            elif prim.IsA(UsdGeom.Gprim) and not prim.IsA(UsdGeom.Mesh):
-                m = self.xf.GetLocalToWorldTransform(prim)
-                self._implicit(prim, np.array(m), str(prim.GetPath()), prim.IsInstanceProxy())
+            if prim.IsA(UsdGeom.Gprim):
+                m = np.array(self.xf.GetLocalToWorldTransform(prim))
+                path, inst = str(prim.GetPath()), prim.IsInstanceProxy()
+                if prim.IsA(UsdGeom.Mesh):
+                    self._guarded(self._mesh, prim, m, path, inst)
+                else:
+                    self._guarded(self._implicit, prim, m, path, inst)
+
+    def _guarded(self, fn, prim, xform, path, instanced):
+        """Run a mesh/gprim extractor; per-mesh problems become failures, not exceptions."""
+        try:
+            fn(prim, xform, path, instanced)
+        except _MeshFailure as exc:
+            bakeable = prim.IsA(UsdGeom.Mesh) and not instanced
+            src = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
+            self.fail(path, str(exc), bakeable, key=f"fail:{src.GetPath()}")
 
     # --------------------------------------------------------------------- meshes
     def _mesh(self, prim, xform, path, instanced, bake=True):
@@ -328,27 +452,44 @@ class _Extractor:
         pts = self.get(mesh.GetPointsAttr())
         counts = self.get(mesh.GetFaceVertexCountsAttr())
         idx = self.get(mesh.GetFaceVertexIndicesAttr())
-        if pts is None or counts is None or idx is None or len(pts) == 0 or len(counts) == 0:
-            self.warn(f"{path}: mesh without points or faces (skipped)")
+        n_pts = 0 if pts is None else len(pts)
+        n_faces = 0 if counts is None else len(counts)
+        if n_pts == 0 and n_faces == 0:
+            self.warn(f"{path}: empty mesh (no points, no faces): skipped")
+            return
+        if n_faces == 0 or idx is None or len(idx) == 0:
+            self.warn(f"{path}: mesh has {n_pts} points but no faces: skipped")
             return
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
         counts = np.asarray(counts, dtype=np.int64)
         idx = np.asarray(idx, dtype=np.int64)
-        if not np.all(np.isfinite(pts)):
-            bad = int(np.argwhere(~np.all(np.isfinite(pts), axis=1))[0, 0])
-            raise StageError(f"{path}: points contain NaN/Inf (first at index {bad})")
-        if counts.sum() != len(idx):
-            raise StageError(
-                f"{path}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has "
-                f"{len(idx)} entries"
+        bad = ~np.all(np.isfinite(pts), axis=1)
+        if bad.any():
+            first = int(np.argmax(bad))
+            kind = "NaN" if np.isnan(pts[bad]).any() else "Inf"
+            raise _MeshFailure(
+                f"{path}: points contain {kind} ({int(bad.sum())} of {len(pts)}, first at "
+                f"index {first}: {tuple(pts[first].tolist())}); fix or re-export the geometry"
             )
-        if len(idx) and (idx.min() < 0 or idx.max() >= len(pts)):
-            raise StageError(
+        if np.any(counts < 0):
+            raise _MeshFailure(
+                f"{path}: faceVertexCounts has negative entries; fix or re-export the geometry"
+            )
+        if counts.sum() != len(idx):
+            raise _MeshFailure(
+                f"{path}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has "
+                f"{len(idx)} entries; fix or re-export the geometry"
+            )
+        if idx.min() < 0 or idx.max() >= len(pts):
+            raise _MeshFailure(
                 f"{path}: faceVertexIndices out of range [0, {len(pts)}) "
-                f"(min {int(idx.min())}, max {int(idx.max())})"
+                f"(min {int(idx.min())}, max {int(idx.max())}); fix or re-export the geometry"
             )
         if np.any(counts < 3):
-            self.warn(f"{path}: {int((counts < 3).sum())} faces with < 3 vertices ignored")
+            self.warn(f"{path}: {int((counts < 3).sum())} faces with fewer than 3 vertices ignored")
+            if not np.any(counts >= 3):
+                self.warn(f"{path}: no face with 3 or more vertices: skipped")
+                return
         left = self.get(mesh.GetOrientationAttr()) == UsdGeom.Tokens.leftHanded
         sda = mesh.GetSubdivisionSchemeAttr()
         sd = self.get(sda) if sda.HasAuthoredValue() else None
@@ -356,18 +497,35 @@ class _Extractor:
             self.warn(
                 f"{path}: subdivisionScheme {sd}: the control cage is baked as is", key="subdiv"
             )
-        face_mat = self._face_materials(prim, len(counts), path)
+        try:
+            face_mat = self._face_materials(prim, len(counts), path)
+        except _SubsetError as exc:
+            raise _MeshFailure(str(exc)) from None
         ctx = _Topology(counts, idx)
         self._emit(prim, xform, path, pts, ctx, left, face_mat, instanced, bake)
 
     def _emit(self, prim, xform, path, pts, topo, left, face_mat, instanced, bake, implicit=False):
         m3 = xform[:3, :3]
+        _check_transform(xform, path)
         flip = left ^ (np.linalg.det(m3) < 0)
         corners = topo.corners.copy()
         if flip:
             corners = corners[:, [0, 2, 1]]
-        tri = topo.idx[corners].astype(np.int32)
         wp = pts @ m3 + xform[3, :3]
+        if not np.all(np.isfinite(wp)):
+            raise _MeshFailure(
+                f"{path}: world-space points overflow to Inf (transform scale too large); "
+                "fix the transform"
+            )
+        _check_precision(wp, path)
+        corners, keep = _drop_degenerate(wp, topo, corners, path, self.warn)
+        if len(corners) == 0:
+            raise _MeshFailure(
+                f"{path}: zero surface area (every triangle is degenerate: points coincide or "
+                "lie on one line); fix or delete the mesh"
+            )
+        face = topo.face[keep]
+        tri = topo.idx[corners].astype(np.int32)
         normals = None
         if not implicit:
             normals = self._authored_normals(prim, topo, corners, m3, path)
@@ -409,8 +567,8 @@ class _Extractor:
             normals=normals.astype(np.float32),
             uv=uv,
             uv_name=self.uv_name,
-            material=face_mat[topo.face].astype(np.int32),
-            face=topo.face.astype(np.int32),
+            material=face_mat[face].astype(np.int32),
+            face=face.astype(np.int32),
             corner=corners.astype(np.int32),
             bake=bake and not instanced and not implicit,
         )
@@ -419,20 +577,56 @@ class _Extractor:
         self.instanced.append(bool(instanced) and not implicit)
         self.implicit[id(md)] = implicit
 
-    def _primvar_corner_values(self, pv, topo, path, width):
-        """Expand a primvar to per faceVertex (corner) values (len(idx), width) or None."""
-        vals = pv.ComputeFlattened(self.time)
-        if vals is None and pv.GetAttr().GetNumTimeSamples():
-            vals = pv.ComputeFlattened(Usd.TimeCode(pv.GetAttr().GetTimeSamples()[0]))
+    def _primvar_corner_values(self, pv, topo, path, width, strict=False):
+        """Expand a primvar to per faceVertex (corner) values (len(idx), width) or None.
+
+        strict (the lightmap UV set): a wrong type, interpolation, length or index raises
+        _MeshFailure; otherwise (normals, material texcoords) those warn and return None,
+        except a too-short array, which always fails the mesh.
+        """
+        name = pv.GetName()
+
+        def bad(msg):
+            if strict:
+                raise _MeshFailure(f"{path}: {msg}")
+            self.warn(f"{path}: {msg} (ignored)")
+            return None
+
+        tname = str(pv.GetTypeName())
+        if strict and tname not in UV_TYPES:
+            return bad(
+                f"lightmap UV primvar {name} is {tname}, expected texCoord2f[] (or float2[]); "
+                "re-author it as texCoord2f[] or pick another UV set with --uv"
+            )
+        if strict and pv.GetInterpolation() in (UsdGeom.Tokens.uniform, UsdGeom.Tokens.constant):
+            return bad(
+                f"lightmap UV primvar {name} has {pv.GetInterpolation()} interpolation (one UV "
+                "per face or per mesh); a lightmap needs faceVarying or vertex UVs: re-author "
+                "it or pick another UV set with --uv"
+            )
+        t = self.time
+        if pv.GetAttr().Get(t) is None and pv.GetAttr().GetNumTimeSamples():
+            t = Usd.TimeCode(pv.GetAttr().GetTimeSamples()[0])
+        raw = pv.GetAttr().Get(t)
+        if raw is None or len(raw) == 0:
+            return None
+        if pv.IsIndexed():
+            ind = pv.GetIndices(t)
+            ind = np.asarray(ind if ind is not None else [], np.int64)
+            if len(ind) and (ind.min() < 0 or ind.max() >= len(raw)):
+                return bad(
+                    f"primvar {name} indices out of range [0, {len(raw)}) (min {int(ind.min())},"
+                    f" max {int(ind.max())}); fix {name}:indices"
+                )
+        vals = pv.ComputeFlattened(t)
         if vals is None or len(vals) == 0:
             return None
-        v = np.asarray(vals, dtype=np.float64).reshape(len(vals), -1)
+        try:
+            v = np.asarray(vals, dtype=np.float64).reshape(len(vals), -1)
+        except (TypeError, ValueError):
+            return bad(f"primvar {name} of type {tname} is not numeric")
         if v.shape[1] != width:
-            self.warn(
-                f"{path}: primvar {pv.GetName()} has {v.shape[1]} components, "
-                f"expected {width} (ignored)"
-            )
-            return None
+            return bad(f"primvar {name} ({tname}) has {v.shape[1]} components, expected {width}")
         interp = pv.GetInterpolation()
         n_corner = len(topo.idx)
         if interp == UsdGeom.Tokens.faceVarying:
@@ -444,8 +638,9 @@ class _Extractor:
         else:  # constant
             need, sel = 1, np.zeros(n_corner, np.int64)
         if len(v) < need:
-            raise StageError(
-                f"{path}: primvar {pv.GetName()} ({interp}) has {len(v)} values, needs {need}"
+            raise _MeshFailure(
+                f"{path}: primvar {name} ({interp}) has {len(v)} values, needs {need}; "
+                "fix or re-export it"
             )
         return v[sel]
 
@@ -453,12 +648,20 @@ class _Extractor:
         pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
         if not pv or not pv.HasValue():
             return None
-        v = self._primvar_corner_values(pv, topo, path, 2)
+        strict = name == self.uv_name
+        v = self._primvar_corner_values(pv, topo, path, 2, strict=strict)
         if v is None:
             return None
-        if not np.all(np.isfinite(v)):
-            raise StageError(f"{path}: primvar {name} contains NaN/Inf")
-        return v[corners].astype(np.float32)
+        v = v[corners]
+        bad = ~np.isfinite(v)
+        if bad.any():
+            kind = "NaN" if np.isnan(v[bad]).any() else "Inf"
+            msg = f"{path}: primvar {pv.GetName()} contains {kind} ({int(bad.sum())} values)"
+            if strict:
+                raise _MeshFailure(f"{msg}; fix the UVs or pick another UV set with --uv")
+            self.warn(f"{msg}: texture sampled at 0 there")
+            v = np.where(bad, 0.0, v)
+        return v.astype(np.float32)
 
     def _authored_normals(self, prim, topo, corners, m3, path):
         pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
@@ -529,7 +732,12 @@ class _Extractor:
             if mask and not mask[i]:
                 continue
             if pid < 0 or pid >= len(protos):
-                raise StageError(f"{path}: protoIndices[{i}] = {pid} out of range")
+                self.warn(
+                    f"{path}: protoIndices[{i}] = {pid} out of range [0, {len(protos)}): "
+                    "instance skipped",
+                    key=f"pi:{path}",
+                )
+                continue
             root = self.stage.GetPrimAtPath(protos[pid])
             if not root:
                 continue
@@ -540,10 +748,8 @@ class _Extractor:
                     local_root = np.array(self.xf.GetLocalTransformation(root)[0])
                     m = np.array(rel) @ local_root @ inst_m
                     name = f"{path}/instance_{i}{str(p.GetPath())[len(str(root.GetPath())) :]}"
-                    if p.IsA(UsdGeom.Mesh):
-                        self._mesh(p, m, name, True)
-                    else:
-                        self._implicit(p, m, name, True)
+                    fn = self._mesh if p.IsA(UsdGeom.Mesh) else self._implicit
+                    self._guarded(fn, p, m, name, True)
 
     # --------------------------------------------------------------------- materials
     def _face_materials(self, prim, n_faces, path):
@@ -556,8 +762,9 @@ class _Extractor:
                 continue
             ind = np.asarray(ind, np.int64)
             if ind.min() < 0 or ind.max() >= n_faces:
-                raise StageError(
-                    f"{subset.GetPath()}: GeomSubset indices out of range [0, {n_faces})"
+                raise _SubsetError(
+                    f"{path}: GeomSubset {subset.GetPath()} indices out of range [0, {n_faces}); "
+                    "fix the subset"
                 )
             mat = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0]
             fm[ind] = self._material_index(mat, prim)
@@ -609,6 +816,7 @@ class _Extractor:
         out.opacity = float(np.ravel(op)[0])
         thr = shader.GetInput("opacityThreshold")
         out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
+        self._check_material(out)
         if tc_names:
             out.texcoord = tc_names[0]
             if len(set(tc_names)) > 1:
@@ -617,6 +825,44 @@ class _Extractor:
                     f"using '{tc_names[0]}'"
                 )
         return out
+
+    def _check_material(self, out: Material) -> None:
+        """NaN/Inf or negative emission is a broken light source (StageError); non-physical
+        albedo and opacity are clamped to [0, 1] with a warning."""
+        name = out.name
+        values = {
+            "emissiveColor": out.emission,
+            "diffuseColor": out.albedo,
+            "opacity": np.array([out.opacity]),
+            "opacityThreshold": np.array([out.opacity_threshold]),
+        }
+        for key, v in values.items():
+            v = np.asarray(v, np.float64)
+            if not np.all(np.isfinite(v)):
+                kind = "NaN" if np.isnan(v).any() else "Inf"
+                raise StageError(
+                    f"{name}: UsdPreviewSurface inputs:{key} is {kind} ({_fmt(v)}); it would "
+                    "spoil every prim that sees this material: fix the material"
+                )
+        em = np.asarray(out.emission, np.float64)
+        if np.any(em < 0) or em.max(initial=0.0) > MAX_RADIANCE:
+            raise StageError(
+                f"{name}: UsdPreviewSurface inputs:emissiveColor {_fmt(em)} must be in "
+                f"[0, {MAX_RADIANCE:.0e}]: fix the material"
+            )
+        alb = np.asarray(out.albedo, np.float64)
+        if np.any(alb < 0) or np.any(alb > 1):
+            clamped = np.clip(alb, 0.0, 1.0)
+            self.warn(
+                f"{name}: inputs:diffuseColor {_fmt(alb)} is non-physical (outside [0, 1]: "
+                f"energy would grow with every bounce); clamped to {_fmt(clamped)}"
+            )
+            out.albedo = clamped.astype(np.float32)
+        for key in ("opacity", "opacity_threshold"):
+            v = float(getattr(out, key))
+            if not 0.0 <= v <= 1.0:
+                self.warn(f"{name}: {key} {v:g} outside [0, 1]; clamped")
+                setattr(out, key, min(max(v, 0.0), 1.0))
 
     def _input(self, shader, inp_name, fallback, mat_name, tc_names):
         inp = shader.GetInput(inp_name)
@@ -694,6 +940,8 @@ class _Extractor:
         if key in self._textures:
             return self._textures[key]
         data = read_image(path, colorspace, lambda m: self.warn(f"{owner}: {m}"))
+        if data is not None:
+            data = _sanitize_image(data, f"{owner}: {path}", self.warn)
         self._textures[key] = data
         return data
 
@@ -707,17 +955,49 @@ class _Extractor:
         color = np.array(g(api.GetColorAttr(), (1, 1, 1)), np.float64)
         diffuse = g(api.GetDiffuseAttr(), 1.0)
         normalize = bool(g(api.GetNormalizeAttr(), False))
-        vals = np.array([intensity, exposure, diffuse, *color], np.float64)
-        if not np.all(np.isfinite(vals)):
-            raise StageError(f"{path}: light intensity/exposure/color/diffuse is NaN or Inf")
-        if intensity < 0 or diffuse < 0 or np.any(color < 0):
-            raise StageError(
-                f"{path}: negative light intensity ({intensity}), diffuse "
-                f"({diffuse}) or color ({tuple(color)})"
+        named = {
+            "inputs:intensity": np.array([intensity], np.float64),
+            "inputs:exposure": np.array([exposure], np.float64),
+            "inputs:color": color,
+            "inputs:diffuse": np.array([diffuse], np.float64),
+        }
+        for name, v in named.items():
+            if v.shape[-1:] != (3,) and name == "inputs:color":
+                raise StageError(f"{path}: {name} must be a color3f, got {tuple(v.tolist())}")
+            if not np.all(np.isfinite(v)):
+                kind = "NaN" if np.isnan(v).any() else "Inf"
+                raise StageError(
+                    f"{path}: light {name} is {kind} ({_fmt(v)}); a broken light spoils every "
+                    "prim's bake: fix it or deactivate the light"
+                )
+            if name != "inputs:exposure" and np.any(v < 0):
+                raise StageError(
+                    f"{path}: light {name} is negative ({_fmt(v)}); lights cannot emit negative "
+                    "energy: fix it or deactivate the light"
+                )
+        with np.errstate(over="ignore"):
+            gain = np.exp2(np.float64(exposure))
+        rad = intensity * gain * color * diffuse
+        self._emission = (float(intensity), float(exposure))
+        if not np.any(rad > 0):
+            self.warn(
+                f"{path}: light emits nothing (inputs:intensity {float(intensity):g}, "
+                f"color {_fmt(color)}, diffuse {float(diffuse):g}): ignored"
             )
-        rad = intensity * 2.0**exposure * color * diffuse
+            return
+        if not np.all(np.isfinite(rad)) or rad.max() > MAX_RADIANCE:
+            raise StageError(
+                f"{path}: inputs:intensity {float(intensity):g} x 2^inputs:exposure "
+                f"{float(exposure):g} = {float(np.max(rad)):.3g} overflows the baker's range "
+                f"(max {MAX_RADIANCE:.0e}); lower the exposure or intensity"
+            )
         if g(api.GetEnableColorTemperatureAttr(), False):
             t = g(api.GetColorTemperatureAttr(), 6500.0)
+            if not (math.isfinite(t) and t > 0):
+                raise StageError(
+                    f"{path}: light inputs:colorTemperature {t:g} must be a positive finite "
+                    "temperature in kelvin: fix it or disable enableColorTemperature"
+                )
             rad = rad * np.array(UsdLux.BlackbodyTemperatureAsRgb(float(t)), np.float64)
         if api.GetFiltersRel().GetTargets():
             self.warn(f"{path}: light filters are not supported (ignored)")
@@ -740,7 +1020,19 @@ class _Extractor:
         if sa and sa.HasAuthoredValue() and not sa.Get():
             self.warn(f"{path}: shadow:enable = false is not supported (shadows are cast)")
         m = np.array(self.xf.GetLocalToWorldTransform(prim))
+        if not np.all(np.isfinite(m)):
+            raise StageError(
+                f"{path}: light world transform contains NaN/Inf; fix the xformOps of the light "
+                "or its ancestors"
+            )
         m3, c = m[:3, :3], m[3, :3].copy()
+        rows = np.linalg.norm(m3, axis=1)
+        if rows.min() == 0.0 or abs(np.linalg.det(m3)) <= SINGULAR_DET_REL * np.prod(rows):
+            self.warn(
+                f"{path}: light transform is not invertible (zero scale): the light has no "
+                "size or direction and is ignored"
+            )
+            return
         inv_t = np.linalg.inv(m3).T
         if prim.IsA(UsdLux.SphereLight):
             lt = UsdLux.SphereLight(prim)
@@ -760,9 +1052,9 @@ class _Extractor:
                     inten = rad
                 else:
                     inten = rad * np.pi * rw * rw
-                self.lights.append(L.PointLight(path, inten, center=c))
+                self._add_light(L.PointLight(path, inten, center=c))
             else:
-                self.lights.append(L.SphereLight(path, rad, center=c, radius=rw))
+                self._add_light(L.SphereLight(path, rad, center=c, radius=rw))
         elif prim.IsA(UsdLux.RectLight) or prim.IsA(UsdLux.DiskLight):
             is_rect = prim.IsA(UsdLux.RectLight)
             n = -(np.array([0, 0, 1.0]) @ inv_t)
@@ -787,7 +1079,7 @@ class _Extractor:
             if normalize:
                 rad = rad / area
             cls = L.RectLight if is_rect else L.DiskLight
-            self.lights.append(cls(path, rad, center=c, ex=ex, ey=ey, normal=n))
+            self._add_light(cls(path, rad, center=c, ex=ex, ey=ey, normal=n))
         elif prim.IsA(UsdLux.CylinderLight):
             lt = UsdLux.CylinderLight(prim)
             r = float(g(lt.GetRadiusAttr(), 0.5))
@@ -803,7 +1095,7 @@ class _Extractor:
                 return
             if normalize:
                 rad = rad / area
-            self.lights.append(
+            self._add_light(
                 L.CylinderLight(
                     path, rad, center=c, axis=ax / np.linalg.norm(ax), half_length=hl, radius=rw
                 )
@@ -824,7 +1116,7 @@ class _Extractor:
                     f"{path}: DistantLight angle 0 without normalize: intensity taken "
                     "as illuminance at normal incidence"
                 )
-            self.lights.append(L.DistantLight(path, rad, direction=d, half_angle=half))
+            self._add_light(L.DistantLight(path, rad, direction=d, half_angle=half))
         elif prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
             self._dome(prim, path, rad, m3)
         else:
@@ -832,6 +1124,21 @@ class _Extractor:
                 f"{path}: light type {prim.GetTypeName()} is not supported (ignored)",
                 key=f"lt:{prim.GetTypeName()}",
             )
+
+    def _add_light(self, light):
+        """Append a light after checking its final (area-normalized) emission."""
+        peak = float(np.max(light.radiance))
+        img = getattr(light, "image", None)
+        if img is not None and img.size:
+            peak *= float(np.max(img))
+        if not np.isfinite(peak) or peak > MAX_RADIANCE:
+            i, e = getattr(self, "_emission", (float("nan"), float("nan")))
+            raise StageError(
+                f"{light.path}: emitted radiance {peak:.3g} (inputs:intensity {i:g}, exposure "
+                f"{e:g}, after normalize/area) overflows the baker's range (max "
+                f"{MAX_RADIANCE:.0e}); lower the exposure or intensity, or enlarge the light"
+            )
+        self.lights.append(light)
 
     def _dome(self, prim, path, rad, m3):
         is1 = prim.IsA(UsdLux.DomeLight_1)
@@ -841,7 +1148,7 @@ class _Extractor:
         pole = "Y"
         if is1:
             pa = str(self.get(lt.GetPoleAxisAttr(), "scene"))
-            pole = str(UsdGeom.GetStageUpAxis(self.stage)) if pa == "scene" else pa
+            pole = self.up_axis if pa == "scene" else pa
         p = np.eye(3) if pole == "Y" else np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
         u, _, vt = np.linalg.svd(m3)
         rot = (u @ vt).T @ p  # world = rot @ local (column vectors)
@@ -852,12 +1159,20 @@ class _Extractor:
             if fmt not in ("automatic", "latlong"):
                 self.warn(f"{path}: DomeLight textureFormat {fmt} not supported; uniform colour")
             else:
-                image = read_image(
-                    asset.resolvedPath or asset.path, "auto", lambda m: self.warn(f"{path}: {m}")
-                )
-                if image is not None:
-                    image = _to_rgb(image)
-        self.lights.append(L.DomeLight(path, rad, image=image, rotation=rot))
+                problems = []
+                file = asset.resolvedPath or asset.path
+                if not asset.resolvedPath:
+                    problems.append("file not found")
+                else:
+                    image = read_image(file, "auto", problems.append)
+                if image is None:
+                    raise StageError(
+                        f"{path}: DomeLight texture:file {asset.path} cannot be read "
+                        f"({_one_line('; '.join(problems), 200)}); the environment would be "
+                        "wrong for every prim: fix the path or remove texture:file"
+                    )
+                image = _sanitize_image(_to_rgb(image), f"{path}: {asset.path}", self.warn)
+        self._add_light(L.DomeLight(path, rad, image=image, rotation=rot))
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -879,6 +1194,59 @@ class _Topology:
         self.corners = np.stack([s, s + k + 1, s + k + 2], axis=1)
 
 
+class _SubsetError(Exception):
+    """A GeomSubset of a mesh is invalid (internal; becomes a mesh failure)."""
+
+
+def _check_transform(xform, path) -> None:
+    """Raise _MeshFailure for a NaN/Inf or non-invertible local-to-world transform."""
+    if not np.all(np.isfinite(xform)):
+        raise _MeshFailure(
+            f"{path}: world transform contains NaN/Inf; fix the xformOps of the prim or its "
+            "ancestors"
+        )
+    m3 = xform[:3, :3]
+    rows = np.linalg.norm(m3, axis=1)
+    det = abs(float(np.linalg.det(m3)))
+    if rows.min() == 0.0 or det <= SINGULAR_DET_REL * float(np.prod(rows)):
+        what = "a zero scale" if rows.min() == 0.0 else "rank < 3"
+        raise _MeshFailure(
+            f"{path}: world transform is not invertible ({what}, determinant {det:.3g}), so "
+            "the mesh is flattened and its normals are undefined; fix the xformOps of the prim "
+            "or its ancestors"
+        )
+
+
+def _check_precision(wp, path) -> None:
+    """Raise _MeshFailure when float32 cannot resolve the mesh at its position."""
+    far = float(np.abs(wp).max())
+    size = float(np.linalg.norm(wp.max(axis=0) - wp.min(axis=0)))
+    ulp = float(np.spacing(np.float32(far)))
+    if size < MIN_SIZE_ULPS * ulp and far > 0:
+        raise _MeshFailure(
+            f"{path}: {size:.3g} units across at coordinate {far:.3g}: beyond float32 "
+            f"ray-tracing precision (ulp {ulp:.3g} there); move it nearer the origin "
+            "(re-centre the stage)"
+        )
+
+
+def _drop_degenerate(wp, topo, corners, path, warn):
+    """Drop zero-area triangles (DEGENERATE_AREA_REL); returns (corners, keep mask)."""
+    tri = topo.idx[corners]
+    a, b, c = wp[tri[:, 0]], wp[tri[:, 1]], wp[tri[:, 2]]
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    diag = float(np.linalg.norm(wp.max(axis=0) - wp.min(axis=0)))
+    keep = area2 > DEGENERATE_AREA_REL * diag * diag
+    n_bad = int((~keep).sum())
+    if n_bad and keep.any():
+        faces = len(np.unique(topo.face[~keep]))
+        warn(
+            f"{path}: {n_bad} degenerate (zero-area) triangles in {faces} faces dropped "
+            "(repeated or collinear points)"
+        )
+    return corners[keep], keep
+
+
 def _smooth_normals(wp, tri):
     """Area-weighted vertex normals; corners deviating > 45 deg from their face use the face
     normal. wp : (v,3) float64, tri : (t,3) int. returns (t,3,3) float64 unit."""
@@ -895,6 +1263,24 @@ def _smooth_normals(wp, tri):
     cosang = np.einsum("tcj,tj->tc", n, fu)
     use_face = cosang < SMOOTH_COS_LIMIT
     return np.where(use_face[..., None], fu[:, None, :], n)
+
+
+def _fmt(v) -> str:
+    a = np.ravel(np.asarray(v, np.float64))
+    return f"{a[0]:g}" if a.size == 1 else "(" + ", ".join(f"{x:g}" for x in a) + ")"
+
+
+def _sanitize_image(data, label, warn):
+    """Replace NaN/Inf and negative texels by 0 (with a warning); data : (h, w, c) float32."""
+    bad = ~np.isfinite(data)
+    neg = np.isfinite(data) & (data < 0)
+    if bad.any() or neg.any():
+        warn(
+            f"{label}: {int(bad.sum())} NaN/Inf and {int(neg.sum())} negative texel values "
+            "replaced by 0"
+        )
+        data = np.where(bad | neg, np.float32(0), data).astype(np.float32)
+    return data
 
 
 def _channels(out_name: str) -> tuple[int, ...]:

@@ -567,22 +567,44 @@ def _():
     return {"huge_coordinates.usda": text(stage)}
 
 
+def with_resolution(doc: str, resolution: int, **plane_kw) -> Usd.Stage:
+    """The good and bad planes carry AhdLightmapAPI (schema inputs are only read on prims with
+    the API; the bake then selects exactly these two); /World/Bad authors the resolution."""
+    stage, mesh = with_bad_plane(doc, **plane_kw)
+    for path in ("/World/Good", "/World/Bad"):
+        stage.GetPrimAtPath(path).AddAppliedSchema("AhdLightmapAPI")
+    # As the schema declares it (the same text whether or not the usdahd plugin is loaded).
+    attr = mesh.GetPrim().CreateAttribute(
+        "ahdLightmap:resolution", Sdf.ValueTypeNames.Int, False, Sdf.VariabilityUniform
+    )
+    attr.Set(resolution)
+    return stage
+
+
 @case("huge_resolution", "/World/Bad requests ahdLightmap:resolution = 1000000 (10^12 texels): "
       "refuse instead of exhausting memory.", 1, "resolution", prim="/World/Bad")  # fmt: skip
 def _():
-    stage, mesh = with_bad_plane("Huge requested resolution.")
-    attr = mesh.GetPrim().CreateAttribute("ahdLightmap:resolution", Sdf.ValueTypeNames.Int)
-    attr.Set(1_000_000)
-    return {"huge_resolution.usda": text(stage)}
+    return {"huge_resolution.usda": text(with_resolution("Huge requested resolution.", 10**6))}
 
 
-@case("zero_resolution", "/World/Bad requests ahdLightmap:resolution = 0.", 1, "resolution",
+@case("huge_resolution_unwrap", "/World/Bad has no UV set (so it is unwrapped) and requests "
+      "ahdLightmap:resolution = 1000000: refuse before unwrapping.", 1, "resolution",
       prim="/World/Bad")  # fmt: skip
 def _():
-    stage, mesh = with_bad_plane("Zero requested resolution.")
-    attr = mesh.GetPrim().CreateAttribute("ahdLightmap:resolution", Sdf.ValueTypeNames.Int)
-    attr.Set(0)
-    return {"zero_resolution.usda": text(stage)}
+    stage = with_resolution("Huge requested resolution on a mesh to unwrap.", 10**6, st=False)
+    return {"huge_resolution_unwrap.usda": text(stage)}
+
+
+@case("negative_resolution", "/World/Bad requests ahdLightmap:resolution = -5 (the schema "
+      "requires >= 0).", 1, "resolution", prim="/World/Bad")  # fmt: skip
+def _():
+    return {"negative_resolution.usda": text(with_resolution("Negative resolution.", -5))}
+
+
+@case("zero_resolution", "/World/Bad authors ahdLightmap:resolution = 0, which the schema "
+      "defines as 'derive from texelDensity' (docs/schema.md): valid, bakes.", 0, None)  # fmt: skip
+def _():
+    return {"zero_resolution.usda": text(with_resolution("Zero requested resolution.", 0))}
 
 
 # ---- must be handled gracefully (exit 0, a warning naming the problem) ---------------------
@@ -652,11 +674,22 @@ def _():
     return {"degenerate_triangles.usda": text(stage)}
 
 
-@case("tiny_coordinates", "/World/Bad is a 1e-9 m plane (ray offsets and texel density must "
-      "scale): bake or skip with a warning, never NaN.", 0, "small", prim="/World/Bad")  # fmt: skip
+@case("tiny_coordinates", "/World/Bad is a 1e-9 m plane standing at the origin (ray offsets "
+      "and texel density must scale): bake with a warning, never NaN.", 0, "small",
+      prim="/World/Bad")  # fmt: skip
 def _():
-    stage, _ = with_bad_plane("A nanometre-sized mesh.", size=1e-9)
+    # At the origin, so float32 resolves it (at x = 2 it would collapse: see tiny_far).
+    stage = base("A nanometre-sized mesh.")
+    mesh = plane(stage, "/World/Bad", x=0.0, size=1e-9)
+    UsdGeom.Xformable(mesh).AddRotateZOp().Set(90.0)  # stand up: not coplanar with Good
     return {"tiny_coordinates.usda": text(stage)}
+
+
+@case("tiny_far", "/World/Bad is a 1e-9 m plane at x = 2, where the float32 ulp is 2.4e-7: "
+      "beyond ray-tracing precision, the prim fails.", 1, "precision", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, _ = with_bad_plane("A nanometre-sized mesh away from the origin.", size=1e-9)
+    return {"tiny_far.usda": text(stage)}
 
 
 @case("zero_intensity", "The only light has inputs:intensity = 0: bakes black, with a warning.",
@@ -753,8 +786,8 @@ def _():
 
 
 @case("reference_cycle", "reference_cycle.usda references cycle_b.usda, which references "
-      "reference_cycle.usda back: USD drops the cyclic arc; warn and bake the rest.", 0,
-      "cycle")  # fmt: skip
+      "reference_cycle.usda back: USD drops the cyclic arc; an authoring bug, refuse naming it.",
+      2, "cycle")  # fmt: skip
 def _():
     main_layer = add_reference(text(base("A cycle of references.")), "/World/Ref", "./cycle_b.usda")
     other = text(new_stage("The other half of the reference cycle."))
@@ -762,8 +795,8 @@ def _():
     return {"reference_cycle.usda": main_layer, "cycle_b.usda": other}
 
 
-@case("sublayer_cycle", "The root layer lists itself as a sublayer: USD reports the cycle; warn "
-      "and bake.", 0, "cycle")  # fmt: skip
+@case("sublayer_cycle", "The root layer lists itself as a sublayer: USD reports the cycle; "
+      "refuse naming it, like any composition cycle.", 2, "cycle")  # fmt: skip
 def _():
     data = text(base("A layer that sublayers itself."))
     data = edit_layer(data, lambda layer: layer.subLayerPaths.append("./sublayer_cycle.usda"))

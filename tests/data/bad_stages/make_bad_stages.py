@@ -686,7 +686,8 @@ def _():
 
 
 @case("tiny_far", "/World/Bad is a 1e-9 m plane at x = 2, where the float32 ulp is 2.4e-7: "
-      "beyond ray-tracing precision, the prim fails.", 1, "precision", prim="/World/Bad")  # fmt: skip
+      "beyond ray-tracing precision, the prim fails.", 1, "precision",
+      prim="/World/Bad")  # fmt: skip
 def _():
     stage, _ = with_bad_plane("A nanometre-sized mesh away from the origin.", size=1e-9)
     return {"tiny_far.usda": text(stage)}

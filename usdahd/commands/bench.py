@@ -1,0 +1,91 @@
+"""``usdahd bench``: regenerate docs/benchmarks.md and its plots (runs benchmarks/run.py).
+
+The benchmark scripts and the sample stages they bake live in the source checkout
+(``benchmarks/``, ``samples/``), not in the installed package, so this command works from a
+checkout (``pip install -e '.[bench]'`` or ``PYTHONPATH=.``) and says so otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+from usdahd.errors import UsageError
+
+#: The checkout's root, when usdahd is imported from one (``<root>/usdahd/commands/bench.py``).
+CHECKOUT = Path(__file__).resolve().parents[2]
+
+
+def benchmarks_dir(root: Path = CHECKOUT) -> Path:
+    """``<checkout>/benchmarks``; UsageError when usdahd is not imported from a checkout."""
+    bench = root / "benchmarks"
+    if not (bench / "run.py").is_file() or not (root / "samples").is_dir():
+        raise UsageError(
+            f"usdahd bench needs the source checkout (benchmarks/run.py and samples/ next to the "
+            f"usdahd package), but usdahd is imported from {root / 'usdahd'}, an installed copy "
+            "without them. Run it from a git clone: pip install -e '.[bench]' && usdahd bench "
+            "(or: python benchmarks/run.py)"
+        )
+    return bench
+
+
+def load_runner(root: Path = CHECKOUT):
+    """Import benchmarks/run.py of the checkout as a module."""
+    bench = benchmarks_dir(root)
+    if str(bench) not in sys.path:
+        sys.path.insert(0, str(bench))
+    name = "usdahd_benchmarks_run"
+    spec = importlib.util.spec_from_file_location(name, bench / "run.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while executing it
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "bench",
+        help="regenerate docs/benchmarks.md and its plots (needs a source checkout)",
+        description=(
+            "Run the benchmarks (bake run time against error, fit speed and error per model and "
+            "solver, encodings after quantization, skipping, soak) and write docs/benchmarks.md "
+            "with PNG plots in docs/benchmarks/. Same as python benchmarks/run.py; needs "
+            "matplotlib (pip install 'usdahd[bench]')."
+        ),
+    )
+    p.add_argument("--quick", action="store_true", help="~2-3 minute run (fewer samples)")
+    p.add_argument("--out", default=None, help="report path (default: docs/benchmarks.md)")
+    p.add_argument(
+        "--sections",
+        default="bake,fit,encodings,skipping,soak",
+        help="comma-separated subset of bake,fit,encodings,skipping,soak",
+    )
+    p.add_argument("--fresh", action="store_true", help="recompute cached reference bakes")
+    p.add_argument("--quiet", action="store_true", help="no progress lines, no report path")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise UsageError("usdahd bench needs matplotlib: pip install 'usdahd[bench]'") from None
+    runner = load_runner()
+    ns = argparse.Namespace(
+        quick=args.quick,
+        out=args.out or str(CHECKOUT / "docs" / "benchmarks.md"),
+        sections=args.sections,
+        fresh=args.fresh,
+        quiet=args.quiet,
+    )
+    out = runner.run(ns)
+    if not args.quiet:
+        print(out)
+    return 0

@@ -32,14 +32,21 @@ DEFAULTS = {
     "ratio": None,  # the model's first ratio type (luminance for IrradZ models)
     "solver": None,  # the model's default solver
     "uv": "st",
-    "resolution": 64,
-    "texel_density": None,
+    "resolution": None,  # None: from texel_density
+    "texel_density": 16.0,  # texels per metre (the schema fallback)
     "samples": 256,
-    "bounces": 2,
+    "bounces": 3,
     "padding": 4,
 }
 #: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).
 MAX_RESOLUTION = 8192
+#: Largest side a *texel density* may ask for without an explicit --resolution: a 221 m ground
+#: quad at 16 texels/m would otherwise take most of the bake; clamped with a warning.
+DENSITY_MAX_RESOLUTION = 1024
+#: A UV set is unusable as a lightmap (and gets unwrapped into a new primvar) when more than
+#: this fraction of its covered texels overlap, or of its UVs lie outside [0, 1].
+UV_OVERLAP_LIMIT = 0.01
+UV_OUTSIDE_LIMIT = 0.001
 
 
 @dataclass
@@ -165,16 +172,39 @@ def resolve_settings(opts: BakeOptions, authored: dict) -> dict:
     return s
 
 
+def scene_hash_parts(scene) -> dict:
+    """Content hashes a bake depends on, from a Scene (the baker and the validator share this).
+
+    Keys: ``<prim path>`` -> the mesh's geometry *with* its lightmap UVs (what its own textures
+    depend on); ``shape:<prim path>`` -> geometry without UVs (what other prims' lighting
+    depends on: another mesh's lightmap UVs never change this one's bake); ``lights``,
+    ``materials`` (from ``Scene.hash_parts``).
+    """
+    out = {}
+    for m in scene.meshes:
+        shape = hashlib.sha256()
+        for a in (m.points, m.triangles, m.normals, m.material):
+            shape.update(np.ascontiguousarray(a).tobytes())
+        out[f"shape:{m.path}"] = shape.hexdigest()
+        full = shape.copy()
+        full.update(b"-" if m.uv is None else np.ascontiguousarray(m.uv, np.float32).tobytes())
+        out[m.path] = full.hexdigest()
+    base = scene.hash_parts()
+    for key in ("lights", "materials"):
+        out[key] = base.get(key, "")
+    return out
+
+
 def content_hash(parts: dict, prim_path: str, settings: dict) -> tuple[str, dict]:
     """The hash a prim's bake depends on, and its named parts (stored for staleness checks).
 
-    parts : ``Scene.hash_parts()``; the prim's own geometry, every other mesh (shadows and
+    parts : :func:`scene_hash_parts`; the prim's own geometry, every other mesh (shadows and
     bounces), lights, materials, the prim's settings and the generator version.
     returns : ("sha256:<hex>", {part name: hex}).
     """
     others = hashlib.sha256()
     for k in sorted(parts):
-        if k not in (prim_path, "lights", "materials"):
+        if k.startswith("shape:") and k != f"shape:{prim_path}":
             others.update(k.encode() + parts[k].encode())
     named = {
         "geometry": parts.get(prim_path, ""),
@@ -321,14 +351,13 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = _plan(scene, i, mesh, stage, opts)
-        except (InputError, UsageError) as exc:
+            job = _plan(scene, i, mesh, stage, opts, entry)
+        except (InputError, UsageError, BakeError) as exc:
             entry.update(status="failed", error=str(exc))
             failed += 1
             continue
-        job.report = entry
         entry["resolution"] = list(job.resolution)
-        if job.unwrapped:
+        if job.unwrapped and not any("xatlas" in w for w in entry["warnings"]):
             entry["warnings"].append(
                 f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
                 f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
@@ -338,7 +367,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         raise InputError(f"{src}: no mesh to bake (all meshes are occluders or have bake off)")
     # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
     # (the validator recomputes these from the output stage).
-    parts = scene.hash_parts()
+    parts = scene_hash_parts(scene)
     for job in jobs:
         job.content_hash, job.parts = content_hash(parts, job.path, job.settings)
         old = prev.get(job.path)
@@ -387,9 +416,62 @@ def _texels_per_unit(settings: dict, scene) -> float:
     return float(settings["texel_density"]) * float(scene.meters_per_unit or 1.0)
 
 
-def _plan(scene, index: int, mesh, stage, opts: BakeOptions) -> PrimJob:
-    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
+def _uv_problem(texels) -> str | None:
+    """Why a rasterised UV set cannot hold a lightmap, or None if it can."""
+    st = texels.stats
+    covered = max(len(texels), 1)
+    if len(texels) == 0:
+        return "covers no texel"
+    if st.get("overlap_texels", 0) > UV_OVERLAP_LIMIT * covered:
+        return f"overlaps itself on {100 * st['overlap_texels'] / covered:.0f}% of its texels"
+    if st.get("uv_outside_fraction", 0.0) > UV_OUTSIDE_LIMIT:
+        return f"has {100 * st['uv_outside_fraction']:.1f}% of its UVs outside [0,1]"
+    return None
+
+
+def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
     from usdahd.bake.texels import resolution_for_density
+
+    tpu = _texels_per_unit(settings, scene)
+    w, h = resolution_for_density(mesh, tpu, max_resolution=MAX_RESOLUTION)
+    if max(w, h) > DENSITY_MAX_RESOLUTION:
+        job.report.setdefault("warnings", []).append(
+            f"texel density {settings['texel_density']:g}/m needs {w}x{h}; clamped to "
+            f"{DENSITY_MAX_RESOLUTION} (pass --resolution or author ahdLightmap:resolution)"
+        )
+        return DENSITY_MAX_RESOLUTION, DENSITY_MAX_RESOLUTION
+    return w, h
+
+
+def _unwrap(job, mesh, settings, scene) -> None:
+    from usdahd.bake.unwrap import unwrap
+
+    if settings["resolution"]:
+        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
+    else:
+        try:
+            uv, res = unwrap(
+                mesh,
+                texels_per_unit=_texels_per_unit(settings, scene),
+                padding=2,
+                max_resolution=DENSITY_MAX_RESOLUTION,
+            )
+        except UsageError:
+            job.report.setdefault("warnings", []).append(
+                f"texel density {settings['texel_density']:g}/m needs an atlas above "
+                f"{DENSITY_MAX_RESOLUTION}; packed into {DENSITY_MAX_RESOLUTION}x"
+                f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
+            )
+            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2)
+    mesh.uv = uv
+    job.unwrapped = True
+    job.uv_primvar_values = uv
+    job.resolution = tuple(int(r) for r in res)
+
+
+def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> PrimJob:
+    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
+    from usdahd.bake.texels import rasterize
     from usdahd.errors import SchemaError
 
     prim = stage.GetPrimAtPath(mesh.path)
@@ -402,33 +484,36 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions) -> PrimJob:
     if uv_name != mesh.uv_name:
         tc = scene.texcoords[index].get(uv_name) if index < len(scene.texcoords) else None
         mesh.uv, mesh.uv_name = tc, uv_name
-    job = PrimJob(path=mesh.path, mesh=mesh, settings=settings)
+    job = PrimJob(path=mesh.path, mesh=mesh, settings=settings, report=report)
+    if mesh.uv is not None:
+        if settings["resolution"]:
+            res = (int(settings["resolution"]),) * 2
+        else:
+            res = _density_resolution(mesh, settings, scene, job)
+        texels = rasterize(mesh, res)
+        problem = _uv_problem(texels)
+        if problem is None:
+            job.texels, job.resolution = texels, res
+        else:
+            new = f"{uv_name}_lightmap"
+            if not opts.unwrap:
+                raise InputError(
+                    f"{mesh.path}: UV set {uv_name!r} {problem}, so it cannot hold a lightmap; "
+                    f"author a lightmap UV set (--uv) or drop --no-unwrap to unwrap into {new!r}"
+                )
+            report["warnings"].append(
+                f"UV set {uv_name!r} {problem}: unwrapped with xatlas into a new primvar "
+                f"{new!r} (authored in the output layer; {uv_name!r} is left as it is)"
+            )
+            mesh.uv, mesh.uv_name = None, new
+            settings["uv"] = new
     if mesh.uv is None:
         if not opts.unwrap:
             raise InputError(
                 f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "
                 "(--no-unwrap); author the primvar, pick another with --uv, or drop --no-unwrap"
             )
-        from usdahd.bake.unwrap import unwrap
-
-        if settings["resolution"]:
-            uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
-        else:
-            uv, res = unwrap(mesh, texels_per_unit=_texels_per_unit(settings, scene), padding=2)
-        mesh.uv = uv
-        job.unwrapped = True
-        job.uv_primvar_values = uv
-        job.resolution = tuple(int(r) for r in res)
-    elif settings["resolution"]:
-        r = int(settings["resolution"])
-        if r > MAX_RESOLUTION:
-            raise UsageError(
-                f"{mesh.path}: resolution {r} exceeds the maximum {MAX_RESOLUTION}; "
-                "lower --resolution or ahdLightmap:resolution"
-            )
-        job.resolution = (r, r)
-    else:
-        job.resolution = resolution_for_density(mesh, _texels_per_unit(settings, scene))
+        _unwrap(job, mesh, settings, scene)
     settings["resolution"] = list(job.resolution)
     return job
 
@@ -531,7 +616,8 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     for k, job in enumerate(jobs):
         t1 = time.perf_counter()
         try:
-            job.texels = rasterize(job.mesh, job.resolution)
+            if job.texels is None:
+                job.texels = rasterize(job.mesh, job.resolution)
             if len(job.texels) == 0:
                 raise BakeError(
                     f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "

@@ -1004,7 +1004,9 @@ class _SceneCache:
                 if key in self._data:
                     self._data.move_to_end(key)
                     return self._data[key]
-        parts = load_scene(stage, uv_name=uv_name).hash_parts()
+        from usdahd.pipeline import scene_hash_parts
+
+        parts = scene_hash_parts(load_scene(stage, uv_name=uv_name))
         if key is not None:
             with _LOCK:
                 self._data[key] = parts

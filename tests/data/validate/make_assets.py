@@ -198,7 +198,7 @@ def bake(
     settings = pipeline.resolve_settings(pipeline.BakeOptions(model=model, ratio=ratio), {})
     settings["resolution"] = [w, h]
     settings = json.loads(json.dumps(settings, sort_keys=True, default=str))
-    parts = load_scene(stage, uv_name=settings["uv"]).hash_parts()
+    parts = pipeline.scene_hash_parts(load_scene(stage, uv_name=settings["uv"]))
     digest, named = pipeline.content_hash(parts, PRIM, settings)
     results = schema.BakeResults(
         model=model,

@@ -235,3 +235,16 @@ def test_killed_bake_leaves_previous_output_valid(tmp_path):
     for f, data in files.items():
         assert f.read_bytes() == data
     assert _run(["bake", str(stage), *FAST]).returncode == 0  # and it re-runs cleanly
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in SAMPLES.glob("*.usda")))
+def test_fresh_bake_of_every_sample_validates_clean(tmp_path, capsys, name):
+    stage = _copy_sample(tmp_path, name)
+    code, out = _bake(
+        [str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1", "--quiet"], capsys
+    )
+    assert code == 0, out.err
+    layer = tmp_path / name.replace(".usda", ".lightmaps.usda")
+    code = cli.main(["validate", str(layer), "--json"])
+    found = json.loads(capsys.readouterr().out)
+    assert code == 0, found

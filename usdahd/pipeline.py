@@ -486,12 +486,21 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> Pr
         mesh.uv, mesh.uv_name = tc, uv_name
     job = PrimJob(path=mesh.path, mesh=mesh, settings=settings, report=report)
     if mesh.uv is not None:
-        if settings["resolution"]:
-            res = (int(settings["resolution"]),) * 2
+        uv = np.asarray(mesh.uv, np.float64)
+        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+        texels, problem = None, None
+        if not np.isfinite(uv).all():
+            problem = "contains NaN or infinite UVs"
+        elif uv_area <= 1e-12:
+            problem = "has zero area (every UV is the same point or on a line)"
         else:
-            res = _density_resolution(mesh, settings, scene, job)
-        texels = rasterize(mesh, res)
-        problem = _uv_problem(texels)
+            if settings["resolution"]:
+                res = (int(settings["resolution"]),) * 2
+            else:
+                res = _density_resolution(mesh, settings, scene, job)
+            texels = rasterize(mesh, res)
+            problem = _uv_problem(texels)
         if problem is None:
             job.texels, job.resolution = texels, res
         else:

@@ -304,7 +304,7 @@ def test_precision_rule_scales_with_size():
     _mesh(st, "/tiny", [(x * 1e-9, y * 1e-9, 1e-9) for x, y, _ in QUAD], [4], [0, 1, 2, 3])
     sc = load_scene(st)
     assert not sc.failed and "/tiny" in [m.path for m in sc.meshes]
-    assert any("/tiny: very small" in w for w in sc.warnings)
+    assert any("1 baked meshes are very small" in w and "/tiny (" in w for w in sc.warnings)
 
 
 def test_degenerate_triangles_dropped_with_warning():

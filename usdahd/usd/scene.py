@@ -368,22 +368,26 @@ class _Extractor:
             self.warn(f"{msg} (occluder dropped; same for its other instances)", key=key)
 
     def size_warnings(self) -> None:
-        """Warn about baked meshes too small for the tracer's ray offsets (SMALL_MESH_REL)."""
+        """One warning naming the baked meshes too small for the tracer's ray offsets
+        (SMALL_MESH_REL of the scene's extent)."""
         if not self.meshes:
             return
         lo = np.min([m.points.min(axis=0) for m in self.meshes], axis=0)
         hi = np.max([m.points.max(axis=0) for m in self.meshes], axis=0)
         extent = float(np.linalg.norm(hi - lo))
+        small = []
         for m in self.meshes:
-            if not m.bake:
-                continue
             d = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
-            if d < SMALL_MESH_REL * extent:
-                self.warn(
-                    f"{m.path}: very small ({d:.3g} units across, {d / extent:.1e} of the "
-                    "scene's extent): ray offsets exceed 10% of its size, so its lighting is "
-                    "approximate; model it at a larger scale if it matters"
-                )
+            if m.bake and d < SMALL_MESH_REL * extent:
+                small.append(f"{m.path} ({d:.3g} units)")
+        if small:
+            more = f" and {len(small) - 5} more" if len(small) > 5 else ""
+            self.warn(
+                f"{len(small)} baked meshes are very small, under {SMALL_MESH_REL:g} of the "
+                f"scene's extent {extent:.3g}: {', '.join(small[:5])}{more}; ray offsets exceed "
+                "10% of their size, so their lighting is approximate (a huge ground plane or a "
+                "stray far-away prim inflates the extent)"
+            )
 
     def warn(self, msg: str, key: str | None = None):
         key = key or msg

@@ -27,14 +27,7 @@ CASES = {c["id"]: c for c in MANIFEST["cases"]}
 TINY = ["--resolution", "8", "--samples", "8", "--bounces", "0", "--quiet"]
 #: Cases whose expectation needs a change in a file this corpus does not own (pipeline.py);
 #: strict xfail, so they flag themselves once the change lands.
-PENDING = {
-    "negative_resolution": "pipeline.bake validates every schema input when selecting prims "
-    "(read_inputs(p).bake), so one prim's bad input aborts the stage with exit 2",
-    "huge_resolution": "pipeline._plan does not check MAX_RESOLUTION itself; the refusal "
-    "from texels.rasterize does not name the prim",
-    "huge_resolution_unwrap": "pipeline._plan does not check MAX_RESOLUTION before unwrapping; "
-    "unwrap's own refusal does not name the prim",
-}
+PENDING: dict[str, str] = {}
 #: Strings that would appear in an escaped path (display_name_escape).
 ESCAPE = Path("/tmp/usdahd_escape")
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from usdahd import models
 from usdahd._version import __version__
-from usdahd.errors import BakeError, InputError, StageError, UsageError
+from usdahd.errors import BakeError, InputError, StageError, UsageError, UsdAhdError
 
 #: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
 DEFAULTS = {
@@ -329,7 +329,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         for m in scene.meshes:
             if m.bake:
                 p = api_prims.get(m.path)
-                m.bake = bool(p) and bool(schema.read_inputs(p).bake)
+                m.bake = bool(p) and bool(schema.read_inputs(p, validate=False).bake)
     prev = _previous_results(out)
     report = {
         "stage": str(src),
@@ -480,6 +480,11 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> Pr
     except SchemaError as exc:
         raise InputError(str(exc)) from None
     settings = resolve_settings(opts, authored)
+    if settings["resolution"] and not 1 <= int(settings["resolution"]) <= MAX_RESOLUTION:
+        raise UsageError(
+            f"{mesh.path}: resolution {settings['resolution']} is outside 1..{MAX_RESOLUTION}; "
+            "lower --resolution or ahdLightmap:resolution"
+        )
     uv_name = settings["uv"]
     if uv_name != mesh.uv_name:
         tc = scene.texcoords[index].get(uv_name) if index < len(scene.texcoords) else None
@@ -701,8 +706,11 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
     for job in ok:
         try:
             _encode_and_write(job, out, opts)
-        except (BakeError, InputError) as exc:
-            job.report.update(status="failed", error=str(exc))
+        except UsdAhdError as exc:  # ImageError, BakeError, InputError: this prim only
+            job.report.update(
+                status="failed",
+                error=f"{job.path}: {exc}" if job.path not in str(exc) else str(exc),
+            )
 
 
 def _factor_attrs(factors: dict) -> dict:

@@ -1091,7 +1091,17 @@ def check_staleness(prim) -> list[Finding]:
     from usdahd import pipeline
 
     uv_name = str(results.settings.get("uv") or results.uv_primvar or "st")
-    parts = _SCENES.get(prim.GetStage(), uv_name)
+    from usdahd.errors import StageError
+
+    try:
+        parts = _SCENES.get(prim.GetStage(), uv_name)
+    except StageError as exc:
+        r.error(
+            "SceneUnreadable",
+            f"the stage cannot be read as a scene, so staleness cannot be checked: {exc}",
+            "fix the stage (the baker reports the same error)",
+        )
+        return r.out
     path = str(prim.GetPath())
     if path not in parts:
         r.error(

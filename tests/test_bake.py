@@ -248,3 +248,17 @@ def test_fresh_bake_of_every_sample_validates_clean(tmp_path, capsys, name):
     code = cli.main(["validate", str(layer), "--json"])
     found = json.loads(capsys.readouterr().out)
     assert code == 0, found
+
+
+def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
+    pytest.importorskip("pyoidn")
+    stage = _copy_sample(tmp_path, "open_plane.usda")
+    code, out = _bake(
+        [str(stage), "--denoise", "--resolution", "16", "--samples", "8", "--quiet"], capsys
+    )
+    assert code == 0, out.err
+    layer = tmp_path / "open_plane.lightmaps.usda"
+    got, want = _decoded_iz(_results(layer)["/World/Geometry/Plane"])
+    assert np.isfinite(got).all()
+    np.testing.assert_allclose(got, want, rtol=2e-3)
+    assert cli.main(["validate", str(layer), "--quiet"]) == 0

@@ -262,3 +262,24 @@ def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
     assert np.isfinite(got).all()
     np.testing.assert_allclose(got, want, rtol=2e-3)
     assert cli.main(["validate", str(layer), "--quiet"]) == 0
+
+
+def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
+    from pxr import Sdf, Usd, UsdGeom
+
+    stage_path = _copy_sample(tmp_path, "cornell_box.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Floor")).RemovePrimvar("st")
+    stage.GetRootLayer().Save()
+    assert _bake([str(stage_path), *FAST], capsys)[0] == 0
+    layer_path = tmp_path / "cornell_box.lightmaps.usda"
+    uv = Sdf.Path("/World/Geometry/Floor.primvars:st")
+    first = Sdf.Layer.OpenAsAnonymous(str(layer_path))  # keep the layer alive while reading
+    before = list(first.GetAttributeAtPath(uv).default)
+    code, out = _bake(
+        [str(stage_path), "--prim", "/World/Geometry/Ceiling", "--force", *FAST], capsys
+    )
+    assert code == 0, out.err
+    second = Sdf.Layer.OpenAsAnonymous(str(layer_path))
+    after = second.GetAttributeAtPath(uv)
+    assert after is not None and list(after.default) == before

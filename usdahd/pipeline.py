@@ -590,11 +590,19 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
         ostage.SetEditTarget(layer)
         if not src_root.pseudoRoot.HasInfo("upAxis"):
             UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
+        old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
         for job in sorted(jobs, key=lambda j: j.path):
             res = job.results or job.previous
             if res is None:
                 continue
             prim = ostage.GetPrimAtPath(job.path)
+            if job.mesh is None and old_layer is not None:
+                # A kept prim (not selected this time): carry over a UV set an earlier run
+                # unwrapped and authored here, or its kept textures would lose their UVs.
+                uv_path = Sdf.Path(job.path).AppendProperty(f"primvars:{res.uv_primvar}")
+                if old_layer.GetAttributeAtPath(uv_path) is not None:
+                    Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
+                    Sdf.CopySpec(old_layer, uv_path, layer, uv_path)
             if job.uv_primvar_values is not None:
                 warning = _author_uvs(ostage, job)
                 if warning and warning not in job.report.setdefault("warnings", []):

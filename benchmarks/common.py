@@ -288,7 +288,7 @@ def save_figure(fig, name: str, out_dir: Path = PLOTS) -> Path:
         from PIL import Image
 
         with Image.open(path) as im:
-            im.convert("RGB").quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(
+            im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
                 path, optimize=True
             )
     except Exception:  # Pillow missing or unable: keep matplotlib's PNG

@@ -226,23 +226,18 @@ def error_maps_plot(result, scene, prim, reference_iz, name="encoding_errors.png
 
 
 def encodings_plot(result: dict, name: str = "encodings.png", plots_dir=PLOTS):
-    """Mean quantized error vs bytes per texel, one point per (model, ratio)."""
+    """Mean quantized error per (model, ratio), sorted, with its bytes per texel."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for r in result["rows"]:
-        y = float(np.mean(list(r["quantized"].values())))
-        ax.scatter(r["bytes"], y, s=18)
-        label = (
-            r["model"]
-            if r["ratio"] in ("none", "luminance", "linear")
-            else (f"{r['model']} {r['ratio']}")
-        )
-        ax.annotate(label, (r["bytes"], y), fontsize=7, xytext=(3, 2), textcoords="offset points")
-    ax.set_yscale("log")
-    ax.set_xlabel("bytes per texel")
-    ax.set_ylabel("relative hemispherical RMSE (mean over scenes)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.set_title("Encodings after quantization on the baked samples", fontsize=10)
+    rows = sorted(result["rows"], key=lambda r: -float(np.mean(list(r["quantized"].values()))))
+    fig, ax = plt.subplots(figsize=(6.4, 0.28 * len(rows) + 1.0))
+    ys = np.arange(len(rows))
+    vals = [max(float(np.mean(list(r["quantized"].values()))), 1e-7) for r in rows]
+    ax.barh(ys, vals, color="tab:blue", alpha=0.8)
+    ax.set_yticks(ys, [f"{r['model']} {r['ratio']} ({r['bytes']} B)" for r in rows], fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("relative hemispherical RMSE after quantization (mean over the samples)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.set_title("Encodings on the baked samples (bytes per texel in brackets)", fontsize=10)
     fig.tight_layout()
     return save_figure(fig, name, plots_dir)
 

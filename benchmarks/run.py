@@ -59,7 +59,7 @@ class Plan:
 
 PLANS = {
     "full": Plan(
-        resolution=16,
+        resolution=24,
         spps=(16, 32, 64, 128, 256, 512, 1024),
         ref_samples=8192,
         repeats=3,
@@ -224,6 +224,7 @@ def run(args) -> Path:
     total = time.perf_counter() - t_start
 
     md.append(report_header(facts, plan_name, plan, total, timings, no_denoise))
+    md.append(section_summary(results))
     if "bake" in results:
         md.append(section_bake(results["bake"], plan, no_denoise))
     if "fit" in results:
@@ -278,6 +279,57 @@ def report_header(facts, plan_name, plan, total, timings, no_denoise) -> str:
             md_table(["machine", ""], rows),
         ]
     )
+
+
+def section_summary(results) -> str:
+    """The headline numbers of this run, computed from the sections below."""
+    lines = ["## Summary (numbers from this run)", ""]
+    if "bake" in results:
+        rows = results["bake"]["rows"]
+        top = max(r["spp"] for r in rows)
+        for scene in dict.fromkeys(r["scene"] for r in rows):
+            at = {r["config"]: r for r in rows if r["scene"] == scene and r["spp"] == top}
+            parts = [f"{c} {at[c]['rel_rmse']:.3g} in {at[c]['seconds']:.2g} s" for c in at]
+            noise = results["bake"]["references"][scene]["noise_rel"]
+            lines.append(
+                f"- Bake `{scene}` at {top} spp, I_z relative RMSE: "
+                + "; ".join(parts)
+                + f" (reference noise {noise:.2g})."
+            )
+    if "encodings" in results:
+        enc = results["encodings"]["rows"]
+
+        def mean_q(r):
+            return sum(r["quantized"].values()) / len(r["quantized"])
+
+        small = [r for r in enc if r["bytes"] <= 12]
+        if small:
+            best = min(small, key=mean_q)
+            lines.append(
+                f"- Best encoding at <= 12 bytes/texel on the baked samples: {best['model']} "
+                f"{best['ratio']} ({best['bytes']} B), relative hemispherical RMSE "
+                f"{mean_q(best):.3g} after quantization."
+            )
+    if "skipping" in results:
+        saved = [1 - r["second_s"] / r["first_s"] for r in results["skipping"]]
+        rays = max(r["rays_second"] for r in results["skipping"])
+        lines.append(
+            f"- Unchanged re-bake: at most {rays:,.0f} rays traced, "
+            f"{100 * min(saved):.0f}-{100 * max(saved):.0f} % of the first bake's wall time saved."
+        )
+    if "soak" in results:
+        bad = [r for r in results["soak"]["rows"] if r["nonfinite_total"]]
+        n = results["soak"]["texels"]
+        if bad:
+            names = ", ".join(f"{r['model']} {r['ratio']}" for r in bad)
+            cats = sorted({c for r in bad for c in r["nonfinite_where"]})
+            lines.append(
+                f"- **Soak: non-finite outputs (must be 0)** in {names} "
+                f"(categories: {', '.join(cats)}); every other model: 0 of {n:,} texels."
+            )
+        else:
+            lines.append(f"- Soak: 0 non-finite values in {n:,} texels through every model.")
+    return "\n".join(lines)
 
 
 def section_bake(result, plan: Plan, no_denoise) -> str:

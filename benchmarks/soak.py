@@ -190,11 +190,11 @@ def run_variant(model: str, ratio: str, data: dict) -> dict:
 
 
 def soak(n_texels: int, *, seed: int = 0, variant_list=None) -> dict:
-    """Push ``n_texels`` (split evenly over CATEGORIES) through every (model, ratio).
+    """Push at least ``n_texels`` (split evenly over CATEGORIES) through every (model, ratio).
 
     returns : dict(texels, categories, rows [run_variant() results]).
     """
-    per = max(1, n_texels // len(CATEGORIES))
+    per = max(1, -(-n_texels // len(CATEGORIES)))  # at least n_texels in all
     data = {cat: texels(cat, per, seed) for cat in CATEGORIES}
     rows = []
     for model, ratio in variant_list or variants():

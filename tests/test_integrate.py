@@ -73,9 +73,21 @@ def _texels(points, normal=(0, 0, 1)):
     )
 
 
+@pytest.fixture(autouse=True, params=["native", "embreex"])
+def backend(request):
+    """Every case runs on the fast path (native, the default) and on the embreex reference."""
+    global BACKEND
+    BACKEND = request.param
+    yield request.param
+    BACKEND = "auto"
+
+
+BACKEND = "auto"
+
+
 def _bake(st, tex, **kw):
     scene = load_scene(st)
-    tr = Tracer(scene)
+    tr = Tracer(scene, backend=BACKEND)
     kw.setdefault("samples", 128)
     kw.setdefault("bounces", 0)
     out, stats = bake_texels(scene, tr, tex, **kw)

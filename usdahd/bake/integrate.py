@@ -477,13 +477,14 @@ class _NativeCtx:
 
     def native_pass(self, s, offset, acc, active, do_delta):
         r2h = r2_sequence(s, offset)
+        r2h = np.c_[r2h, np.cos(_TWO_PI * r2h[:, 1]), np.sin(_TWO_PI * r2h[:, 1])]
         r2n = r2_sequence(s, offset + 7919)
         arrays = (acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back, acc.y_sum,
                   acc.y_sq)  # fmt: skip
         handle = self.tr.native_handle
 
         def run(ids):
-            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9))
+            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9), np.zeros(81))
             return _native_pass(
                 handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
                 s, r2h, r2n, self.state, do_delta, arrays, work,
@@ -653,10 +654,12 @@ def _native_pass(
 ):
     """One pass of ``s`` hemisphere (+ light) samples for texels ``ids`` of a chunk.
 
-    P, NG : (n,3) f64; F : (n,3,3) f64; r2h, r2n : (s,2) R2 points for the hemisphere and the
-    light samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
-    work : per-thread scratch (RTCRayHit record, (1,) uint64 random state, (9,) f64). Compiled
-    without the NRT (``_nrt=False``): no allocation and no reference counting in the hot loop.
+    P, NG : (n,3) f64; F : (n,3,3) f64; r2h : (s,4) R2 points for the hemisphere with
+    cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
+    samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
+    work : per-thread scratch (RTCRayHit record, (1,) uint64 random state, (9,) f64 basis,
+    (81,) f64 zeroed Gram row). Compiled without the NRT (``_nrt=False``): no allocation and
+    no reference counting in the hot loop.
     returns : rays traced.
     """
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
@@ -667,7 +670,7 @@ def _native_pass(
     sel_area = 1.0 / max(1, n_area)
     sub = (lists[0], lists[1])
     gn_t = tb[1]
-    rec, st, Y = work
+    rec, st, Y, G = work
     rays = 0
     for ii in range(ids.shape[0]):
         i = ids[ii]
@@ -700,6 +703,7 @@ def _native_pass(
                     delta[i, 2, c9] += b * Y[c9]
         cp0 = nb_random(st)
         cp1 = nb_random(st)
+        c1, s1 = np.cos(_TWO_PI * cp1), np.sin(_TWO_PI * cp1)
         cn0 = cn1 = 0.0
         if n_area:
             cn0 = nb_random(st)
@@ -707,12 +711,11 @@ def _native_pass(
         for k in range(s):
             u0 = r2h[k, 0] + cp0
             u0 = u0 - 1.0 if u0 >= 1.0 else u0
-            u1 = r2h[k, 1] + cp1
-            u1 = u1 - 1.0 if u1 >= 1.0 else u1
             lz = u0
             sn = np.sqrt(max(1.0 - lz * lz, 0.0))
-            phi = _TWO_PI * u1
-            lx, ly = sn * np.cos(phi), sn * np.sin(phi)
+            # phi = 2 pi (r2 + cp1): angle addition with the pass's precomputed cos/sin
+            lx = sn * (r2h[k, 2] * c1 - r2h[k, 3] * s1)
+            ly = sn * (r2h[k, 3] * c1 + r2h[k, 2] * s1)
             dx = lx * f[0, 0] + ly * f[1, 0] + lz * f[2, 0]
             dy = lx * f[0, 1] + ly * f[1, 1] + lz * f[2, 1]
             dz = lx * f[0, 2] + ly * f[1, 2] + lz * f[2, 2]
@@ -736,11 +739,11 @@ def _native_pass(
                 hemi[i, 0, c9] += w * Rr
                 hemi[i, 1, c9] += w * Rg
                 hemi[i, 2, c9] += w * Rb
-            if regression:
+            if regression:  # full 9x9 outer product in a flat scratch row (vectorizes)
                 for a in range(9):
                     wa = _TWO_PI * Y[a]
-                    for b9 in range(a, 9):
-                        gram[i, a, b9] += wa * Y[b9]
+                    for b9 in range(9):
+                        G[a * 9 + b9] += wa * Y[b9]
             ylum = _TWO_PI * _IZ * (_LUM[0] * Rr + _LUM[1] * Rg + _LUM[2] * Rb) * Y[2]
             if n_area:
                 u0 = r2n[k, 0] + cn0
@@ -782,6 +785,7 @@ def _native_pass(
         rng_state[i] = st[0]
         if regression:
             for a in range(9):
-                for b9 in range(a):
-                    gram[i, a, b9] = gram[i, b9, a]
+                for b9 in range(9):
+                    gram[i, a, b9] += G[a * 9 + b9]
+                    G[a * 9 + b9] = 0.0
     return rays

@@ -705,7 +705,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     return dx, dy, dz, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2], pdf
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     """Scalar ``Light.intersect``: returns (hit, t, r, g, b)."""
     if kind == KIND_SPHERE:
@@ -736,7 +736,7 @@ def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     return False, _INF, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
     """Scalar ``Light.pdf`` (solid angle) of a direction that hit the light at ``t``."""
     if kind == KIND_SPHERE:

@@ -325,13 +325,12 @@ class Tracer:
     def native_tables(self):
         """Per-triangle, material and texture tables for the numba kernels (cached).
 
-        returns a tuple (see :func:`surface_albedo` and friends for the layout):
+        returns a tuple (read by :func:`nb_albedo`, :func:`nb_trace` and friends):
         ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f64,
         ``tri_material`` (T,) i64, ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64
         (albedo rgb, emission rgb, opacity, threshold), ``mat_tex`` (M,3) i64 texture index of
         albedo/emission/opacity (-1: constant), ``tex_data`` (D,) f32 texels, ``tex_info``
-        (K,8) i64 (offset, h, w, c, wrap s, wrap t, channel count, 0), ``tex_chan`` (K,4) i64,
-        ``tex_sb`` (K,8) f64 (scale, bias).
+        (K,8) i64, ``tex_chan`` (K,4) i64, ``tex_sb`` (K,8) f64 (see :func:`pack_textures`).
         """
         if self._tables is not None:
             return self._tables
@@ -339,28 +338,16 @@ class Tracer:
         nm = max(1, len(mats))
         mat_const = np.zeros((nm, 8))
         mat_tex = np.full((nm, 3), -1, np.int64)
-        data, info, chan, sb = [np.zeros(1, np.float32)], [], [], []
-        off = 1
-        wrap_code = {"repeat": 0, "clamp": 1, "black": 1, "mirror": 2}
+        textures = []
         for i, m in enumerate(mats):
             mat_const[i, 0:3] = m.albedo
             mat_const[i, 3:6] = m.emission
             mat_const[i, 6] = m.opacity
             mat_const[i, 7] = m.opacity_threshold
             for j, tex in enumerate((m.albedo_tex, m.emission_tex, m.opacity_tex)):
-                if tex is None:
-                    continue
-                h, w, c = tex.data.shape
-                mat_tex[i, j] = len(info)
-                info.append(
-                    [off, h, w, c, wrap_code.get(tex.wrap[0], 0), wrap_code.get(tex.wrap[1], 0)]
-                    + [len(tex.channels), 0]
-                )
-                ch = list(tex.channels)[:4]
-                chan.append(ch + [0] * (4 - len(ch)))
-                sb.append(np.r_[np.asarray(tex.scale, float)[:4], np.asarray(tex.bias, float)[:4]])
-                data.append(np.ascontiguousarray(tex.data, np.float32).reshape(-1))
-                off += tex.data.size
+                if tex is not None:
+                    mat_tex[i, j] = len(textures)
+                    textures.append(tex)
         self._tables = (
             np.ascontiguousarray(self.verts, np.float64),
             self.geom_normal.astype(np.float64),
@@ -369,11 +356,7 @@ class Tracer:
             self.tri_texcoord.astype(np.float64),
             mat_const,
             mat_tex,
-            np.concatenate(data),
-            np.array(info, np.int64).reshape(-1, 8),
-            np.array(chan, np.int64).reshape(-1, 4),
-            np.array(sb, np.float64).reshape(-1, 8),
-        )
+        ) + pack_textures(textures)
         return self._tables
 
     @property
@@ -385,6 +368,33 @@ class Tracer:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+def pack_textures(textures):
+    """Concatenate :class:`usdahd.usd.scene.Texture` objects for :func:`nb_texture`.
+
+    returns (data (D,) f32, info (K,8) i64 = offset, h, w, c, wrap s, wrap t, channel count, 0;
+    chan (K,4) i64 selected channels; sb (K,8) f64 scale then bias); wrap codes 0 repeat,
+    1 clamp/black (clamped, as ``Texture.sample``), 2 mirror.
+    """
+    data, info, chan, sb = [np.zeros(1, np.float32)], [], [], []
+    off = 1
+    wrap_code = {"repeat": 0, "clamp": 1, "black": 1, "mirror": 2}
+    for tex in textures:
+        h, w, c = tex.data.shape
+        wraps = [wrap_code.get(tex.wrap[0], 0), wrap_code.get(tex.wrap[1], 0)]
+        info.append([off, h, w, c] + wraps + [len(tex.channels), 0])
+        ch = list(tex.channels)[:4]
+        chan.append(ch + [0] * (4 - len(ch)))
+        sb.append(np.r_[np.asarray(tex.scale, float)[:4], np.asarray(tex.bias, float)[:4]])
+        data.append(np.ascontiguousarray(tex.data, np.float32).reshape(-1))
+        off += tex.data.size
+    return (
+        np.concatenate(data),
+        np.array(info, np.int64).reshape(-1, 8),
+        np.array(chan, np.int64).reshape(-1, 4),
+        np.array(sb, np.float64).reshape(-1, 8),
+    )
 
 
 # ----------------------------------------------------------------------------- numba side
@@ -468,7 +478,7 @@ def nb_texture(tb, k, s, t):
     return out, info[k, 6]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def _uv(tb, tri, u, v):
     tc = tb[4]
     w0 = 1.0 - u - v
@@ -478,7 +488,7 @@ def _uv(tb, tri, u, v):
     )
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def _material_rgb(tb, tri, u, v, which):
     m = tb[3][tri]
     k = tb[6][m, which]
@@ -492,14 +502,14 @@ def _material_rgb(tb, tri, u, v, which):
     return val[0], val[1], val[2]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
     r, g, b = _material_rgb(tb, tri, u, v, 0)
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
     return _material_rgb(tb, tri, u, v, 1)

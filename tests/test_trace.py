@@ -346,3 +346,27 @@ def test_native_bake_deterministic_and_thread_independent():
         tr.close()
     np.testing.assert_array_equal(outs[0], outs[1])
     np.testing.assert_array_equal(outs[1], outs[2])
+
+
+@pytest.mark.parametrize("regression", [False, True])
+def test_native_result_equals_numpy_result(regression):
+    """The per-texel 9x9 solve on the threads equals ``_Accum.result`` (float32 output)."""
+    from usdahd.bake.integrate import _Accum, _native_result
+
+    rng = np.random.default_rng(4)
+    n = 50
+    acc = _Accum(n)
+    y = rng.normal(size=(n, 40, 9))
+    acc.gram[:] = np.matmul(y.transpose(0, 2, 1), y)
+    acc.hemi[:] = rng.normal(size=(n, 3, 9))
+    acc.nee[:] = rng.normal(size=(n, 3, 9))
+    acc.delta[:] = rng.normal(size=(n, 3, 9))
+    acc.count[:] = rng.integers(1, 40, n)
+    acc.back[:] = rng.integers(0, 5, n)
+    ref, bf_ref = acc.result("regression" if regression else "mc")
+    out = np.empty((n, 3, 9), np.float32)
+    bf = np.empty(n, np.float32)
+    _native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
+                   regression, out, bf)  # fmt: skip
+    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
+    np.testing.assert_array_equal(bf, bf_ref)

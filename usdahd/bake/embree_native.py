@@ -216,7 +216,7 @@ def scratch():
     return buf[off : off + RAYHIT_FLOATS]
 
 
-@njit(inline="always", cache=True, _nrt=False)
+@njit(inline="always", cache=True, _nrt=False, error_model="numpy")
 def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     rec[0] = ox
     rec[1] = oy
@@ -233,7 +233,7 @@ def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     iv[11] = 0  # flags
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """Closest hit. rec : (RAYHIT_FLOATS,) float32 scratch (16-byte aligned).
 
@@ -249,7 +249,7 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     return rec[8], np.int64(iv[17]), rec[15], rec[16]
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """True when anything lies along the ray in [0, tfar]."""
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)

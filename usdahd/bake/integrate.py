@@ -191,7 +191,7 @@ def bake_texels(
                 left = samples - (k + 1) * per_pass
                 saved += int(done.sum()) * left * ctx.rays_per_sample
                 active = active[~done]
-        res, bf = acc.result(estimator)
+        res, bf = ctx.result(acc) if native else acc.result(estimator)
         out[sl] = res
         backfrac[sl] = bf
         invalid[sl] = bf > backface_threshold
@@ -246,7 +246,7 @@ class _Accum:
             ok = self.count >= 16
             if np.any(ok):
                 x = np.linalg.solve(g[ok] + 1e-9 * np.eye(9), b[ok].transpose(0, 2, 1))
-                b[ok] = np.einsum("kl,nlc->nck", _G_HEMI, x)
+                b[ok] = np.matmul(_G_HEMI, x).transpose(0, 2, 1)
         res = b + self.nee / c[:, None, None] + self.delta
         return res.astype(np.float32), (self.back / c).astype(np.float32)
 
@@ -447,6 +447,54 @@ class _Ctx:
         return out
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _native_result(ids, gram, hemi, nee, delta, count, back, regression, out, bf):
+    """``_Accum.result`` for texels ``ids`` (into ``out`` (n,3,9) f32 and ``bf`` (n,) f32):
+    the same solve (9x9 LU with partial pivoting, 1e-9 ridge) per texel, on the threads."""
+    a = np.empty((9, 12))
+    for ii in range(ids.shape[0]):
+        i = ids[ii]
+        c = max(count[i], 1)
+        inv = 1.0 / c
+        for ch in range(3):
+            for k in range(9):
+                out[i, ch, k] = np.float32(
+                    hemi[i, ch, k] * inv + nee[i, ch, k] * inv + delta[i, ch, k]
+                )
+        bf[i] = np.float32(back[i] * inv)
+        if not (regression and count[i] >= 16):
+            continue
+        for r in range(9):
+            for k in range(9):
+                a[r, k] = gram[i, r, k] * inv + (1e-9 if r == k else 0.0)
+            for ch in range(3):
+                a[r, 9 + ch] = hemi[i, ch, r] * inv
+        for col in range(9):  # Gaussian elimination, partial pivoting
+            piv = col
+            for r in range(col + 1, 9):
+                if abs(a[r, col]) > abs(a[piv, col]):
+                    piv = r
+            if piv != col:
+                for k in range(12):
+                    a[col, k], a[piv, k] = a[piv, k], a[col, k]
+            for r in range(col + 1, 9):
+                f = a[r, col] / a[col, col]
+                for k in range(col, 12):
+                    a[r, k] -= f * a[col, k]
+        for r in range(8, -1, -1):
+            for ch in range(3):
+                v = a[r, 9 + ch]
+                for k in range(r + 1, 9):
+                    v -= a[r, k] * a[k, 9 + ch]
+                a[r, 9 + ch] = v / a[r, r]
+        for ch in range(3):
+            for k in range(9):
+                v = 0.0
+                for m in range(9):
+                    v += _G_HEMI[k, m] * a[m, 9 + ch]
+                out[i, ch, k] = np.float32(v + nee[i, ch, k] * inv + delta[i, ch, k])
+
+
 class _NativeCtx:
     """Drives :func:`_native_pass` over the tracer's threads (backend "native")."""
 
@@ -493,6 +541,19 @@ class _NativeCtx:
         rays = self.tr.run_parallel(run, np.asarray(active, np.int64))
         self.tr.rays_traced += int(sum(rays))
 
+    def result(self, acc):
+        n = len(acc.count)
+        out = np.empty((n, 3, 9), np.float32)
+        bf = np.empty(n, np.float32)
+        reg = bool(self.cfg[4])
+
+        def run(ids):
+            _native_result(ids, acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
+                           reg, out, bf)  # fmt: skip
+
+        self.tr.run_parallel(run, np.arange(n, dtype=np.int64))
+        return out, bf
+
 
 def _power(pa, pb):
     """MIS power heuristic (beta 2) weight of strategy a."""
@@ -518,7 +579,7 @@ _IZ = float(shmod.IZ_FROM_L10)
 _TWO_PI = 2.0 * np.pi
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _sh9(Y, x, y, z):
     Y[0] = _C0
     Y[1] = -_C1 * y
@@ -531,18 +592,18 @@ def _sh9(Y, x, y, z):
     Y[8] = _C22 * (x * x - y * y)
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _short(dist):
     return dist * (1.0 - SHADOW_SHORTEN) if np.isfinite(dist) else np.inf
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u, v, pdf_dir, sel):
     """``_Ctx.incoming`` unrolled into a loop: radiance (r, g, b) arriving at o along d whose
     first hit is (t, tri, u, v); also returns the rays traced."""
@@ -648,7 +709,7 @@ def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u,
     return Lr, Lg, Lb, rays
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def _native_pass(
     scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_state, do_delta, acc, work
 ):

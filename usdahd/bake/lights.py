@@ -511,7 +511,7 @@ from numba import njit  # noqa: E402
 _INF = np.inf
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_basis_apply(nx, ny, nz, lx, ly, lz):
     """local (lx,ly,lz) in the Duff et al. frame around unit n -> world direction."""
     sign = 1.0 if nz >= 0.0 else -1.0
@@ -526,7 +526,7 @@ def nb_basis_apply(nx, ny, nz, lx, ly, lz):
     )
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _cone(ax, ay, az, omc, u0, u1):
     z = 1.0 - u0 * omc
     phi = TWO_PI * u1
@@ -534,7 +534,7 @@ def _cone(ax, ay, az, omc, u0, u1):
     return nb_basis_apply(ax, ay, az, s * np.cos(phi), s * np.sin(phi), z)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
     cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
     b = cx * dx + cy * dy + cz * dz
@@ -547,7 +547,7 @@ def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
     return _INF
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _sphere_omc(p, x, y, z):
     wx, wy, wz = p[3] - x, p[4] - y, p[5] - z
     d2 = wx * wx + wy * wy + wz * wz
@@ -558,7 +558,7 @@ def _sphere_omc(p, x, y, z):
     return wx, wy, wz, d2, outside, sin2 / (1.0 + cos_max)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
     ax, ay, az = p[6], p[7], p[8]
     cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
@@ -580,7 +580,7 @@ def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
     return True, t, hx - x * ax, hy - x * ay, hz - x * az
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
     den = dx * p[21] + dy * p[22] + dz * p[23]
     if abs(den) <= 1e-12:
@@ -601,7 +601,7 @@ def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
     return False, _INF
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _dome_lookup(p, dx, dy, dz):
     lx = p[37] * dx + p[38] * dy + p[39] * dz
     ly = p[40] * dx + p[41] * dy + p[42] * dz
@@ -616,7 +616,7 @@ def _dome_lookup(p, dx, dy, dz):
     return x, y, ly
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
     if kind == KIND_POINT:
@@ -705,7 +705,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     return dx, dy, dz, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2], pdf
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     """Scalar ``Light.intersect``: returns (hit, t, r, g, b)."""
     if kind == KIND_SPHERE:
@@ -736,7 +736,7 @@ def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     return False, _INF, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
     """Scalar ``Light.pdf`` (solid angle) of a direction that hit the light at ``t``."""
     if kind == KIND_SPHERE:

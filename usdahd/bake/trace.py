@@ -404,7 +404,7 @@ def pack_textures(textures):
 _U64 = np.uint64
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_random(st):
     """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
     z = st[0] + _U64(0x9E3779B97F4A7C15)
@@ -415,7 +415,7 @@ def nb_random(st):
     return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     """:meth:`Tracer.offset` for one ray."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
@@ -423,7 +423,7 @@ def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     return px + sc * nx, py + sc * ny, pz + sc * nz
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _wrap(i, n, mode):
     if mode == 1:
         return min(max(i, 0), n - 1)
@@ -433,7 +433,7 @@ def _wrap(i, n, mode):
     return i % n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
     return (
         data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
@@ -443,7 +443,7 @@ def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
     )
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_texture(tb, k, s, t):
     """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
     scale/bias, missing channels padded as :meth:`usdahd.usd.scene.Texture.sample`)."""
@@ -478,7 +478,7 @@ def nb_texture(tb, k, s, t):
     return out, info[k, 6]
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _uv(tb, tri, u, v):
     tc = tb[4]
     w0 = 1.0 - u - v
@@ -488,7 +488,7 @@ def _uv(tb, tri, u, v):
     )
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def _material_rgb(tb, tri, u, v, which):
     m = tb[3][tri]
     k = tb[6][m, which]
@@ -502,20 +502,20 @@ def _material_rgb(tb, tri, u, v, which):
     return val[0], val[1], val[2]
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
     r, g, b = _material_rgb(tb, tri, u, v, 0)
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
     return _material_rgb(tb, tri, u, v, 1)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_transmits(tb, tri, u, v, st):
     """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
     m = tb[3][tri]
@@ -536,7 +536,7 @@ def nb_transmits(tb, tri, u, v, st):
     return False
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_hit_point(tb, tri, u, v):
     w = tb[0]
     w0 = 1.0 - u - v
@@ -547,7 +547,7 @@ def nb_hit_point(tb, tri, u, v):
     )
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_shading_normal(tb, tri, u, v):
     cn = tb[2]
     w0 = 1.0 - u - v
@@ -561,7 +561,7 @@ def nb_shading_normal(tb, tri, u, v):
     return g[tri, 0], g[tri, 1], g[tri, 2]
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, rays traced); tri -1 on miss."""
     t, tri, u, v = embree_native.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
@@ -590,7 +590,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     return np.float64(np.float32(travelled + t)), tri, u, v, rays
 
 
-@njit(cache=True, inline="always", _nrt=False)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
     if not transmission:

@@ -370,3 +370,16 @@ def test_native_result_equals_numpy_result(regression):
                    regression, out, bf)  # fmt: skip
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
     np.testing.assert_array_equal(bf, bf_ref)
+
+
+def test_kernel_cache_tracks_every_inlined_source():
+    """numba only re-validates a cached function against its own file; the fused kernel
+    inlines code from several modules, so its cache stamp must cover all of them."""
+    from usdahd.bake import integrate
+
+    if not embree_native.CACHE_TRACKS_ALL_SOURCES:
+        pytest.skip("numba caching internals changed")
+    loc = integrate._native_pass._cache._impl.locator
+    assert isinstance(loc, embree_native._KernelStampMixin)
+    names = {s[0] for s in loc.get_source_stamp()}
+    assert {"trace.py", "lights.py", "integrate.py", "embree_native.py"} <= names

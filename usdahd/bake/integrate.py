@@ -691,12 +691,15 @@ def _path(scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u,
         # continuation ray (also the MIS partner of the NEE sample)
         if not (visible_idx.shape[0] > 0 or has_em or depth < bounces):
             break
-        u0 = nb_random(st)
-        u1 = nb_random(st)
-        rr = np.sqrt(u0)
-        phi = _TWO_PI * u1
-        cz = np.sqrt(max(1.0 - u0, 0.0))
-        dx, dy, dz = nb_basis_apply(nx, ny, nz, rr * np.cos(phi), rr * np.sin(phi), cz)
+        # cosine-weighted (Malley): a uniform point of the unit disk, by rejection (no trig)
+        while True:
+            a = 2.0 * nb_random(st) - 1.0
+            b = 2.0 * nb_random(st) - 1.0
+            r2 = a * a + b * b
+            if r2 < 1.0:
+                break
+        cz = np.sqrt(1.0 - r2)
+        dx, dy, dz = nb_basis_apply(nx, ny, nz, a, b, cz)
         if not (dx * gx + dy * gy + dz * gz > 0.0):
             break
         ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)

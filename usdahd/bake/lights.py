@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from usdahd.bake import embree_native  # noqa: F401  (numba cache locators for the kernels)
 from usdahd.sampling import concentric_disk, orthonormal_basis, sample_discrete, to_world
 
 TWO_PI = 2.0 * np.pi

@@ -39,6 +39,8 @@ MAX_TRANSMIT = 8
 #: (float32 positions carry ~6e-8 relative error; 1e-5 of the extent clears it with margin for
 #: scenes whose detail is >= ~1/1000 of their extent).
 OFFSET_REL = 1e-5
+#: Work items per thread in :meth:`Tracer.run_parallel` (dynamic load balance).
+PARTS_PER_THREAD = 4
 #: Batches smaller than this run on one thread (thread start-up would dominate).
 THREAD_MIN_RAYS = 16384
 
@@ -140,10 +142,10 @@ class Tracer:
     def run_parallel(self, fn, ids):
         """Run ``fn(part)`` on the tracer's threads over interleaved parts of ``ids`` (m,)
         int64 (interleaving balances texels of different cost); returns the list of results."""
-        k = self.threads if self._pool is not None else 1
-        k = max(1, min(k, len(ids)))
-        if k == 1:
+        if self._pool is None or len(ids) < 2:
             return [fn(ids)]
+        # more parts than threads: a thread slowed down by other processes takes fewer
+        k = max(1, min(PARTS_PER_THREAD * self.threads, len(ids)))
         futs = [self._pool.submit(fn, np.ascontiguousarray(ids[i::k])) for i in range(k)]
         return [f.result() for f in futs]
 

@@ -11,6 +11,9 @@ random cosine rays from the texel points for both backends), the end-to-end ``ba
 (all rays traced / wall time, including sampling, shading and SH accumulation) and the ratios
 end-to-end / raw INTERSECT of the same backend (``ratio``) and of embreex (``vs_ex``), each
 ratio from raw rates measured right before and after its bake (the machine may be shared).
+The raw rays are cosine-distributed; ``isect_u``/``ratio_u`` repeat the raw INTERSECT rate with
+uniform-hemisphere rays, the distribution of the bake's own primary rays (grazing rays cost
+more on bumpy geometry).
 Medians of ``--repeat`` runs; JIT kernels are warmed up (loaded from numba's cache) first.
 """
 
@@ -31,7 +34,12 @@ from pxr import Gf, Usd, UsdGeom, UsdLux  # noqa: E402
 from usdahd.bake.integrate import bake_texels  # noqa: E402
 from usdahd.bake.trace import Tracer  # noqa: E402
 from usdahd.bake.types import Texels  # noqa: E402
-from usdahd.sampling import cosine_hemisphere, orthonormal_basis, to_world  # noqa: E402
+from usdahd.sampling import (  # noqa: E402
+    cosine_hemisphere,
+    orthonormal_basis,
+    to_world,
+    uniform_hemisphere,
+)
 from usdahd.usd.scene import load_scene  # noqa: E402
 
 CLASSROOM = os.path.join(
@@ -117,11 +125,13 @@ def raw_rates(tr, o, d):
     return len(o) / (t1 - t0), len(o) / (t2 - t1)
 
 
-def test_rays(tr, tex, n_rays, rng):
+def test_rays(tr, tex, n_rays, rng, sampler=cosine_hemisphere):
+    """Random rays from the texel points: cosine-distributed (the headline raw rate) or
+    uniform over the hemisphere (``uniform_hemisphere``: the bake's own primary rays)."""
     idx = rng.integers(len(tex), size=n_rays)
     p = tex.position[idx].astype(np.float64)
     ng = tex.geom_normal[idx].astype(np.float64)
-    d = to_world(cosine_hemisphere(rng.random((n_rays, 2)))[0], tex.frame[idx].astype(np.float64))
+    d = to_world(sampler(rng.random((n_rays, 2)))[0], tex.frame[idx].astype(np.float64))
     o = np.ascontiguousarray(tr.offset(p, ng, d), np.float32)
     return o, np.ascontiguousarray(d, np.float32)
 
@@ -132,12 +142,13 @@ def bench(name, stage, args):
     scene = load_scene(stage)
     t_load = time.perf_counter() - t0
     backends = ["native"] + ([] if args.no_reference else ["embreex"])
-    keys = ("build", "isect", "occl", "e2e", "ratio", "vs_ex")
+    keys = ("build", "isect", "occl", "e2e", "ratio", "vs_ex", "isect_u", "ratio_u")
     res = {b: {k: [] for k in keys} for b in ("native", "embreex")}
     for _ in range(args.repeat):
         tex = random_texels(scene, args.texels, rng)
         trs = {b: Tracer(scene, backend=b) for b in ("native", "embreex")}
         o, d = test_rays(trs["native"], tex, 1 << 20, rng)
+        ou, du = test_rays(trs["native"], tex, 1 << 20, rng, uniform_hemisphere)
         for b, tr in trs.items():
             res[b]["build"].append(tr.build_time)
             raw_rates(tr, o[:1000], d[:1000])  # warm up (JIT cache load, thread pool)
@@ -150,9 +161,11 @@ def bench(name, stage, args):
             _, stats = bake_texels(scene, tr, tex, samples=args.samples, bounces=args.bounces)
             e2e = stats["rays"] / (time.perf_counter() - t1)
             ri2, ro2 = raw_rates(tr, o, d)
+            ru = raw_rates(tr, ou, du)[0]
             rx = raw_rates(trs["embreex"], o, d)[0] if b == "native" else ri
             raw = 0.5 * (ri + ri2)
-            for k, v in zip(keys[1:], (raw, 0.5 * (ro + ro2), e2e, e2e / raw, e2e / rx)):
+            vals = (raw, 0.5 * (ro + ro2), e2e, e2e / raw, e2e / rx, ru, e2e / ru)
+            for k, v in zip(keys[1:], vals):
                 res[b][k].append(v)
         if args.no_reference:
             res["embreex"]["isect"].append(raw_rates(trs["embreex"], o, d)[0])
@@ -165,7 +178,8 @@ def bench(name, stage, args):
         print(
             f"{name:10s} {b:8s} {ntri:9d} {t_load:7.2f} {r['build']:8.3f} "
             f"{r['build'] / ntri * 1e6:7.2f} {r['isect'] / 1e6:7.2f} {r['occl'] / 1e6:7.2f} "
-            f"{r['e2e'] / 1e6:7.2f} {r['ratio']:6.2f} {r['vs_ex']:6.2f}"
+            f"{r['e2e'] / 1e6:7.2f} {r['ratio']:6.2f} {r['vs_ex']:6.2f} "
+            f"{r['isect_u'] / 1e6:7.2f} {r['ratio_u']:7.2f}"
         )
 
 
@@ -191,7 +205,8 @@ def main(argv=None):
     )
     print(
         f"{'scene':10s} {'backend':8s} {'tris':>9s} {'load_s':>7s} {'build_s':>8s} "
-        f"{'s/Mtri':>7s} {'isect':>7s} {'occl':>7s} {'e2e':>7s} {'ratio':>6s} {'vs_ex':>6s}"
+        f"{'s/Mtri':>7s} {'isect':>7s} {'occl':>7s} {'e2e':>7s} {'ratio':>6s} {'vs_ex':>6s} "
+        f"{'isect_u':>7s} {'ratio_u':>7s}"
     )
     bench("room", room_stage(), args)
     bench("100k", big_stage(), args)

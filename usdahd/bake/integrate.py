@@ -41,6 +41,19 @@ processing should replace it by dilation).
 
 Determinism: each chunk of texels draws from ``np.random.default_rng([seed, stream, first])``
 so results depend on the seed and texel order only, not on threads or executors.
+
+Two implementations of the same estimator, chosen by the tracer's backend:
+
+- ``native`` (default): :func:`_native_pass`, one numba kernel per texel (``nogil``, no NRT)
+  that samples, traces through libembree4 directly (:mod:`usdahd.bake.embree_native`), shades
+  and accumulates the SH sums; texels are spread over the tracer's threads. Each texel has its
+  own splitmix64 stream seeded from the chunk generator, so output is independent of the
+  thread count. The SH regression solve also runs per texel on the threads
+  (:func:`_native_result`).
+- ``embreex``: the numpy wavefront reference (``_Ctx``), batched embreex queries.
+
+They agree within Monte Carlo tolerance (tests/test_trace.py), not bit for bit (different
+random streams; the native continuation rays draw cosine directions by disk rejection).
 """
 
 from __future__ import annotations

@@ -314,7 +314,7 @@ def section_summary(results) -> str:
         saved = [1 - r["second_s"] / r["first_s"] for r in results["skipping"]]
         rays = max(r["rays_second"] for r in results["skipping"])
         lines.append(
-            f"- Unchanged re-bake: at most {rays:,.0f} rays traced, "
+            f"- Unchanged re-bake: {rays:,.0f} rays traced (largest over the samples), "
             f"{100 * min(saved):.0f}-{100 * max(saved):.0f} % of the first bake's wall time saved."
         )
     if "soak" in results:

@@ -23,11 +23,6 @@ from usdahd import models  # noqa: E402
 from usdahd.commands import bench as bench_cmd  # noqa: E402
 from usdahd.errors import UsageError  # noqa: E402
 
-#: Linear-basis models whose float16 decode overflows to Inf when the fitted coefficients were
-#: clipped at the float32 maximum (inputs ~1e39 and beyond): coefficientsScale * code > F32_MAX
-#: in usdahd/models/_linear.py decode_coefficients. Reported to the model owner.
-LINEAR_OVERFLOW = {"hemisphere", "sh_l1", "sh_l2", "ambient_cube", "hl2"}
-
 SOAK_TEXELS = 100  # per category
 
 
@@ -54,19 +49,7 @@ def test_soak_is_finite(soak_data, model, ratio):
         assert row["iz_worst_exact"] < 1e-6
 
 
-@pytest.mark.parametrize(
-    ("model", "ratio"),
-    [
-        pytest.param(
-            *p.values,
-            id=p.id,
-            marks=[pytest.mark.xfail(reason="float16 decode overflow (see LINEAR_OVERFLOW)")]
-            if p.values[0] in LINEAR_OVERFLOW
-            else [],
-        )
-        for p in _variant_params()
-    ],
-)
+@pytest.mark.parametrize(("model", "ratio"), _variant_params())
 def test_soak_beyond_float32_is_finite(soak_data, model, ratio):
     row = soak.run_variant(model, ratio, {"beyond float32": soak_data["beyond float32"]})
     assert row["nonfinite_total"] == 0, row["nonfinite_where"]

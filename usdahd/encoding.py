@@ -116,6 +116,14 @@ def encode_half(x: np.ndarray) -> tuple[np.ndarray, float]:
     return (np.asarray(x, dtype=np.float64) / s).astype(np.float16), s
 
 
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
 def decode_half(h: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """float16 array and its recorded scale -> float32."""
-    return np.asarray(h).astype(np.float32) * np.float32(scale)
+    """float16 array and its recorded scale -> float32, saturating at the float32 range.
+
+    The product is formed in float64: a float16 near 65504 times a scale near 2^113 would
+    overflow float32 (the soak in benchmarks/soak.py found Inf for inputs above ~1e39).
+    """
+    out = np.asarray(h, dtype=np.float64) * float(scale)
+    return np.clip(out, -_F32_MAX, _F32_MAX).astype(np.float32)

@@ -107,7 +107,8 @@ def with_self_bounce(eval_fn, params: dict, normals, albedo) -> np.ndarray:
         z = np.zeros(out.shape[:-1] + (3,))
         z[..., 2] = 1.0
         out = out + hemi.self_bounce(eval_fn(params, z), n, albedo)
-    return out.astype(np.float32)
+    # Saturate rather than overflow: coefficients near the float32 maximum sum past it.
+    return np.clip(out, -F32_MAX, F32_MAX).astype(np.float32)
 
 
 def coefficients_layout(names: tuple[str, ...]) -> TextureLayout:

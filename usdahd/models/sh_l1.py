@@ -178,7 +178,7 @@ def decode(channels, *, ratio="linear", factors=None):
         u = u.astype(np.float64).reshape(u.shape[:-1] + (3, 4))
         l0 = factors.get("l0Scale", 1.0) * (u[..., 0] / 255.0) ** 2
         l1 = (u[..., 1:] - U8_CENTER) * (l0[..., None] / 127.0)
-        c = from_enlighten(l0, l1).astype(np.float32)
+        c = np.clip(from_enlighten(l0, l1), -_linear.F32_MAX, _linear.F32_MAX).astype(np.float32)
     out = {"coefficients": c, "invalid": _linear.valid_flag(c.shape[:-2])}
     if ratio == "nonlinear":
         out["nonlinear"] = np.ones(c.shape[:-2] + (1,), np.float32)

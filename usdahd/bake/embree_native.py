@@ -302,6 +302,17 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def hit_normal(rec):
+    """Unit geometric normal (Embree's ``Ng``, cross(v1 - v0, v2 - v0) direction) of the hit
+    left in ``rec`` by :func:`intersect1` ((0, 0, 1) for a degenerate triangle)."""
+    x, y, z = np.float64(rec[12]), np.float64(rec[13]), np.float64(rec[14])
+    ln = np.sqrt(x * x + y * y + z * z)
+    if ln > 0.0:
+        return x / ln, y / ln, z / ln
+    return 0.0, 0.0, 1.0
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """True when anything lies along the ray in [0, tfar]."""
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)

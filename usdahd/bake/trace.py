@@ -328,9 +328,10 @@ class Tracer:
         """Per-triangle, material and texture tables for the numba kernels (cached).
 
         returns a tuple (read by :func:`nb_albedo`, :func:`nb_trace` and friends):
-        ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f64,
-        ``tri_material`` (T,) i64, ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64
-        (albedo rgb, emission rgb, opacity, threshold), ``mat_tex`` (M,3) i64 texture index of
+        ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f32,
+        ``tri_material`` (T,) i32 (narrow: read once per hit, where cache misses dominate),
+        ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64 (albedo rgb, emission rgb,
+        opacity, threshold), ``mat_tex`` (M,3) i64 texture index of
         albedo/emission/opacity (-1: constant), ``tex_data`` (D,) f32 texels, ``tex_info``
         (K,8) i64, ``tex_chan`` (K,4) i64, ``tex_sb`` (K,8) f64 (see :func:`pack_textures`).
         """
@@ -353,8 +354,8 @@ class Tracer:
         self._tables = (
             np.ascontiguousarray(self.verts, np.float64),
             self.geom_normal.astype(np.float64),
-            self.corner_normal.astype(np.float64),
-            self.tri_material.astype(np.int64),
+            np.ascontiguousarray(self.corner_normal, np.float32),
+            self.tri_material.astype(np.int32),
             self.tri_texcoord.astype(np.float64),
             mat_const,
             mat_tex,
@@ -565,11 +566,16 @@ def nb_shading_normal(tb, tri, u, v):
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
-    """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, rays traced); tri -1 on miss."""
+    """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
+    on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
+    per-triangle table is read)."""
     t, tri, u, v = embree_native.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
     rays = 1
     if not transmission:
-        return np.float64(t), tri, np.float64(u), np.float64(v), rays
+        if tri < 0:
+            return np.inf, tri, 0.0, 0.0, 0.0, 0.0, 1.0, rays
+        gx, gy, gz = embree_native.hit_normal(rec)
+        return np.float64(t), tri, np.float64(u), np.float64(v), gx, gy, gz, rays
     t = np.float64(t)
     u = np.float64(u)
     v = np.float64(v)
@@ -588,8 +594,9 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
         travelled = done
         t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
     if tri < 0:
-        return np.inf, tri, u, v, rays
-    return np.float64(np.float32(travelled + t)), tri, u, v, rays
+        return np.inf, tri, u, v, 0.0, 0.0, 1.0, rays
+    gx, gy, gz = embree_native.hit_normal(rec)
+    return np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
@@ -597,7 +604,5 @@ def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, t
     """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
     if not transmission:
         return embree_native.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar), 1
-    _, tri, _, _, rays = nb_trace(
-        scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
-    )
-    return tri >= 0, rays
+    r = nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar)
+    return r[1] >= 0, r[7]

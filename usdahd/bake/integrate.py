@@ -544,7 +544,7 @@ class _NativeCtx:
         handle = self.tr.native_handle
 
         def run(ids):
-            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9), np.zeros(81))
+            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9), np.zeros(44))
             return _native_pass(
                 handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
                 s, r2h, r2n, self.state, do_delta, arrays, work,
@@ -736,7 +736,7 @@ def _native_pass(
     cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
     samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
     work : per-thread scratch (RTCRayHit record, (1,) uint64 random state, (9,) f64 basis,
-    (81,) f64 zeroed Gram row). Compiled without the NRT (``_nrt=False``): no allocation and
+    (44,) f64 zeroed Gram sums). Compiled without the NRT (``_nrt=False``): no allocation and
     no reference counting in the hot loop.
     returns : rays traced.
     """
@@ -816,11 +816,53 @@ def _native_pass(
                 hemi[i, 0, c9] += w * Rr
                 hemi[i, 1, c9] += w * Rg
                 hemi[i, 2, c9] += w * Rb
-            if regression:  # full 9x9 outer product in a flat scratch row (vectorizes)
-                for a in range(9):
-                    wa = _TWO_PI * Y[a]
-                    for b9 in range(9):
-                        G[a * 9 + b9] += wa * Y[b9]
+            if regression:  # upper triangle of Y Y^T (rows 1..8; row 0 is C0 * sum Y)
+                y1, y2, y3, y4 = Y[1], Y[2], Y[3], Y[4]
+                y5, y6, y7, y8 = Y[5], Y[6], Y[7], Y[8]
+                G[0] += y1
+                G[1] += y2
+                G[2] += y3
+                G[3] += y4
+                G[4] += y5
+                G[5] += y6
+                G[6] += y7
+                G[7] += y8
+                G[8] += y1 * y1
+                G[9] += y1 * y2
+                G[10] += y1 * y3
+                G[11] += y1 * y4
+                G[12] += y1 * y5
+                G[13] += y1 * y6
+                G[14] += y1 * y7
+                G[15] += y1 * y8
+                G[16] += y2 * y2
+                G[17] += y2 * y3
+                G[18] += y2 * y4
+                G[19] += y2 * y5
+                G[20] += y2 * y6
+                G[21] += y2 * y7
+                G[22] += y2 * y8
+                G[23] += y3 * y3
+                G[24] += y3 * y4
+                G[25] += y3 * y5
+                G[26] += y3 * y6
+                G[27] += y3 * y7
+                G[28] += y3 * y8
+                G[29] += y4 * y4
+                G[30] += y4 * y5
+                G[31] += y4 * y6
+                G[32] += y4 * y7
+                G[33] += y4 * y8
+                G[34] += y5 * y5
+                G[35] += y5 * y6
+                G[36] += y5 * y7
+                G[37] += y5 * y8
+                G[38] += y6 * y6
+                G[39] += y6 * y7
+                G[40] += y6 * y8
+                G[41] += y7 * y7
+                G[42] += y7 * y8
+                G[43] += y8 * y8
             ylum = _TWO_PI * _IZ * (_LUM[0] * Rr + _LUM[1] * Rg + _LUM[2] * Rb) * Y[2]
             if n_area:
                 u0 = r2n[k, 0] + cn0
@@ -860,9 +902,19 @@ def _native_pass(
             y_sq[i] += ylum * ylum
         count[i] += s
         rng_state[i] = st[0]
-        if regression:
-            for a in range(9):
-                for b9 in range(9):
-                    gram[i, a, b9] += G[a * 9 + b9]
-                    G[a * 9 + b9] = 0.0
+        if regression:  # unpack the 44 sums (2 pi / p folded in here)
+            gram[i, 0, 0] += _TWO_PI * _C0 * _C0 * s
+            q = 8
+            for a in range(1, 9):
+                v = _TWO_PI * _C0 * G[a - 1]
+                gram[i, 0, a] += v
+                gram[i, a, 0] += v
+                for b9 in range(a, 9):
+                    v = _TWO_PI * G[q]
+                    gram[i, a, b9] += v
+                    if b9 != a:
+                        gram[i, b9, a] += v
+                    q += 1
+            for q in range(44):
+                G[q] = 0.0
     return rays

@@ -752,6 +752,9 @@ def _native_pass(
     for ii in range(ids.shape[0]):
         i = ids[ii]
         st[0] = rng_state[i]
+        n_back = 0
+        ys = 0.0
+        ys2 = 0.0
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
         f = F[i]
@@ -804,7 +807,7 @@ def _native_pass(
                 )
                 rays += kk
                 if tri >= 0 and dx * hx + dy * hy + dz * hz > 0.0:
-                    back[i] += 1
+                    n_back += 1
                 Rr, Rg, Rb, kk = _path(
                     scene, rec, tb, lt, sub, cfg, st, ox, oy, oz, dx, dy, dz,
                     t, tri, hu, hv, hx, hy, hz, INV_2PI, sel_area,
@@ -898,8 +901,11 @@ def _native_pass(
                             nee[i, 1, c9] += g * wgt * Y[c9]
                             nee[i, 2, c9] += b * wgt * Y[c9]
                         ylum += _IZ * wgt * (_LUM[0] * r + _LUM[1] * g + _LUM[2] * b) * Y[2]
-            y_sum[i] += ylum
-            y_sq[i] += ylum * ylum
+            ys += ylum
+            ys2 += ylum * ylum
+        y_sum[i] += ys
+        y_sq[i] += ys2
+        back[i] += n_back
         count[i] += s
         rng_state[i] = st[0]
         if regression:  # unpack the 44 sums (2 pi / p folded in here)

@@ -140,13 +140,14 @@ class Tracer:
         return [f.result() for f in futs]
 
     def run_parallel(self, fn, ids):
-        """Run ``fn(part)`` on the tracer's threads over interleaved parts of ``ids`` (m,)
-        int64 (interleaving balances texels of different cost); returns the list of results."""
+        """Run ``fn(part)`` on the tracer's threads over contiguous parts of ``ids`` (m,) int64
+        (contiguous, so threads never write neighbouring texels' accumulators - no false
+        sharing; several parts per thread balance texels of different cost and threads slowed
+        down by other processes); returns the list of results in part order."""
         if self._pool is None or len(ids) < 2:
             return [fn(ids)]
-        # more parts than threads: a thread slowed down by other processes takes fewer
         k = max(1, min(PARTS_PER_THREAD * self.threads, len(ids)))
-        futs = [self._pool.submit(fn, np.ascontiguousarray(ids[i::k])) for i in range(k)]
+        futs = [self._pool.submit(fn, np.ascontiguousarray(p)) for p in np.array_split(ids, k)]
         return [f.result() for f in futs]
 
     def _raw_intersect(self, o, d, tfar):

@@ -1,13 +1,15 @@
-"""Embree ray tracing through embreex: one BVH for the whole scene, batched float32 queries.
+"""Embree ray tracing: one BVH for the whole scene, batched float32 queries.
 
 ``Tracer(scene)`` concatenates every mesh (baked meshes, occluders, emissive geometry) into one
 Embree triangle geometry, so an Embree primitive id is a global triangle id; per-triangle
 tables map it back to mesh, material, geometric/shading normal and texture coordinates.
 
 Conventions: embreex has no tnear (it is 0), so callers offset ray origins along the
-geometric normal with :meth:`Tracer.offset`. Queries run in two threads over halves of a
-batch (Embree releases the GIL); the first query, which commits the BVH, runs in the
-constructor because it is not thread-safe. ``robust=False`` (measured 13-50 % faster).
+geometric normal with :meth:`Tracer.offset` (the native backend keeps the same offsets, tnear
+0, so both backends trace identical rays). Batch queries run in two threads over halves of a
+batch (Embree releases the GIL); with embreex the first query, which commits the BVH, runs in
+the constructor because it is not thread-safe. ``robust=False`` (measured 13-50 % faster).
+:meth:`Tracer.run_parallel` spreads numba kernels over the same threads.
 
 Alpha cut-outs (UsdPreviewSurface opacity/opacityThreshold) and stochastic opacity are handled
 by re-tracing rays from the transmissive hit, at most ``MAX_TRANSMIT`` times; shadow rays use the

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-import usdahd  # noqa: F401  (registers the plugins)
+import usdahd  # registers the plugins
 from usdahd import cli
 from usdahd.commands import plugin_path as cmd
 from usdahd.errors import SchemaError
@@ -149,7 +149,8 @@ def test_cli_plugin_path_subprocess(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "usdahd", "plugin-path"],
         cwd=tmp_path,
-        env=_env(PYTHONPATH=str(REPO)),
+        # The same usdahd this process imported (source checkout or installed copy).
+        env=_env(PYTHONPATH=str(Path(usdahd.__file__).resolve().parents[1])),
         capture_output=True,
         text=True,
         timeout=120,

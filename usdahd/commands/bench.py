@@ -18,20 +18,27 @@ from usdahd.errors import UsageError
 CHECKOUT = Path(__file__).resolve().parents[2]
 
 
-def benchmarks_dir(root: Path = CHECKOUT) -> Path:
-    """``<checkout>/benchmarks``; UsageError when usdahd is not imported from a checkout."""
-    bench = root / "benchmarks"
-    if not (bench / "run.py").is_file() or not (root / "samples").is_dir():
-        raise UsageError(
-            f"usdahd bench needs the source checkout (benchmarks/run.py and samples/ next to the "
-            f"usdahd package), but usdahd is imported from {root / 'usdahd'}, an installed copy "
-            "without them. Run it from a git clone: pip install -e '.[bench]' && usdahd bench "
-            "(or: python benchmarks/run.py)"
-        )
-    return bench
+def _is_checkout(root: Path) -> bool:
+    return (root / "benchmarks" / "run.py").is_file() and (root / "samples").is_dir()
 
 
-def load_runner(root: Path = CHECKOUT):
+def benchmarks_dir(root: Path | None = None) -> Path:
+    """``<checkout>/benchmarks``: of ``root``, else of the checkout usdahd is imported from,
+    else of the current directory (a clone with usdahd installed from it non-editably).
+    UsageError when none has benchmarks/run.py and samples/."""
+    candidates = [root] if root is not None else [CHECKOUT, Path.cwd()]
+    for cand in candidates:
+        if _is_checkout(cand):
+            return cand / "benchmarks"
+    raise UsageError(
+        "usdahd bench needs the source checkout (benchmarks/run.py and samples/), but usdahd is "
+        f"imported from {CHECKOUT / 'usdahd'} and the current directory "
+        f"{candidates[-1]} is not a checkout either. Run it from a git clone: "
+        "pip install '.[bench]' && usdahd bench (or: python benchmarks/run.py)"
+    )
+
+
+def load_runner(root: Path | None = None):
     """Import benchmarks/run.py of the checkout as a module."""
     bench = benchmarks_dir(root)
     if str(bench) not in sys.path:

@@ -59,7 +59,8 @@ class Texels:
         point on the triangle for conservatively covered texels).
     geom_normal : (n, 3) float32 unit geometric normal of the sampled triangle (ray offsets).
     frame : (n, 3, 3) float32 rows = tangent, bitangent, shading normal (orthonormal,
-        right-handed); the tangent space the directional data lives in.
+        right-handed except on mirrored UV charts, where b = -cross(n, t) and det = -1); the
+        tangent space the directional data lives in.
     triangle : (n,) int32 triangle index the sample lies on.
     center_inside : (n,) bool whether the texel centre itself lies inside a triangle.
     """

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd.bake.texels import MAX_RESOLUTION, _uv_signed_area2, uv_charts
+from usdahd.bake.texels import MAX_RESOLUTION
 from usdahd.bake.types import MeshData
 from usdahd.errors import BakeError, InputError, UsageError
 
@@ -47,31 +47,6 @@ def _run_xatlas(points, triangles, texels_per_unit, padding):
         raise BakeError(f"xatlas produced {atlas.atlas_count} atlases, expected 1")
     vmapping, indices, uvs = atlas.get_mesh(0)
     return atlas.width, atlas.height, vmapping, indices, uvs, atlas.chart_count
-
-
-def _unmirror_charts(pix: np.ndarray) -> np.ndarray:
-    """Mirror (in x, inside its own bounding box) every chart that xatlas laid out mirrored.
-
-    pix : (t, 3, 2) float64 xatlas pixel coordinates (y down). A chart is mirrored when most of
-    its UV area is clockwise in UV (v up), i.e. counter-clockwise in y-down pixel space. The
-    reflection x -> S - x with integer S = round(xmin + xmax) maps the texel grid onto itself
-    and moves the chart's box by at most half a texel, so packing and padding are kept.
-    """
-    chart = uv_charts(pix)  # connectivity only needs exact coordinate equality
-    area2_pix = _uv_signed_area2(pix)  # > 0 here means clockwise in v-up UV
-    weight = np.bincount(chart, weights=area2_pix)
-    mirrored = weight > 0.0
-    if not mirrored.any():
-        return pix
-    xmin = np.full(len(weight), np.inf)
-    xmax = np.full(len(weight), -np.inf)
-    np.minimum.at(xmin, chart, pix[..., 0].min(axis=1))
-    np.maximum.at(xmax, chart, pix[..., 0].max(axis=1))
-    s = np.round(xmin + xmax)
-    out = pix.copy()
-    flip = mirrored[chart]
-    out[flip, :, 0] = s[chart[flip], None] - pix[flip, :, 0]
-    return out
 
 
 def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, path):
@@ -180,7 +155,10 @@ def unwrap(
 
     Returns ``uv : (t, 3, 2) float32`` per-corner lightmap UVs in [0, 1] (same triangle order as
     ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``) and
-    ``resolution : (w, h)``. Charts are never mirrored (see :func:`_unmirror_charts`).
+    ``resolution : (w, h)``. xatlas lays out some charts mirrored (about 45 % on the castle
+    scene); they are kept as they are (flipping a chart inside its bounding box made it overlap
+    interlocking neighbours): their tangent frames are left-handed, b = -cross(n, t), as
+    docs/texels.md specifies.
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """
@@ -232,7 +210,6 @@ def unwrap(
         raise BakeError(f"{mesh.path}: xatlas changed the triangle list; cannot map UVs back")
     # xatlas uvs are normalized by its own (w, h); pixel coords -> our lightmap of size target
     pix = np.asarray(uvs, dtype=np.float64)[idx] * np.array([w, h], dtype=np.float64)
-    pix = _unmirror_charts(pix)
     uv = np.empty_like(pix)
     uv[..., 0] = pix[..., 0] / target[0]
     uv[..., 1] = 1.0 - pix[..., 1] / target[1]

@@ -283,3 +283,21 @@ def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
     second = Sdf.Layer.OpenAsAnonymous(str(layer_path))
     after = second.GetAttributeAtPath(uv)
     assert after is not None and list(after.default) == before
+
+
+def test_stage_without_light_sources_traces_nothing_and_says_so(tmp_path, capsys):
+    from pxr import Usd
+
+    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    stage.RemovePrim("/World/Lights")
+    stage.GetRootLayer().Save()
+    code, out = _bake([str(stage_path), "--json", *FAST[:-1]], capsys)
+    assert code == 0, out.err
+    report = json.loads(out.out)
+    assert any("no lights" in w for w in report["warnings"])
+    assert report["prims"][0]["rays"] == 0
+    got, want = _decoded_iz(
+        _results(tmp_path / "open_plane.lightmaps.usda")["/World/Geometry/Plane"]
+    )
+    assert not got.any() and not want.any()

@@ -399,6 +399,11 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         report["seconds"] = time.perf_counter() - t_start
         return report
 
+    if is_dark(scene):
+        report["warnings"].append(
+            "the stage has no lights and no emissive surfaces: every lightmap is black "
+            "(nothing was traced); add a UsdLux light or an emissiveColor"
+        )
     if todo:
         _bake_jobs(scene, todo, out, opts)
     for j in todo:
@@ -624,6 +629,11 @@ def _job_seed(seed: int, path: str) -> int:
     return int.from_bytes(hashlib.sha256(f"{seed}:{path}".encode()).digest()[:4], "little")
 
 
+def is_dark(scene) -> bool:
+    """True when nothing in the scene emits light (no lights, no emissive material)."""
+    return not scene.lights and not any(m.emissive for m in scene.materials)
+
+
 def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats)."""
     from usdahd.bake.integrate import bake_texels
@@ -632,9 +642,11 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     from usdahd.errors import UsdAhdError
     from usdahd.progress import Progress
 
+    dark = is_dark(scene)
     t0 = time.perf_counter()
-    tracer = Tracer(scene)
-    _status(opts, f"BVH: {scene.triangle_count} triangles in {time.perf_counter() - t0:.2f}s")
+    tracer = None if dark else Tracer(scene)
+    if not dark:
+        _status(opts, f"BVH: {scene.triangle_count} triangles in {time.perf_counter() - t0:.2f}s")
     for k, job in enumerate(jobs):
         t1 = time.perf_counter()
         try:
@@ -645,18 +657,23 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                     f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "
                     f"its UVs {job.settings['uv']!r} are degenerate or outside [0,1]"
                 )
-            bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
-            job.sh, job.stats = bake_texels(
-                scene,
-                tracer,
-                job.texels,
-                samples=int(job.settings["samples"]),
-                bounces=int(job.settings["bounces"]),
-                seed=_job_seed(opts.seed, job.path),
-                adaptive=bool(job.settings["adaptive"]),
-                progress=bar.update,
-            )
-            bar.close()
+            if dark:  # nothing emits light: the radiance is exactly zero, trace nothing
+                n = len(job.texels)
+                job.sh = np.zeros((n, 3, 9), np.float32)
+                job.stats = {"rays": 0, "invalid": np.zeros(n, bool)}
+            else:
+                bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
+                job.sh, job.stats = bake_texels(
+                    scene,
+                    tracer,
+                    job.texels,
+                    samples=int(job.settings["samples"]),
+                    bounces=int(job.settings["bounces"]),
+                    seed=_job_seed(opts.seed, job.path),
+                    adaptive=bool(job.settings["adaptive"]),
+                    progress=bar.update,
+                )
+                bar.close()
         except UsdAhdError as exc:
             job.report.update(status="failed", error=str(exc))
             continue

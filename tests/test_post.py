@@ -1,4 +1,4 @@
-"""Post-processing: dilation, invalid-texel filling, SH frame rotation, seams, denoising."""
+"""Post-processing: dilation, invalid-texel filling, SH frame rotation, seams."""
 
 from __future__ import annotations
 
@@ -211,38 +211,4 @@ def test_generic_arrays_stitch_without_rotation():
         post.stitch(values, t, seams, rotate=True)
 
 
-# ------------------------------------------------------------------------------ denoise
-
-
-@pytest.mark.parametrize("filter_type", ["RTLightmap", "RT"])
-def test_denoise_reduces_noise_per_chart(filter_type):
-    pytest.importorskip("pyoidn")
-    from usdahd.bake.denoise import denoise_sh
-
-    mesh, t = two_chart_plane((32, 32))
-    charts = tx.chart_ids(mesh)[t.triangle]
-    clean = np.zeros((len(t), 3, 9), np.float32)
-    clean[:, :, 0] = np.where(charts == 0, 1.0, 4.0)[:, None]  # different light per chart
-    clean[:, :, 2] = 0.5 * clean[:, :, 0]
-    noisy = clean + 0.05 * RNG.standard_normal(clean.shape).astype(np.float32) * clean[:, :, :1]
-    out = denoise_sh(
-        noisy, t, charts=charts, albedo=np.full((len(t), 3), 0.5), normal=t.frame[:, 2],
-        filter=filter_type,
-    )  # fmt: skip
-    assert out.shape == noisy.shape and np.isfinite(out).all()
-    err_before = np.sqrt(((noisy - clean) ** 2).mean())
-    err_after = np.sqrt(((out - clean) ** 2).mean())
-    assert err_after < 0.7 * err_before
-    # no bleeding across the chart border: each chart keeps its own level
-    for c, level in ((0, 1.0), (1, 4.0)):
-        np.testing.assert_allclose(out[charts == c, :, 0].mean(), level, rtol=0.05)
-
-
-def test_denoise_errors():
-    from usdahd.bake.denoise import denoise_sh
-
-    mesh, t = two_chart_plane((8, 8))
-    with pytest.raises(UsageError, match="unknown denoise filter"):
-        denoise_sh(np.zeros((len(t), 3, 9)), t, filter="NLM")
-    with pytest.raises(InputError, match="shape"):
-        denoise_sh(np.zeros((len(t), 9)), t)
+# Denoising (usdahd.bake.denoise) is tested in tests/test_denoise.py.

@@ -1,18 +1,36 @@
 """Optional Intel Open Image Denoise (``pyoidn``) for baked radiance SH, chart by chart.
 
-``denoise_sh(sh, texels, charts=...)`` denoises all 27 coefficients consistently:
+``denoise_sh(sh, texels, charts=...)`` returns a denoised copy of all 27 coefficients. Three
+stages per chart:
 
-- ``filter="RTLightmap"`` (default; OIDN's lightmap network, no guide images): the band-0
-  RGB coefficient is denoised as an HDR lightmap; each higher coefficient ``c_lm`` is divided
-  by ``sqrt(2l+1) * c_00`` (in [-1, 1] for any non-negative radiance), denoised with OIDN's
-  ``directional`` mode, and multiplied back by the denoised ``c_00``. This is OIDN's documented
-  path for directional (SH) lightmaps.
-- ``filter="RT"``: OIDN's RT network with ``albedo`` and ``normal`` guides (per texel); band 0
-  as HDR, the normalized higher coefficients mapped to [0, 1] as LDR.
+1. **Context.** OIDN is a convolutional network: near an image border, or on a chart of a few
+   texels, it has no context and distorts even a constant image (measured: a constant 16 x 16
+   image comes back with up to 8.7 % error at its corners; 24 x 24 in directional mode 23 %).
+   Each chart is therefore put alone into its own canvas with ``PAD`` texels on every side
+   (at least ``MIN_CROP`` per side, also past the lightmap's edges), every non-chart texel
+   filled by growing the chart's own values outward (:func:`usdahd.bake.post.dilate`), so the
+   network sees a smooth, chart-only neighbourhood (constant 16 x 16 chart: < 0.1 %).
+2. **Denoise.** ``filter="RTLightmap"`` (default; OIDN's lightmap network, no guides): the
+   band-0 RGB coefficient ``c00`` and the l=1, m=0 coefficient ``c10`` (proportional to
+   I_z, the quantity the IrradZ models store exactly: ``usdahd.sh.iz``) are each denoised as
+   HDR lightmaps (OIDN's HDR mode is scale invariant, checked 0.01..1000). Every other
+   coefficient ``c_lm`` is divided by ``sqrt(2l+1) * c00`` (in [-1, 1] for non-negative
+   radiance), denoised in OIDN's ``directional`` mode and multiplied back by the denoised
+   ``c00``. ``filter="RT"`` runs OIDN's RT network with ``albedo``/``normal`` guides instead
+   (HDR for c00 and c10, the ratios mapped to [0, 1] as LDR).
+3. **Blend by the noise.** A network also changes signal (it flattened a one-texel light
+   hotspot of pillar_room from 3.6 to 2.1), so the result is only trusted as far as the
+   input is noisy: per texel and coefficient, ``out = x + w (d - x)`` with
+   ``w = min(1, var / mean((d - x)^2))``, where ``var`` is the input's noise variance and the
+   mean is over the chart texels within ``BIAS_RADIUS``. If the denoiser only removed noise,
+   ``mean((d - x)^2) ~ var`` and ``w ~ 1``; where it changed the signal by ``b``,
+   ``w ~ var / (var + b^2)``, the weight minimizing the mean squared error of the blend; a
+   noise-free input (``var = 0``) comes back unchanged. ``var`` is passed in (``variance``,
+   e.g. from the integrator's per-texel sample variance) or estimated by
+   :func:`noise_variance` from second differences of neighbouring texels (robust median over
+   tiles, so shadow edges and hotspots do not count as noise).
 
-Charts are never mixed: each chart's bounding box is denoised on its own, with the texels of
-other charts and empty texels replaced by the chart's own values grown outward (dilation), so
-the network sees no foreign data; only the chart's texels are written back.
+Charts are never mixed: each chart is denoised on its own, only its texels are written back.
 """
 
 from __future__ import annotations
@@ -24,10 +42,35 @@ from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
 
 FILTERS = ("RTLightmap", "RT")
-#: sqrt(2l + 1) per coefficient: |c_lm| <= sqrt(2l+1) c_00 for non-negative functions.
+#: sqrt(2l + 1) per coefficient: |c_lm| <= sqrt(2l+1) c00 for non-negative functions.
 _BAND_BOUND = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)
-#: Margin (texels) of dilated context around each chart's box.
-MARGIN = 4
+#: Coefficients denoised as HDR lightmaps: c00 (mean radiance) and c10 (I_z, index 2).
+_HDR_COEFFS = (0, 2)
+#: Coefficients denoised as ratios to c00 (OIDN's directional mode).
+_RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
+
+# Tolerances and sizes (each with its reason)
+#: Dilated context (texels) on every side of a chart: a constant chart comes back within
+#: 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).
+PAD = 16
+#: Smallest canvas side given to OIDN: below ~16 its output on constant images is off by
+#: 5-30 % even away from borders; tiny charts are centred in a canvas this big.
+MIN_CROP = 32
+#: Side (texels) of the tiles over which squared second differences are pooled into a noise
+#: estimate (then over the 3 x 3 neighbouring tiles: an 18 x 18 window).
+NOISE_TILE = 6
+#: Fewest second differences behind a noise estimate (else the chart's, else none: keep input).
+MIN_NOISE_SAMPLES = 8
+#: Chebyshev radius of the window averaging (denoised - input)^2 into the local change estimate.
+BIAS_RADIUS = 2
+#: The denoised value is fully trusted while the local mean squared change is below
+#: BLEND_GAIN x the noise variance (a change of 2 sigma): the variance estimate itself is
+#: noisy and (a mean, not robust) inflated by fireflies; at 1 the blend kept fireflies that
+#: OIDN removed (pillar_room at 16 spp: error 0.29 -> 0.38), at 4 it costs nothing measurable
+#: on the samples and still returns noise-free inputs unchanged.
+BLEND_GAIN = 4.0
+
+_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
 
 
 def _pyoidn():
@@ -42,7 +85,7 @@ def _pyoidn():
 
 
 class _Denoiser:
-    """One OIDN device and one filter per (type, hdr, directional) setting, reused."""
+    """One OIDN device, a filter per call."""
 
     def __init__(self, quality: str):
         self.oidn = _pyoidn()
@@ -87,6 +130,168 @@ class _Denoiser:
             self.device.release()
 
 
+# --------------------------------------------------------------------------------------------
+# chart canvases
+
+
+class _Canvas:
+    """A chart alone in its own image: (ly, lx) of its texels, mask, and the canvas shape."""
+
+    def __init__(self, xy, pad: int = PAD, min_crop: int = MIN_CROP, mode: str = "symmetric"):
+        xy = np.asarray(xy, dtype=np.int64)
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        size = hi - lo + 1
+        full = np.maximum(size + 2 * pad, min_crop)
+        origin = lo - (full - size) // 2
+        self.lx, self.ly = xy[:, 0] - origin[0], xy[:, 1] - origin[1]
+        self.shape = (int(full[1]), int(full[0]))
+        self.mask = np.zeros(self.shape, dtype=bool)
+        self.mask[self.ly, self.lx] = True
+        y0, x0 = int(self.ly.min()), int(self.lx.min())
+        self.box = (y0, int(self.ly.max()) + 1, x0, int(self.lx.max()) + 1)
+        self.mode = mode
+
+    def image(self, values: np.ndarray, fill: bool = True) -> np.ndarray:
+        """(h, w, c) float32 canvas of per-texel ``values (m, c)``. Outside the chart: with
+        ``fill``, holes in the chart's bounding box grown from the chart (dilation) and the
+        box mirrored outward (symmetric padding, repeated as needed), so the context has the
+        chart's own signal and noise statistics; else NaN."""
+        values = np.asarray(values, dtype=np.float32)
+        img = np.full((*self.shape, values.shape[-1]), np.nan, np.float32)
+        img[self.ly, self.lx] = values
+        if not fill:
+            return img
+        y0, y1, x0, x1 = self.box
+        box = dilate(np.nan_to_num(img[y0:y1, x0:x1]), self.mask[y0:y1, x0:x1], None)
+        h, w = self.shape
+        pads = ((y0, h - y1), (x0, w - x1), (0, 0))
+        return np.pad(box, pads, mode=self.mode)
+
+    def gather(self, img: np.ndarray) -> np.ndarray:
+        return img[self.ly, self.lx]
+
+
+# --------------------------------------------------------------------------------------------
+# noise estimate and blending
+
+
+def _second_differences(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(h, w, 4, c) squared second differences x[p-d] - 2x[p] + x[p+d] of the 4 directions
+    centred at each texel; NaN where p - d, p or p + d is outside the chart."""
+    h, w, c = img.shape
+    pad_v = np.pad(np.nan_to_num(img.astype(np.float64)), ((1, 1), (1, 1), (0, 0)))
+    pad_m = np.pad(mask, 1)
+    out = np.full((h, w, len(_DIRECTIONS), c), np.nan)
+    for k, (dx, dy) in enumerate(_DIRECTIONS):
+        a = pad_v[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
+        b = pad_v[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+        ok = mask & pad_m[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
+        ok &= pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+        d = a - 2.0 * pad_v[1 : 1 + h, 1 : 1 + w] + b
+        out[:, :, k] = np.where(ok[..., None], d * d, np.nan)
+    return out
+
+
+def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> np.ndarray:
+    """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown)."""
+    h, w, c = img.shape
+    nd = len(_DIRECTIONS)
+    d2 = _second_differences(img, mask)  # (h, w, 4, c); E[D^2] = 6 var for iid noise
+    th, tw = -(-h // tile), -(-w // tile)
+    padded = np.full((th * tile, tw * tile, nd, c), np.nan)
+    padded[:h, :w] = d2
+    blocks = padded.reshape(th, tile, tw, tile, nd, c).transpose(0, 2, 1, 3, 4, 5)
+    blocks = blocks.reshape(th, tw, tile * tile * nd, c)
+    have = ~np.isnan(blocks)
+    tsum = np.where(have, blocks, 0.0).sum(axis=2)  # (th, tw, c)
+    tcnt = have.sum(axis=2).astype(np.float64)
+    # pooled over the 3 x 3 neighbouring tiles
+    ps, pc = np.pad(tsum, ((1, 1), (1, 1), (0, 0))), np.pad(tcnt, ((1, 1), (1, 1), (0, 0)))
+    nsum = sum(
+        ps[1 + dy : 1 + dy + th, 1 + dx : 1 + dx + tw] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+    )
+    ncnt = sum(
+        pc[1 + dy : 1 + dy + th, 1 + dx : 1 + dx + tw] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+    )
+    # too few differences nearby: the whole chart's mean, else unknown (0: keep the input)
+    wsum, wcnt = tsum.sum(axis=(0, 1)), tcnt.sum(axis=(0, 1))
+    whole = np.where(wcnt >= MIN_NOISE_SAMPLES, wsum / np.maximum(wcnt, 1.0), 0.0)
+    local = np.where(ncnt >= MIN_NOISE_SAMPLES, nsum / np.maximum(ncnt, 1.0), whole)
+    per_texel = np.repeat(np.repeat(local, tile, axis=0), tile, axis=1)[:h, :w]
+    return np.where(mask[..., None], per_texel / 6.0, 0.0)
+
+
+def noise_variance(
+    values: np.ndarray, texels: Texels, *, charts: np.ndarray | None = None
+) -> np.ndarray:
+    """Estimated noise variance of per-texel ``values (n, ...)`` (float64, same shape).
+
+    For spatially independent noise of variance s^2 (Monte Carlo with per-texel random
+    streams), a second difference ``x[p-d] - 2 x[p] + x[p+d]`` along a row, column or diagonal
+    of one chart has mean square ``6 s^2`` and vanishes on any linear signal. The squared
+    second differences are averaged per ``NOISE_TILE`` tile and its 3 x 3 neighbouring tiles
+    (an 18 x 18 window) and assigned to the tile's texels; with fewer than
+    ``MIN_NOISE_SAMPLES`` differences the chart's mean is used, and charts too thin for any
+    (e.g. 2 x 2 texels) get 0. Curvature of the signal (shadow edges, hotspots) counts as
+    noise, so the estimate is an upper bound there.
+    """
+    values = np.asarray(values)
+    n = len(texels)
+    if len(values) != n:
+        raise InputError(f"{len(values)} values for {n} texels")
+    charts = _check_charts(charts, n)
+    flat = values.reshape(n, -1)
+    out = np.zeros(flat.shape, np.float64)
+    for c in np.unique(charts):
+        sel = np.nonzero(charts == c)[0]
+        cv = _Canvas(texels.xy[sel], pad=1, min_crop=1)
+        out[sel] = cv.gather(_canvas_noise(cv.image(flat[sel], fill=False), cv.mask))
+    return out.reshape(values.shape)
+
+
+def _check_charts(charts, n: int) -> np.ndarray:
+    charts = np.zeros(n, np.int64) if charts is None else np.asarray(charts)
+    if charts.shape != (n,):
+        raise InputError(f"charts must have shape ({n},), got {charts.shape}")
+    return charts
+
+
+def _box_mean(img: np.ndarray, mask: np.ndarray, radius: int) -> np.ndarray:
+    """Mean of ``img (h, w, c)`` over the mask texels in each (2r+1)^2 window (0 if none)."""
+    h, w, _ = img.shape
+    r = radius
+    v = np.where(mask[..., None], img, 0.0)
+    s = np.pad(v, ((r + 1, r), (r + 1, r), (0, 0))).cumsum(0).cumsum(1)
+    m = np.pad(mask.astype(np.float64), ((r + 1, r), (r + 1, r))).cumsum(0).cumsum(1)
+    k = 2 * r + 1
+
+    def box(a):
+        return a[k:, k:] - a[:-k, k:] - a[k:, :-k] + a[:-k, :-k]
+
+    tot, cnt = box(s)[:h, :w], box(m)[:h, :w]
+    return tot / np.maximum(cnt, 1.0)[..., None]
+
+
+def blend_weights(
+    noisy: np.ndarray, denoised: np.ndarray, variance: np.ndarray, mask: np.ndarray
+) -> np.ndarray:
+    """Weight ``w (h, w, c)`` of the denoised image in ``noisy + w (denoised - noisy)``.
+
+    noisy, denoised, variance : (h, w, c) canvases (values outside ``mask`` ignored);
+    mask : (h, w) bool, the chart's texels.
+    ``w = min(1, g var / mean_window((d - x)^2))`` with ``g = BLEND_GAIN``, the window the
+    chart texels within ``BIAS_RADIUS``; 0 where var = 0 (a noise-free input is kept).
+    """
+    diff = np.nan_to_num(np.asarray(denoised, np.float64) - np.asarray(noisy, np.float64))
+    change = _box_mean(diff**2, mask, BIAS_RADIUS)
+    var = BLEND_GAIN * np.nan_to_num(np.asarray(variance, np.float64))
+    return np.where(var > 0, var / np.maximum(np.maximum(change, var), 1e-300), 0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# public
+
+
 def denoise_sh(
     sh: np.ndarray,
     texels: Texels,
@@ -96,13 +301,21 @@ def denoise_sh(
     normal: np.ndarray | None = None,
     filter: str = "RTLightmap",
     quality: str = "high",
+    variance: np.ndarray | None = None,
+    blend: bool = True,
 ) -> np.ndarray:
     """Denoised copy of radiance SH ``(n, 3, 9)`` (float32), chart by chart.
 
     charts : (n,) chart id per texel (``chart_ids(mesh)[texels.triangle]``); None = one chart.
     albedo, normal : (n, 3) guides for ``filter="RT"`` (ignored by RTLightmap, which takes
-    none); normals in world space, e.g. ``texels.frame[:, 2]``.
-    Raises UsageError if pyoidn is not installed.
+        none); normals in world space, e.g. ``texels.frame[:, 2]``.
+    variance : noise variance of ``sh``, broadcastable to (n, 3, 9) (e.g. the integrator's
+        per-texel sample variance divided by the sample count); None: :func:`noise_variance`.
+    blend : False returns OIDN's output as it is (no noise-weighted blend; for comparisons).
+    Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
+    returned unchanged without running OIDN.
+    Raises UsageError if pyoidn is not installed or an option is unknown, InputError on
+    arrays of the wrong shape or non-finite SH.
     """
     if filter not in FILTERS:
         raise UsageError(f"unknown denoise filter {filter!r}; use one of {FILTERS}")
@@ -112,47 +325,64 @@ def denoise_sh(
     n = len(texels)
     if sh.shape != (n, 3, 9):
         raise InputError(f"denoise_sh needs SH of shape ({n}, 3, 9), got {sh.shape}")
-    charts = np.zeros(n, np.int64) if charts is None else np.asarray(charts)
-    den = _Denoiser(quality)
+    if not np.isfinite(sh).all():
+        raise InputError("denoise_sh got non-finite SH coefficients")
+    charts = _check_charts(charts, n)
+    if variance is not None:
+        try:
+            variance = np.broadcast_to(np.asarray(variance, np.float64), sh.shape)
+        except ValueError:
+            raise InputError(f"variance of shape {np.shape(variance)} does not fit SH "
+                             f"{sh.shape}") from None  # fmt: skip
+        variance = variance.reshape(n, 27)
     out = sh.astype(np.float32, copy=True)
-    w, h = texels.resolution
+    den = None
     try:
         for c in np.unique(charts):
             sel = np.nonzero(charts == c)[0]
-            xy = texels.xy[sel].astype(np.int64)
-            x0 = max(int(xy[:, 0].min()) - MARGIN, 0)
-            y0 = max(int(xy[:, 1].min()) - MARGIN, 0)
-            x1 = min(int(xy[:, 0].max()) + MARGIN + 1, w)
-            y1 = min(int(xy[:, 1].max()) + MARGIN + 1, h)
-            lx, ly = xy[:, 0] - x0, xy[:, 1] - y0
-            mask = np.zeros((y1 - y0, x1 - x0), dtype=bool)
-            mask[ly, lx] = True
-
-            def crop(values, mask=mask, ly=ly, lx=lx):
-                img = np.zeros((*mask.shape, values.shape[-1]), np.float32)
-                img[ly, lx] = values
-                return dilate(img, mask, None)
-
-            guides = {}
-            if filter == "RT":
-                if albedo is not None:
-                    guides["albedo"] = np.clip(crop(np.asarray(albedo)[sel]), 0.0, 1.0)
-                if normal is not None:
-                    guides["normal"] = np.clip(crop(np.asarray(normal)[sel]), -1.0, 1.0)
-            c00 = np.maximum(sh[sel, :, 0], 0.0)
-            base = den.run(crop(c00), filter_type=filter, hdr=True, **guides)
-            base = np.maximum(base, 0.0)
-            out[sel, :, 0] = base[ly, lx]
-            safe = np.where(c00 > 0, c00, 1.0)
-            for k in range(1, 9):
-                ratio = np.where(c00 > 0, sh[sel, :, k] / (_BAND_BOUND[k] * safe), 0.0)
-                ratio = np.clip(ratio, -1.0, 1.0)
-                if filter == "RTLightmap":
-                    d = den.run(crop(ratio), filter_type=filter, directional=True)
-                else:
-                    d = den.run(crop(0.5 * (ratio + 1.0)), filter_type=filter, **guides) * 2 - 1
-                d = np.clip(d[ly, lx], -1.0, 1.0)
-                out[sel, :, k] = d * _BAND_BOUND[k] * out[sel, :, 0]
+            x = sh[sel].astype(np.float64).reshape(len(sel), 27)
+            cv = _Canvas(texels.xy[sel])
+            if variance is None:
+                var_img = _canvas_noise(cv.image(x, fill=False), cv.mask)
+            else:
+                var_img = np.nan_to_num(cv.image(variance[sel], fill=False))
+            if blend and not (var_img > 0).any():
+                continue  # noise free (or too small to tell): nothing to remove
+            den = den or _Denoiser(quality)
+            d = _denoise_chart(den, cv, x, sel, filter, albedo, normal)
+            if blend:
+                w = blend_weights(cv.image(x, fill=False), cv.image(d, fill=False), var_img,
+                                  cv.mask)  # fmt: skip
+                d = x + cv.gather(w) * (d - x)
+            out[sel] = d.reshape(len(sel), 3, 9).astype(np.float32)
     finally:
-        den.close()
+        if den is not None:
+            den.close()
     return out
+
+
+def _denoise_chart(den, cv: _Canvas, x, sel, filter, albedo, normal) -> np.ndarray:
+    """OIDN output (m, 27) for one chart's SH ``x (m, 27)`` (RGB-major: index 9 * rgb + k)."""
+    img = cv.image(x).reshape(*cv.shape, 3, 9)
+    guides = {}
+    if filter == "RT":
+        if albedo is not None:
+            guides["albedo"] = np.clip(cv.image(np.asarray(albedo)[sel]), 0.0, 1.0)
+        if normal is not None:
+            guides["normal"] = np.clip(cv.image(np.asarray(normal)[sel]), -1.0, 1.0)
+    out = np.zeros((len(sel), 3, 9))
+    for k in _HDR_COEFFS:
+        band = np.maximum(img[..., k], 0.0)
+        out[:, :, k] = np.maximum(
+            cv.gather(den.run(band, filter_type=filter, hdr=True, **guides)), 0.0
+        )
+    c00 = np.maximum(img[..., 0], 0.0)
+    safe = np.where(c00 > 0, c00, 1.0)
+    for k in _RATIO_COEFFS:
+        ratio = np.clip(np.where(c00 > 0, img[..., k] / (_BAND_BOUND[k] * safe), 0.0), -1.0, 1.0)
+        if filter == "RTLightmap":
+            r = den.run(ratio, filter_type=filter, directional=True)
+        else:
+            r = den.run(0.5 * (ratio + 1.0), filter_type=filter, **guides) * 2.0 - 1.0
+        out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * _BAND_BOUND[k] * out[:, :, 0]
+    return out.reshape(len(sel), 27)

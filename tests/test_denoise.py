@@ -1,0 +1,248 @@
+"""OIDN denoising of baked SH (usdahd.bake.denoise): exactness on noise-free fields (chart
+borders and corners included), error reduction on noisy fields, chart isolation, noise
+estimate, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from usdahd import sh
+from usdahd.bake import denoise
+from usdahd.bake import texels as tx
+from usdahd.errors import InputError, UsageError
+
+QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+RGB = np.array([1.0, 0.6, 0.3])
+
+# Tolerances (reasons)
+#: Noise-free input must come back within this relative I_z error, at every texel.
+EXACT_IZ = 5e-3
+#: "Does not grow" at low noise: the error may rise by at most this factor (the noise
+#: estimate and the blend weights are themselves random).
+LOW_NOISE_GROWTH = 1.02
+
+
+def full_quad(res=32):
+    """One chart filling the whole image: its borders and corners are the image's."""
+    mesh = tx.mesh_from_arrays(QUAD, [[0, 1, 2], [0, 2, 3]], uv=QUAD[:, :2])
+    return mesh, tx.rasterize(mesh, (res, res))
+
+
+def two_chart_plane(res=32):
+    """A flat 2 x 1 plane cut into two UV charts along x = 1 (right one rotated in UV)."""
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], float)
+    tri = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
+    p = pts[tri]
+    uv = np.zeros((4, 3, 2))
+    uv[:2] = np.stack([0.05 + 0.4 * p[:2, ..., 0], 0.1 + 0.4 * p[:2, ..., 1]], -1)
+    uv[2:] = np.stack([0.55 + 0.4 * p[2:, ..., 1], 0.1 + 0.4 * (2 - p[2:, ..., 0])], -1)
+    mesh = tx.mesh_from_arrays(pts, tri, uv=uv)
+    return mesh, tx.rasterize(mesh, (res, res))
+
+
+def quad_and_sliver(res=32):
+    """A big chart and a tiny one (2 x 2 texels) in the same image."""
+    pts = np.concatenate([QUAD, QUAD + [2, 0, 0]])
+    tri = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    uv = np.concatenate([QUAD[:, :2] * 0.6, 0.8 + QUAD[:, :2] * 0.04])
+    mesh = tx.mesh_from_arrays(pts, tri, uv=uv)
+    return mesh, tx.rasterize(mesh, (res, res))
+
+
+MESHES = {"full_quad": full_quad, "two_charts": two_chart_plane, "tiny_chart": quad_and_sliver}
+
+
+def _hemi_basis():
+    """SH (3, 9) of the radiance functions 1, w_x, w_z over the upper hemisphere (exact
+    Gauss-Legendre projection; zero below the horizon, as the baker's SH)."""
+    dirs, w = sh.hemisphere_quadrature(16)
+    f = np.stack([np.ones(len(dirs)), dirs[:, 0], dirs[:, 2]], axis=1)
+    return sh.project(f, dirs, w)
+
+
+def field(t, kind):
+    """Clean radiance SH (n, 3, 9) float32 on texels t: 'dome' (uniform sky, I_z = 1 per
+    channel times RGB) or 'gradient' (a smooth non-negative radiance a + b w_x + c w_z whose
+    a, b, c vary smoothly with position)."""
+    basis = _hemi_basis()
+    x, y = t.position[:, 0], t.position[:, 1]
+    if kind == "dome":
+        coef = np.stack([np.ones_like(x), 0 * x, 0 * x], axis=1)
+    else:
+        a = 1.0 + 0.8 * x + 0.5 * y**2
+        coef = np.stack([a, 0.3 * a * np.sin(2 * y), 0.4 * a * x], axis=1)
+    return (coef @ basis)[:, None, :] * RGB[None, :, None]
+
+
+def rel_iz_error(out, ref):
+    """Per texel and channel |I_z(out) - I_z(ref)| / I_z(ref)."""
+    return np.abs(sh.iz(out) - sh.iz(ref)) / sh.iz(ref)
+
+
+def rms_iz(out, ref):
+    return np.sqrt(np.mean((sh.luminance(sh.iz(out)) - sh.luminance(sh.iz(ref))) ** 2))
+
+
+def charts_of(mesh, t):
+    return tx.chart_ids(mesh)[t.triangle]
+
+
+@pytest.fixture(autouse=True)
+def _need_oidn():
+    pytest.importorskip("pyoidn")
+
+
+# ------------------------------------------------------------------------------ noise free
+
+
+@pytest.mark.parametrize("mesh_name", list(MESHES))
+@pytest.mark.parametrize("kind", ["dome", "gradient"])
+def test_noise_free_field_comes_back_unchanged(mesh_name, kind):
+    mesh, t = MESHES[mesh_name]()
+    clean = field(t, kind).astype(np.float32)
+    out = denoise.denoise_sh(clean, t, charts=charts_of(mesh, t))
+    assert out.shape == clean.shape and out.dtype == np.float32
+    assert rel_iz_error(out, clean).max() < EXACT_IZ  # every texel, corners included
+
+
+def test_oidn_alone_keeps_uniform_dome_at_image_corners():
+    """The cause of the old 2.4 % error: OIDN without context at the chart's (and image's)
+    borders. With mirrored padding even the raw network output keeps a constant field."""
+    mesh, t = full_quad()
+    clean = field(t, "dome").astype(np.float32)
+    raw = denoise.denoise_sh(clean, t, charts=charts_of(mesh, t), blend=False)
+    err = rel_iz_error(raw, clean)
+    assert err.max() < EXACT_IZ
+    corners = np.isin(t.xy[:, 0], [0, 31]) & np.isin(t.xy[:, 1], [0, 31])
+    assert corners.sum() == 4 and err[corners].max() < EXACT_IZ
+
+
+# ------------------------------------------------------------------------------ noisy
+
+
+def noisy_field(t, sigma, seed):
+    """Gradient field plus Gaussian noise of relative std ``sigma`` on every coefficient
+    (scaled by the texel's own level: Monte Carlo noise grows with radiance)."""
+    clean = field(t, "gradient")
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal(clean.shape) * sigma * clean[:, :, :1]
+    return clean, (clean + noise).astype(np.float32)
+
+
+@pytest.mark.parametrize("mesh_name", ["full_quad", "two_charts"])
+def test_high_noise_error_drops_at_least_2x(mesh_name):
+    mesh, t = MESHES[mesh_name]()
+    clean, noisy = noisy_field(t, 0.3, seed=1)
+    out = denoise.denoise_sh(noisy, t, charts=charts_of(mesh, t))
+    before, after = rms_iz(noisy, clean), rms_iz(out, clean)
+    assert after < 0.5 * before, (before, after)
+
+
+@pytest.mark.parametrize("mesh_name", ["full_quad", "two_charts"])
+def test_low_noise_error_does_not_grow(mesh_name):
+    mesh, t = MESHES[mesh_name]()
+    clean, noisy = noisy_field(t, 0.002, seed=2)
+    out = denoise.denoise_sh(noisy, t, charts=charts_of(mesh, t))
+    before, after = rms_iz(noisy, clean), rms_iz(out, clean)
+    assert after <= LOW_NOISE_GROWTH * before, (before, after)
+
+
+@pytest.mark.parametrize("filter_type", ["RTLightmap", "RT"])
+def test_denoise_reduces_noise_per_chart(filter_type):
+    mesh, t = two_chart_plane()
+    charts = charts_of(mesh, t)
+    rng = np.random.default_rng(5)
+    clean = np.zeros((len(t), 3, 9), np.float32)
+    clean[:, :, 0] = np.where(charts == 0, 1.0, 4.0)[:, None]  # different light per chart
+    clean[:, :, 2] = 0.5 * clean[:, :, 0]
+    noisy = clean + 0.05 * rng.standard_normal(clean.shape).astype(np.float32) * clean[:, :, :1]
+    out = denoise.denoise_sh(
+        noisy, t, charts=charts, albedo=np.full((len(t), 3), 0.5), normal=t.frame[:, 2],
+        filter=filter_type,
+    )  # fmt: skip
+    assert out.shape == noisy.shape and np.isfinite(out).all()
+    err_before = np.sqrt(((noisy - clean) ** 2).mean())
+    err_after = np.sqrt(((out - clean) ** 2).mean())
+    assert err_after < 0.7 * err_before
+    # no bleeding across the chart border: each chart keeps its own level
+    for c, level in ((0, 1.0), (1, 4.0)):
+        np.testing.assert_allclose(out[charts == c, :, 0].mean(), level, rtol=0.05)
+
+
+def test_given_variance_is_used():
+    mesh, t = full_quad()
+    clean, noisy = noisy_field(t, 0.3, seed=3)
+    charts = charts_of(mesh, t)
+    # variance 0: nothing is noise, the input comes back as it is (OIDN not even run)
+    same = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0)
+    np.testing.assert_array_equal(same, noisy)
+    # the true variance: as good as the estimate
+    var = (0.3 * clean[:, :, :1]) ** 2
+    out = denoise.denoise_sh(noisy, t, charts=charts, variance=var)
+    assert rms_iz(out, clean) < 0.5 * rms_iz(noisy, clean)
+
+
+# ------------------------------------------------------------------------------ noise estimate
+
+
+def test_noise_variance_estimate():
+    mesh, t = full_quad(48)
+    x, y = t.position[:, 0], t.position[:, 1]
+    linear = np.stack([1 + 2 * x - y, 3 * y], axis=1)
+    # a linear signal has no second differences: zero noise, up to the float32 rounding of
+    # the positions (eps 6e-8 x values <= 3: differences ~1e-7, squares ~1e-14)
+    assert denoise.noise_variance(linear, t).max() < 1e-12
+    # iid Gaussian noise: the estimate of a tile averages ~400-1300 squared differences with
+    # mean 6 s^2, strongly correlated (each noise value enters up to 12 of them): the median
+    # over tiles is within 5 %, every tile (64 here, corner ones on the fewest) within 50 %
+    s = 0.1
+    rng = np.random.default_rng(7)
+    est = denoise.noise_variance(linear + s * rng.standard_normal(linear.shape), t)
+    assert est.shape == linear.shape
+    np.testing.assert_allclose(np.median(est), s * s, rtol=0.05)
+    assert np.all(np.abs(est / (s * s) - 1) < 0.5)
+    # a chart too small for any second difference: no estimate (0), so it is left alone
+    mesh, t = quad_and_sliver()
+    charts = charts_of(mesh, t)
+    est = denoise.noise_variance(rng.standard_normal((len(t), 2)), t, charts=charts)
+    small = np.bincount(charts).argmin()
+    assert np.bincount(charts)[small] <= 4 and (est[charts == small] == 0).all()
+    assert (est[charts != small] > 0).all()
+
+
+def test_blend_weights():
+    mask = np.ones((8, 8), bool)
+    x = np.zeros((8, 8, 1))
+    var = np.full((8, 8, 1), 0.01)
+    # the denoiser changed texels by about the noise: fully trusted
+    assert np.allclose(denoise.blend_weights(x, x + 0.1, var, mask), 1.0)
+    # by much more than the noise: weight var * gain / change^2
+    w = denoise.blend_weights(x, x + 1.0, var, mask)
+    np.testing.assert_allclose(w, denoise.BLEND_GAIN * 0.01, rtol=1e-12)
+    # no noise: never trusted
+    assert (denoise.blend_weights(x, x + 1.0, 0 * var, mask) == 0).all()
+
+
+# ------------------------------------------------------------------------------ errors
+
+
+def test_denoise_errors():
+    mesh, t = two_chart_plane(8)
+    zeros = np.zeros((len(t), 3, 9))
+    with pytest.raises(UsageError, match="unknown denoise filter"):
+        denoise.denoise_sh(zeros, t, filter="NLM")
+    with pytest.raises(UsageError, match="quality"):
+        denoise.denoise_sh(zeros, t, quality="best")
+    with pytest.raises(InputError, match="shape"):
+        denoise.denoise_sh(np.zeros((len(t), 9)), t)
+    with pytest.raises(InputError, match="charts"):
+        denoise.denoise_sh(zeros, t, charts=np.zeros(3))
+    with pytest.raises(InputError, match="variance"):
+        denoise.denoise_sh(zeros, t, variance=np.zeros((2, 5)))
+    bad = zeros.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(InputError, match="non-finite"):
+        denoise.denoise_sh(bad, t)
+    with pytest.raises(InputError, match="values"):
+        denoise.noise_variance(np.zeros(3), t)

@@ -220,6 +220,14 @@ def test_blend_weights():
     # by much more than the noise: weight var * gain / change^2
     w = denoise.blend_weights(x, x + 1.0, var, mask)
     np.testing.assert_allclose(w, denoise.BLEND_GAIN * 0.01, rtol=1e-12)
+    # pointwise channels: one texel moved by far more than the noise is held back even when
+    # its neighbourhood's mean change is small
+    spike = x.repeat(2, axis=2)
+    spike[4, 4] = 1.0
+    w = denoise.blend_weights(x.repeat(2, axis=2), spike, var.repeat(2, axis=2), mask,
+                              pointwise=[False, True])  # fmt: skip
+    assert w[4, 4, 0] == 1.0  # 1 / 25 mean change < 4 var: trusted
+    np.testing.assert_allclose(w[4, 4, 1], denoise.BLEND_GAIN * 0.01, rtol=1e-12)
     # no noise: never trusted
     assert (denoise.blend_weights(x, x + 1.0, 0 * var, mask) == 0).all()
 

@@ -5,11 +5,14 @@ stages per chart:
 
 1. **Context.** OIDN is a convolutional network: near an image border, or on a chart of a few
    texels, it has no context and distorts even a constant image (measured: a constant 16 x 16
-   image comes back with up to 8.7 % error at its corners; 24 x 24 in directional mode 23 %).
-   Each chart is therefore put alone into its own canvas with ``PAD`` texels on every side
-   (at least ``MIN_CROP`` per side, also past the lightmap's edges), every non-chart texel
-   filled by growing the chart's own values outward (:func:`usdahd.bake.post.dilate`), so the
-   network sees a smooth, chart-only neighbourhood (constant 16 x 16 chart: < 0.1 %).
+   image comes back with up to 8.7 % error at its corners; 24 x 24 in directional mode 23 %;
+   this, unpadded charts at the lightmap's edge and the ratio path for I_z below caused the
+   old 2.4 % error floor). Each chart is put alone into its own canvas with ``PAD`` texels on
+   every side (at least ``MIN_CROP`` per side, also past the lightmap's edges): holes in the
+   chart's bounding box are grown from the chart (:func:`usdahd.bake.post.dilate`) and the box
+   is mirrored outward, so the network sees the chart's own signal *and noise* around it
+   (constant 16 x 16 chart: < 0.1 %; smooth dilation instead of mirroring made OIDN leave
+   small noisy charts almost untouched).
 2. **Denoise.** ``filter="RTLightmap"`` (default; OIDN's lightmap network, no guides): the
    band-0 RGB coefficient ``c00`` and the l=1, m=0 coefficient ``c10`` (proportional to
    I_z, the quantity the IrradZ models store exactly: ``usdahd.sh.iz``) are each denoised as
@@ -18,17 +21,15 @@ stages per chart:
    radiance), denoised in OIDN's ``directional`` mode and multiplied back by the denoised
    ``c00``. ``filter="RT"`` runs OIDN's RT network with ``albedo``/``normal`` guides instead
    (HDR for c00 and c10, the ratios mapped to [0, 1] as LDR).
-3. **Blend by the noise.** A network also changes signal (it flattened a one-texel light
-   hotspot of pillar_room from 3.6 to 2.1), so the result is only trusted as far as the
-   input is noisy: per texel and coefficient, ``out = x + w (d - x)`` with
-   ``w = min(1, var / mean((d - x)^2))``, where ``var`` is the input's noise variance and the
-   mean is over the chart texels within ``BIAS_RADIUS``. If the denoiser only removed noise,
-   ``mean((d - x)^2) ~ var`` and ``w ~ 1``; where it changed the signal by ``b``,
-   ``w ~ var / (var + b^2)``, the weight minimizing the mean squared error of the blend; a
-   noise-free input (``var = 0``) comes back unchanged. ``var`` is passed in (``variance``,
-   e.g. from the integrator's per-texel sample variance) or estimated by
-   :func:`noise_variance` from second differences of neighbouring texels (robust median over
-   tiles, so shadow edges and hotspots do not count as noise).
+3. **Blend by the noise.** A network also changes signal (the directional one moved the
+   l=1, 2 coefficients of pillar_room's light hotspot by 4-20 noise deviations), so its
+   output is only trusted as far as the input is noisy: per texel and coefficient,
+   ``out = x + w (d - x)``, ``w = min(1, g var / change)`` (:func:`blend_weights`), ``change``
+   the mean of ``(d - x)^2`` over nearby chart texels. If the denoiser only removed noise,
+   ``change ~ var`` and ``w = 1``; where it changed the signal by ``b >> noise``,
+   ``w ~ g var / b^2`` keeps the input; a noise-free input (``var = 0``) comes back exactly.
+   ``var`` is passed in (``variance``, e.g. the integrator's per-texel sample variance) or
+   estimated by :func:`noise_variance` from second differences of neighbouring texels.
 
 Charts are never mixed: each chart is denoised on its own, only its texels are written back.
 """
@@ -48,6 +49,10 @@ _BAND_BOUND = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)
 _HDR_COEFFS = (0, 2)
 #: Coefficients denoised as ratios to c00 (OIDN's directional mode).
 _RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
+#: Of the 27 channels (RGB-major), those denoised as ratios: their blend is also judged per
+#: texel, since the directional network moved single texels by many noise deviations (the
+#: ratios swing fast next to a small light, and the error is multiplied by c00 there).
+_POINTWISE = np.isin(np.arange(27) % 9, _RATIO_COEFFS)
 
 # Tolerances and sizes (each with its reason)
 #: Dilated context (texels) on every side of a chart: a constant chart comes back within
@@ -69,6 +74,14 @@ BIAS_RADIUS = 2
 #: OIDN removed (pillar_room at 16 spp: error 0.29 -> 0.38), at 4 it costs nothing measurable
 #: on the samples and still returns noise-free inputs unchanged.
 BLEND_GAIN = 4.0
+#: The noise estimate (a mean of squared second differences, so fireflies count as noise) is
+#: capped at ROBUST_CAP x the robust one (median, converted for Gaussian noise), so a bright
+#: hotspot's curvature does not pass for noise: without it the blend let OIDN's directional
+#: output through at pillar_room's light (l=2 error x5.6 at 1024 spp); 16 keeps the firefly
+#: removal at 16 spp intact (I_z error unchanged).
+ROBUST_CAP = 16.0
+#: Median of chi-square with 1 degree of freedom: median(D^2) = 0.45494 E[D^2] for Gaussian D.
+_CHI2_1_MEDIAN = 0.454936423119572
 
 _DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
 
@@ -192,6 +205,27 @@ def _second_differences(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
+def _nan_median(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """NaN-ignoring median along ``axis`` and the count of non-NaN values (no warnings)."""
+    v = np.sort(values, axis=axis)  # NaNs sort last
+    cnt = np.sum(~np.isnan(values), axis=axis)
+    lo = np.expand_dims(np.maximum(cnt - 1, 0) // 2, axis)
+    hi = np.expand_dims(cnt // 2, axis)
+    med = 0.5 * (np.take_along_axis(v, lo, axis) + np.take_along_axis(v, hi, axis))
+    return np.where(cnt > 0, np.squeeze(med, axis), np.nan), cnt
+
+
+def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Mean of the valid ``tiles (th, tw, c)`` over each tile's 3 x 3 neighbourhood."""
+    th, tw = tiles.shape[:2]
+    pv = np.pad(np.where(valid, tiles, 0.0), ((1, 1), (1, 1), (0, 0)))
+    pc = np.pad(valid.astype(np.float64), ((1, 1), (1, 1), (0, 0)))
+    shifts = [(dy, dx) for dy in range(3) for dx in range(3)]
+    tot = sum(pv[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
+    cnt = sum(pc[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
+    return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), fallback)
+
+
 def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> np.ndarray:
     """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown)."""
     h, w, c = img.shape
@@ -203,20 +237,18 @@ def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> 
     blocks = padded.reshape(th, tile, tw, tile, nd, c).transpose(0, 2, 1, 3, 4, 5)
     blocks = blocks.reshape(th, tw, tile * tile * nd, c)
     have = ~np.isnan(blocks)
-    tsum = np.where(have, blocks, 0.0).sum(axis=2)  # (th, tw, c)
-    tcnt = have.sum(axis=2).astype(np.float64)
-    # pooled over the 3 x 3 neighbouring tiles
-    ps, pc = np.pad(tsum, ((1, 1), (1, 1), (0, 0))), np.pad(tcnt, ((1, 1), (1, 1), (0, 0)))
-    nsum = sum(
-        ps[1 + dy : 1 + dy + th, 1 + dx : 1 + dx + tw] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-    )
-    ncnt = sum(
-        pc[1 + dy : 1 + dy + th, 1 + dx : 1 + dx + tw] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-    )
-    # too few differences nearby: the whole chart's mean, else unknown (0: keep the input)
-    wsum, wcnt = tsum.sum(axis=(0, 1)), tcnt.sum(axis=(0, 1))
-    whole = np.where(wcnt >= MIN_NOISE_SAMPLES, wsum / np.maximum(wcnt, 1.0), 0.0)
-    local = np.where(ncnt >= MIN_NOISE_SAMPLES, nsum / np.maximum(ncnt, 1.0), whole)
+    cnt = have.sum(axis=2)
+    mean = np.where(have, blocks, 0.0).sum(axis=2) / np.maximum(cnt, 1)
+    med, _ = _nan_median(blocks, axis=2)
+    ok = cnt >= MIN_NOISE_SAMPLES
+    # too few differences nearby: the whole chart's estimate, else unknown (0: keep the input)
+    flat = d2.reshape(-1, c)
+    fcnt = np.sum(~np.isnan(flat), axis=0)
+    fmean = np.where(fcnt >= MIN_NOISE_SAMPLES, np.nansum(flat, axis=0) / np.maximum(fcnt, 1), 0)
+    fmed = np.where(fcnt >= MIN_NOISE_SAMPLES, _nan_median(flat, axis=0)[0], 0.0)
+    local = _neighbour_mean(mean, ok, fmean)
+    robust = _neighbour_mean(med, ok, fmed) / _CHI2_1_MEDIAN
+    local = np.minimum(local, ROBUST_CAP * robust)
     per_texel = np.repeat(np.repeat(local, tile, axis=0), tile, axis=1)[:h, :w]
     return np.where(mask[..., None], per_texel / 6.0, 0.0)
 
@@ -232,8 +264,10 @@ def noise_variance(
     second differences are averaged per ``NOISE_TILE`` tile and its 3 x 3 neighbouring tiles
     (an 18 x 18 window) and assigned to the tile's texels; with fewer than
     ``MIN_NOISE_SAMPLES`` differences the chart's mean is used, and charts too thin for any
-    (e.g. 2 x 2 texels) get 0. Curvature of the signal (shadow edges, hotspots) counts as
-    noise, so the estimate is an upper bound there.
+    (e.g. 2 x 2 texels) get 0. The mean counts heavy-tailed Monte Carlo outliers (fireflies)
+    as noise, as it should, but also the curvature of the signal (shadow edges, hotspots), so
+    it is capped at ``ROBUST_CAP`` times the same window's median-based estimate (tile medians
+    divided by the chi-square(1) median, i.e. exact for Gaussian noise).
     """
     values = np.asarray(values)
     n = len(texels)
@@ -273,17 +307,26 @@ def _box_mean(img: np.ndarray, mask: np.ndarray, radius: int) -> np.ndarray:
 
 
 def blend_weights(
-    noisy: np.ndarray, denoised: np.ndarray, variance: np.ndarray, mask: np.ndarray
+    noisy: np.ndarray,
+    denoised: np.ndarray,
+    variance: np.ndarray,
+    mask: np.ndarray,
+    pointwise: np.ndarray | None = None,
 ) -> np.ndarray:
     """Weight ``w (h, w, c)`` of the denoised image in ``noisy + w (denoised - noisy)``.
 
     noisy, denoised, variance : (h, w, c) canvases (values outside ``mask`` ignored);
-    mask : (h, w) bool, the chart's texels.
-    ``w = min(1, g var / mean_window((d - x)^2))`` with ``g = BLEND_GAIN``, the window the
-    chart texels within ``BIAS_RADIUS``; 0 where var = 0 (a noise-free input is kept).
+    mask : (h, w) bool, the chart's texels; pointwise : (c,) bool, channels whose change is
+    also judged texel by texel.
+    ``w = min(1, g var / change)`` with ``g = BLEND_GAIN`` and ``change`` the mean of
+    ``(d - x)^2`` over the chart texels within ``BIAS_RADIUS`` (for ``pointwise`` channels the
+    larger of that and the texel's own ``(d - x)^2``, so no single texel moves by more than
+    ``sqrt(g)`` noise deviations); 0 where var = 0 (a noise-free input is kept).
     """
     diff = np.nan_to_num(np.asarray(denoised, np.float64) - np.asarray(noisy, np.float64))
     change = _box_mean(diff**2, mask, BIAS_RADIUS)
+    if pointwise is not None:
+        change = np.where(np.asarray(pointwise, bool), np.maximum(change, diff**2), change)
     var = BLEND_GAIN * np.nan_to_num(np.asarray(variance, np.float64))
     return np.where(var > 0, var / np.maximum(np.maximum(change, var), 1e-300), 0.0)
 
@@ -351,8 +394,8 @@ def denoise_sh(
             den = den or _Denoiser(quality)
             d = _denoise_chart(den, cv, x, sel, filter, albedo, normal)
             if blend:
-                w = blend_weights(cv.image(x, fill=False), cv.image(d, fill=False), var_img,
-                                  cv.mask)  # fmt: skip
+                x_img, d_img = cv.image(x, fill=False), cv.image(d, fill=False)
+                w = blend_weights(x_img, d_img, var_img, cv.mask, pointwise=_POINTWISE)
                 d = x + cv.gather(w) * (d - x)
             out[sel] = d.reshape(len(sel), 3, 9).astype(np.float32)
     finally:

@@ -49,10 +49,9 @@ _BAND_BOUND = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)
 _HDR_COEFFS = (0, 2)
 #: Coefficients denoised as ratios to c00 (OIDN's directional mode).
 _RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
-#: Of the 27 channels (RGB-major), those denoised as ratios: their blend is also judged per
-#: texel, since the directional network moved single texels by many noise deviations (the
-#: ratios swing fast next to a small light, and the error is multiplied by c00 there).
-_POINTWISE = np.isin(np.arange(27) % 9, _RATIO_COEFFS)
+#: (Their blend is also judged texel by texel: the directional network moved single texels
+#: by many noise deviations, since the ratios swing fast next to a small light, and the
+#: error is multiplied by c00 there.)
 
 # Tolerances and sizes (each with its reason)
 #: Dilated context (texels) on every side of a chart: a constant chart comes back within
@@ -228,6 +227,9 @@ def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) 
 
 def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> np.ndarray:
     """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown)."""
+    if img.shape[2] > 1:  # one channel at a time: the work arrays are 4 x 8 bytes per texel
+        return np.concatenate([_canvas_noise(img[..., k : k + 1], mask, tile)
+                               for k in range(img.shape[2])], axis=2)  # fmt: skip
     h, w, c = img.shape
     nd = len(_DIRECTIONS)
     d2 = _second_differences(img, mask)  # (h, w, 4, c); E[D^2] = 6 var for iid noise
@@ -377,27 +379,39 @@ def denoise_sh(
         except ValueError:
             raise InputError(f"variance of shape {np.shape(variance)} does not fit SH "
                              f"{sh.shape}") from None  # fmt: skip
-        variance = variance.reshape(n, 27)
     out = sh.astype(np.float32, copy=True)
     den = None
     try:
         for c in np.unique(charts):
             sel = np.nonzero(charts == c)[0]
-            x = sh[sel].astype(np.float64).reshape(len(sel), 27)
+            x = sh[sel].astype(np.float64)  # (m, 3, 9)
             cv = _Canvas(texels.xy[sel])
+            # canvases are built one coefficient (3 channels) at a time to bound memory
             if variance is None:
-                var_img = _canvas_noise(cv.image(x, fill=False), cv.mask)
+                var = np.stack(
+                    [
+                        cv.gather(_canvas_noise(cv.image(x[:, :, k], fill=False), cv.mask))
+                        for k in range(9)
+                    ],
+                    axis=2,
+                )
             else:
-                var_img = np.nan_to_num(cv.image(variance[sel], fill=False))
-            if blend and not (var_img > 0).any():
+                var = variance[sel]
+            if blend and not (var > 0).any():
                 continue  # noise free (or too small to tell): nothing to remove
             den = den or _Denoiser(quality)
             d = _denoise_chart(den, cv, x, sel, filter, albedo, normal)
             if blend:
-                x_img, d_img = cv.image(x, fill=False), cv.image(d, fill=False)
-                w = blend_weights(x_img, d_img, var_img, cv.mask, pointwise=_POINTWISE)
-                d = x + cv.gather(w) * (d - x)
-            out[sel] = d.reshape(len(sel), 3, 9).astype(np.float32)
+                for k in range(9):
+                    w = blend_weights(
+                        cv.image(x[:, :, k], fill=False),
+                        cv.image(d[:, :, k], fill=False),
+                        cv.image(var[:, :, k], fill=False),
+                        cv.mask,
+                        pointwise=np.full(3, k in _RATIO_COEFFS),
+                    )
+                    d[:, :, k] = x[:, :, k] + cv.gather(w) * (d[:, :, k] - x[:, :, k])
+            out[sel] = d.astype(np.float32)
     finally:
         if den is not None:
             den.close()
@@ -405,8 +419,7 @@ def denoise_sh(
 
 
 def _denoise_chart(den, cv: _Canvas, x, sel, filter, albedo, normal) -> np.ndarray:
-    """OIDN output (m, 27) for one chart's SH ``x (m, 27)`` (RGB-major: index 9 * rgb + k)."""
-    img = cv.image(x).reshape(*cv.shape, 3, 9)
+    """OIDN output (m, 3, 9) for one chart's SH ``x (m, 3, 9)``."""
     guides = {}
     if filter == "RT":
         if albedo is not None:
@@ -414,18 +427,19 @@ def _denoise_chart(den, cv: _Canvas, x, sel, filter, albedo, normal) -> np.ndarr
         if normal is not None:
             guides["normal"] = np.clip(cv.image(np.asarray(normal)[sel]), -1.0, 1.0)
     out = np.zeros((len(sel), 3, 9))
+    c00 = None
     for k in _HDR_COEFFS:
-        band = np.maximum(img[..., k], 0.0)
-        out[:, :, k] = np.maximum(
-            cv.gather(den.run(band, filter_type=filter, hdr=True, **guides)), 0.0
-        )
-    c00 = np.maximum(img[..., 0], 0.0)
+        band = np.maximum(cv.image(x[:, :, k]), 0.0)
+        c00 = band if k == 0 else c00
+        d = den.run(band, filter_type=filter, hdr=True, **guides)
+        out[:, :, k] = np.maximum(cv.gather(d), 0.0)
     safe = np.where(c00 > 0, c00, 1.0)
     for k in _RATIO_COEFFS:
-        ratio = np.clip(np.where(c00 > 0, img[..., k] / (_BAND_BOUND[k] * safe), 0.0), -1.0, 1.0)
+        ratio = np.where(c00 > 0, cv.image(x[:, :, k]) / (_BAND_BOUND[k] * safe), 0.0)
+        ratio = np.clip(ratio, -1.0, 1.0)
         if filter == "RTLightmap":
             r = den.run(ratio, filter_type=filter, directional=True)
         else:
             r = den.run(0.5 * (ratio + 1.0), filter_type=filter, **guides) * 2.0 - 1.0
         out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * _BAND_BOUND[k] * out[:, :, 0]
-    return out.reshape(len(sel), 27)
+    return out

@@ -83,6 +83,8 @@ ROBUST_CAP = 16.0
 _CHI2_1_MEDIAN = 0.454936423119572
 
 _DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
+#: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
+_WORK_ELEMENTS = 4_000_000
 
 
 def _pyoidn():
@@ -227,9 +229,10 @@ def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) 
 
 def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> np.ndarray:
     """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown)."""
-    if img.shape[2] > 1:  # one channel at a time: the work arrays are 4 x 8 bytes per texel
-        return np.concatenate([_canvas_noise(img[..., k : k + 1], mask, tile)
-                               for k in range(img.shape[2])], axis=2)  # fmt: skip
+    step = max(1, _WORK_ELEMENTS // (img.shape[0] * img.shape[1] * len(_DIRECTIONS)))
+    if img.shape[2] > step:  # large canvas: a few channels at a time (bounded work arrays)
+        return np.concatenate([_canvas_noise(img[..., k : k + step], mask, tile)
+                               for k in range(0, img.shape[2], step)], axis=2)  # fmt: skip
     h, w, c = img.shape
     nd = len(_DIRECTIONS)
     d2 = _second_differences(img, mask)  # (h, w, 4, c); E[D^2] = 6 var for iid noise

@@ -76,10 +76,11 @@ from usdahd.bake.trace import (
     nb_albedo,
     nb_emission,
     nb_occluded,
+    nb_occluded_rays,
     nb_offset,
     nb_random,
     nb_shading_normal,
-    nb_trace,
+    nb_trace_rays,
 )
 from usdahd.sampling import (
     cosine_hemisphere,
@@ -544,7 +545,7 @@ class _NativeCtx:
         handle = self.tr.native_handle
 
         def run(ids):
-            work = (embree_native.new_scratch(), np.zeros(1, np.uint64), np.zeros(9), np.zeros(44))
+            work = _native_work(s)
             return _native_pass(
                 handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
                 s, r2h, r2n, self.state, do_delta, arrays, work,
@@ -579,19 +580,28 @@ def _shorten(dist):
 
 
 # ----------------------------------------------------------------------------- native kernel
-# The same estimator as ``_Ctx`` above, fused per texel in numba and tracing through
-# libembree4 directly (backend "native"). Each call handles the texels ``ids`` of one chunk for
-# one pass and adds into the ``_Accum`` arrays at those rows only, so threads given disjoint
-# ``ids`` never touch the same memory. Random numbers: one splitmix64 stream per texel (state in
-# ``rng_state``), so results do not depend on threads or on how texels are split among them.
+# The same estimator as ``_Ctx`` above, in numba, tracing through libembree4 directly (backend
+# "native"). Each call handles the texels ``ids`` of one chunk for one pass and adds into the
+# ``_Accum`` arrays at those rows only, so threads given disjoint ``ids`` never touch the same
+# memory. Per texel it is a small wavefront: the pass's hemisphere rays (all from one origin),
+# the texel's light-sample shadow rays, and then each bounce's shadow and continuation rays are
+# traced as 16-ray packets (:func:`usdahd.bake.embree_native.intersect_rays`). Random numbers:
+# one splitmix64 stream per texel (state in ``rng_state``), so results do not depend on threads
+# or on how texels are split among them. Helpers are plain ``@njit`` functions: LLVM inlines
+# the small ones when the kernel is linked (numba-level ``inline="always"`` cost ~3x the
+# compile time for no run-time gain).
 
 _C0, _C1, _C2, _C20, _C22 = shmod.C0, shmod.C1, shmod.C2, shmod.C20, shmod.C22
 _LUM = (float(shmod.LUMINANCE[0]), float(shmod.LUMINANCE[1]), float(shmod.LUMINANCE[2]))
 _IZ = float(shmod.IZ_FROM_L10)
 _TWO_PI = 2.0 * np.pi
+#: Columns of the per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin
+#: (0:3), direction (3:6), throughput (6:9), pdf of the direction, selection probability of the
+#: NEE light it is paired with, reflections so far, sample index.
+PATH_COLS = 13
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _sh9(Y, x, y, z):
     Y[0] = _C0
     Y[1] = -_C1 * y
@@ -604,126 +614,219 @@ def _sh9(Y, x, y, z):
     Y[8] = _C22 * (x * x - y * y)
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _short(dist):
     return dist * (1.0 - SHADOW_SHORTEN) if np.isfinite(dist) else np.inf
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
-def _path(
-    scene, rec, tb, lt, lists, cfg, st, ox, oy, oz, dx, dy, dz, t, tri, u, v, gx, gy, gz,
-    pdf_dir, sel,
-):  # fmt: skip
-    """``_Ctx.incoming`` unrolled into a loop: radiance (r, g, b) arriving at o along d whose
-    first hit is (t, tri, u, v) with unit geometric normal g; also returns the rays traced.
-    Hit points are o + t d (no vertex fetch; error ~1e-7 t, far below the ray offset)."""
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _set_row(a, j, x0, x1, x2, x3, x4, x5, x6):
+    a[j, 0] = x0
+    a[j, 1] = x1
+    a[j, 2] = x2
+    a[j, 3] = x3
+    a[j, 4] = x4
+    a[j, 5] = x5
+    a[j, 6] = x6
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sval, sidx, occ, R):
+    """``_Ctx.incoming`` as a wavefront over the ``n`` paths in rows [0, n) of ``ps`` whose
+    first hits are ``hits`` (the layout of ``embree_native.intersect_rays``): each path's
+    radiance is added to ``R[k]`` (k its sample index). Per bounce, every live path makes one
+    NEE shadow ray (``srays``, value ``sval``, sample ``sidx``) and one cosine continuation ray
+    (``rays``; live rows are compacted to the front); both sets are traced as packets.
+    Hit points are o + t d (no vertex fetch; error ~1e-7 t, far below the ray offset).
+    returns : rays traced."""
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
-    nee_idx, visible_idx = lists
+    nee_idx, visible_idx = lists[0], lists[1]
     bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
     n_nee = nee_idx.shape[0]
-    Lr = Lg = Lb = 0.0
-    br = bg = bb = 1.0
-    depth = 0
+    n_vis = visible_idx.shape[0]
+    sel_next = 1.0 / max(1, n_nee)
+    traced = 0
+    while n > 0:
+        nn = np.int64(0)  # live paths kept (nn <= j: row j is read before row nn is written)
+        ns = np.int64(0)  # shadow rays (np.int64: no Literal[int](0) specializations)
+        for j in range(n):
+            ox, oy, oz = ps[j, 0], ps[j, 1], ps[j, 2]
+            dx, dy, dz = ps[j, 3], ps[j, 4], ps[j, 5]
+            br, bg, bb = ps[j, 6], ps[j, 7], ps[j, 8]
+            pdf_dir, sel = ps[j, 9], ps[j, 10]
+            depth = int(ps[j, 11])
+            k = int(ps[j, 12])
+            t, tri, u, v = hits[j, 0], int(hits[j, 1]), hits[j, 2], hits[j, 3]
+            gx, gy, gz = hits[j, 4], hits[j, 5], hits[j, 6]
+            miss = tri < 0
+            Lr = Lg = Lb = 0.0
+            for jj in range(n_vis):
+                q = visible_idx[jj]
+                hit, tl, r, g, b = light_intersect(kind[q], par[q], img, ox, oy, oz, dx, dy, dz)
+                if not hit:
+                    continue
+                if (miss if linf[q] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
+                    w = 1.0
+                    if lsampled[q]:
+                        pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sel
+                        w = _pw(pdf_dir, pl)
+                    Lr += br * w * r
+                    Lg += bg * w * g
+                    Lb += bb * w * b
+            for _once in range(1):  # a block to break out of
+                if miss:
+                    break
+                cos_in = dx * gx + dy * gy + dz * gz
+                if has_em and cos_in < 0.0:
+                    er, eg, eb = nb_emission(tb, tri, u, v)
+                    Lr += br * er
+                    Lg += bg * eg
+                    Lb += bb * eb
+                if depth + 1 > bounces:
+                    break
+                ar, ag, ab = nb_albedo(tb, tri, u, v)
+                if not (ar > 0.0 or ag > 0.0 or ab > 0.0):
+                    break
+                if depth + 1 > RR_DEPTH:
+                    rr = min(max(max(ar, ag, ab), 0.05), 1.0)
+                    if not (nb_random(st) < rr):
+                        break
+                    ar, ag, ab = ar / rr, ag / rr, ab / rr
+                px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+                nx, ny, nz = nb_shading_normal(tb, tri, u, v)
+                side = 1.0 if cos_in < 0.0 else -1.0
+                gx, gy, gz = gx * side, gy * side, gz * side
+                nx, ny, nz = nx * side, ny * side, nz * side
+                if not (nx * gx + ny * gy + nz * gz > 0.0):
+                    nx, ny, nz = gx, gy, gz
+                br, bg, bb = br * ar, bg * ag, bb * ab
+                depth += 1
+                # next-event estimation: one light chosen uniformly, its shadow ray queued
+                if n_nee:
+                    q = nee_idx[min(int(nb_random(st) * n_nee), n_nee - 1)]
+                    u0 = nb_random(st)
+                    u1 = nb_random(st)
+                    lx, ly, lz, dist, r, g, b, pdf = light_sample(
+                        kind[q], par[q], img, pmf, cdf, px, py, pz, u0, u1
+                    )
+                    cos = lx * nx + ly * ny + lz * nz
+                    if (
+                        cos > 0.0
+                        and lx * gx + ly * gy + lz * gz > 0.0
+                        and pdf > 0.0
+                        and (r > 0.0 or g > 0.0 or b > 0.0)
+                    ):
+                        if ldelta[q]:
+                            f = cos / np.pi * n_nee
+                        else:
+                            pl = pdf / n_nee
+                            f = _pw(pl, cos / np.pi) * cos / np.pi / pl
+                        qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
+                        _set_row(srays, ns, qx, qy, qz, lx, ly, lz, _short(dist))
+                        sval[ns, 0] = br * r * f
+                        sval[ns, 1] = bg * g * f
+                        sval[ns, 2] = bb * b * f
+                        sidx[ns] = k
+                        ns += 1
+                # continuation ray (also the MIS partner of the NEE sample)
+                if not (n_vis > 0 or has_em or depth < bounces):
+                    break
+                # cosine-weighted (Malley): a uniform point of the unit disk, by rejection
+                while True:
+                    a = 2.0 * nb_random(st) - 1.0
+                    b = 2.0 * nb_random(st) - 1.0
+                    r2 = a * a + b * b
+                    if r2 < 1.0:
+                        break
+                cz = np.sqrt(1.0 - r2)
+                dx, dy, dz = nb_basis_apply(nx, ny, nz, a, b, cz)
+                if not (dx * gx + dy * gy + dz * gz > 0.0):
+                    break
+                ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)
+                _set_row(rays, nn, ox, oy, oz, dx, dy, dz, np.inf)
+                _set_row(ps, nn, ox, oy, oz, dx, dy, dz, br)
+                ps[nn, 7] = bg
+                ps[nn, 8] = bb
+                ps[nn, 9] = cz / np.pi
+                ps[nn, 10] = sel_next
+                ps[nn, 11] = depth
+                ps[nn, 12] = k
+                nn += 1
+            R[k, 0] += Lr
+            R[k, 1] += Lg
+            R[k, 2] += Lb
+        if ns:
+            traced += nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, srays, ns, occ)
+            for q in range(ns):
+                if not occ[q]:
+                    k = sidx[q]
+                    R[k, 0] += sval[q, 0]
+                    R[k, 1] += sval[q, 1]
+                    R[k, 2] += sval[q, 2]
+        if nn:
+            traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, nn, hits)
+        n = nn
+    return traced
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
+    """Exact delta-light terms of texel ``i`` (one shadow ray per light). returns rays."""
+    kind, par, img, pmf, cdf = lt[0], lt[1], lt[2], lt[3], lt[4]
+    eps, transmission = cfg[1], cfg[2] != 0.0
+    px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+    ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
+    f = F[i]
     rays = 0
-    while True:
-        miss = tri < 0
-        for jj in range(visible_idx.shape[0]):
-            j = visible_idx[jj]
-            hit, tl, r, g, b = light_intersect(kind[j], par[j], img, ox, oy, oz, dx, dy, dz)
-            if not hit:
-                continue
-            if (miss if linf[j] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
-                w = 1.0
-                if lsampled[j]:
-                    pl = light_pdf(kind[j], par[j], pmf, ox, oy, oz, dx, dy, dz, tl) * sel
-                    w = _pw(pdf_dir, pl)
-                Lr += br * w * r
-                Lg += bg * w * g
-                Lb += bb * w * b
-        if miss:
-            break
-        cos_in = dx * gx + dy * gy + dz * gz
-        if has_em and cos_in < 0.0:
-            er, eg, eb = nb_emission(tb, tri, u, v)
-            Lr += br * er
-            Lg += bg * eg
-            Lb += bb * eb
-        if depth + 1 > bounces:
-            break
-        ar, ag, ab = nb_albedo(tb, tri, u, v)
-        if not (ar > 0.0 or ag > 0.0 or ab > 0.0):
-            break
-        if depth + 1 > RR_DEPTH:
-            q = min(max(max(ar, ag, ab), 0.05), 1.0)
-            if not (nb_random(st) < q):
-                break
-            ar, ag, ab = ar / q, ag / q, ab / q
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        nx, ny, nz = nb_shading_normal(tb, tri, u, v)
-        side = 1.0 if cos_in < 0.0 else -1.0
-        gx, gy, gz = gx * side, gy * side, gz * side
-        nx, ny, nz = nx * side, ny * side, nz * side
-        if not (nx * gx + ny * gy + nz * gz > 0.0):
-            nx, ny, nz = gx, gy, gz
-        br, bg, bb = br * ar, bg * ag, bb * ab
-        depth += 1
-        # next-event estimation: one light chosen uniformly
-        if n_nee:
-            j = nee_idx[min(int(nb_random(st) * n_nee), n_nee - 1)]
-            u0 = nb_random(st)
-            u1 = nb_random(st)
-            lx, ly, lz, dist, r, g, b, pdf = light_sample(
-                kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
-            )
-            cos = lx * nx + ly * ny + lz * nz
-            if (
-                cos > 0.0
-                and lx * gx + ly * gy + lz * gz > 0.0
-                and pdf > 0.0
-                and (r > 0.0 or g > 0.0 or b > 0.0)
-            ):
-                qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
-                occ, k = nb_occluded(
-                    scene, rec, tb, eps, transmission, st, qx, qy, qz, lx, ly, lz, _short(dist)
-                )
-                rays += k
-                if not occ:
-                    if ldelta[j]:
-                        f = cos / np.pi * n_nee
-                    else:
-                        pl = pdf / n_nee
-                        f = _pw(pl, cos / np.pi) * cos / np.pi / pl
-                    Lr += br * r * f
-                    Lg += bg * g * f
-                    Lb += bb * b * f
-        # continuation ray (also the MIS partner of the NEE sample)
-        if not (visible_idx.shape[0] > 0 or has_em or depth < bounces):
-            break
-        # cosine-weighted (Malley): a uniform point of the unit disk, by rejection (no trig)
-        while True:
-            a = 2.0 * nb_random(st) - 1.0
-            b = 2.0 * nb_random(st) - 1.0
-            r2 = a * a + b * b
-            if r2 < 1.0:
-                break
-        cz = np.sqrt(1.0 - r2)
-        dx, dy, dz = nb_basis_apply(nx, ny, nz, a, b, cz)
-        if not (dx * gx + dy * gy + dz * gz > 0.0):
-            break
-        ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)
-        t, tri, u, v, gx, gy, gz, k = nb_trace(
-            scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, np.inf
+    for jj in range(delta_idx.shape[0]):
+        j = delta_idx[jj]
+        dx, dy, dz, dist, r, g, b, _ = light_sample(
+            kind[j], par[j], img, pmf, cdf, px, py, pz, 0.0, 0.0
+        )
+        lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
+        if not (lz > 0.0 and dx * ngx + dy * ngy + dz * ngz > 0.0):
+            continue
+        qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
+        occ, k = nb_occluded(
+            scene, rec, tb, eps, transmission, st, qx, qy, qz, dx, dy, dz, _short(dist)
         )
         rays += k
-        pdf_dir = cz / np.pi
-        sel = 1.0 / max(1, n_nee)
-    return Lr, Lg, Lb, rays
+        if occ:
+            continue
+        lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
+        ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
+        _sh9(Y, lx, ly, lz)
+        for c9 in range(9):
+            delta[i, 0, c9] += r * Y[c9]
+            delta[i, 1, c9] += g * Y[c9]
+            delta[i, 2, c9] += b * Y[c9]
+    return rays
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _gram_unpack(gram, i, G, s):
+    """Add the 44 register-fed Gram sums ``G`` of ``s`` samples to ``gram[i]`` (2 pi / p folded
+    in; row 0 is C0 * sum Y) and zero ``G``."""
+    gram[i, 0, 0] += _TWO_PI * _C0 * _C0 * s
+    q = 8
+    for a in range(1, 9):
+        v = _TWO_PI * _C0 * G[a - 1]
+        gram[i, 0, a] += v
+        gram[i, a, 0] += v
+        for b9 in range(a, 9):
+            v = _TWO_PI * G[q]
+            gram[i, a, b9] += v
+            if b9 != a:
+                gram[i, b9, a] += v
+            q += 1
+    for q in range(44):
+        G[q] = 0.0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -735,9 +838,10 @@ def _native_pass(
     P, NG : (n,3) f64; F : (n,3,3) f64; r2h : (s,4) R2 points for the hemisphere with
     cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
     samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
-    work : per-thread scratch (RTCRayHit record, (1,) uint64 random state, (9,) f64 basis,
-    (44,) f64 zeroed Gram sums). Compiled without the NRT (``_nrt=False``): no allocation and
-    no reference counting in the hot loop.
+    work : per-thread scratch from :func:`_native_work` (RTCRayHit record, packet, (1,) uint64
+    random state, (9,) basis, (44,) zeroed Gram sums, (27,) zeroed hemisphere sums, then the
+    per-sample wavefront arrays). Compiled without the NRT (``_nrt=False``): no allocation
+    and no reference counting in the hot loop.
     returns : rays traced.
     """
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
@@ -746,82 +850,120 @@ def _native_pass(
     eps, transmission, regression = cfg[1], cfg[2] != 0.0, cfg[4] != 0.0
     n_area = area_idx.shape[0]
     sel_area = 1.0 / max(1, n_area)
-    sub = (lists[0], lists[1])
-    rec, st, Y, G = work
-    rays = 0
+    rec, pk, st, Y, G, H, ps, rays, hits, srays, sval, sidx, occ, R, loc, yl = work
+    traced = 0
     for ii in range(ids.shape[0]):
         i = ids[ii]
         st[0] = rng_state[i]
-        n_back = 0
-        ys = 0.0
-        ys2 = 0.0
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
         f = F[i]
         if do_delta:
-            for jj in range(delta_idx.shape[0]):
-                j = delta_idx[jj]
-                dx, dy, dz, dist, r, g, b, _ = light_sample(
-                    kind[j], par[j], img, pmf, cdf, px, py, pz, 0.0, 0.0
-                )
-                lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
-                if not (lz > 0.0 and dx * ngx + dy * ngy + dz * ngz > 0.0):
-                    continue
-                qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
-                occ, k = nb_occluded(
-                    scene, rec, tb, eps, transmission, st, qx, qy, qz, dx, dy, dz, _short(dist)
-                )
-                rays += k
-                if occ:
-                    continue
-                lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
-                ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
-                _sh9(Y, lx, ly, lz)
-                for c9 in range(9):
-                    delta[i, 0, c9] += r * Y[c9]
-                    delta[i, 1, c9] += g * Y[c9]
-                    delta[i, 2, c9] += b * Y[c9]
+            traced += _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta)
         cp0 = nb_random(st)
         cp1 = nb_random(st)
         c1, s1 = np.cos(_TWO_PI * cp1), np.sin(_TWO_PI * cp1)
-        cn0 = cn1 = 0.0
-        if n_area:
-            cn0 = nb_random(st)
-            cn1 = nb_random(st)
+        # every traced hemisphere ray leaves from the same offset origin (d . ng > 0)
+        qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, ngx, ngy, ngz)
+        m = np.int64(0)
         for k in range(s):
             u0 = r2h[k, 0] + cp0
-            u0 = u0 - 1.0 if u0 >= 1.0 else u0
-            lz = u0
+            lz = u0 - 1.0 if u0 >= 1.0 else u0
             sn = np.sqrt(max(1.0 - lz * lz, 0.0))
             # phi = 2 pi (r2 + cp1): angle addition with the pass's precomputed cos/sin
             lx = sn * (r2h[k, 2] * c1 - r2h[k, 3] * s1)
             ly = sn * (r2h[k, 3] * c1 + r2h[k, 2] * s1)
+            loc[k, 0], loc[k, 1], loc[k, 2] = lx, ly, lz
+            R[k, 0] = R[k, 1] = R[k, 2] = 0.0
+            yl[k] = 0.0
             dx = lx * f[0, 0] + ly * f[1, 0] + lz * f[2, 0]
             dy = lx * f[0, 1] + ly * f[1, 1] + lz * f[2, 1]
             dz = lx * f[0, 2] + ly * f[1, 2] + lz * f[2, 2]
-            Rr = Rg = Rb = 0.0
             if dx * ngx + dy * ngy + dz * ngz > 0.0:
-                ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
-                t, tri, hu, hv, hx, hy, hz, kk = nb_trace(
-                    scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, np.inf
+                _set_row(rays, m, qx, qy, qz, dx, dy, dz, np.inf)
+                _set_row(ps, m, qx, qy, qz, dx, dy, dz, 1.0)
+                ps[m, 7] = ps[m, 8] = 1.0
+                ps[m, 9] = INV_2PI
+                ps[m, 10] = sel_area
+                ps[m, 11] = 0.0
+                ps[m, 12] = k
+                m += 1
+        n_back = 0
+        if m:
+            traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, m, hits)
+            for j in range(m):
+                if hits[j, 1] >= 0.0:
+                    if ps[j, 3] * hits[j, 4] + ps[j, 4] * hits[j, 5] + ps[j, 5] * hits[j, 6] > 0:
+                        n_back += 1
+            traced += _paths(
+                scene, pk, rec, tb, lt, lists, cfg, st, m, ps, rays, hits, srays, sval, sidx,
+                occ, R,
+            )  # fmt: skip
+        if n_area:  # light samples at the texel, MIS with the uniform hemisphere
+            cn0 = nb_random(st)
+            cn1 = nb_random(st)
+            ns = np.int64(0)
+            for k in range(s):
+                u0 = r2n[k, 0] + cn0
+                u0 = u0 - 1.0 if u0 >= 1.0 else u0
+                u1 = r2n[k, 1] + cn1
+                u1 = u1 - 1.0 if u1 >= 1.0 else u1
+                pick = min(int(nb_random(st) * n_area), n_area - 1) if n_area > 1 else 0
+                j = area_idx[pick]
+                dx, dy, dz, dist, r, g, b, pdf = light_sample(
+                    kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
                 )
-                rays += kk
-                if tri >= 0 and dx * hx + dy * hy + dz * hz > 0.0:
-                    n_back += 1
-                Rr, Rg, Rb, kk = _path(
-                    scene, rec, tb, lt, sub, cfg, st, ox, oy, oz, dx, dy, dz,
-                    t, tri, hu, hv, hx, hy, hz, INV_2PI, sel_area,
-                )  # fmt: skip
-                rays += kk
-            _sh9(Y, lx, ly, lz)
-            for c9 in range(9):
-                w = _TWO_PI * Y[c9]
-                hemi[i, 0, c9] += w * Rr
-                hemi[i, 1, c9] += w * Rg
-                hemi[i, 2, c9] += w * Rb
+                lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
+                if (
+                    pdf > 0.0
+                    and lz > 0.0
+                    and dx * ngx + dy * ngy + dz * ngz > 0.0
+                    and (r > 0.0 or g > 0.0 or b > 0.0)
+                ):
+                    ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
+                    _set_row(srays, ns, ox, oy, oz, dx, dy, dz, _short(dist))
+                    pl = pdf / n_area
+                    wgt = _pw(pl, INV_2PI) / pl
+                    sval[ns, 0], sval[ns, 1], sval[ns, 2] = r * wgt, g * wgt, b * wgt
+                    sval[ns, 3] = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
+                    sval[ns, 4] = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
+                    sval[ns, 5] = lz
+                    sidx[ns] = k
+                    ns += 1
+            if ns:
+                traced += nb_occluded_rays(
+                    scene, pk, rec, tb, eps, transmission, st, srays, ns, occ
+                )
+                for q in range(ns):
+                    if occ[q]:
+                        continue
+                    _sh9(Y, sval[q, 3], sval[q, 4], sval[q, 5])
+                    r, g, b = sval[q, 0], sval[q, 1], sval[q, 2]
+                    for c9 in range(9):
+                        nee[i, 0, c9] += r * Y[c9]
+                        nee[i, 1, c9] += g * Y[c9]
+                        nee[i, 2, c9] += b * Y[c9]
+                    yl[sidx[q]] += _IZ * (_LUM[0] * r + _LUM[1] * g + _LUM[2] * b) * Y[2]
+        # SH sums of the hemisphere samples (radiance 2 pi / p folded in)
+        ys = 0.0
+        ys2 = 0.0
+        for k in range(s):
+            x, y, z = loc[k, 0], loc[k, 1], loc[k, 2]
+            y1, y2, y3 = -_C1 * y, _C1 * z, -_C1 * x
+            y4, y5 = _C2 * x * y, -_C2 * y * z
+            y6, y7, y8 = _C20 * (3.0 * z * z - 1.0), -_C2 * x * z, _C22 * (x * x - y * y)
+            for c in range(3):
+                w = _TWO_PI * R[k, c]
+                H[9 * c] += w * _C0
+                H[9 * c + 1] += w * y1
+                H[9 * c + 2] += w * y2
+                H[9 * c + 3] += w * y3
+                H[9 * c + 4] += w * y4
+                H[9 * c + 5] += w * y5
+                H[9 * c + 6] += w * y6
+                H[9 * c + 7] += w * y7
+                H[9 * c + 8] += w * y8
             if regression:  # upper triangle of Y Y^T (rows 1..8; row 0 is C0 * sum Y)
-                y1, y2, y3, y4 = Y[1], Y[2], Y[3], Y[4]
-                y5, y6, y7, y8 = Y[5], Y[6], Y[7], Y[8]
                 G[0] += y1
                 G[1] += y2
                 G[2] += y3
@@ -866,61 +1008,41 @@ def _native_pass(
                 G[41] += y7 * y7
                 G[42] += y7 * y8
                 G[43] += y8 * y8
-            ylum = _TWO_PI * _IZ * (_LUM[0] * Rr + _LUM[1] * Rg + _LUM[2] * Rb) * Y[2]
-            if n_area:
-                u0 = r2n[k, 0] + cn0
-                u0 = u0 - 1.0 if u0 >= 1.0 else u0
-                u1 = r2n[k, 1] + cn1
-                u1 = u1 - 1.0 if u1 >= 1.0 else u1
-                pick = min(int(nb_random(st) * n_area), n_area - 1) if n_area > 1 else 0
-                j = area_idx[pick]
-                dx, dy, dz, dist, r, g, b, pdf = light_sample(
-                    kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
-                )
-                lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
-                if (
-                    pdf > 0.0
-                    and lz > 0.0
-                    and dx * ngx + dy * ngy + dz * ngz > 0.0
-                    and (r > 0.0 or g > 0.0 or b > 0.0)
-                ):
-                    ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
-                    occ, kk = nb_occluded(
-                        scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz,
-                        _short(dist),
-                    )  # fmt: skip
-                    rays += kk
-                    if not occ:
-                        pl = pdf / n_area
-                        wgt = _pw(pl, INV_2PI) / pl
-                        lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
-                        ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
-                        _sh9(Y, lx, ly, lz)
-                        for c9 in range(9):
-                            nee[i, 0, c9] += r * wgt * Y[c9]
-                            nee[i, 1, c9] += g * wgt * Y[c9]
-                            nee[i, 2, c9] += b * wgt * Y[c9]
-                        ylum += _IZ * wgt * (_LUM[0] * r + _LUM[1] * g + _LUM[2] * b) * Y[2]
+            lum = _LUM[0] * R[k, 0] + _LUM[1] * R[k, 1] + _LUM[2] * R[k, 2]
+            ylum = _TWO_PI * _IZ * lum * y2 + yl[k]
             ys += ylum
             ys2 += ylum * ylum
+        for c in range(3):
+            for c9 in range(9):
+                hemi[i, c, c9] += H[9 * c + c9]
+                H[9 * c + c9] = 0.0
         y_sum[i] += ys
         y_sq[i] += ys2
         back[i] += n_back
         count[i] += s
         rng_state[i] = st[0]
-        if regression:  # unpack the 44 sums (2 pi / p folded in here)
-            gram[i, 0, 0] += _TWO_PI * _C0 * _C0 * s
-            q = 8
-            for a in range(1, 9):
-                v = _TWO_PI * _C0 * G[a - 1]
-                gram[i, 0, a] += v
-                gram[i, a, 0] += v
-                for b9 in range(a, 9):
-                    v = _TWO_PI * G[q]
-                    gram[i, a, b9] += v
-                    if b9 != a:
-                        gram[i, b9, a] += v
-                    q += 1
-            for q in range(44):
-                G[q] = 0.0
-    return rays
+        if regression:
+            _gram_unpack(gram, i, G, s)
+    return traced
+
+
+def _native_work(s):
+    """Per-thread scratch of :func:`_native_pass` for passes of ``s`` samples."""
+    return (
+        embree_native.new_scratch(),
+        embree_native.new_packet(),
+        np.zeros(1, np.uint64),
+        np.zeros(9),
+        np.zeros(44),
+        np.zeros(27),
+        np.zeros((s, PATH_COLS)),
+        np.zeros((s, 7)),
+        np.zeros((s, 7)),
+        np.zeros((s, 7)),
+        np.zeros((s, 6)),
+        np.zeros(s, np.int64),
+        np.zeros(s, np.bool_),
+        np.zeros((s, 3)),
+        np.zeros((s, 3)),
+        np.zeros(s),
+    )

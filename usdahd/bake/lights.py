@@ -512,7 +512,7 @@ from numba import njit  # noqa: E402
 _INF = np.inf
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_basis_apply(nx, ny, nz, lx, ly, lz):
     """local (lx,ly,lz) in the Duff et al. frame around unit n -> world direction."""
     sign = 1.0 if nz >= 0.0 else -1.0
@@ -706,7 +706,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     return dx, dy, dz, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2], pdf
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     """Scalar ``Light.intersect``: returns (hit, t, r, g, b)."""
     if kind == KIND_SPHERE:
@@ -737,7 +737,7 @@ def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     return False, _INF, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
     """Scalar ``Light.pdf`` (solid angle) of a direction that hit the light at ``t``."""
     if kind == KIND_SPHERE:

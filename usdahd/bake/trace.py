@@ -410,7 +410,7 @@ def pack_textures(textures):
 _U64 = np.uint64
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_random(st):
     """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
     z = st[0] + _U64(0x9E3779B97F4A7C15)
@@ -421,7 +421,7 @@ def nb_random(st):
     return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     """:meth:`Tracer.offset` for one ray."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
@@ -469,7 +469,7 @@ def nb_texture(tb, k, s, t):
         if q < c:
             v = _bilinear(data, off, w, c, q, xs0, xs1, ys0, ys1, fx, fy)
         elif c == 1 and q < 3:
-            v = _bilinear(data, off, w, c, 0, xs0, xs1, ys0, ys1, fx, fy)
+            v = _bilinear(data, off, w, c, np.int64(0), xs0, xs1, ys0, ys1, fx, fy)
         else:
             v = 1.0
         v = np.float64(np.float32(v * sb[k, q] + sb[k, 4 + q]))
@@ -484,7 +484,7 @@ def nb_texture(tb, k, s, t):
     return out, info[k, 6]
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _uv(tb, tri, u, v):
     tc = tb[4]
     w0 = 1.0 - u - v
@@ -494,7 +494,7 @@ def _uv(tb, tri, u, v):
     )
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _material_rgb(tb, tri, u, v, which):
     m = tb[3][tri]
     k = tb[6][m, which]
@@ -508,17 +508,17 @@ def _material_rgb(tb, tri, u, v, which):
     return val[0], val[1], val[2]
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
-    r, g, b = _material_rgb(tb, tri, u, v, 0)
+    r, g, b = _material_rgb(tb, tri, u, v, np.int64(0))
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
-    return _material_rgb(tb, tri, u, v, 1)
+    return _material_rgb(tb, tri, u, v, np.int64(1))
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -542,7 +542,7 @@ def nb_transmits(tb, tri, u, v, st):
     return False
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_hit_point(tb, tri, u, v):
     w = tb[0]
     w0 = 1.0 - u - v
@@ -553,7 +553,7 @@ def nb_hit_point(tb, tri, u, v):
     )
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_shading_normal(tb, tri, u, v):
     cn = tb[2]
     w0 = 1.0 - u - v
@@ -567,7 +567,7 @@ def nb_shading_normal(tb, tri, u, v):
     return g[tri, 0], g[tri, 1], g[tri, 2]
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
     on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
@@ -590,9 +590,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
         g = tb[1]
         qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
         done = travelled + t
-        t2, tri, u2, v2 = embree_native.intersect1(
-            scene, rec, qx, qy, qz, dx, dy, dz, np.float32(tfar - done)
-        )
+        t2, tri, u2, v2 = embree_native.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
         rays += 1
         travelled = done
         t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
@@ -602,10 +600,47 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     return np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays
 
 
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy")
 def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
     if not transmission:
         return embree_native.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar), 1
     r = nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar)
     return r[1] >= 0, r[7]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
+    """:meth:`Tracer.intersect` for ``rays[:n]`` into ``hits[:n]`` (the row layouts of
+    :func:`usdahd.bake.embree_native.intersect_rays`): 16-ray packets, or one ray at a time
+    through :func:`nb_trace` when the scene has transmissive surfaces. returns rays traced."""
+    if not transmission:
+        embree_native.intersect_rays(scene, pk, rec, rays, n, hits)
+        return n
+    total = 0
+    for r in range(n):
+        t, tri, u, v, gx, gy, gz, k = nb_trace(
+            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
+            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        )  # fmt: skip
+        hits[r, 0], hits[r, 1], hits[r, 2], hits[r, 3] = t, tri, u, v
+        hits[r, 4], hits[r, 5], hits[r, 6] = gx, gy, gz
+        total += k
+    return total
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, out):
+    """:meth:`Tracer.occluded` for ``rays[:n]`` into ``out[:n]`` (bool). returns rays traced."""
+    if not transmission:
+        embree_native.occluded_rays(scene, pk, rec, rays, n, out)
+        return n
+    total = 0
+    for r in range(n):
+        occ, k = nb_occluded(
+            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
+            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        )  # fmt: skip
+        out[r] = occ
+        total += k
+    return total

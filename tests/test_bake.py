@@ -301,3 +301,21 @@ def test_stage_without_light_sources_traces_nothing_and_says_so(tmp_path, capsys
         _results(tmp_path / "open_plane.lightmaps.usda")["/World/Geometry/Plane"]
     )
     assert not got.any() and not want.any()
+
+
+def test_partly_degenerate_uv_set_is_unwrapped_into_a_new_primvar(tmp_path, capsys):
+    from pxr import Usd, UsdGeom
+
+    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Plane")).GetPrimvar("st")
+    st = np.array(pv.Get())
+    st[: len(st) // 3] = st[0]  # a third of the vertices collapse onto one UV point
+    pv.Set(st)
+    stage.GetRootLayer().Save()
+    code, out = _bake([str(stage_path), "--json", *FAST[:-1]], capsys)
+    assert code == 0, out.err
+    warnings = json.loads(out.out)["prims"][0]["warnings"]
+    assert any("zero-area UV triangles" in w and "st_lightmap" in w for w in warnings)
+    res = _results(tmp_path / "open_plane.lightmaps.usda")["/World/Geometry/Plane"]
+    assert res.uv_primvar == "st_lightmap"

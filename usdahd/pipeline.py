@@ -47,6 +47,8 @@ DENSITY_MAX_RESOLUTION = 1024
 #: this fraction of its covered texels overlap, or of its UVs lie outside [0, 1].
 UV_OVERLAP_LIMIT = 0.01
 UV_OUTSIDE_LIMIT = 0.001
+#: ... or when zero-area UV triangles cover more than this fraction of the mesh's surface.
+UV_DEGENERATE_LIMIT = 0.01
 
 
 @dataclass
@@ -434,6 +436,22 @@ def _uv_problem(texels) -> str | None:
     return None
 
 
+def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:
+    """A problem string when zero-area UV triangles cover more than UV_DEGENERATE_LIMIT of the
+    mesh's surface (those triangles would get no lightmap texel at all)."""
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    texel_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * res[0] * res[1]
+    p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
+    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    total = world.sum()
+    if total <= 0:
+        return None
+    share = world[texel_area < 1e-6].sum() / total
+    if share > UV_DEGENERATE_LIMIT:
+        return f"has zero-area UV triangles on {100 * share:.0f}% of the surface"
+    return None
+
+
 def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
     from usdahd.bake.texels import resolution_for_density
 
@@ -509,8 +527,10 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> Pr
                 res = (int(settings["resolution"]),) * 2
             else:
                 res = _density_resolution(mesh, settings, scene, job)
-            texels = rasterize(mesh, res)
-            problem = _uv_problem(texels)
+            problem = _degenerate_uv_share(mesh, uv, res)
+            if problem is None:
+                texels = rasterize(mesh, res)
+                problem = _uv_problem(texels)
         if problem is None:
             job.texels, job.resolution = texels, res
         else:

@@ -167,6 +167,30 @@ def test_golden_matches_brute_force_along_phi(sky, kind):
         assert e[j] <= best + 1e-6 * e0, (j, e[j], best)
 
 
+@pytest.mark.parametrize("kind", ["ahd", "hhd"])
+def test_line_error_polynomial_form_equals_direct_form(kind):
+    # the search evaluates E(d_z) from p(z) = R.(1, z, z^2, s, s z) and a quartic q(z); it must
+    # equal the direct u^T G u form (_dir_error) for any target, azimuth and d_z
+    rng = np.random.default_rng(21)
+    gd, go = iz._sparse_gram(iz.gram_hemi())
+    amb = iz.ambient_sh(kind)
+    blk = np.empty((iz._BLK_ROWS, 1))
+    cdb, cd, u = np.empty((3, 1)), np.empty(3), np.empty(9)
+    for _ in range(200):
+        gt = rng.normal(size=(3, 9))
+        e0 = rng.uniform(5, 10, 3)
+        izv = rng.uniform(0, 2, 3)
+        phi, z = rng.uniform(-np.pi, np.pi), rng.uniform(iz.DZ_FLOOR, 1)
+        iz._line_coeffs(np.cos(phi), np.sin(phi), gt, e0, izv, 3, amb, gd, go, 0, blk)
+        got = iz._line_error(z, 0, blk, 3, cdb, True)
+        s = np.sqrt(1 - z * z)
+        ref = iz._dir_error(
+            s * np.cos(phi), s * np.sin(phi), z, gt, e0, izv, 3, amb, gd, go, True, u, cd
+        )
+        assert abs(got - ref) <= 1e-12 * max(1.0, abs(ref))
+        np.testing.assert_allclose(cdb[:, 0], cd, rtol=1e-11, atol=1e-13)
+
+
 def test_golden_phi_never_worse_and_golden_beats_2018(sky):
     for kind in ("ahd", "hhd"):
         err = {

@@ -54,9 +54,11 @@ IZ_TINY = 1e-7
 #: w_a this close to 1 means no directional light: d is set to z (its value is then arbitrary
 #: and would only add quantization noise and interpolation artifacts).
 WA_ONE = 1.0 - 1e-7
-#: Golden-section settings: a coarse uniform scan of d_z brackets the minimum (E(d_z) is not
-#: always unimodal), then golden-section iterations shrink the bracket by 0.618 each; 8 + 16
-#: steps locate d_z to ~3e-4, far below the 8-bit direction quantization (~1e-2).
+#: d_z search (solver "golden"): a uniform scan of GOLDEN_SCAN points brackets the minimum
+#: (E(d_z) is not always unimodal), GOLDEN_ITERS golden-section steps shrink the bracket
+#: (width 2/7 * 0.618^k), then one parabolic step through the best point and its neighbours.
+#: Measured in docs/models.md: 16 golden steps alone left up to 1e-4 of the target energy
+#: unfitted on sun-dominated texels (sharp minima); 16 + the parabolic step leave < 1e-6.
 GOLDEN_SCAN = 8
 GOLDEN_ITERS = 16
 #: Outer phi search (golden_phi): half-width of the phi interval around the optimal-linear phi,
@@ -178,55 +180,168 @@ def _dir_error(dx, dy, dz, gt, e0, iz, nc, amb, gd, go, constrain, u, cd):
 
 
 @njit(cache=True, fastmath=False)
-def _search_dz(phi, lo, gt, e0, iz, nc, amb, gd, go, constrain, n_scan, n_iter, u, cd, cd_best):
-    """Scan + golden-section search of d_z in [lo, 1] at azimuth phi; best C_d in cd_best."""
-    cph = np.cos(phi)
-    sph = np.sin(phi)
-    best_e = np.inf
-    best_z = 1.0
-    best_j = 0
-    step = (1.0 - lo) / (n_scan - 1)
-    for j in range(n_scan):
-        z = lo + step * j
-        s = np.sqrt(max(0.0, 1.0 - z * z))
-        e = _dir_error(s * cph, s * sph, z, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-        if e < best_e:
-            best_e = e
-            best_z = z
-            best_j = j
-            cd_best[:] = cd
-    a = lo + step * max(best_j - 1, 0)
-    b = lo + step * min(best_j + 1, n_scan - 1)
-    g = 0.6180339887498949
-    x1 = b - g * (b - a)
-    x2 = a + g * (b - a)
-    s1 = np.sqrt(max(0.0, 1.0 - x1 * x1))
-    s2 = np.sqrt(max(0.0, 1.0 - x2 * x2))
-    f1 = _dir_error(s1 * cph, s1 * sph, x1, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-    f2 = _dir_error(s2 * cph, s2 * sph, x2, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-    for _ in range(n_iter):
-        if f1 < f2:
-            b = x2
-            x2 = x1
-            f2 = f1
-            x1 = b - g * (b - a)
-            s1 = np.sqrt(max(0.0, 1.0 - x1 * x1))
-            f1 = _dir_error(s1 * cph, s1 * sph, x1, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-        else:
-            a = x1
-            x1 = x2
-            f1 = f2
-            x2 = a + g * (b - a)
-            s2 = np.sqrt(max(0.0, 1.0 - x2 * x2))
-            f2 = _dir_error(s2 * cph, s2 * sph, x2, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-    z = 0.5 * (a + b)
+def _line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, j, blk):
+    """Store texel j's error along the azimuth (cos, sin) = (cph, sph) into the block ``blk``.
+
+    With d = (s cph, s sph, z), s = sqrt(1 - z^2), and an ambient term nonzero only in
+    coefficients 0 and 2 (AMB_AHD, AMB_HHD), every u_k is a combination of 1, z, z^2, s, s z,
+    so  p_c(z) = R[c] . (1, z, z^2, s, s z)  and, with s^2 = 1 - z^2 and the sparse Gram,
+    q(z) = u^T G u = sum_k Q[k] z^k (degree 4, no s term). blk rows: R (15: c * 5 + k),
+    Q (5), e0 (3), I_z (3); see _BLK_*. Checked against :func:`_dir_error` in the tests.
+    """
+    a0 = amb[0]
+    b = _PK1 - amb[2]
+    cs = cph * sph
+    w = cph * cph - sph * sph
+    s2 = sph * sph
+    c2 = cph * cph
+    for c in range(nc):
+        r = 5 * c
+        blk[r, j] = gt[c, 0] * _PK0 + gt[c, 4] * _PK2 * cs - gt[c, 6] * _PK20 + gt[c, 8] * _PK22 * w
+        blk[r + 1, j] = gt[c, 2] * b - gt[c, 0] * a0
+        blk[r + 2, j] = 3.0 * gt[c, 6] * _PK20 - gt[c, 4] * _PK2 * cs - gt[c, 8] * _PK22 * w
+        blk[r + 3, j] = -_PK1 * (gt[c, 1] * sph + gt[c, 3] * cph)
+        blk[r + 4, j] = -_PK2 * (gt[c, 5] * sph + gt[c, 7] * cph)
+        blk[_BLK_E0 + c, j] = e0[c]
+        blk[_BLK_IZ + c, j] = iz[c]
+    k4 = gd[4] * (_PK2 * cs) ** 2 + gd[8] * (_PK22 * w) ** 2  # u4, u8 ~ (1 - z^2)
+    m57 = _PK2 * _PK2 * (gd[5] * s2 + gd[7] * c2)  # u5, u7 ~ s z
+    l13 = _PK1 * _PK1 * (gd[1] * s2 + gd[3] * c2)  # u1, u3 ~ s
+    g6 = gd[6] * _PK20 * _PK20  # u6 ~ 3 z^2 - 1
+    n15 = 2.0 * _PK1 * _PK2 * (go[1] * s2 + go[3] * c2)  # u1 u5, u3 u7 ~ (1 - z^2) z
+    o26 = 2.0 * go[2] * b * _PK20  # u2 u6 ~ 3 z^3 - z
+    o02 = 2.0 * go[0] * b  # u0 u2 ~ (PK0 - a0 z) z
+    q = _BLK_Q
+    blk[q, j] = gd[0] * _PK0 * _PK0 + l13 + k4 + g6
+    blk[q + 1, j] = -2.0 * gd[0] * _PK0 * a0 + o02 * _PK0 + n15 - o26
+    blk[q + 2, j] = gd[0] * a0 * a0 - l13 + gd[2] * b * b - 2.0 * k4 + m57 - 6.0 * g6 - o02 * a0
+    blk[q + 3, j] = 3.0 * o26 - n15
+    blk[q + 4, j] = k4 - m57 + 9.0 * g6
+
+
+@njit(cache=True, fastmath=False)
+def _line_error(z, j, blk, nc, cdb, write):
+    """:func:`_dir_error` (constrained) of block texel j at d_z = z along its azimuth, from the
+    coefficients of :func:`_line_coeffs`; writes C_d into cdb[:, j] if ``write``."""
     s = np.sqrt(max(0.0, 1.0 - z * z))
-    e = _dir_error(s * cph, s * sph, z, gt, e0, iz, nc, amb, gd, go, constrain, u, cd)
-    if e < best_e:
-        best_e = e
-        best_z = z
-        cd_best[:] = cd
-    return best_z, best_e
+    q = _BLK_Q
+    qz = blk[q, j] + z * (
+        blk[q + 1, j] + z * (blk[q + 2, j] + z * (blk[q + 3, j] + z * blk[q + 4, j]))
+    )
+    err = 0.0
+    for c in range(nc):
+        r = 5 * c
+        p = (
+            blk[r, j]
+            + z * (blk[r + 1, j] + z * blk[r + 2, j])
+            + s * (blk[r + 3, j] + z * blk[r + 4, j])
+        )
+        x = p / qz if qz > 0.0 else 0.0
+        izc = blk[_BLK_IZ + c, j]
+        x = izc / z if x * z > izc else x
+        x = 0.0 if x < 0.0 else x
+        if write:
+            cdb[c, j] = x
+        err += blk[_BLK_E0 + c, j] - 2.0 * x * p + x * x * qz
+    return err
+
+
+@njit(cache=True, fastmath=False)
+def _search_block(m, lo, blk, nc, wk, fs, cdb):
+    """d_z search (solver "golden") for block texels 0..m-1, in lockstep and branch-free so
+    that the texels' serial dependency chains overlap (a per-texel search is latency- and
+    branch-miss-bound). Scan GOLDEN_SCAN points; golden section on the bracket around the best
+    one for GOLDEN_ITERS steps; one parabolic step through the best golden point and its
+    bracket neighbours, kept only where it lowers the error. Writes d_z into wk[_WK_Z],
+    the error into wk[_WK_E], C_d into cdb[:, j]."""
+    n_scan = fs.shape[0]
+    step = (1.0 - lo) / (n_scan - 1)
+    for j in range(m):
+        wk[_WK_E, j] = np.inf
+        wk[_WK_Z, j] = 1.0
+        wk[_WK_J, j] = 0.0
+    for k in range(n_scan):
+        z = lo + step * k
+        for j in range(m):
+            e = _line_error(z, j, blk, nc, cdb, False)
+            fs[k, j] = e
+            better = e < wk[_WK_E, j]
+            wk[_WK_E, j] = e if better else wk[_WK_E, j]
+            wk[_WK_Z, j] = z if better else wk[_WK_Z, j]
+            wk[_WK_J, j] = k if better else wk[_WK_J, j]
+    g = 0.6180339887498949
+    for j in range(m):
+        jb = int(wk[_WK_J, j])
+        ja = max(jb - 1, 0)
+        jc = min(jb + 1, n_scan - 1)
+        a = lo + step * ja
+        b = lo + step * jc
+        wk[_WK_A, j] = a
+        wk[_WK_B, j] = b
+        wk[_WK_FA, j] = fs[ja, j]
+        wk[_WK_FB, j] = fs[jc, j]
+        wk[_WK_X1, j] = b - g * (b - a)
+        wk[_WK_X2, j] = a + g * (b - a)
+        wk[_WK_F1, j] = _line_error(wk[_WK_X1, j], j, blk, nc, cdb, False)
+        wk[_WK_F2, j] = _line_error(wk[_WK_X2, j], j, blk, nc, cdb, False)
+    for _ in range(GOLDEN_ITERS):
+        for j in range(m):
+            a = wk[_WK_A, j]
+            b = wk[_WK_B, j]
+            x1 = wk[_WK_X1, j]
+            x2 = wk[_WK_X2, j]
+            f1 = wk[_WK_F1, j]
+            f2 = wk[_WK_F2, j]
+            left = f1 < f2  # minimum in [a, x2]: drop (x2, b]
+            na = a if left else x1
+            nb = x2 if left else b
+            xn = nb - g * (nb - na) if left else na + g * (nb - na)
+            fn = _line_error(xn, j, blk, nc, cdb, False)
+            wk[_WK_FA, j] = wk[_WK_FA, j] if left else f1
+            wk[_WK_FB, j] = f2 if left else wk[_WK_FB, j]
+            wk[_WK_A, j] = na
+            wk[_WK_B, j] = nb
+            wk[_WK_X1, j] = xn if left else x2
+            wk[_WK_X2, j] = x1 if left else xn
+            wk[_WK_F1, j] = fn if left else f2
+            wk[_WK_F2, j] = f1 if left else fn
+    for j in range(m):
+        f1 = wk[_WK_F1, j]
+        f2 = wk[_WK_F2, j]
+        left = f1 < f2
+        xl = wk[_WK_A, j] if left else wk[_WK_X1, j]
+        xm = wk[_WK_X1, j] if left else wk[_WK_X2, j]
+        xr = wk[_WK_X2, j] if left else wk[_WK_B, j]
+        fl = wk[_WK_FA, j] if left else f1
+        fm = f1 if left else f2
+        fr = f2 if left else wk[_WK_FB, j]
+        d1 = xm - xl
+        d2 = xm - xr
+        g1 = (fm - fl) * d2
+        g2 = (fm - fr) * d1
+        den = g2 - g1
+        u = xm - 0.5 * (d1 * g2 - d2 * g1) / den if den != 0.0 else xm
+        u = u if (u > xl and u < xr) else xm  # also rejects NaN
+        fu = _line_error(u, j, blk, nc, cdb, False)
+        best = fu < fm
+        zb = u if best else xm
+        eb = fu if best else fm
+        scan = wk[_WK_E, j] <= eb  # the scan point itself stays a candidate
+        wk[_WK_Z, j] = wk[_WK_Z, j] if scan else zb
+        wk[_WK_E, j] = wk[_WK_E, j] if scan else eb
+    for j in range(m):
+        _line_error(wk[_WK_Z, j], j, blk, nc, cdb, True)
+
+
+@njit(cache=True, fastmath=False)
+def _search_dz(cph, sph, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cd_best):
+    """The block search for one texel (slot 0) along (cph, sph): returns (d_z, error), C_d in
+    cd_best. Same code path as the block, so golden_phi starts from golden's exact result."""
+    _line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, 0, blk)
+    _search_block(1, DZ_FLOOR, blk, nc, wk, fs, cdb)
+    for c in range(nc):
+        cd_best[c] = cdb[c, 0]
+    return wk[_WK_Z, 0], wk[_WK_E, 0]
 
 
 _IZ_K = 2.0 / np.sqrt(3.0 * np.pi)
@@ -240,7 +355,16 @@ _GBS = 2.0 * np.pi / 3.0
 _COS1 = 2.0 / 3.0
 _COS2 = 0.25
 _LUM_R, _LUM_G, _LUM_B = (float(v) for v in shm.LUMINANCE)
-_CHUNK = 256
+#: Texels per parallel chunk; also the lockstep search block (its work arrays stay in L1).
+_CHUNK = 64
+#: Rows of the block coefficient array: R (3 x 5), Q (5), e0 (3), I_z (3).
+_BLK_Q = 15
+_BLK_E0 = 20
+_BLK_IZ = 23
+_BLK_ROWS = 26
+#: Rows of the block search work array.
+_WK_Z, _WK_E, _WK_J, _WK_A, _WK_B, _WK_FA, _WK_FB, _WK_X1, _WK_X2, _WK_F1, _WK_F2 = range(11)
+_WK_ROWS = 11
 
 #: solver codes of the kernel
 _FIXED, _GOLDEN, _GOLDEN_PHI, _DIRECT = 0, 1, 2, 3
@@ -297,10 +421,11 @@ def _prep_gt(t, iz, nc, amb, gd, go, gt, e0, r):
 
 
 @njit(cache=True, fastmath=False)
-def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, u, cd, cdp, cdb):
-    """Golden d_z at phi0, then an outer scan + golden search of phi around it."""
+def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp, cd_best):
+    """d_z search at phi0, then an outer scan + golden search of phi around it (inner d_z
+    search at every phi). returns (d_z, phi); C_d in cd_best."""
     bz, e = _search_dz(
-        phi0, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdb
+        np.cos(phi0), np.sin(phi0), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cd_best
     )
     bphi = phi0
     pa = phi0 - PHI_HALF_WIDTH
@@ -309,11 +434,11 @@ def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, u, cd, cdp, cdb):
     for j in range(PHI_SCAN):
         ph = pa + pstep * j
         z, ej = _search_dz(
-            ph, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+            np.cos(ph), np.sin(ph), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
         )
         if ej < e:
             e, bz, bphi, bj = ej, z, ph, j
-            cdb[:] = cdp
+            cd_best[:] = cdp
     if bj >= 0:
         a = pa + pstep * max(bj - 1, 0)
         b = pa + pstep * min(bj + 1, PHI_SCAN - 1)
@@ -325,22 +450,51 @@ def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, u, cd, cdp, cdb):
         x1 = b - g * (b - a)
         x2 = a + g * (b - a)
         z1, f1 = _search_dz(
-            x1, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+            np.cos(x1), np.sin(x1), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
         )
         if f1 < e:
             e, bz, bphi = f1, z1, x1
-            cdb[:] = cdp
+            cd_best[:] = cdp
         z2, f2 = _search_dz(
-            x2, DZ_FLOOR, gt, e0, iz, nc, amb, gd, go, True, GOLDEN_SCAN, GOLDEN_ITERS, u, cd, cdp
+            np.cos(x2), np.sin(x2), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
         )
         if f2 < e:
             e, bz, bphi = f2, z2, x2
-            cdb[:] = cdp
+            cd_best[:] = cdp
         if f1 < f2:
             b = x2
         else:
             a = x1
     return bz, bphi
+
+
+@njit(cache=True, fastmath=False)
+def _finish(i, kind, nc, siz, cdb, d, wa, clamp, out_d, out_wa):
+    """w_a from C_d (if cdb is given a size), clamp to [0, 1] (ahd, hhd), d = z where no
+    directional light is left; write out_d[i], out_wa[i]."""
+    for c in range(cdb.shape[0]):
+        # w_a = 1 - c d_z with c = C_d / I_z (bounded): never divides by d_z
+        wa[c] = (siz[c] - cdb[c] * d[2]) / siz[c] if siz[c] > IZ_TINY else 1.0
+    if clamp:
+        for c in range(nc):
+            wa[c] = min(max(wa[c], 0.0), 1.0)
+    flat = True
+    for c in range(nc):
+        if kind == 2:
+            if abs(wa[c] - 1.0) > 1.0 - WA_ONE:
+                flat = False
+        elif wa[c] < WA_ONE:
+            flat = False
+    if flat:
+        for c in range(nc):
+            wa[c] = 1.0
+        d[0] = 0.0
+        d[1] = 0.0
+        d[2] = 1.0
+    for c in range(3):
+        out_d[i, c] = d[c]
+    for c in range(nc):
+        out_wa[i, c] = wa[c]
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -360,13 +514,22 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
         e0 = np.empty(3)
         r = np.empty(9)
         u = np.empty(9)
-        cd = np.empty(3)
         cdb = np.empty(3)
         cdp = np.empty(3)
         wa = np.empty(3)
         lr = np.empty(9)
         d = np.empty(3)
+        blk = np.empty((_BLK_ROWS, _CHUNK))
+        wk = np.empty((_WK_ROWS, _CHUNK))
+        fs = np.empty((GOLDEN_SCAN, _CHUNK))
+        cdbk = np.empty((3, _CHUNK))
+        bidx = np.empty(_CHUNK, np.int64)
+        bdir = np.empty((2, _CHUNK))
+        bsiz = np.empty((3, _CHUNK))
+        nb = 0
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+            deferred = False
+            done = False
             # -- normalise, detect NaN/Inf
             m = 0.0
             finite = True
@@ -455,31 +618,22 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
                     _floor_dir(d)
                 if need_ratio:
                     _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
-                    if solver == _GOLDEN or solver == _GOLDEN_PHI:
+                    if solver == _GOLDEN:  # deferred to the lockstep block search
+                        nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
+                        cph, sph = (d[0] / nxy, d[1] / nxy) if nxy > 0.0 else (1.0, 0.0)
+                        _line_coeffs(cph, sph, gt, e0, siz, nc, amb, gd, go, nb, blk)
+                        bidx[nb] = i
+                        bdir[0, nb] = cph
+                        bdir[1, nb] = sph
+                        for c in range(nc):
+                            bsiz[c, nb] = siz[c]
+                        nb += 1
+                        deferred = True
+                    elif solver == _GOLDEN_PHI:
                         phi0 = np.arctan2(d[1], d[0])
-                        if solver == _GOLDEN:
-                            bz, _e = _search_dz(
-                                phi0,
-                                DZ_FLOOR,
-                                gt,
-                                e0,
-                                siz,
-                                nc,
-                                amb,
-                                gd,
-                                go,
-                                True,
-                                GOLDEN_SCAN,
-                                GOLDEN_ITERS,
-                                u,
-                                cd,
-                                cdb,
-                            )
-                            bphi = phi0
-                        else:
-                            bz, bphi = _search_phi(
-                                phi0, gt, e0, siz, nc, amb, gd, go, u, cd, cdp, cdb
-                            )
+                        bz, bphi = _search_phi(
+                            phi0, gt, e0, siz, nc, amb, gd, go, blk, wk, fs, cdbk, cdp, cdb
+                        )
                         sn = np.sqrt(max(0.0, 1.0 - bz * bz))
                         d[0] = sn * np.cos(bphi)
                         d[1] = sn * np.sin(bphi)
@@ -487,33 +641,29 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
                         _floor_dir(d)
                     else:
                         _dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
-                    for c in range(nc):
-                        # w_a = 1 - c d_z with c = C_d / I_z (bounded): never divides by d_z
-                        if siz[c] > IZ_TINY:
-                            wa[c] = (siz[c] - cdb[c] * d[2]) / siz[c]
-                        else:
-                            wa[c] = 1.0
-                for c in range(nc):
-                    wa[c] = min(max(wa[c], 0.0), 1.0)
-            # -- no directional light left -> d = z
-            flat = True
-            for c in range(nc):
-                if kind == 2:
-                    if abs(wa[c] - 1.0) > 1.0 - WA_ONE:
-                        flat = False
-                elif wa[c] < WA_ONE:
-                    flat = False
-            if flat:
-                for c in range(nc):
-                    wa[c] = 1.0
-                d[0] = 0.0
-                d[1] = 0.0
-                d[2] = 1.0
+                    if not deferred:
+                        _finish(i, kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
+                else:
+                    _finish(i, kind, nc, siz, cdb[:0], d, wa, True, out_d, out_wa)
+                done = True
+            if not done:
+                _finish(i, kind, nc, siz, cdb[:0], d, wa, kind != 2, out_d, out_wa)
             for c in range(3):
                 out_iz[i, c] = min(iz[c] * m, IZ_MAX)
-                out_d[i, c] = d[c]
-            for c in range(nc):
-                out_wa[i, c] = wa[c]
+        # -- the deferred golden searches of this chunk, in lockstep
+        if nb > 0:
+            _search_block(nb, DZ_FLOOR, blk, nc, wk, fs, cdbk)
+            for j in range(nb):
+                bz = wk[_WK_Z, j]
+                sn = np.sqrt(max(0.0, 1.0 - bz * bz))
+                d[0] = sn * bdir[0, j]
+                d[1] = sn * bdir[1, j]
+                d[2] = bz
+                _floor_dir(d)
+                for c in range(nc):
+                    siz[c] = bsiz[c, j]
+                    cdb[c] = cdbk[c, j]
+                _finish(bidx[j], kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,7 +14,8 @@ from hypothesis.extra.numpy import arrays
 from usdahd import models
 from usdahd.models import _irradz as iz
 
-CASES = [(k, s) for k in ("ahd", "hhd", "hlsh") for s in iz.SOLVERS[k] if s != "golden_phi"]
+CASES = [(k, s, None) for k in ("ahd", "hhd", "hlsh") for s in iz.SOLVERS[k] if s != "golden_phi"]
+CASES += [("ahd", "golden", "rgb"), ("hhd", "golden", "rgb"), ("hhd", "direct", "rgb")]
 Z = np.array([0.0, 0.0, 1.0])
 
 coeff = st.floats(-1.0, 1.0, allow_nan=False, width=64)
@@ -35,12 +36,13 @@ def sh_batches(draw):
     return x
 
 
-@pytest.mark.parametrize("kind,solver", CASES)
+@pytest.mark.parametrize("kind,solver,objective", CASES)
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=sh_batches(), rgb=st.booleans())
-def test_fit_properties(kind, solver, data, rgb):
+def test_fit_properties(kind, solver, objective, data, rgb):
     ratio = "rgb" if rgb else "luminance"
-    f = models.fit(data, kind, ratio=ratio, solver=solver)
+    opts = {"objective": objective} if objective else {}
+    f = models.fit(data, kind, ratio=ratio, solver=solver, **opts)
     for v in f.params.values():
         assert np.all(np.isfinite(v))
     bad = ~np.isfinite(data).all(axis=(1, 2))

@@ -191,6 +191,34 @@ def test_line_error_polynomial_form_equals_direct_form(kind):
         np.testing.assert_allclose(cdb[:, 0], cd, rtol=1e-11, atol=1e-13)
 
 
+@pytest.mark.parametrize("kind", ["ahd", "hhd"])
+def test_objective_rgb_matches_brute_force_along_phi(sky, kind):
+    # luminance ratio, objective="rgb": one k = (1 - w_a)/d_z for all channels minimising the
+    # summed RGB error; numpy reference: 4001-point d_z grid, closed-form k at each
+    g = iz.gram_hemi()
+    a = iz.ambient_sh(kind)
+    f = models.fit(sky, kind, solver="golden", objective="rgb")
+    e = iz.sh_error(kind, sky, f.params).sum(-1)
+    lum_e = iz.sh_error(kind, sky, models.fit(sky, kind, solver="golden").params).sum(-1)
+    dz = np.linspace(iz.DZ_FLOOR, 1, 4001)
+    s = np.sqrt(1 - dz * dz)
+    for j in range(len(sky)):
+        lum = sh.LUMINANCE @ sky[j]
+        phi = np.arctan2(-lum[1], -lum[3])
+        d = np.stack([s * np.cos(phi), s * np.sin(phi), dz], -1)
+        u = iz.directional_sh(d) - dz[:, None] * a
+        izc = np.maximum(iz.IZ_FROM_L10 * sky[j, :, 2], 0)
+        r = sky[j] * sh.COSINE_FACTORS - izc[:, None] * a
+        p = (u @ g @ r.T) @ izc
+        q = np.einsum("nk,kl,nl->n", u, g, u) * (izc @ izc)
+        k = np.clip(p / q, 0, 1 / dz)
+        e0 = np.einsum("ck,kl,cl->", r, g, r)
+        best = (e0 - 2 * k * p + k * k * q).min()
+        assert e[j] <= best + 1e-6 * e0, (j, e[j], best)
+        assert e[j] <= lum_e[j] + 1e-6 * e0  # never worse in the summed RGB error
+    assert e.mean() < 0.95 * lum_e.mean()
+
+
 def test_golden_phi_never_worse_and_golden_beats_2018(sky):
     for kind in ("ahd", "hhd"):
         err = {
@@ -406,6 +434,12 @@ def test_bad_input_messages():
         models.get("hhd").fit(np.zeros((4, 3, 9), complex), ratio="luminance", solver="direct")
     with pytest.raises(ModelError, match="solvers"):
         models.fit(np.zeros((4, 3, 9)), "hlsh", solver="golden")
+    with pytest.raises(UsageError, match="objective"):
+        models.fit(np.zeros((4, 3, 9)), "ahd", solver="2018_sphere", objective="rgb")
+    with pytest.raises(UsageError, match="objective"):
+        models.fit(np.zeros((4, 3, 9)), "ahd", ratio="rgb", objective="luminance")
+    with pytest.raises(UsageError, match="objective"):
+        models.fit(np.zeros((4, 3, 9)), "hhd", objective="bogus")
     with pytest.raises(UsageError, match="unknown fit option"):
         models.get("hhd").fit(np.zeros((4, 3, 9)), ratio="rgb", solver="golden", bogus=1)
     with pytest.raises(InputError, match="ratio"):

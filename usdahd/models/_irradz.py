@@ -421,6 +421,21 @@ def _prep_gt(t, iz, nc, amb, gd, go, gt, e0, r):
 
 
 @njit(cache=True, fastmath=False)
+def _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03):
+    """One virtual channel whose error is the summed RGB error of the luminance-ratio model.
+
+    With one k = (1 - w_a)/d_z for all channels, C_d,c = I_z,c k and
+    sum_c E_c(k) = sum_c e0_c - 2 k sum_c I_z,c p_c + k^2 q sum_c I_z,c^2 = S (e0' - 2 k p' + k^2 q)
+    with S = sum_c I_z,c^2, p' = u^T gt' , gt' = sum_c I_z,c G r_c / S, e0' = sum_c e0_c / S:
+    the single-channel problem with I_z' = 1 (so C_d' = k and w_a = 1 - k d_z)."""
+    _prep_gt(t, iz, 3, amb, gd, go, gt3, e03, r)
+    s = iz[0] * iz[0] + iz[1] * iz[1] + iz[2] * iz[2]
+    for k in range(9):
+        gt[0, k] = (iz[0] * gt3[0, k] + iz[1] * gt3[1, k] + iz[2] * gt3[2, k]) / s
+    e0[0] = (e03[0] + e03[1] + e03[2]) / s
+
+
+@njit(cache=True, fastmath=False)
 def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp, cd_best):
     """d_z search at phi0, then an outer scan + golden search of phi around it (inner d_z
     search at every phi). returns (d_z, phi); C_d in cd_best."""
@@ -498,9 +513,11 @@ def _finish(i, kind, nc, siz, cdb, d, wa, clamp, out_d, out_wa):
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_bad):
+def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa, out_bad):
     """The whole per-texel fit. x : (n, 3, 9) float64 radiance SH; outputs float32
-    iz (n, 3), direction (n, 3), ambient ratio (n, 1|3), invalid (n,). See :func:`fit`."""
+    iz (n, 3), direction (n, 3), ambient ratio (n, 1|3), invalid (n,). ``shared``: one w_a
+    (luminance ratio) minimising the summed RGB error instead of the luminance error
+    (objective="rgb"). See :func:`fit`."""
     n = x.shape[0]
     nc = 3 if rgb else 1
     nchunk = (n + _CHUNK - 1) // _CHUNK
@@ -511,6 +528,8 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
         st = np.empty((3, 9))  # signal: luminance (1 row) or rgb (3 rows) target irradiance
         siz = np.empty(3)
         gt = np.empty((3, 9))
+        gt3 = np.empty((3, 9))
+        e03 = np.empty(3)
         e0 = np.empty(3)
         r = np.empty(9)
         u = np.empty(9)
@@ -610,14 +629,18 @@ def _fit_kernel(x, kind, rgb, solver, amb, gd, go, out_iz, out_d, out_wa, out_ba
                     ca = min(max(ca, 0.0), liz)
                     _set_unit(d, bx, by, liz - ca)
                     moved = _floor_dir(d)
-                    if not rgb and not moved:
+                    if not rgb and not moved and not shared:
                         wa[0] = ca / liz
                         need_ratio = False
                 else:  # optimal linear direction (-l11, -l1-1, l10) of luminance
                     _set_unit(d, -lr[3], -lr[1], lr[2])
                     _floor_dir(d)
                 if need_ratio:
-                    _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
+                    if shared:
+                        _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03)
+                        siz[0] = 1.0
+                    else:
+                        _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
                     if solver == _GOLDEN:  # deferred to the lockstep block search
                         nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
                         cph, sph = (d[0] / nxy, d[1] / nxy) if nxy > 0.0 else (1.0, 0.0)
@@ -806,10 +829,15 @@ def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **op
 
     sh : (..., 3, 9) float radiance SH (hemispherical: zero below the horizon).
     kind : "ahd", "hhd" or "hlsh"; ratio : "luminance" or "rgb"; solver : see SOLVERS[kind].
+    objective (option, ratio="luminance" only; ahd/hhd with golden, golden_phi or direct):
+    "luminance" (default) chooses d and the one w_a to minimise the error of the luminance
+    signal; "rgb" to minimise the summed error of the three channels (the model in channel c
+    is I_z,c times one shape). See docs/models.md for the trade-off.
     returns dict of float32 arrays: iz (..., 3), direction (..., 3),
     ambient_ratio (..., 1 or 3), invalid (..., 1) (1.0 where the input held NaN/Inf; those
     texels are output black: iz = 0, w_a = 1, d = z).
     """
+    objective = options.pop("objective", None)
     if options:
         raise UsageError(f"unknown fit option(s) for {kind}: {', '.join(sorted(options))}")
     if kind not in KINDS:
@@ -818,6 +846,17 @@ def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **op
         raise UsageError(f"model {kind!r} has solvers {', '.join(SOLVERS[kind])}, not {solver!r}")
     if ratio not in ("luminance", "rgb"):
         raise UsageError(f"ratio must be 'luminance' or 'rgb', not {ratio!r}")
+    if objective not in (None, "luminance", "rgb"):
+        raise UsageError(f"objective must be 'luminance' or 'rgb', not {objective!r}")
+    if objective is not None and objective != ratio:
+        if ratio == "rgb":
+            raise UsageError("ratio='rgb' fits each channel: its objective is always 'rgb'")
+        if kind == "hlsh" or solver.startswith("2018"):
+            raise UsageError(
+                f"objective='rgb' needs solver golden, golden_phi or direct (ahd, hhd); {kind} "
+                f"{solver} fits the luminance signal as its paper defines it"
+            )
+    shared = ratio == "luminance" and objective == "rgb"
     sh = np.asarray(sh)
     if sh.ndim < 2 or sh.shape[-2:] != (3, 9):
         raise InputError(f"SH must have shape (..., 3, 9) (RGB x 9 coefficients), got {sh.shape}")
@@ -836,7 +875,18 @@ def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **op
     code = {"golden": _GOLDEN, "golden_phi": _GOLDEN_PHI, "direct": _DIRECT}.get(solver, _FIXED)
     if n:
         _fit_kernel(
-            x, _KIND[kind], nc == 3, code, ambient_sh(kind), gd, go, out_iz, out_d, out_wa, out_bad
+            x,
+            _KIND[kind],
+            nc == 3,
+            code,
+            shared,
+            ambient_sh(kind),
+            gd,
+            go,
+            out_iz,
+            out_d,
+            out_wa,
+            out_bad,
         )
     out = {"iz": out_iz, "direction": out_d, "ambient_ratio": out_wa, "invalid": out_bad[:, None]}
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}

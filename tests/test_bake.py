@@ -319,3 +319,15 @@ def test_partly_degenerate_uv_set_is_unwrapped_into_a_new_primvar(tmp_path, caps
     assert any("zero-area UV triangles" in w and "st_lightmap" in w for w in warnings)
     res = _results(tmp_path / "open_plane.lightmaps.usda")["/World/Geometry/Plane"]
     assert res.uv_primvar == "st_lightmap"
+
+
+def test_unauthored_meters_per_unit_and_tiny_maps_are_warned(tmp_path, capsys):
+    text = (SAMPLES / "open_plane.usda").read_text().replace("    metersPerUnit = 1\n", "")
+    stage = tmp_path / "cm.usda"
+    stage.write_text(text)
+    code, out = _bake([str(stage), "--dry-run", "--json", "--quiet"], capsys)
+    assert code == 0, out.err
+    report = json.loads(out.out)
+    assert any("metersPerUnit" in w for w in report["warnings"])
+    # 4 m at USD's fallback 0.01 m/unit and 16 texels/m: a 1x1 map, flagged.
+    assert any("gives only" in w for w in report["prims"][0]["warnings"])

@@ -49,6 +49,8 @@ UV_OVERLAP_LIMIT = 0.01
 UV_OUTSIDE_LIMIT = 0.001
 #: ... or when zero-area UV triangles cover more than this fraction of the mesh's surface.
 UV_DEGENERATE_LIMIT = 0.01
+#: A density-derived lightmap smaller than this on its longer side gets a warning (wrong units?).
+TINY_RESOLUTION = 8
 
 
 @dataclass
@@ -155,6 +157,8 @@ def resolve_settings(opts: BakeOptions, authored: dict) -> dict:
         s[k] = v
         if k == "texel_density" and "resolution" not in authored:
             s["resolution"] = None
+        if k == "resolution":
+            s["texel_density"] = None
     mod = models.get(s["model"])
     if s["ratio"] not in mod.RATIOS:
         if opts.ratio is not None and "ratio" not in authored:
@@ -340,6 +344,14 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         "warnings": list(scene.warnings),
         "written": False,
     }
+    from pxr import UsdGeom
+
+    if not UsdGeom.StageHasAuthoredMetersPerUnit(stage):
+        report["warnings"].append(
+            f"{src.name} does not author metersPerUnit, so USD's fallback applies "
+            f"({scene.meters_per_unit:g} m per unit); texel densities are per metre. Author "
+            "metersPerUnit on the root layer or pass --resolution if the lightmaps come out tiny"
+        )
     jobs = []
     failed = 0
     # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
@@ -359,6 +371,12 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             failed += 1
             continue
         entry["resolution"] = list(job.resolution)
+        if max(job.resolution) < TINY_RESOLUTION and not settings_resolution_given(job):
+            entry["warnings"].append(
+                f"texel density {job.settings['texel_density']:g}/m gives only "
+                f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
+                "metersPerUnit or pass --texel-density / --resolution"
+            )
         if job.unwrapped and not any("xatlas" in w for w in entry["warnings"]):
             entry["warnings"].append(
                 f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
@@ -434,6 +452,11 @@ def _uv_problem(texels) -> str | None:
     if st.get("uv_outside_fraction", 0.0) > UV_OUTSIDE_LIMIT:
         return f"has {100 * st['uv_outside_fraction']:.1f}% of its UVs outside [0,1]"
     return None
+
+
+def settings_resolution_given(job) -> bool:
+    """Whether the resolution came from a flag or schema input rather than a texel density."""
+    return job.settings.get("texel_density") is None
 
 
 def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:

@@ -13,7 +13,9 @@ end-to-end / raw INTERSECT of the same backend (``ratio``) and of embreex (``vs_
 ratio from raw rates measured right before and after its bake (the machine may be shared).
 The raw rays are cosine-distributed; ``isect_u``/``ratio_u`` repeat the raw INTERSECT rate with
 uniform-hemisphere rays, the distribution of the bake's own primary rays (grazing rays cost
-more on bumpy geometry).
+more on bumpy geometry). The raw rates are single-ray queries (``rtcIntersect1``, embreex's own
+batches); the native bake traces 16-ray packets, so ``pk16``/``ratio_pk`` repeat the raw cosine
+INTERSECT rate through the same packet call (``embree_native.intersect_rays``, both threads).
 Medians of ``--repeat`` runs; JIT kernels are warmed up (loaded from numba's cache) first.
 """
 
@@ -31,6 +33,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from pxr import Gf, Usd, UsdGeom, UsdLux  # noqa: E402
 
+from usdahd.bake import embree_native  # noqa: E402
 from usdahd.bake.integrate import bake_texels  # noqa: E402
 from usdahd.bake.trace import Tracer  # noqa: E402
 from usdahd.bake.types import Texels  # noqa: E402
@@ -125,6 +128,20 @@ def raw_rates(tr, o, d):
     return len(o) / (t1 - t0), len(o) / (t2 - t1)
 
 
+def packet_rate(tr, rays):
+    """Raw INTERSECT rays/s through 16-ray packets (native backend; ``rays`` (m,7) float64),
+    both threads over halves of the batch."""
+
+    def run(r):
+        hits = np.empty((len(r), 7))
+        pk, rec = embree_native.new_packet(), embree_native.new_scratch()
+        embree_native.intersect_rays(tr.native_handle, pk, rec, r, len(r), hits)
+
+    t0 = time.perf_counter()
+    tr._split(run, len(rays), rays)
+    return len(rays) / (time.perf_counter() - t0)
+
+
 def test_rays(tr, tex, n_rays, rng, sampler=cosine_hemisphere):
     """Random rays from the texel points: cosine-distributed (the headline raw rate) or
     uniform over the hemisphere (``uniform_hemisphere``: the bake's own primary rays)."""
@@ -142,17 +159,20 @@ def bench(name, stage, args):
     scene = load_scene(stage)
     t_load = time.perf_counter() - t0
     backends = ["native"] + ([] if args.no_reference else ["embreex"])
-    keys = ("build", "isect", "occl", "e2e", "ratio", "vs_ex", "isect_u", "ratio_u")
+    keys = ("build", "isect", "occl", "e2e", "ratio", "vs_ex", "isect_u", "ratio_u", "pk16",
+            "ratio_pk")  # fmt: skip
     res = {b: {k: [] for k in keys} for b in ("native", "embreex")}
     for _ in range(args.repeat):
         tex = random_texels(scene, args.texels, rng)
         trs = {b: Tracer(scene, backend=b) for b in ("native", "embreex")}
         o, d = test_rays(trs["native"], tex, 1 << 20, rng)
+        rays = np.c_[o.astype(np.float64), d.astype(np.float64), np.full(len(o), np.inf)]
         ou, du = test_rays(trs["native"], tex, 1 << 20, rng, uniform_hemisphere)
         for b, tr in trs.items():
             res[b]["build"].append(tr.build_time)
             raw_rates(tr, o[:1000], d[:1000])  # warm up (JIT cache load, thread pool)
             bake_texels(scene, tr, _head(tex, 8), samples=4, bounces=1)
+        packet_rate(trs["native"], rays[:1000])
         # raw and end-to-end back to back, so each ratio sees the same machine load
         for b in backends:
             tr = trs[b]
@@ -164,7 +184,8 @@ def bench(name, stage, args):
             ru = raw_rates(tr, ou, du)[0]
             rx = raw_rates(trs["embreex"], o, d)[0] if b == "native" else ri
             raw = 0.5 * (ri + ri2)
-            vals = (raw, 0.5 * (ro + ro2), e2e, e2e / raw, e2e / rx, ru, e2e / ru)
+            rp = packet_rate(tr, rays) if b == "native" else float("nan")
+            vals = (raw, 0.5 * (ro + ro2), e2e, e2e / raw, e2e / rx, ru, e2e / ru, rp, e2e / rp)
             for k, v in zip(keys[1:], vals):
                 res[b][k].append(v)
         if args.no_reference:
@@ -179,7 +200,8 @@ def bench(name, stage, args):
             f"{name:10s} {b:8s} {ntri:9d} {t_load:7.2f} {r['build']:8.3f} "
             f"{r['build'] / ntri * 1e6:7.2f} {r['isect'] / 1e6:7.2f} {r['occl'] / 1e6:7.2f} "
             f"{r['e2e'] / 1e6:7.2f} {r['ratio']:6.2f} {r['vs_ex']:6.2f} "
-            f"{r['isect_u'] / 1e6:7.2f} {r['ratio_u']:7.2f}"
+            f"{r['isect_u'] / 1e6:7.2f} {r['ratio_u']:7.2f} {r['pk16'] / 1e6:7.2f} "
+            f"{r['ratio_pk']:8.2f}"
         )
 
 
@@ -206,7 +228,7 @@ def main(argv=None):
     print(
         f"{'scene':10s} {'backend':8s} {'tris':>9s} {'load_s':>7s} {'build_s':>8s} "
         f"{'s/Mtri':>7s} {'isect':>7s} {'occl':>7s} {'e2e':>7s} {'ratio':>6s} {'vs_ex':>6s} "
-        f"{'isect_u':>7s} {'ratio_u':>7s}"
+        f"{'isect_u':>7s} {'ratio_u':>7s} {'pk16':>7s} {'ratio_pk':>8s}"
     )
     bench("room", room_stage(), args)
     bench("100k", big_stage(), args)

@@ -154,6 +154,37 @@ def test_backends_give_the_same_hits():
     assert nat.rays_traced == ref.rays_traced == 2 * m
 
 
+@pytest.mark.parametrize("m", [1, 2, 3, 16, 17, 18, 35, 4099])
+def test_packets_give_the_same_hits_as_single_rays(m):
+    """16-ray packets (and their single-ray tails) against rtcIntersect1 / rtcOccluded1: the
+    same triangles; distances, barycentrics and normals to float32 rounding (Embree's packet
+    and single-ray kernels order the float operations differently)."""
+    scene = load_scene(_cluttered_stage())
+    tr = Tracer(scene, backend="native")
+    rng = np.random.default_rng(m)
+    o = rng.uniform([-4, -4, 0.01], [4, 4, 3], (m, 3))
+    d = rng.normal(size=(m, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tfar = np.where(rng.random(m) < 0.5, np.inf, rng.uniform(0.1, 5, m))
+    rays = np.c_[o, d, tfar]
+    hits = np.full((m, 7), np.nan)
+    pk, rec = embree_native.new_packet(), embree_native.new_scratch()
+    assert pk.ctypes.data % 64 == 0 and len(pk) == embree_native.PACKET_FLOATS
+    embree_native.intersect_rays(tr.native_handle, pk, rec, rays, m, hits)
+    ref = tr.intersect(o, d, tfar)
+    np.testing.assert_array_equal(hits[:, 1].astype(np.int64), ref["tri"])
+    hit = ref["tri"] >= 0
+    assert np.all(np.isinf(hits[~hit, 0]))
+    np.testing.assert_allclose(hits[hit, 0], ref["t"][hit], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(hits[hit, 2], ref["u"][hit], atol=1e-5)
+    np.testing.assert_allclose(hits[hit, 3], ref["v"][hit], atol=1e-5)
+    gn = tr.geom_normal[ref["tri"][hit]]
+    np.testing.assert_allclose(hits[hit, 4:7], gn, atol=1e-5)
+    occ = np.zeros(m, bool)
+    embree_native.occluded_rays(tr.native_handle, pk, rec, rays, m, occ)
+    np.testing.assert_array_equal(occ, tr.occluded(o, d, tfar))
+
+
 def test_unknown_backend_is_a_usage_error():
     scene = load_scene(_cluttered_stage())
     with pytest.raises(UsageError, match="backend"):

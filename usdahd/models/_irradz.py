@@ -437,49 +437,52 @@ def _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03):
 
 @njit(cache=True, fastmath=False)
 def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp, cd_best):
-    """d_z search at phi0, then an outer scan + golden search of phi around it (inner d_z
-    search at every phi). returns (d_z, phi); C_d in cd_best."""
-    bz, e = _search_dz(
-        np.cos(phi0), np.sin(phi0), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cd_best
-    )
-    bphi = phi0
+    """d_z search at phi0, then an outer scan (PHI_SCAN) + golden search (PHI_ITERS) of phi
+    around it, with the inner d_z search at every phi. returns (d_z, phi); C_d in cd_best.
+    Written as one loop with one call site of the inner search (compile time)."""
     pa = phi0 - PHI_HALF_WIDTH
     pstep = 2.0 * PHI_HALF_WIDTH / (PHI_SCAN - 1)
+    g = 0.6180339887498949
+    e = np.inf
+    bz = 1.0
+    bphi = phi0
     bj = -1
-    for j in range(PHI_SCAN):
-        ph = pa + pstep * j
+    a = b = x1 = x2 = f1 = 0.0
+    for it in range(1 + PHI_SCAN + 2 * PHI_ITERS):
+        gi = it - 1 - PHI_SCAN  # golden step 2 * (gi // 2) + (0: x1, 1: x2)
+        if it == 0:
+            ph = phi0
+        elif gi < 0:
+            ph = pa + pstep * (it - 1)
+        else:
+            if gi == 0:
+                if bj >= 0:
+                    a = pa + pstep * max(bj - 1, 0)
+                    b = pa + pstep * min(bj + 1, PHI_SCAN - 1)
+                else:
+                    a = phi0 - pstep
+                    b = phi0 + pstep
+            if gi % 2 == 0:
+                x1 = b - g * (b - a)
+                x2 = a + g * (b - a)
+                ph = x1
+            else:
+                ph = x2
         z, ej = _search_dz(
             np.cos(ph), np.sin(ph), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
         )
         if ej < e:
-            e, bz, bphi, bj = ej, z, ph, j
+            e, bz, bphi = ej, z, ph
             cd_best[:] = cdp
-    if bj >= 0:
-        a = pa + pstep * max(bj - 1, 0)
-        b = pa + pstep * min(bj + 1, PHI_SCAN - 1)
-    else:
-        a = phi0 - pstep
-        b = phi0 + pstep
-    g = 0.6180339887498949
-    for _ in range(PHI_ITERS):
-        x1 = b - g * (b - a)
-        x2 = a + g * (b - a)
-        z1, f1 = _search_dz(
-            np.cos(x1), np.sin(x1), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
-        )
-        if f1 < e:
-            e, bz, bphi = f1, z1, x1
-            cd_best[:] = cdp
-        z2, f2 = _search_dz(
-            np.cos(x2), np.sin(x2), gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp
-        )
-        if f2 < e:
-            e, bz, bphi = f2, z2, x2
-            cd_best[:] = cdp
-        if f1 < f2:
-            b = x2
-        else:
-            a = x1
+            if it > 0 and gi < 0:
+                bj = it - 1
+        if gi >= 0:
+            if gi % 2 == 0:
+                f1 = ej
+            elif f1 < ej:
+                b = x2
+            else:
+                a = x1
     return bz, bphi
 
 

@@ -219,6 +219,20 @@ def test_objective_rgb_matches_brute_force_along_phi(sky, kind):
     assert e.mean() < 0.95 * lum_e.mean()
 
 
+@pytest.mark.parametrize("ratio", ["luminance", "rgb"])
+def test_lockstep_search_is_per_texel(ratio):
+    # texels are searched in blocks of _BLOCK in lockstep: results must not depend on a texel's
+    # neighbours or its position (block boundaries, chunk boundaries, a single-texel call)
+    data = envs.sky_sun(2 * iz._BLOCK + 7, seed=3)
+    perm = np.random.default_rng(0).permutation(len(data))
+    a = iz.fit(data, "hhd", ratio=ratio)
+    b = iz.fit(data[perm], "hhd", ratio=ratio)
+    one = iz.fit(data[5:6], "hhd", ratio=ratio)
+    for k in ("direction", "ambient_ratio"):
+        np.testing.assert_array_equal(a[k][perm], b[k])
+        np.testing.assert_array_equal(a[k][5:6], one[k])
+
+
 def test_golden_phi_never_worse_and_golden_beats_2018(sky):
     for kind in ("ahd", "hhd"):
         err = {

@@ -355,8 +355,10 @@ _GBS = 2.0 * np.pi / 3.0
 _COS1 = 2.0 / 3.0
 _COS2 = 0.25
 _LUM_R, _LUM_G, _LUM_B = (float(v) for v in shm.LUMINANCE)
-#: Texels per parallel chunk; also the lockstep search block (its work arrays stay in L1).
-_CHUNK = 64
+#: Texels per parallel chunk (each chunk allocates its work arrays once).
+_CHUNK = 512
+#: Texels per lockstep d_z search block (its work arrays stay in L1).
+_BLOCK = 64
 #: Rows of the block coefficient array: R (3 x 5), Q (5), e0 (3), I_z (3).
 _BLK_Q = 15
 _BLK_E0 = 20
@@ -515,6 +517,23 @@ def _finish(i, kind, nc, siz, cdb, d, wa, clamp, out_d, out_wa):
         out_wa[i, c] = wa[c]
 
 
+@njit(cache=True, fastmath=False)
+def _flush_block(nb, kind, nc, blk, wk, fs, cdbk, bidx, bdir, bsiz, d, siz, cdb, wa, out_d, out_wa):
+    """Run the lockstep d_z search of the nb deferred texels and write their d and w_a."""
+    _search_block(nb, DZ_FLOOR, blk, nc, wk, fs, cdbk)
+    for j in range(nb):
+        bz = wk[_WK_Z, j]
+        sn = np.sqrt(max(0.0, 1.0 - bz * bz))
+        d[0] = sn * bdir[0, j]
+        d[1] = sn * bdir[1, j]
+        d[2] = bz
+        _floor_dir(d)
+        for c in range(nc):
+            siz[c] = bsiz[c, j]
+            cdb[c] = cdbk[c, j]
+        _finish(bidx[j], kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa, out_bad):
     """The whole per-texel fit. x : (n, 3, 9) float64 radiance SH; outputs float32
@@ -541,13 +560,13 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
         wa = np.empty(3)
         lr = np.empty(9)
         d = np.empty(3)
-        blk = np.empty((_BLK_ROWS, _CHUNK))
-        wk = np.empty((_WK_ROWS, _CHUNK))
-        fs = np.empty((GOLDEN_SCAN, _CHUNK))
-        cdbk = np.empty((3, _CHUNK))
-        bidx = np.empty(_CHUNK, np.int64)
-        bdir = np.empty((2, _CHUNK))
-        bsiz = np.empty((3, _CHUNK))
+        blk = np.empty((_BLK_ROWS, _BLOCK))
+        wk = np.empty((_WK_ROWS, _BLOCK))
+        fs = np.empty((GOLDEN_SCAN, _BLOCK))
+        cdbk = np.empty((3, _BLOCK))
+        bidx = np.empty(_BLOCK, np.int64)
+        bdir = np.empty((2, _BLOCK))
+        bsiz = np.empty((3, _BLOCK))
         nb = 0
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
             deferred = False
@@ -655,6 +674,26 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                             bsiz[c, nb] = siz[c]
                         nb += 1
                         deferred = True
+                        if nb == _BLOCK:
+                            _flush_block(
+                                nb,
+                                kind,
+                                nc,
+                                blk,
+                                wk,
+                                fs,
+                                cdbk,
+                                bidx,
+                                bdir,
+                                bsiz,
+                                d,
+                                siz,
+                                cdb,
+                                wa,
+                                out_d,
+                                out_wa,
+                            )
+                            nb = 0
                     elif solver == _GOLDEN_PHI:
                         phi0 = np.arctan2(d[1], d[0])
                         bz, bphi = _search_phi(
@@ -676,20 +715,11 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                 _finish(i, kind, nc, siz, cdb[:0], d, wa, kind != 2, out_d, out_wa)
             for c in range(3):
                 out_iz[i, c] = min(iz[c] * m, IZ_MAX)
-        # -- the deferred golden searches of this chunk, in lockstep
+        # -- the remaining deferred golden searches of this chunk, in lockstep
         if nb > 0:
-            _search_block(nb, DZ_FLOOR, blk, nc, wk, fs, cdbk)
-            for j in range(nb):
-                bz = wk[_WK_Z, j]
-                sn = np.sqrt(max(0.0, 1.0 - bz * bz))
-                d[0] = sn * bdir[0, j]
-                d[1] = sn * bdir[1, j]
-                d[2] = bz
-                _floor_dir(d)
-                for c in range(nc):
-                    siz[c] = bsiz[c, j]
-                    cdb[c] = cdbk[c, j]
-                _finish(bidx[j], kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
+            _flush_block(
+                nb, kind, nc, blk, wk, fs, cdbk, bidx, bdir, bsiz, d, siz, cdb, wa, out_d, out_wa
+            )
 
 
 # ---------------------------------------------------------------------------------------------

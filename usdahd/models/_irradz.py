@@ -488,7 +488,7 @@ def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp, cd_bes
     return bz, bphi
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, inline="always")
 def _finish(i, kind, nc, siz, cdb, d, wa, clamp, out_d, out_wa):
     """w_a from C_d (if cdb is given a size), clamp to [0, 1] (ahd, hhd), d = z where no
     directional light is left; write out_d[i], out_wa[i]."""
@@ -568,7 +568,32 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
         bdir = np.empty((2, _BLOCK))
         bsiz = np.empty((3, _BLOCK))
         nb = 0
-        for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+        i1 = min(n, (ch + 1) * _CHUNK)
+        for i in range(ch * _CHUNK, i1 + 1):
+            # -- a full block of deferred golden searches (or the chunk's rest): search them in
+            # lockstep. One call site, so the search is compiled (inlined) once.
+            if nb == _BLOCK or (i == i1 and nb > 0):
+                _flush_block(
+                    nb,
+                    kind,
+                    nc,
+                    blk,
+                    wk,
+                    fs,
+                    cdbk,
+                    bidx,
+                    bdir,
+                    bsiz,
+                    d,
+                    siz,
+                    cdb,
+                    wa,
+                    out_d,
+                    out_wa,
+                )
+                nb = 0
+            if i == i1:
+                break
             deferred = False
             done = False
             # -- normalise, detect NaN/Inf
@@ -674,26 +699,6 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                             bsiz[c, nb] = siz[c]
                         nb += 1
                         deferred = True
-                        if nb == _BLOCK:
-                            _flush_block(
-                                nb,
-                                kind,
-                                nc,
-                                blk,
-                                wk,
-                                fs,
-                                cdbk,
-                                bidx,
-                                bdir,
-                                bsiz,
-                                d,
-                                siz,
-                                cdb,
-                                wa,
-                                out_d,
-                                out_wa,
-                            )
-                            nb = 0
                     elif solver == _GOLDEN_PHI:
                         phi0 = np.arctan2(d[1], d[0])
                         bz, bphi = _search_phi(
@@ -715,11 +720,6 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                 _finish(i, kind, nc, siz, cdb[:0], d, wa, kind != 2, out_d, out_wa)
             for c in range(3):
                 out_iz[i, c] = min(iz[c] * m, IZ_MAX)
-        # -- the remaining deferred golden searches of this chunk, in lockstep
-        if nb > 0:
-            _flush_block(
-                nb, kind, nc, blk, wk, fs, cdbk, bidx, bdir, bsiz, d, siz, cdb, wa, out_d, out_wa
-            )
 
 
 # ---------------------------------------------------------------------------------------------

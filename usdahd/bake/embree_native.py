@@ -183,9 +183,10 @@ from numba.core import caching as _caching  # noqa: E402
 from numba.core import cgutils  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
-#: Modules whose numba functions are inlined into one another (the fused bake kernel).
+#: Modules whose numba functions are compiled into one another (the bake kernel: numba links
+#: every callee's code into its caller's library, where LLVM inlines the small ones).
 #: numba's on-disk cache only checks the source file of the cached function itself, so an
-#: edit to an inlined callee in another module would leave a stale kernel in the cache; the
+#: edit to a callee in another module would leave a stale kernel in the cache; the
 #: locators below stamp every cached function of these modules with all of their sources.
 _PKG = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 KERNEL_SOURCES = tuple(

@@ -44,9 +44,10 @@ so results depend on the seed and texel order only, not on threads or executors.
 
 Two implementations of the same estimator, chosen by the tracer's backend:
 
-- ``native`` (default): :func:`_native_pass`, one numba kernel per texel (``nogil``, no NRT)
-  that samples, traces through libembree4 directly (:mod:`usdahd.bake.embree_native`), shades
-  and accumulates the SH sums; texels are spread over the tracer's threads. Each texel has its
+- ``native`` (default): :func:`_native_pass`, a numba kernel (``nogil``, no NRT) that, per
+  texel, samples, traces through libembree4 directly (:mod:`usdahd.bake.embree_native`) in
+  16-ray packets (a small wavefront over the texel's samples, :func:`_paths`), shades and
+  accumulates the SH sums; texels are spread over the tracer's threads. Each texel has its
   own splitmix64 stream seeded from the chunk generator, so output is independent of the
   thread count. The SH regression solve also runs per texel on the threads
   (:func:`_native_result`).
@@ -66,6 +67,8 @@ from numba import njit
 from usdahd import sh as shmod
 from usdahd.bake import embree_native
 from usdahd.bake.lights import (
+    KIND_DISTANT,
+    KIND_DOME,
     light_intersect,
     light_pdf,
     light_sample,
@@ -647,6 +650,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     returns : rays traced."""
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
     nee_idx, visible_idx = lists[0], lists[1]
+    tri_mat, mat_const, mat_tex = tb[3], tb[5], tb[6]
     bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
     n_nee = nee_idx.shape[0]
     n_vis = visible_idx.shape[0]
@@ -668,7 +672,18 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
             Lr = Lg = Lb = 0.0
             for jj in range(n_vis):
                 q = visible_idx[jj]
-                hit, tl, r, g, b = light_intersect(kind[q], par[q], img, ox, oy, oz, dx, dy, dz)
+                kq = kind[q]
+                # distant lights and uniform domes inline (the common sky); others called
+                if kq == KIND_DISTANT:
+                    hit = (
+                        par[q, 19] > 0.0
+                        and dx * par[q, 6] + dy * par[q, 7] + dz * par[q, 8] >= par[q, 20]
+                    )
+                    tl, r, g, b = np.inf, par[q, 0], par[q, 1], par[q, 2]
+                elif kq == KIND_DOME and par[q, 25] == 0.0:
+                    hit, tl, r, g, b = True, np.inf, par[q, 0], par[q, 1], par[q, 2]
+                else:
+                    hit, tl, r, g, b = light_intersect(kq, par[q], img, ox, oy, oz, dx, dy, dz)
                 if not hit:
                     continue
                 if (miss if linf[q] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
@@ -683,14 +698,23 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 if miss:
                     break
                 cos_in = dx * gx + dy * gy + dz * gz
+                mq = tri_mat[tri]  # constant materials inline, textured ones called
                 if has_em and cos_in < 0.0:
-                    er, eg, eb = nb_emission(tb, tri, u, v)
+                    if mat_tex[mq, 1] < 0:
+                        er, eg, eb = mat_const[mq, 3], mat_const[mq, 4], mat_const[mq, 5]
+                    else:
+                        er, eg, eb = nb_emission(tb, tri, u, v)
                     Lr += br * er
                     Lg += bg * eg
                     Lb += bb * eb
                 if depth + 1 > bounces:
                     break
-                ar, ag, ab = nb_albedo(tb, tri, u, v)
+                if mat_tex[mq, 0] < 0:
+                    ar = min(max(mat_const[mq, 0], 0.0), 1.0)
+                    ag = min(max(mat_const[mq, 1], 0.0), 1.0)
+                    ab = min(max(mat_const[mq, 2], 0.0), 1.0)
+                else:
+                    ar, ag, ab = nb_albedo(tb, tri, u, v)
                 if not (ar > 0.0 or ag > 0.0 or ab > 0.0):
                     break
                 if depth + 1 > RR_DEPTH:

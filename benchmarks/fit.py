@@ -161,6 +161,48 @@ def brute_luminance(n, seed=0):
             print(f"  {kind} {label:26} {v:.4f}  2018_sphere / this = {base / v:.2f}x")
 
 
+def compare(baseline_path, n, threads=(2, 1), repeats=5):
+    """Same-process speed of a baseline copy of _irradz.py (e.g. ``git show
+    53938d2:usdahd/models/_irradz.py > /tmp/old_irradz.py``) against the current one,
+    alternating runs; medians of ``repeats``. Prints a markdown table."""
+    import importlib.util
+
+    import numba
+
+    spec = importlib.util.spec_from_file_location("baseline_irradz", baseline_path)
+    old = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(old)
+    data = np.ascontiguousarray(np.tile(envs.sky_sun(2000), (n // 2000 + 1, 1, 1))[:n])
+    cases = [
+        ("hhd", "golden", "luminance"),
+        ("hhd", "golden", "rgb"),
+        ("ahd", "golden", "luminance"),
+    ]
+    cases += [("ahd", "golden", "rgb"), ("hhd", "direct", "luminance"), ("hhd", "2018_hemi", "rgb")]
+    print(f"{load()}; {n} sky+sun texels")
+    print("| threads | fit | old M/s | new M/s | speed-up | old cpu ns | new cpu ns | load |")
+    print("|---|---|---|---|---|---|---|---|")
+    for th in threads:
+        numba.set_num_threads(th)
+        for kind, solver, ratio in cases:
+            res = {"old": ([], []), "new": ([], [])}
+            for mod in (old, _irradz):
+                mod.fit(data[:1000], kind, ratio=ratio, solver=solver)
+            for _ in range(repeats):
+                for name, mod in (("old", old), ("new", _irradz)):
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    mod.fit(data, kind, ratio=ratio, solver=solver)
+                    res[name][0].append(time.perf_counter() - t0)
+                    res[name][1].append(time.process_time() - c0)
+            (ow, oc), (nw, nc) = ([float(np.median(v)) for v in res[k]] for k in ("old", "new"))
+            print(
+                f"| {th} | {kind} {solver} {ratio} | {n / ow / 1e6:.2f} | {n / nw / 1e6:.2f} | "
+                f"{ow / nw:.2f}x | {oc / n * 1e9:.0f} | {nc / n * 1e9:.0f} | "
+                f"{os.getloadavg()[0]:.2f} |",
+                flush=True,
+            )
+
+
 def load():
     return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
@@ -178,7 +220,15 @@ def main(argv=None):
         metavar="N",
         help="only: brute-force optimum of the luminance-ratio model on N sky+sun texels",
     )
+    ap.add_argument(
+        "--baseline",
+        metavar="PATH",
+        help="only: same-process speed of this copy of _irradz.py against the current one",
+    )
     args = ap.parse_args(argv)
+    if args.baseline:
+        compare(args.baseline, args.speed_texels)
+        return
     if args.brute_luminance:
         brute_luminance(args.brute_luminance)
         return

@@ -13,7 +13,8 @@ The model colours are ``C_a = I_z w_a`` and ``C_d = I_z (1 - w_a) / d_z`` so tha
 Solvers (each documented with cost and error in docs/models.md):
 
 ``golden``       2024 §4.2: golden-section search for d_z along the optimal-linear phi, with the
-                 closed-form ratio (Eq 33) at every step, hemispherical Gram error.
+                 closed-form ratio (Eq 33) at every step, hemispherical Gram error; a final
+                 parabolic step; texels searched in lockstep blocks (see _search_block).
 ``golden_phi``   the same with an outer golden-section search on phi.
 ``2018_sphere``  2018 Eq 9-12: optimal linear direction, colours on the null-space line of the
                  I_z constraint, t clamped to [t_min, t_max]; E(t) is quadratic, so closed form;
@@ -22,6 +23,9 @@ Solvers (each documented with cost and error in docs/models.md):
 ``direct``       HHD from linear SH (2024 Eq 7-11 with the corrected Eq 10 and 56), HLSH by the
                  IrradZ-constrained least squares (Eq 19-22, corrected G_BY signs, Eq 20 over
                  Omega+).
+
+ratio="luminance" takes the option objective="luminance" (default: d and the one w_a fit the
+luminance signal) or "rgb" (they minimise the summed RGB error; golden, golden_phi, direct).
 
 Numerical safeguards (each tested): per-texel normalisation by max |coefficient|; the ratio is
 solved as C_d (equivalently c = C_d / I_z, bounded by 1/d_z) rather than in the literal Eq 31-33

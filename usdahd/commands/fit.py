@@ -33,6 +33,12 @@ def add_parser(sub):
     )
     p.add_argument("--ratio", default=None, help="luminance or rgb (IrradZ models)")
     p.add_argument("--solver", default=None, help="solver name (default: the model's)")
+    p.add_argument(
+        "--objective",
+        choices=["luminance", "rgb"],
+        help="ahd/hhd with --ratio luminance: fit the shared w_a to the luminance error "
+        "(default) or to the summed RGB error",
+    )
     p.add_argument("-o", "--output", help="write fitted parameters to this .npz")
     p.add_argument("--json", action="store_true", help="print a machine-readable report")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -73,11 +79,13 @@ def hemispherical_rmse(sh: np.ndarray, fitted, n_dirs: int = 256) -> np.ndarray:
 
 def run(args) -> int:
     data = load_sh(args.sh)
-    fitted = models.fit(data, args.model, ratio=args.ratio, solver=args.solver)
+    options = {"objective": args.objective} if args.objective else {}
     flat = data.reshape(-1, 3, 9).astype(np.float64)
-    rel = hemispherical_rmse(
-        flat, models.fit(flat, args.model, ratio=fitted.ratio, solver=fitted.solver)
-    )
+    fitted = models.fit(flat, args.model, ratio=args.ratio, solver=args.solver, **options)
+    rel = hemispherical_rmse(flat, fitted)
+    # Parameters keep the file's leading shape.
+    lead = data.shape[:-2]
+    fitted.params = {k: v.reshape(lead + v.shape[1:]) for k, v in fitted.params.items()}
     report = {
         "file": args.sh,
         "model": fitted.model,

@@ -331,3 +331,25 @@ def test_unauthored_meters_per_unit_and_tiny_maps_are_warned(tmp_path, capsys):
     assert any("metersPerUnit" in w for w in report["warnings"])
     # 4 m at USD's fallback 0.01 m/unit and 16 texels/m: a 1x1 map, flagged.
     assert any("gives only" in w for w in report["prims"][0]["warnings"])
+
+
+def test_rerun_reuses_the_previous_unwrap_instead_of_calling_xatlas(tmp_path, capsys, monkeypatch):
+    from pxr import Usd, UsdGeom
+
+    from usdahd.bake import unwrap as unwrap_mod
+
+    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Plane")).RemovePrimvar("st")
+    stage.GetRootLayer().Save()
+    assert _bake([str(stage_path), *FAST], capsys)[0] == 0
+
+    def no_xatlas(*args, **kwargs):
+        raise AssertionError("xatlas called again for an unchanged mesh")
+
+    monkeypatch.setattr(unwrap_mod, "unwrap", no_xatlas)
+    code, out = _bake([str(stage_path), "--json", *FAST[:-1]], capsys)
+    assert code == 0, out.err
+    prim = json.loads(out.out)["prims"][0]
+    assert prim["status"] == "skipped"
+    assert any("reusing" in w for w in prim["warnings"])

@@ -140,7 +140,7 @@ def _authored_inputs(prim) -> dict:
     return out
 
 
-def resolve_settings(opts: BakeOptions, authored: dict) -> dict:
+def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float = 1.0) -> dict:
     """Built-in defaults < CLI flags < per-prim authored schema inputs."""
     s = dict(DEFAULTS)
     for k in DEFAULTS:
@@ -173,9 +173,18 @@ def resolve_settings(opts: BakeOptions, authored: dict) -> dict:
             f"model {s['model']!r} has solvers {', '.join(mod.SOLVERS)}, not {s['solver']!r}"
         )
     s["seed"] = opts.seed
+    s["meters_per_unit"] = meters_per_unit
     s["adaptive"] = bool(opts.adaptive)
     s["denoise"] = bool(opts.denoise)
     return s
+
+
+def _shape_digest(m):
+    """sha256 object over a mesh's geometry without its lightmap UVs."""
+    shape = hashlib.sha256()
+    for a in (m.points, m.triangles, m.normals, m.material):
+        shape.update(np.ascontiguousarray(a).tobytes())
+    return shape
 
 
 def scene_hash_parts(scene) -> dict:
@@ -188,9 +197,7 @@ def scene_hash_parts(scene) -> dict:
     """
     out = {}
     for m in scene.meshes:
-        shape = hashlib.sha256()
-        for a in (m.points, m.triangles, m.normals, m.material):
-            shape.update(np.ascontiguousarray(a).tobytes())
+        shape = _shape_digest(m)
         out[f"shape:{m.path}"] = shape.hexdigest()
         full = shape.copy()
         full.update(b"-" if m.uv is None else np.ascontiguousarray(m.uv, np.float32).tobytes())
@@ -214,6 +221,7 @@ def content_hash(parts: dict, prim_path: str, settings: dict) -> tuple[str, dict
             others.update(k.encode() + parts[k].encode())
     named = {
         "geometry": parts.get(prim_path, ""),
+        "shape": parts.get(f"shape:{prim_path}", ""),
         "scene_geometry": others.hexdigest(),
         "lights": parts.get("lights", ""),
         "materials": parts.get("materials", ""),
@@ -352,6 +360,9 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             f"({scene.meters_per_unit:g} m per unit); texel densities are per metre. Author "
             "metersPerUnit on the root layer or pass --resolution if the lightmaps come out tiny"
         )
+    from pxr import Sdf
+
+    old_layer = Sdf.Layer.FindOrOpen(str(out)) if prev else None
     jobs = []
     failed = 0
     # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
@@ -365,7 +376,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = _plan(scene, i, mesh, stage, opts, entry)
+            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer)
         except (InputError, UsageError, BakeError) as exc:
             entry.update(status="failed", error=str(exc))
             failed += 1
@@ -515,7 +526,36 @@ def _unwrap(job, mesh, settings, scene) -> None:
     job.resolution = tuple(int(r) for r in res)
 
 
-def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> PrimJob:
+def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
+    """UVs an earlier run unwrapped for this mesh, read back from its output layer, when the
+    mesh's shape and every unwrap input are unchanged (so a re-run does not call xatlas
+    again); else None. returns (uv (t, 3, 2) float32, resolution) or None."""
+    from pxr import Sdf
+
+    if old is None or old_layer is None or old.uv_primvar != uv_name:
+        return None
+    prev = old.settings or {}
+    same = (
+        old.part_hashes.get("shape") == _shape_digest(mesh).hexdigest()
+        and prev.get("texel_density") == settings["texel_density"]
+        and prev.get("meters_per_unit") == settings["meters_per_unit"]
+        and (not settings["resolution"] or list(old.resolution) == [settings["resolution"]] * 2)
+    )
+    if not same:
+        return None
+    spec = old_layer.GetAttributeAtPath(Sdf.Path(mesh.path).AppendProperty(f"primvars:{uv_name}"))
+    if spec is None or spec.default is None:
+        return None
+    values = np.asarray(spec.default, dtype=np.float32)
+    corner = np.asarray(mesh.corner)
+    if values.ndim != 2 or values.shape[1] != 2 or corner.size and corner.max() >= len(values):
+        return None
+    return values[corner], tuple(int(r) for r in old.resolution)
+
+
+def _plan(
+    scene, index: int, mesh, stage, opts: BakeOptions, report: dict, prev=None, old_layer=None
+) -> PrimJob:
     """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
     from usdahd.bake.texels import rasterize
     from usdahd.errors import SchemaError
@@ -525,7 +565,7 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> Pr
         authored = _authored_inputs(prim)
     except SchemaError as exc:
         raise InputError(str(exc)) from None
-    settings = resolve_settings(opts, authored)
+    settings = resolve_settings(opts, authored, scene.meters_per_unit)
     if settings["resolution"] and not 1 <= int(settings["resolution"]) <= MAX_RESOLUTION:
         raise UsageError(
             f"{mesh.path}: resolution {settings['resolution']} is outside 1..{MAX_RESOLUTION}; "
@@ -575,7 +615,20 @@ def _plan(scene, index: int, mesh, stage, opts: BakeOptions, report: dict) -> Pr
                 f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "
                 "(--no-unwrap); author the primvar, pick another with --uv, or drop --no-unwrap"
             )
-        _unwrap(job, mesh, settings, scene)
+        reuse = _previous_unwrap(
+            (prev or {}).get(mesh.path), old_layer, mesh, settings, settings["uv"]
+        )
+        if reuse is not None:
+            mesh.uv, res = reuse
+            job.unwrapped = True
+            job.uv_primvar_values = mesh.uv
+            job.resolution = res
+            report["warnings"].append(
+                f"no usable UV set {uv_name!r}: reusing the xatlas unwrap {settings['uv']!r} "
+                "authored by the previous bake (mesh unchanged)"
+            )
+        else:
+            _unwrap(job, mesh, settings, scene)
     settings["resolution"] = list(job.resolution)
     return job
 

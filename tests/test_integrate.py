@@ -303,6 +303,25 @@ def test_white_furnace():
     _check_mc(sh.iz(out_r)[:, 0], le / (1 - rho))
 
 
+@pytest.mark.parametrize("rho", [0.5, 0.8])
+def test_white_furnace_at_default_settings(rho):
+    """The bake's default bounce setting is converged GI: a closed emitting box of albedo rho
+    gives Iz = Le / (1 - rho) (a 3-bounce cap gave 0.9375x at rho 0.5 and 0.59x at 0.8)."""
+    from usdahd.pipeline import DEFAULTS
+
+    le = 1.0
+    st = _stage()
+    _box(st, 1.0, _material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3))
+    rng = np.random.default_rng(4)
+    pts = np.c_[rng.uniform(-0.8, 0.8, (N_TEX, 2)), np.full(N_TEX, -1.0)]
+    out, _ = _bake(st, _texels(pts), estimator="mc", samples=32, bounces=DEFAULTS["bounces"])
+    _check_mc(sh.iz(out)[:, 0], le / (1 - rho))
+    # and the integrator's own default is the same converged setting
+    scene = load_scene(st)
+    out2, _ = bake_texels(scene, Tracer(scene, backend=BACKEND), _texels(pts[:16]), samples=32)
+    _check_mc(sh.iz(out2)[:, 0], le / (1 - rho))
+
+
 def test_texels_inside_geometry_flagged_invalid():
     st = _stage()
     _ground(st)

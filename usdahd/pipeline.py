@@ -35,7 +35,7 @@ DEFAULTS = {
     "resolution": None,  # None: from texel_density
     "texel_density": 16.0,  # texels per metre (the schema fallback)
     "samples": 256,
-    "bounces": 3,
+    "bounces": 64,  # a safety cap: paths end by Russian roulette (integrate.DEFAULT_BOUNCES)
     "padding": 4,
 }
 #: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).

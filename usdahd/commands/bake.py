@@ -34,7 +34,13 @@ def add_parser(sub):
     g.add_argument("--resolution", type=int, metavar="N", help="lightmap size N x N per mesh")
     g.add_argument("--texel-density", type=float, metavar="T", help="texels per metre (default 16)")
     a("--samples", type=int, metavar="N", help="hemisphere samples per texel (default 256)")
-    a("--bounces", type=int, metavar="N", help="indirect bounces (default 3)")
+    a(
+        "--bounces",
+        type=int,
+        metavar="N",
+        help="cap on reflections per path (default 64; paths end by unbiased Russian roulette, "
+        "so the default is converged; a small N truncates indirect light)",
+    )
     a("--seed", type=int, default=0, help="random seed (default 0)")
     a("--padding", type=int, metavar="N", help="gutter dilation in texels (default 4)")
     a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")

@@ -33,6 +33,30 @@ def _lights():
             ey=np.array([0, 0.3, 0]),
             normal=np.array([0, 0, -1.0]),
         ),
+        L.RectLight(  # sheared: area sampling
+            "/rshear",
+            np.ones(3),
+            center=np.array([0, 0, 1.5]),
+            ex=np.array([0.6, 0, 0]),
+            ey=np.array([0.2, 0.3, 0]),
+            normal=np.array([0, 0, -1.0]),
+        ),
+        L.RectLight(  # close and large: solid angle near the upper bound
+            "/rnear",
+            np.ones(3),
+            center=np.array([0.1, 0, 0.3]),
+            ex=np.array([1.5, 0, 0]),
+            ey=np.array([0, 1.2, 0]),
+            normal=np.array([0, 0, -1.0]),
+        ),
+        L.RectLight(  # far: area sampling below the lower bound
+            "/rfar",
+            np.ones(3),
+            center=np.array([0.5, 0, 30.0]),
+            ex=np.array([0.2, 0, 0]),
+            ey=np.array([0, 0.2, 0]),
+            normal=np.array([0, 0, -1.0]),
+        ),
         L.DiskLight(
             "/d",
             np.ones(3),
@@ -74,9 +98,18 @@ def test_light_sampling_unbiased_against_quadrature(light):
     p = np.zeros((N, 3))
     d, _, val, pdf = light.sample(p, rng.random((N, 2)))
     est = np.where(pdf > 0, val[:, 0] * np.clip(d[:, 2], 0, None) / np.where(pdf > 0, pdf, 1), 0)
-    q, w = sh.sphere_quadrature(600)  # light solid angles are small: fine rule, ~7e5 dirs
-    hit, _, rad = light.intersect(np.zeros((len(q), 3)), q)
-    exact = float((rad[:, 0] * np.clip(q[:, 2], 0, None) * hit) @ w)
+    if isinstance(light, L.RectLight):  # midpoint rule over the rectangle's area (any size)
+        g = (np.arange(1000) + 0.5) / 500 - 1.0
+        a, b = np.meshgrid(g, g)
+        pts = light.center + a.reshape(-1, 1) * light.ex + b.reshape(-1, 1) * light.ey
+        dist = np.linalg.norm(pts, axis=1)
+        cos_r = np.clip(pts[:, 2] / dist, 0, None)
+        cos_l = np.clip(-(pts @ light.normal) / dist, 0, None)
+        exact = float(light.radiance[0] * (cos_r * cos_l / dist**2).mean() * light.area)
+    else:
+        q, w = sh.sphere_quadrature(600)  # light solid angles are small: fine rule, ~7e5 dirs
+        hit, _, rad = light.intersect(np.zeros((len(q), 3)), q)
+        exact = float((rad[:, 0] * np.clip(q[:, 2], 0, None) * hit) @ w)
     se = est.std() / np.sqrt(N)
     # the quadrature of an indicator has its own error, ~ boundary cells: allow 1 %
     assert abs(est.mean() - exact) < 5 * se + 0.01 * exact, (est.mean(), exact)

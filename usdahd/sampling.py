@@ -150,3 +150,71 @@ def balance_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
     """MIS balance-heuristic weight of strategy a: ``pa / (pa + pb)`` (0 where both are 0)."""
     den = pdf_a + pdf_b
     return np.divide(pdf_a, den, out=np.zeros_like(den, dtype=np.float64), where=den > 0)
+
+
+#: Solid angles (sr) within which rectangles are sampled by solid angle: below, the spherical
+#: rectangle's float64 set-up loses accuracy and area sampling is as good (the rectangle is far
+#: and small); above, the point almost touches it and area sampling is better conditioned.
+#: pbrt-v4 uses the same bounds (MinSphericalSampleArea, MaxSphericalSampleArea).
+SPHERICAL_RECT_MIN_SR = 3e-4
+SPHERICAL_RECT_MAX_SR = 6.22
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors (..., 3), accurate near 0 and pi (pbrt's AngleBetween)."""
+    dot = np.einsum("...i,...i->...", a, b)
+    near = 2.0 * np.arcsin(np.clip(np.linalg.norm(b - a, axis=-1) / 2.0, 0.0, 1.0))
+    far = np.pi - 2.0 * np.arcsin(np.clip(np.linalg.norm(a + b, axis=-1) / 2.0, 0.0, 1.0))
+    return np.where(dot < 0, far, near)
+
+
+def spherical_rectangle(
+    o: np.ndarray, corner: np.ndarray, ex: np.ndarray, ey: np.ndarray, u: np.ndarray | None
+):
+    """Uniform sampling of the solid angle a rectangle subtends (Urena, Fajardo and King 2013).
+
+    o : (m, 3) float64 reference points; corner : (3,) one corner; ex, ey : (3,) its two
+    (orthogonal) edges from ``corner``; u : (m, 2) in [0, 1) or None (solid angle only).
+    returns : (points (m, 3) float64 on the rectangle, or None; solid_angle (m,) float64 sr).
+    The pdf of the direction to ``points`` is 1 / solid_angle.
+    """
+    o = np.asarray(o, np.float64)
+    exl, eyl = float(np.linalg.norm(ex)), float(np.linalg.norm(ey))
+    x, y = ex / exl, ey / eyl
+    z = np.cross(x, y)
+    dl = corner[None, :] - o
+    x0, y0, z0 = dl @ x, dl @ y, dl @ z
+    flip = z0 > 0  # z points away from the rectangle in the local frame
+    z0 = np.where(flip, -z0, z0)
+    x1, y1 = x0 + exl, y0 + eyl
+
+    def unit(v):
+        return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+
+    zero = np.zeros_like(z0)
+    # normals of the planes through o and each edge (v00 -> v10 -> v11 -> v01)
+    n0 = unit(np.stack([zero, z0, -y0], -1))
+    n1 = unit(np.stack([-z0, zero, x1], -1))
+    n2 = unit(np.stack([zero, -z0, y1], -1))
+    n3 = unit(np.stack([z0, zero, -x0], -1))
+    g0, g1 = _angle_between(-n0, n1), _angle_between(-n1, n2)
+    g2, g3 = _angle_between(-n2, n3), _angle_between(-n3, n0)
+    solid = np.maximum(g0 + g1 + g2 + g3 - 2.0 * np.pi, 0.0)
+    if u is None:
+        return None, solid
+    b0, b1 = n0[:, 2], n2[:, 2]
+    au = u[:, 0] * solid - g2 - g3
+    sin_au = np.sin(au)
+    fu = (np.cos(au) * b0 - b1) / np.where(sin_au == 0, 1e-300, sin_au)
+    cu = np.copysign(1.0 / np.sqrt(fu * fu + b0 * b0), fu)
+    cu = np.clip(cu, -1.0 + 1e-12, 1.0 - 1e-12)
+    xu = np.clip(-(cu * z0) / np.sqrt(np.maximum(1.0 - cu * cu, 0.0)), x0, x1)
+    dd = np.sqrt(xu * xu + z0 * z0)
+    h0 = y0 / np.sqrt(dd * dd + y0 * y0)
+    h1 = y1 / np.sqrt(dd * dd + y1 * y1)
+    hv = h0 + u[:, 1] * (h1 - h0)
+    hv2 = hv * hv
+    yv = np.where(hv2 < 1.0 - 1e-12, hv * dd / np.sqrt(np.maximum(1.0 - hv2, 1e-300)), y1)
+    zw = np.where(flip, -1.0, 1.0)[:, None] * z[None, :]
+    pts = o + xu[:, None] * x[None, :] + yv[:, None] * y[None, :] + z0[:, None] * zw
+    return pts, solid

@@ -70,6 +70,12 @@ from usdahd.bake import embree_native
 from usdahd.bake.lights import (
     KIND_DISTANT,
     KIND_DOME,
+    KIND_EMISSIVE,
+    PAR_EM_COUNT,
+    PAR_EM_PDF_AREA,
+    PAR_EM_TABLE,
+    PAR_EM_TRI,
+    EmissiveTriangles,
     light_intersect,
     light_pdf,
     light_sample,
@@ -79,6 +85,7 @@ from usdahd.bake.lights import (
 from usdahd.bake.trace import (
     nb_albedo,
     nb_emission,
+    nb_hit_point,
     nb_occluded,
     nb_occluded_rays,
     nb_offset,
@@ -118,15 +125,23 @@ _G_HEMI = shmod.hemispherical_gram()
 
 
 class _Lights:
-    """Light lists split by how the integrator uses them."""
+    """Light lists split by how the integrator uses them. With a ``tracer`` whose scene has
+    emissive materials, its emissive triangles join as one more sampled light
+    (:class:`EmissiveTriangles`); rays reach them as geometry, not through ``visible``."""
 
-    def __init__(self, lights):
+    def __init__(self, lights, tracer=None):
         self.all = list(lights)
+        self.emissive = None
+        if tracer is not None and tracer.has_emission:
+            self.emissive = EmissiveTriangles.from_tracer(tracer)
+            if self.emissive is not None:
+                self.all.append(self.emissive)
         self.delta = [lt for lt in self.all if lt.delta]
         self.area = [lt for lt in self.all if not lt.delta and lt.sampled]  # MIS partners
         self.hit_only = [lt for lt in self.all if not lt.delta and not lt.sampled]
         self.nee = self.delta + self.area  # sampled at secondary vertices
-        self.visible = self.area + self.hit_only  # can be hit by BSDF rays
+        # can be hit by BSDF rays (emitters are hit as geometry)
+        self.visible = [lt for lt in self.area + self.hit_only if lt is not self.emissive]
 
 
 def bake_texels(
@@ -278,7 +293,7 @@ class _Ctx:
         self.scene = scene
         self.tr = tracer
         self.bounces = bounces
-        self.lights = _Lights(scene.lights)
+        self.lights = _Lights(scene.lights, tracer)
         self.estimator = estimator
         # rays per hemisphere sample, for the rays_saved estimate
         self.rays_per_sample = 1 + (1 if self.lights.area else 0) + 3 * bounces
@@ -294,7 +309,7 @@ class _Ctx:
                 continue
             idx = np.nonzero(ok)[0]
             o = self.tr.offset(P[idx], NG[idx], d[idx])
-            occ = self.tr.occluded(o, d[idx], _shorten(dist[idx]))
+            occ = self.tr.occluded(o, *_shadow(o, P[idx], d[idx], dist[idx]))
             idx = idx[~occ]
             acc.delta[idx] += np.einsum("nc,nk->nck", val[idx], shmod.basis(loc[idx]))
 
@@ -361,7 +376,7 @@ class _Ctx:
             if len(idx) == 0:
                 continue
             o = self.tr.offset(Pf[idx], NGf[idx], d)
-            vis = ~self.tr.occluded(o, d, _shorten(dist), rng=rng)
+            vis = ~self.tr.occluded(o, *_shadow(o, Pf[idx], d, dist), rng=rng)
             pl = pdf / m
             w = _power(pl, INV_2PI)
             contrib[idx[vis]] = (val * (w / pl)[:, None])[vis]
@@ -404,7 +419,11 @@ class _Ctx:
         ds = d[surf]
         front = np.einsum("ij,ij->i", ds, gn) < 0
         if self.tr.has_emission:
-            em = self.tr.emission_at(tri_s, u, v)
+            em = self.tr.emission_at(tri_s, u, v).astype(np.float64)
+            if self.lights.emissive is not None:  # MIS against the emitter's light samples
+                cos_abs = np.abs(np.einsum("ij,ij->i", ds, gn))
+                pl = self.lights.emissive.pdf_hit(tri_s, t[surf], cos_abs) * sel_area
+                em = em * _power(pdf_dir[surf], pl)[:, None]
             L[surf] += np.where(front[:, None], em, 0.0)
         if depth + 1 > self.bounces:
             return L
@@ -447,7 +466,7 @@ class _Ctx:
                 if len(idx) == 0:
                     continue
                 o = self.tr.offset(p[idx], gn[idx], d)
-                vis = ~self.tr.occluded(o, d, _shorten(dist), rng=rng)
+                vis = ~self.tr.occluded(o, *_shadow(o, p[idx], d, dist), rng=rng)
                 if lt.delta:
                     f = val * (cos / np.pi * n_nee)[:, None]
                 else:
@@ -522,7 +541,7 @@ class _NativeCtx:
 
     def __init__(self, scene, tracer, bounces, estimator):
         self.tr = tracer
-        lights = _Lights(scene.lights)
+        lights = _Lights(scene.lights, tracer)
         order = {id(lt): i for i, lt in enumerate(lights.all)}
         tab = pack_lights(lights.all)
         self.lt = (tab.kind, tab.par, tab.img, tab.pmf, tab.cdf, tab.delta, tab.infinite,
@@ -532,9 +551,10 @@ class _NativeCtx:
             return np.array([order[id(lt)] for lt in group], np.int64)
 
         self.lists = (ids(lights.nee), ids(lights.visible), ids(lights.delta), ids(lights.area))
+        em = order[id(lights.emissive)] if lights.emissive is not None else -1
         self.cfg = np.array(
             [bounces, tracer.offset_eps, tracer.has_transmission, tracer.has_emission,
-             estimator == "regression"],
+             estimator == "regression", em],
             np.float64,
         )  # fmt: skip
         self.tb = tracer.native_tables()
@@ -584,8 +604,17 @@ def _power(pa, pb):
     return np.divide(a2, den, out=np.zeros_like(den), where=den > 0)
 
 
-def _shorten(dist):
-    return np.where(np.isfinite(dist), dist * (1.0 - SHADOW_SHORTEN), np.inf)
+def _shadow(o, p, d, dist):
+    """Shadow ray from the offset origin ``o`` to the light point ``p + dist d`` (m,3 each):
+    returns (direction (m,3), tfar (m,)) aimed at that point and stopping a relative
+    SHADOW_SHORTEN before it, so an emitter in the BVH never shadows its own sample. Infinite
+    ``dist`` (distant/dome lights) keeps ``d``."""
+    fin = np.isfinite(dist)
+    w = p + np.where(fin, dist, 0.0)[:, None] * d - o
+    ln = np.sqrt(np.einsum("ij,ij->i", w, w))
+    ok = fin & (ln > 0)
+    dirs = np.where(ok[:, None], w / np.where(ok, ln, 1.0)[:, None], d)
+    return dirs, np.where(fin, ln * (1.0 - SHADOW_SHORTEN), np.inf)
 
 
 # ----------------------------------------------------------------------------- native kernel
@@ -624,14 +653,61 @@ def _sh9(Y, x, y, z):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
+    """``light_sample`` for every kind, including the emissive triangles (``EmissiveTriangles``
+    .sample: triangle by power, uniform point, emission looked up in the material tables).
+    returns (dx, dy, dz, dist, r, g, b, pdf)."""
+    if kind != KIND_EMISSIVE:
+        return light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1)
+    base, ne = int(p[PAR_EM_TABLE]), int(p[PAR_EM_COUNT])
+    lo_i, hi_i = 0, ne
+    while lo_i < hi_i:  # searchsorted(cdf, u0, side="right")
+        mid = (lo_i + hi_i) // 2
+        if cdf[base + mid] <= u0:
+            lo_i = mid + 1
+        else:
+            hi_i = mid
+    k = min(lo_i, ne - 1)
+    lo = cdf[base + k - 1] if k > 0 else 0.0
+    pk = pmf[base + k]
+    uu = min(max((u0 - lo) / max(pk, 1e-300), 0.0), 1.0)
+    su = np.sqrt(uu)
+    bu, bv = 1.0 - su, u1 * su
+    tri = int(pmf[int(p[PAR_EM_TRI]) + k])
+    qx, qy, qz = nb_hit_point(tb, tri, bu, bv)
+    wx, wy, wz = qx - x, qy - y, qz - z
+    dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+    inv = 1.0 / max(dist, 1e-300)
+    dx, dy, dz = wx * inv, wy * inv, wz * inv
+    g = tb[1]
+    cos_l = -(dx * g[tri, 0] + dy * g[tri, 1] + dz * g[tri, 2])
+    if not cos_l > 0.0:
+        return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+    pdf = pmf[int(p[PAR_EM_PDF_AREA]) + tri] * dist * dist / cos_l
+    mq = tb[3][tri]
+    if tb[6][mq, 1] < 0:
+        r, gg, b = tb[5][mq, 3], tb[5][mq, 4], tb[5][mq, 5]
+    else:
+        r, gg, b = nb_emission(tb, tri, bu, bv)
+    return dx, dy, dz, dist, r, gg, b, pdf
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _short(dist):
-    return dist * (1.0 - SHADOW_SHORTEN) if np.isfinite(dist) else np.inf
+def _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist):
+    """:func:`_shadow` for one ray: returns (dx, dy, dz, tfar)."""
+    if not np.isfinite(dist):
+        return dx, dy, dz, np.inf
+    wx, wy, wz = px + dist * dx - ox, py + dist * dy - oy, pz + dist * dz - oz
+    ln = np.sqrt(wx * wx + wy * wy + wz * wz)
+    if not ln > 0.0:
+        return dx, dy, dz, 0.0
+    return wx / ln, wy / ln, wz / ln, ln * (1.0 - SHADOW_SHORTEN)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -658,6 +734,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     nee_idx, visible_idx = lists[0], lists[1]
     tri_mat, mat_const, mat_tex = tb[3], tb[5], tb[6]
     bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
+    em_q = int(cfg[5])  # the emissive-triangles light (-1: none)
+    em_pdf = int(par[em_q, PAR_EM_PDF_AREA]) if em_q >= 0 else 0
     n_nee = nee_idx.shape[0]
     n_vis = visible_idx.shape[0]
     sel_next = 1.0 / max(1, n_nee)
@@ -710,9 +788,12 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         er, eg, eb = mat_const[mq, 3], mat_const[mq, 4], mat_const[mq, 5]
                     else:
                         er, eg, eb = nb_emission(tb, tri, u, v)
-                    Lr += br * er
-                    Lg += bg * eg
-                    Lb += bb * eb
+                    w = 1.0
+                    if em_q >= 0:  # MIS against the emitter's light samples
+                        w = _pw(pdf_dir, sel * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300))
+                    Lr += br * er * w
+                    Lg += bg * eg * w
+                    Lb += bb * eb * w
                 if depth + 1 > bounces:
                     break
                 if mat_tex[mq, 0] < 0:
@@ -742,8 +823,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     q = nee_idx[min(int(nb_random(st) * n_nee), n_nee - 1)]
                     u0 = nb_random(st)
                     u1 = nb_random(st)
-                    lx, ly, lz, dist, r, g, b, pdf = light_sample(
-                        kind[q], par[q], img, pmf, cdf, px, py, pz, u0, u1
+                    lx, ly, lz, dist, r, g, b, pdf = _nee_sample(
+                        kind[q], par[q], img, pmf, cdf, tb, px, py, pz, u0, u1
                     )
                     cos = lx * nx + ly * ny + lz * nz
                     if (
@@ -758,7 +839,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                             pl = pdf / n_nee
                             f = _pw(pl, cos / np.pi) * cos / np.pi / pl
                         qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
-                        _set_row(srays, ns, qx, qy, qz, lx, ly, lz, _short(dist))
+                        sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, lx, ly, lz, dist)
+                        _set_row(srays, ns, qx, qy, qz, sx, sy, sz, tf)
                         sval[ns, 0] = br * r * f
                         sval[ns, 1] = bg * g * f
                         sval[ns, 2] = bb * b * f
@@ -823,9 +905,8 @@ def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
         if not (lz > 0.0 and dx * ngx + dy * ngy + dz * ngz > 0.0):
             continue
         qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
-        occ, k = nb_occluded(
-            scene, rec, tb, eps, transmission, st, qx, qy, qz, dx, dy, dz, _short(dist)
-        )
+        sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, dx, dy, dz, dist)
+        occ, k = nb_occluded(scene, rec, tb, eps, transmission, st, qx, qy, qz, sx, sy, sz, tf)
         rays += k
         if occ:
             continue
@@ -940,8 +1021,8 @@ def _native_pass(
                 u1 = u1 - 1.0 if u1 >= 1.0 else u1
                 pick = min(int(nb_random(st) * n_area), n_area - 1) if n_area > 1 else 0
                 j = area_idx[pick]
-                dx, dy, dz, dist, r, g, b, pdf = light_sample(
-                    kind[j], par[j], img, pmf, cdf, px, py, pz, u0, u1
+                dx, dy, dz, dist, r, g, b, pdf = _nee_sample(
+                    kind[j], par[j], img, pmf, cdf, tb, px, py, pz, u0, u1
                 )
                 lz = f[2, 0] * dx + f[2, 1] * dy + f[2, 2] * dz
                 if (
@@ -951,7 +1032,8 @@ def _native_pass(
                     and (r > 0.0 or g > 0.0 or b > 0.0)
                 ):
                     ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
-                    _set_row(srays, ns, ox, oy, oz, dx, dy, dz, _short(dist))
+                    sx, sy, sz, tf = _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist)
+                    _set_row(srays, ns, ox, oy, oz, sx, sy, sz, tf)
                     pl = pdf / n_area
                     wgt = _pw(pl, INV_2PI) / pl
                     sval[ns, 0], sval[ns, 1], sval[ns, 2] = r * wgt, g * wgt, b * wgt

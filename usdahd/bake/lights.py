@@ -29,7 +29,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usdahd.bake import embree_native  # noqa: F401  (numba cache locators for the kernels)
-from usdahd.sampling import concentric_disk, orthonormal_basis, sample_discrete, to_world
+from usdahd.sampling import (
+    SPHERICAL_RECT_MAX_SR,
+    SPHERICAL_RECT_MIN_SR,
+    concentric_disk,
+    orthonormal_basis,
+    sample_discrete,
+    spherical_rectangle,
+    to_world,
+)
+from usdahd.sh import LUMINANCE
 
 TWO_PI = 2.0 * np.pi
 
@@ -196,11 +205,54 @@ class _PlanarLight(Light):
 
 @dataclass
 class RectLight(_PlanarLight):
-    """UsdLuxRectLight: width along ``2*ex``, height along ``2*ey``, emits towards ``normal``."""
+    """UsdLuxRectLight: width along ``2*ex``, height along ``2*ey``, emits towards ``normal``.
+
+    Sampled uniformly in the solid angle it subtends (spherical rectangle, Urena et al. 2013)
+    when that solid angle lies in [SPHERICAL_RECT_MIN_SR, SPHERICAL_RECT_MAX_SR] and the edges
+    are orthogonal (no shear); by area otherwise. The pdf follows the same rule, so MIS weights
+    agree with the sampler.
+    """
+
+    def __post_init__(self):
+        super().__post_init__()
+        ne, ny = np.linalg.norm(self.ex), np.linalg.norm(self.ey)
+        self.orthogonal = bool(abs(self.ex @ self.ey) <= 1e-9 * ne * ny)
 
     @property
     def area(self) -> float:
         return float(4.0 * np.linalg.norm(np.cross(self.ex, self.ey)))
+
+    def _solid(self, p):
+        """(m,) solid angle when the solid-angle sampler applies at ``p``, else 0."""
+        if not self.orthogonal:
+            return np.zeros(len(p))
+        _, sr = spherical_rectangle(
+            p, self.center - self.ex - self.ey, 2 * self.ex, 2 * self.ey, None
+        )
+        use = (sr >= SPHERICAL_RECT_MIN_SR) & (sr <= SPHERICAL_RECT_MAX_SR)
+        return np.where(use, sr, 0.0)
+
+    def sample(self, p, u):
+        dirs, dist, value, pdf = super().sample(p, u)
+        sr = self._solid(p)
+        use = sr > 0
+        if np.any(use):
+            q, _ = spherical_rectangle(
+                p[use], self.center - self.ex - self.ey, 2 * self.ex, 2 * self.ey, u[use]
+            )
+            w = q - p[use]
+            dd = _norm(w)
+            d = w / np.maximum(dd, 1e-300)[:, None]
+            front = -(d @ self.normal) > 0
+            dirs[use], dist[use] = d, dd
+            value[use] = np.where(front[:, None], self.radiance[None, :], 0.0)
+            pdf[use] = np.where(front, 1.0 / sr[use], 0.0)
+        return dirs, dist, value, pdf
+
+    def pdf(self, o, d, t):
+        base = super().pdf(o, d, t)
+        sr = self._solid(o)
+        return np.where((sr > 0) & (base > 0), 1.0 / np.where(sr > 0, sr, 1.0), base)
 
     def _unit(self, u):
         return 2.0 * u - 1.0
@@ -406,6 +458,109 @@ class DomeLight(Light):
         return self._pmf[y * w + x] * (h * w) / (2.0 * np.pi * np.pi * np.maximum(sin_t, 1e-12))
 
 
+@dataclass
+class EmissiveTriangles(Light):
+    """Every emissive triangle of the scene as one light (UsdPreviewSurface ``emissiveColor``;
+    front faces emit). Sampled by power: a triangle with probability proportional to its area
+    times the luminance of its emission (textured emission: estimated at four points, floored so
+    that no emissive triangle has probability 0), then a uniform point on it. Built by the
+    integrator from its tracer (:meth:`from_tracer`), since emission is looked up at the sample.
+
+    tri : (E,) int64 global triangle ids; verts : (E, 3, 3) float64; normal : (E, 3) float64
+    unit front normals; area : (E,) float64; pmf, cdf : (E,) float64; pdf_area : (T,) float64
+    probability per unit area of every global triangle (0 where not emissive), for MIS at hits;
+    emission_at : callable(tri (m,), u (m,), v (m,)) -> (m, 3) emitted radiance (Embree
+    barycentrics: p = (1-u-v) v0 + u v1 + v v2). ``radiance`` is unused (ones).
+    """
+
+    tri: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    verts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    area: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pmf: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cdf: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pdf_area: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    emission_at: object = None
+
+    @classmethod
+    def from_tracer(cls, tracer) -> EmissiveTriangles | None:
+        """The emissive triangles of ``tracer``'s scene, or None when nothing emits."""
+        mat = tracer.tri_material
+        tri = np.nonzero(tracer.emissive_materials[mat])[0].astype(np.int64)
+        if len(tri) == 0:
+            return None
+        v = tracer.verts[tri].astype(np.float64)
+        cr = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        area = 0.5 * _norm(cr)
+        keep = area > 0
+        tri, v, cr, area = tri[keep], v[keep], cr[keep], area[keep]
+        if len(tri) == 0:
+            return None
+        # luminance estimate per triangle: centroid and three interior points
+        uv = np.array([[1 / 3, 1 / 3], [2 / 3, 1 / 6], [1 / 6, 2 / 3], [1 / 6, 1 / 6]])
+        lum = np.zeros(len(tri))
+        for a, b in uv:
+            e = tracer.emission_at(tri, np.full(len(tri), a), np.full(len(tri), b))
+            lum += np.clip(np.asarray(e, np.float64)[:, :3], 0, None) @ LUMINANCE / len(uv)
+        if not np.any(lum > 0):
+            lum = np.ones(len(tri))
+        lum = np.maximum(lum, 1e-3 * lum.max())  # every emissive triangle can be chosen
+        power = area * lum
+        pmf = power / power.sum()
+        cdf = np.cumsum(pmf)
+        cdf[-1] = 1.0
+        pdf_area = np.zeros(len(tracer.tri_material))
+        pdf_area[tri] = pmf / area
+        return cls(
+            "<emissive triangles>",
+            np.ones(3),
+            tri=tri,
+            verts=v,
+            normal=cr / (2.0 * area)[:, None],
+            area=area,
+            pmf=pmf,
+            cdf=cdf,
+            pdf_area=pdf_area,
+            emission_at=tracer.emission_at,
+        )
+
+    def _pick(self, u):
+        """Triangle index and barycentrics (u, v) from unit-square samples u (m, 2)."""
+        k = sample_discrete(self.cdf, u[:, 0])
+        lo = np.where(k > 0, self.cdf[np.maximum(k - 1, 0)], 0.0)
+        u0 = np.clip((u[:, 0] - lo) / np.maximum(self.pmf[k], 1e-300), 0.0, 1.0)
+        su = np.sqrt(u0)
+        return k, 1.0 - su, u[:, 1] * su
+
+    def sample(self, p, u):
+        k, bu, bv = self._pick(u)
+        v = self.verts[k]
+        q = (1.0 - bu - bv)[:, None] * v[:, 0] + bu[:, None] * v[:, 1] + bv[:, None] * v[:, 2]
+        w = q - p
+        dist = _norm(w)
+        dirs = w / np.maximum(dist, 1e-300)[:, None]
+        cos_l = -np.einsum("ij,ij->i", dirs, self.normal[k])
+        front = cos_l > 0
+        pdf = np.where(
+            front, self.pmf[k] / self.area[k] * dist * dist / np.where(front, cos_l, 1.0), 0.0
+        )
+        em = np.asarray(self.emission_at(self.tri[k], bu, bv), np.float64)[:, :3]
+        value = np.where(front[:, None], em, 0.0)
+        return dirs, dist, value, pdf
+
+    def pdf_hit(self, tri, t, cos_abs):
+        """Solid-angle pdf of hitting global triangle ``tri`` (m,) at distance ``t`` with
+        |cos| ``cos_abs`` at the emitter (0 for triangles not in the light)."""
+        return self.pdf_area[tri] * t * t / np.maximum(cos_abs, 1e-300)
+
+    def intersect(self, o, d):  # emitters are geometry: hits are found by the tracer
+        n = len(o)
+        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+
+    def pdf(self, o, d, t):  # pragma: no cover - MIS at emitters uses pdf_hit
+        return np.zeros(len(o))
+
+
 LIGHT_TYPES = (
     SphereLight,
     PointLight,
@@ -422,14 +577,23 @@ LIGHT_TYPES = (
 # routine per operation below mirroring the numpy methods above line by line.
 
 KIND_SPHERE, KIND_POINT, KIND_RECT, KIND_DISK, KIND_CYLINDER, KIND_DISTANT, KIND_DOME = range(7)
+KIND_EMISSIVE = 7
 #: Parameters per light (float64). Common: [0:3] radiance. Per kind:
 #: sphere/point: [3:6] centre, [15] radius.  rect/disk: [3:6] centre, [6:9] ex, [9:12] ey,
-#: [12:15] normal, [16] area, [17:21] inverse Gram (row major), [21:24] plane normal.
+#: [12:15] normal, [16] area, [17:21] inverse Gram (row major), [21:24] plane normal;
+#: rect only: [24] 1 when its edges are orthogonal (solid-angle sampling allowed).
 #: cylinder: [3:6] centre, [6:9] axis, [15] radius, [16] area, [18] half length, [21:24] e1,
 #: [24:27] e2.  distant: [6:9] direction, [19] 1 - cos(half angle), [20] cos(half angle).
 #: dome: [25] textured (0/1), [26] pmf offset, [27] pixel offset, [28:37] rotation,
 #: [37:46] inverse rotation, [46] height, [47] width.
+#: emissive triangles: the PAR_EM_* slots below (blocks of ``pmf``/``cdf``, sampled by
+#: ``integrate._nee_sample``, which also has the triangle tables).
 N_PAR = 48
+#: emissive triangles: offset of the per-emitter pmf/cdf block (E entries), offset of the
+#: global-triangle ``pdf_area`` block (T entries, in ``pmf``), offset of the global triangle ids
+#: (E entries, float64 in ``pmf``), E.
+PAR_EM_TABLE, PAR_EM_PDF_AREA, PAR_EM_TRI, PAR_EM_COUNT = 26, 27, 28, 29
+PAR_RECT_ORTHO = 24
 
 
 @dataclass
@@ -471,6 +635,8 @@ def pack_lights(lights) -> LightTable:
             p[16] = lt.area
             p[17:21] = lt._ginv.reshape(-1)
             p[21:24] = lt._pn
+            if isinstance(lt, RectLight):
+                p[PAR_RECT_ORTHO] = 1.0 if lt.orthogonal else 0.0
         elif isinstance(lt, CylinderLight):
             kind[i] = KIND_CYLINDER
             p[3:6], p[6:9] = lt.center, lt.axis
@@ -493,6 +659,20 @@ def pack_lights(lights) -> LightTable:
                 pmfs.append(lt._pmf)
                 cdfs.append(lt._cdf)
                 pix += h * w
+        elif isinstance(lt, EmissiveTriangles):
+            kind[i] = KIND_EMISSIVE
+            ne, nt = len(lt.tri), len(lt.pdf_area)
+            p[PAR_EM_TABLE], p[PAR_EM_COUNT] = pix, ne
+            pmfs.append(lt.pmf)
+            cdfs.append(lt.cdf)
+            p[PAR_EM_PDF_AREA] = pix + ne
+            pmfs.append(lt.pdf_area)
+            cdfs.append(np.zeros(nt))
+            p[PAR_EM_TRI] = pix + ne + nt
+            pmfs.append(lt.tri.astype(np.float64))
+            cdfs.append(np.zeros(ne))
+            imgs.append(np.zeros((2 * ne + nt, 3)))  # keeps the blocks' offsets aligned
+            pix += 2 * ne + nt
         else:  # pragma: no cover - every light type is listed above
             raise TypeError(f"no native form for {type(lt).__name__}")
     return LightTable(
@@ -603,6 +783,88 @@ def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _angle(ax, ay, az, bx, by, bz):
+    """Angle between unit vectors (``sampling._angle_between``)."""
+    if ax * bx + ay * by + az * bz < 0.0:
+        sx, sy, sz = ax + bx, ay + by, az + bz
+        return np.pi - 2.0 * np.arcsin(min(np.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
+    sx, sy, sz = bx - ax, by - ay, bz - az
+    return 2.0 * np.arcsin(min(np.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _unit3(x, y, z):
+    n = max(np.sqrt(x * x + y * y + z * z), 1e-300)
+    return x / n, y / n, z / n
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _sph_rect(p, ox, oy, oz, sample, u0, u1):
+    """``sampling.spherical_rectangle`` for one point and a rect light's parameters ``p``.
+
+    returns (solid angle, qx, qy, qz): the sampled point on the rectangle when ``sample``."""
+    exl = 2.0 * np.sqrt(p[6] * p[6] + p[7] * p[7] + p[8] * p[8])
+    eyl = 2.0 * np.sqrt(p[9] * p[9] + p[10] * p[10] + p[11] * p[11])
+    xx, xy, xz = 2.0 * p[6] / exl, 2.0 * p[7] / exl, 2.0 * p[8] / exl
+    yx, yy, yz = 2.0 * p[9] / eyl, 2.0 * p[10] / eyl, 2.0 * p[11] / eyl
+    zx, zy, zz = xy * yz - xz * yy, xz * yx - xx * yz, xx * yy - xy * yx
+    cx = p[3] - p[6] - p[9] - ox
+    cy = p[4] - p[7] - p[10] - oy
+    cz = p[5] - p[8] - p[11] - oz
+    x0 = cx * xx + cy * xy + cz * xz
+    y0 = cx * yx + cy * yy + cz * yz
+    z0 = cx * zx + cy * zy + cz * zz
+    zs = 1.0
+    if z0 > 0.0:
+        z0, zs = -z0, -1.0
+    x1, y1 = x0 + exl, y0 + eyl
+    n0x, n0y, n0z = _unit3(0.0, z0, -y0)
+    n1x, n1y, n1z = _unit3(-z0, 0.0, x1)
+    n2x, n2y, n2z = _unit3(0.0, -z0, y1)
+    n3x, n3y, n3z = _unit3(z0, 0.0, -x0)
+    g0 = _angle(-n0x, -n0y, -n0z, n1x, n1y, n1z)
+    g1 = _angle(-n1x, -n1y, -n1z, n2x, n2y, n2z)
+    g2 = _angle(-n2x, -n2y, -n2z, n3x, n3y, n3z)
+    g3 = _angle(-n3x, -n3y, -n3z, n0x, n0y, n0z)
+    solid = max(g0 + g1 + g2 + g3 - TWO_PI, 0.0)
+    if not sample:
+        return solid, 0.0, 0.0, 0.0
+    b0, b1 = n0z, n2z
+    au = u0 * solid - g2 - g3
+    sin_au = np.sin(au)
+    fu = (np.cos(au) * b0 - b1) / (sin_au if sin_au != 0.0 else 1e-300)
+    cu = 1.0 / np.sqrt(fu * fu + b0 * b0)
+    if fu < 0.0:
+        cu = -cu
+    cu = min(max(cu, -1.0 + 1e-12), 1.0 - 1e-12)
+    xu = min(max(-(cu * z0) / np.sqrt(max(1.0 - cu * cu, 0.0)), x0), x1)
+    dd = np.sqrt(xu * xu + z0 * z0)
+    h0 = y0 / np.sqrt(dd * dd + y0 * y0)
+    h1 = y1 / np.sqrt(dd * dd + y1 * y1)
+    hv = h0 + u1 * (h1 - h0)
+    hv2 = hv * hv
+    yv = hv * dd / np.sqrt(max(1.0 - hv2, 1e-300)) if hv2 < 1.0 - 1e-12 else y1
+    zw = z0 * zs
+    return (
+        solid,
+        ox + xu * xx + yv * yx + zw * zx,
+        oy + xu * xy + yv * yy + zw * zy,
+        oz + xu * xz + yv * yz + zw * zz,
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _rect_solid(p, ox, oy, oz):
+    """Solid angle of a rect light when its solid-angle sampler applies at o, else 0."""
+    if p[PAR_RECT_ORTHO] == 0.0:
+        return 0.0
+    sr, _, _, _ = _sph_rect(p, ox, oy, oz, False, 0.0, 0.0)
+    if sr >= SPHERICAL_RECT_MIN_SR and sr <= SPHERICAL_RECT_MAX_SR:
+        return sr
+    return 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _dome_lookup(p, dx, dy, dz):
     lx = p[37] * dx + p[38] * dy + p[39] * dz
     ly = p[40] * dx + p[41] * dy + p[42] * dz
@@ -636,6 +898,17 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         if outside:
             return dx, dy, dz, t, p[0], p[1], p[2], 1.0 / (TWO_PI * max(omc, 1e-300))
         return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_RECT:
+        sr = _rect_solid(p, x, y, z)
+        if sr > 0.0:
+            _, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)
+            wx, wy, wz = qx - x, qy - y, qz - z
+            dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+            inv = 1.0 / max(dist, 1e-300)
+            dx, dy, dz = wx * inv, wy * inv, wz * inv
+            if -(dx * p[12] + dy * p[13] + dz * p[14]) > 0.0:
+                return dx, dy, dz, dist, p[0], p[1], p[2], 1.0 / sr
+            return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_RECT or kind == KIND_DISK:
         if kind == KIND_RECT:
             a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
@@ -746,6 +1019,10 @@ def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
     if kind == KIND_RECT or kind == KIND_DISK:
         cos_l = -(dx * p[12] + dy * p[13] + dz * p[14])
         if cos_l > 0.0 and np.isfinite(t):
+            if kind == KIND_RECT:
+                sr = _rect_solid(p, ox, oy, oz)
+                if sr > 0.0:
+                    return 1.0 / sr
             return t * t / (p[16] * cos_l)
         return 0.0
     if kind == KIND_CYLINDER:

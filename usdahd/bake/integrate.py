@@ -120,6 +120,13 @@ ADAPTIVE_FLOOR = 1e-3
 #: own supporting geometry, e.g. a RectLight on an emissive quad).
 SHADOW_SHORTEN = 1e-4
 INV_2PI = 1.0 / (2.0 * np.pi)
+#: How lights that both NEE and BSDF rays reach are estimated: "mis" (the power heuristic, the
+#: default), "bsdf" (hemisphere/cosine rays only), "nee" (light samples only). The three are
+#: unbiased estimators of the same integral; the consistency tests compare them.
+STRATEGIES = ("mis", "bsdf", "nee")
+#: Slots of the native kernel's ``cfg`` (float64) row.
+CFG_BOUNCES, CFG_EPS, CFG_TRANSMISSION, CFG_EMISSION, CFG_REGRESSION = 0, 1, 2, 3, 4
+CFG_EMISSIVE_LIGHT, CFG_STRATEGY, CFG_LEN = 5, 6, 7
 
 _G_HEMI = shmod.hemispherical_gram()
 
@@ -158,6 +165,7 @@ def bake_texels(
     backface_threshold: float = 0.25,
     adaptive_tol: float = ADAPTIVE_TOL,
     stream: int = 0,
+    strategy: str = "mis",
 ):
     """Bake incident radiance SH for ``texels`` of one mesh.
 
@@ -166,11 +174,16 @@ def bake_texels(
     samples : hemisphere samples per texel (and as many light samples when the scene has area
         lights); bounces : cap on surface reflections along a path (0 = direct light only;
         paths end earlier by Russian roulette, so the default is converged global illumination);
+    strategy : one of STRATEGIES ("mis"; the others exist for the consistency tests);
     stream : an integer identifying this task (e.g. the mesh index) for independent random
         streams; progress : optional callable(done_rays, total_estimate).
     returns : (sh (n, 3, 9) float32, stats dict with ``rays``, ``time``, ``invalid`` (n,) bool,
         ``backface_fraction`` (n,) float32, ``samples`` (n,) int32, ``rays_saved`` int).
     """
+    if strategy not in STRATEGIES:
+        from usdahd.errors import UsageError
+
+        raise UsageError(f"unknown light strategy {strategy!r} (use one of {STRATEGIES})")
     if estimator not in ("regression", "mc"):
         from usdahd.errors import UsageError
 
@@ -186,14 +199,14 @@ def bake_texels(
     invalid = np.zeros(n, bool)
     backfrac = np.zeros(n, np.float32)
     used = np.zeros(n, np.int32)
-    ctx = _Ctx(scene, tracer, bounces, estimator)
+    ctx = _Ctx(scene, tracer, bounces, estimator, strategy)
     if n == 0:
         return out, _stats(tracer, rays0, t0, invalid, backfrac, used, 0)
     passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1
     per_pass = int(np.ceil(samples / passes))
     native = getattr(tracer, "backend", "embreex") == "native"
     if native:
-        ctx = _NativeCtx(scene, tracer, bounces, estimator)
+        ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy)
         chunk = max(64, NATIVE_CHUNK_RAYS // max(per_pass, 1))
     else:
         chunk = max(1, CHUNK_RAYS // max(per_pass, 1))
@@ -289,7 +302,8 @@ class _Accum:
 
 
 class _Ctx:
-    def __init__(self, scene, tracer, bounces, estimator):
+    def __init__(self, scene, tracer, bounces, estimator, strategy="mis"):
+        self.strategy = strategy
         self.scene = scene
         self.tr = tracer
         self.bounces = bounces
@@ -378,7 +392,7 @@ class _Ctx:
             o = self.tr.offset(Pf[idx], NGf[idx], d)
             vis = ~self.tr.occluded(o, *_shadow(o, Pf[idx], d, dist), rng=rng)
             pl = pdf / m
-            w = _power(pl, INV_2PI)
+            w = _w_light(self.strategy, pl, INV_2PI)
             contrib[idx[vis]] = (val * (w / pl)[:, None])[vis]
             Y[idx] = shmod.basis(loc)
         C = contrib.reshape(n, s, 3)
@@ -408,7 +422,7 @@ class _Ctx:
             w = np.ones(int(vis.sum()))
             if lt.sampled:
                 pl = lt.pdf(o[vis], d[vis], tl[vis]) * sel_area
-                w = _power(pdf_dir[vis], pl)
+                w = _w_bsdf(self.strategy, pdf_dir[vis], pl)
             L[vis] += w[:, None] * rad[vis]
         surf = np.nonzero(~miss)[0]
         if len(surf) == 0:
@@ -423,7 +437,7 @@ class _Ctx:
             if self.lights.emissive is not None:  # MIS against the emitter's light samples
                 cos_abs = np.abs(np.einsum("ij,ij->i", ds, gn))
                 pl = self.lights.emissive.pdf_hit(tri_s, t[surf], cos_abs) * sel_area
-                em = em * _power(pdf_dir[surf], pl)[:, None]
+                em = em * _w_bsdf(self.strategy, pdf_dir[surf], pl)[:, None]
             L[surf] += np.where(front[:, None], em, 0.0)
         if depth + 1 > self.bounces:
             return L
@@ -472,7 +486,7 @@ class _Ctx:
                 else:
                     pl = pdf / n_nee
                     pb = cos / np.pi
-                    f = val * (_power(pl, pb) * cos / np.pi / pl)[:, None]
+                    f = val * (_w_light(self.strategy, pl, pb) * cos / np.pi / pl)[:, None]
                 out[idx[vis]] += f[vis]
         # continuation / MIS partner: cosine sampling about the shading normal
         if self.lights.visible or self.tr.has_emission or depth < self.bounces:
@@ -539,7 +553,7 @@ def _native_result(ids, gram, hemi, nee, delta, count, back, regression, out, bf
 class _NativeCtx:
     """Drives :func:`_native_pass` over the tracer's threads (backend "native")."""
 
-    def __init__(self, scene, tracer, bounces, estimator):
+    def __init__(self, scene, tracer, bounces, estimator, strategy="mis"):
         self.tr = tracer
         lights = _Lights(scene.lights, tracer)
         order = {id(lt): i for i, lt in enumerate(lights.all)}
@@ -554,9 +568,10 @@ class _NativeCtx:
         em = order[id(lights.emissive)] if lights.emissive is not None else -1
         self.cfg = np.array(
             [bounces, tracer.offset_eps, tracer.has_transmission, tracer.has_emission,
-             estimator == "regression", em],
+             estimator == "regression", em, STRATEGIES.index(strategy)],
             np.float64,
         )  # fmt: skip
+        assert len(self.cfg) == CFG_LEN
         self.tb = tracer.native_tables()
         self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces
 
@@ -602,6 +617,20 @@ def _power(pa, pb):
     a2 = pa * pa
     den = a2 + pb * pb
     return np.divide(a2, den, out=np.zeros_like(den), where=den > 0)
+
+
+def _w_light(strategy, pl, pb):
+    """Weight of a light (NEE) sample of a light the BSDF can also hit (see STRATEGIES)."""
+    if strategy == "mis":
+        return _power(pl, pb)
+    return np.full(np.shape(pl), 1.0 if strategy == "nee" else 0.0)
+
+
+def _w_bsdf(strategy, pb, pl):
+    """Weight of a BSDF (hemisphere/cosine) sample that hit a light NEE also samples."""
+    if strategy == "mis":
+        return _power(pb, pl)
+    return np.full(np.shape(pb), 1.0 if strategy == "bsdf" else 0.0)
 
 
 def _shadow(o, p, d, dist):
@@ -693,6 +722,22 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _wl(mode, pl, pb):
+    """``_w_light`` (mode: index in STRATEGIES)."""
+    if mode == 0:
+        return _pw(pl, pb)
+    return 1.0 if mode == 2 else 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _wb(mode, pb, pl):
+    """``_w_bsdf`` (mode: index in STRATEGIES)."""
+    if mode == 0:
+        return _pw(pb, pl)
+    return 1.0 if mode == 1 else 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
@@ -734,7 +779,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     nee_idx, visible_idx = lists[0], lists[1]
     tri_mat, mat_const, mat_tex = tb[3], tb[5], tb[6]
     bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
-    em_q = int(cfg[5])  # the emissive-triangles light (-1: none)
+    em_q = int(cfg[CFG_EMISSIVE_LIGHT])  # the emissive-triangles light (-1: none)
+    mode = int(cfg[CFG_STRATEGY])
     em_pdf = int(par[em_q, PAR_EM_PDF_AREA]) if em_q >= 0 else 0
     n_nee = nee_idx.shape[0]
     n_vis = visible_idx.shape[0]
@@ -774,7 +820,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     w = 1.0
                     if lsampled[q]:
                         pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sel
-                        w = _pw(pdf_dir, pl)
+                        w = _wb(mode, pdf_dir, pl)
                     Lr += br * w * r
                     Lg += bg * w * g
                     Lb += bb * w * b
@@ -790,7 +836,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         er, eg, eb = nb_emission(tb, tri, u, v)
                     w = 1.0
                     if em_q >= 0:  # MIS against the emitter's light samples
-                        w = _pw(pdf_dir, sel * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300))
+                        pe = sel * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300)
+                        w = _wb(mode, pdf_dir, pe)
                     Lr += br * er * w
                     Lg += bg * eg * w
                     Lb += bb * eb * w
@@ -837,7 +884,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                             f = cos / np.pi * n_nee
                         else:
                             pl = pdf / n_nee
-                            f = _pw(pl, cos / np.pi) * cos / np.pi / pl
+                            f = _wl(mode, pl, cos / np.pi) * cos / np.pi / pl
                         qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
                         sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, lx, ly, lz, dist)
                         _set_row(srays, ns, qx, qy, qz, sx, sy, sz, tf)
@@ -959,6 +1006,7 @@ def _native_pass(
     delta_idx, area_idx = lists[2], lists[3]
     gram, hemi, nee, delta, count, back, y_sum, y_sq = acc
     eps, transmission, regression = cfg[1], cfg[2] != 0.0, cfg[4] != 0.0
+    mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
     sel_area = 1.0 / max(1, n_area)
     rec, pk, st, Y, G, H, ps, rays, hits, srays, sval, sidx, occ, R, loc, yl = work
@@ -1035,7 +1083,7 @@ def _native_pass(
                     sx, sy, sz, tf = _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist)
                     _set_row(srays, ns, ox, oy, oz, sx, sy, sz, tf)
                     pl = pdf / n_area
-                    wgt = _pw(pl, INV_2PI) / pl
+                    wgt = _wl(mode, pl, INV_2PI) / pl
                     sval[ns, 0], sval[ns, 1], sval[ns, 2] = r * wgt, g * wgt, b * wgt
                     sval[ns, 3] = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
                     sval[ns, 4] = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz

@@ -808,9 +808,14 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         if invalid.any():
             job.sh, unfilled = post.fill_invalid(job.sh, job.texels, invalid, charts=job.charts)
             if unfilled.any():
+                faces = np.unique(job.mesh.face[job.texels.triangle[unfilled]])
+                shown = ", ".join(str(int(f)) for f in faces[:8])
+                more = f" and {len(faces) - 8} more" if len(faces) > 8 else ""
                 job.report["warnings"].append(
-                    f"{int(unfilled.sum())} texels inside geometry have no valid neighbour "
-                    "(the whole chart is enclosed); their lighting is unreliable"
+                    f"{int(unfilled.sum())} texels see mostly back faces (inside geometry?) and "
+                    f"have no valid neighbour in their chart: face(s) {shown}{more} keep their "
+                    "own estimate, which treats back faces as two-sided; check those faces "
+                    "for flipped normals, duplicates or enclosing geometry"
                 )
     if opts.denoise:
         from usdahd.bake import denoise

@@ -50,6 +50,33 @@ def uniform_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return d, np.full(z.shape, 1.0 / TWO_PI)
 
 
+def texel_hemisphere_pdf(z: np.ndarray) -> np.ndarray:
+    """Solid-angle pdf of :func:`texel_hemisphere` at local z: ``(1 + 2 z) / (4 pi)``."""
+    return (1.0 + 2.0 * np.asarray(z)) / (2.0 * TWO_PI)
+
+
+def texel_hemisphere_z(u0: np.ndarray) -> np.ndarray:
+    """Inverse CDF of :func:`texel_hemisphere` in z: ``z = (sqrt(1 + 8 u) - 1) / 2``."""
+    return 0.5 * (np.sqrt(1.0 + 8.0 * np.asarray(u0)) - 1.0)
+
+
+def texel_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directions on the z >= 0 hemisphere with pdf (1 + 2z)/(4 pi): the even mixture of
+    uniform (1/2pi) and cosine (z/pi) sampling, drawn by one inverse-CDF warp (so a
+    low-discrepancy point set stays stratified). Irradiance-weighted terms (I_z, the z
+    coefficient) get most of the cosine lobe's variance reduction (3.4x lower variance of I_z
+    under constant radiance), while 1/pdf stays bounded by 4 pi, so SH coefficients that do not
+    vanish at the horizon keep a finite variance (pure cosine sampling makes theirs infinite).
+
+    u : (..., 2).  returns : dirs (..., 3), pdf (...,).
+    """
+    z = texel_hemisphere_z(u[..., 0])
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+    return d, texel_hemisphere_pdf(z)
+
+
 def cosine_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cosine-weighted directions on the z >= 0 hemisphere (Malley's method).
 

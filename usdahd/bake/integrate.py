@@ -97,9 +97,10 @@ from usdahd.sampling import (
     cosine_hemisphere,
     orthonormal_basis,
     r2_sequence,
+    texel_hemisphere,
+    texel_hemisphere_pdf,
     to_local,
     to_world,
-    uniform_hemisphere,
 )
 
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
@@ -120,6 +121,12 @@ ADAPTIVE_FLOOR = 1e-3
 #: own supporting geometry, e.g. a RectLight on an emissive quad).
 SHADOW_SHORTEN = 1e-4
 INV_2PI = 1.0 / (2.0 * np.pi)
+#: Up to this many sampled lights, every light gets every texel light sample (selection noise
+#: removed at m shadow rays per sample); beyond, each sample picks one light uniformly.
+ALL_LIGHTS_MAX = 8
+#: Offset of light j's copy of the texel's light-sample points (golden ratio conjugate, both
+#: coordinates), so the lights do not share one point pattern.
+LIGHT_SHIFT = 0.6180339887498949
 #: How lights that both NEE and BSDF rays reach are estimated: "mis" (the power heuristic, the
 #: default), "bsdf" (hemisphere/cosine rays only), "nee" (light samples only). The three are
 #: unbiased estimators of the same integral; the consistency tests compare them.
@@ -308,6 +315,7 @@ class _Ctx:
         self.tr = tracer
         self.bounces = bounces
         self.lights = _Lights(scene.lights, tracer)
+        self.texel_sel = _texel_selection(len(self.lights.area))
         self.estimator = estimator
         # rays per hemisphere sample, for the rays_saved estimate
         self.rays_per_sample = 1 + (1 if self.lights.area else 0) + 3 * bounces
@@ -330,7 +338,7 @@ class _Ctx:
     def hemisphere_pass(self, P, NG, F, s, offset, rng, acc, active):
         n = len(P)
         u = np.mod(r2_sequence(s, offset)[None] + rng.random((n, 1, 2)), 1.0)  # (n,s,2)
-        loc, _ = uniform_hemisphere(u)
+        loc, pdf_h = texel_hemisphere(u)  # (n,s,3), (n,s)
         d = to_world(loc, F[:, None]).reshape(-1, 3)
         loc = loc.reshape(-1, 3)
         Pf = np.repeat(P, s, axis=0)
@@ -346,19 +354,18 @@ class _Ctx:
             hit = tri >= 0
             gn = self.tr.geom_normal[np.where(hit, tri, 0)]
             back[idx] = hit & (np.einsum("ij,ij->i", d[idx], gn) > 0)
-            sel_area = 1.0 / max(1, len(self.lights.area))
             radiance[idx] = self.incoming(
-                o, d[idx], hits, np.full(len(idx), INV_2PI), sel_area, 0, rng
+                o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng
             )
         Y = shmod.basis(loc).reshape(n, s, 9)
         R = radiance.reshape(n, s, 3)
-        Yt = Y.transpose(0, 2, 1)
-        acc.hemi[active] += (2.0 * np.pi) * np.matmul(Yt, R).transpose(0, 2, 1)
+        Ywt = (Y / pdf_h[..., None]).transpose(0, 2, 1)  # Y / p
+        acc.hemi[active] += np.matmul(Ywt, R).transpose(0, 2, 1)
         if self.estimator == "regression":
-            acc.gram[active] += (2.0 * np.pi) * np.matmul(Yt, Y)
+            acc.gram[active] += np.matmul(Ywt, Y)
         acc.back[active] += back.reshape(n, s).sum(axis=1)
         acc.count[active] += s
-        ylum = (2.0 * np.pi * shmod.IZ_FROM_L10) * (R @ shmod.LUMINANCE) * Y[..., 2]
+        ylum = shmod.IZ_FROM_L10 * (R @ shmod.LUMINANCE) * Y[..., 2] / pdf_h
         if self.lights.area:
             nee_c, nee_y = self.texel_nee(P, NG, F, s, offset, rng)
             acc.nee[active] += nee_c
@@ -367,22 +374,32 @@ class _Ctx:
         acc.y_sq[active] += (ylum * ylum).sum(axis=1)
 
     def texel_nee(self, P, NG, F, s, offset, rng):
-        """Light samples at the texel (MIS with the uniform hemisphere); returns sums."""
+        """Light samples at the texel (MIS with the texel hemisphere); returns sums
+        (c (n,3,9), per-sample luminance Iz (n,s)). With at most ALL_LIGHTS_MAX sampled lights
+        every light gets every sample (no light-selection noise; ``texel_sel`` = 1), else each
+        sample picks one light uniformly (``texel_sel`` = 1/m)."""
         n = len(P)
         m = len(self.lights.area)
         u = np.mod(r2_sequence(s, offset + 7919)[None] + rng.random((n, 1, 2)), 1.0)
         u = u.reshape(-1, 2)
-        pick = (rng.random(n * s) * m).astype(np.int64) if m > 1 else np.zeros(n * s, np.int64)
+        every = m <= ALL_LIGHTS_MAX
+        if not every:
+            pick = (rng.random(n * s) * m).astype(np.int64)
         Pf = np.repeat(P, s, axis=0)
         NGf = np.repeat(NG, s, axis=0)
         Ff = np.repeat(F, s, axis=0)
-        contrib = np.zeros((n * s, 3))
-        Y = np.zeros((n * s, 9))
+        c = np.zeros((n, 3, 9))
+        y = np.zeros(n * s)
         for j, lt in enumerate(self.lights.area):
-            idx = np.nonzero(pick == j)[0]
+            if every:
+                idx = np.arange(n * s)
+                uj = np.mod(u + j * LIGHT_SHIFT, 1.0)  # decorrelate the lights' points
+            else:
+                idx = np.nonzero(pick == j)[0]
+                uj = u[idx]
             if len(idx) == 0:
                 continue
-            d, dist, val, pdf = lt.sample(Pf[idx], u[idx])
+            d, dist, val, pdf = lt.sample(Pf[idx], uj)
             loc = to_local(d, Ff[idx])
             ok = (pdf > 0) & (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NGf[idx]) > 0)
             ok &= np.any(val > 0, axis=1)
@@ -391,15 +408,14 @@ class _Ctx:
                 continue
             o = self.tr.offset(Pf[idx], NGf[idx], d)
             vis = ~self.tr.occluded(o, *_shadow(o, Pf[idx], d, dist), rng=rng)
-            pl = pdf / m
-            w = _w_light(self.strategy, pl, INV_2PI)
-            contrib[idx[vis]] = (val * (w / pl)[:, None])[vis]
-            Y[idx] = shmod.basis(loc)
-        C = contrib.reshape(n, s, 3)
-        Yr = Y.reshape(n, s, 9)
-        c = np.matmul(Yr.transpose(0, 2, 1), C).transpose(0, 2, 1)
-        y = shmod.IZ_FROM_L10 * (C @ shmod.LUMINANCE) * Yr[..., 2]
-        return c, y
+            idx, val, pdf, loc = idx[vis], val[vis], pdf[vis], loc[vis]
+            pl = pdf * self.texel_sel
+            w = _w_light(self.strategy, pl, texel_hemisphere_pdf(loc[:, 2]))
+            f = val * (w / pl)[:, None]
+            Yb = shmod.basis(loc)
+            np.add.at(c, idx // s, np.einsum("mc,mk->mck", f, Yb))
+            np.add.at(y, idx, shmod.IZ_FROM_L10 * (f @ shmod.LUMINANCE) * Yb[:, 2])
+        return c, y.reshape(n, s)
 
     # ------------------------------------------------------------------ path level
     def incoming(self, o, d, hits, pdf_dir, sel_area, depth, rng):
@@ -612,6 +628,11 @@ class _NativeCtx:
         return out, bf
 
 
+def _texel_selection(m):
+    """Selection probability of one sampled light in the texel's light samples."""
+    return 1.0 if m <= ALL_LIGHTS_MAX else 1.0 / m
+
+
 def _power(pa, pb):
     """MIS power heuristic (beta 2) weight of strategy a."""
     a2 = pa * pa
@@ -662,6 +683,10 @@ _C0, _C1, _C2, _C20, _C22 = shmod.C0, shmod.C1, shmod.C2, shmod.C20, shmod.C22
 _LUM = (float(shmod.LUMINANCE[0]), float(shmod.LUMINANCE[1]), float(shmod.LUMINANCE[2]))
 _IZ = float(shmod.IZ_FROM_L10)
 _TWO_PI = 2.0 * np.pi
+_4PI = 4.0 * np.pi
+_INV_4PI = 1.0 / (4.0 * np.pi)
+#: Register-fed Gram sums of the native pass (see :func:`_gram_unpack`).
+GRAM_SUMS = 45
 #: Columns of the per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin
 #: (0:3), direction (3:6), throughput (6:9), pdf of the direction, selection probability of the
 #: NEE light it is paired with, reflections so far, sample index.
@@ -968,22 +993,23 @@ def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _gram_unpack(gram, i, G, s):
-    """Add the 44 register-fed Gram sums ``G`` of ``s`` samples to ``gram[i]`` (2 pi / p folded
-    in; row 0 is C0 * sum Y) and zero ``G``."""
-    gram[i, 0, 0] += _TWO_PI * _C0 * _C0 * s
+def _gram_unpack(gram, i, G):
+    """Add the register-fed Gram sums ``G`` (GRAM_SUMS,) to ``gram[i]`` and zero ``G``: slots
+    0..7 are sum w Y_a (a = 1..8), 8..43 the upper triangle of sum w Y_a Y_b, 44 sum w, with
+    w = 1/p per sample (row 0 of the Gram is C0 times the first sums)."""
+    gram[i, 0, 0] += _C0 * _C0 * G[44]
     q = 8
     for a in range(1, 9):
-        v = _TWO_PI * _C0 * G[a - 1]
+        v = _C0 * G[a - 1]
         gram[i, 0, a] += v
         gram[i, a, 0] += v
         for b9 in range(a, 9):
-            v = _TWO_PI * G[q]
+            v = G[q]
             gram[i, a, b9] += v
             if b9 != a:
                 gram[i, b9, a] += v
             q += 1
-    for q in range(44):
+    for q in range(GRAM_SUMS):
         G[q] = 0.0
 
 
@@ -997,7 +1023,7 @@ def _native_pass(
     cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
     samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``_Accum``;
     work : per-thread scratch from :func:`_native_work` (RTCRayHit record, packet, (1,) uint64
-    random state, (9,) basis, (44,) zeroed Gram sums, (27,) zeroed hemisphere sums, then the
+    random state, (9,) basis, (GRAM_SUMS,) zeroed Gram sums, (27,) zeroed hemisphere sums, the
     per-sample wavefront arrays). Compiled without the NRT (``_nrt=False``): no allocation
     and no reference counting in the hot loop.
     returns : rays traced.
@@ -1008,7 +1034,8 @@ def _native_pass(
     eps, transmission, regression = cfg[1], cfg[2] != 0.0, cfg[4] != 0.0
     mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
-    sel_area = 1.0 / max(1, n_area)
+    every = n_area <= ALL_LIGHTS_MAX  # every light gets every texel light sample
+    sel_area = 1.0 if every else 1.0 / n_area
     rec, pk, st, Y, G, H, ps, rays, hits, srays, sval, sidx, occ, R, loc, yl = work
     traced = 0
     for ii in range(ids.shape[0]):
@@ -1027,7 +1054,8 @@ def _native_pass(
         m = np.int64(0)
         for k in range(s):
             u0 = r2h[k, 0] + cp0
-            lz = u0 - 1.0 if u0 >= 1.0 else u0
+            u0 = u0 - 1.0 if u0 >= 1.0 else u0
+            lz = 0.5 * (np.sqrt(1.0 + 8.0 * u0) - 1.0)  # sampling.texel_hemisphere
             sn = np.sqrt(max(1.0 - lz * lz, 0.0))
             # phi = 2 pi (r2 + cp1): angle addition with the pass's precomputed cos/sin
             lx = sn * (r2h[k, 2] * c1 - r2h[k, 3] * s1)
@@ -1042,7 +1070,7 @@ def _native_pass(
                 _set_row(rays, m, qx, qy, qz, dx, dy, dz, np.inf)
                 _set_row(ps, m, qx, qy, qz, dx, dy, dz, 1.0)
                 ps[m, 7] = ps[m, 8] = 1.0
-                ps[m, 9] = INV_2PI
+                ps[m, 9] = (1.0 + 2.0 * lz) * _INV_4PI
                 ps[m, 10] = sel_area
                 ps[m, 11] = 0.0
                 ps[m, 12] = k
@@ -1058,17 +1086,22 @@ def _native_pass(
                 scene, pk, rec, tb, lt, lists, cfg, st, m, ps, rays, hits, srays, sval, sidx,
                 occ, R,
             )  # fmt: skip
-        if n_area:  # light samples at the texel, MIS with the uniform hemisphere
-            cn0 = nb_random(st)
-            cn1 = nb_random(st)
+        # light samples at the texel, MIS with the texel hemisphere: with ``every``, one round
+        # per light (each light gets all s samples), else one round, a light picked per sample
+        cn0 = nb_random(st) if n_area else 0.0
+        cn1 = nb_random(st) if n_area else 0.0
+        rounds = n_area if every else (1 if n_area else 0)
+        for rd in range(rounds):
             ns = np.int64(0)
             for k in range(s):
-                u0 = r2n[k, 0] + cn0
-                u0 = u0 - 1.0 if u0 >= 1.0 else u0
-                u1 = r2n[k, 1] + cn1
-                u1 = u1 - 1.0 if u1 >= 1.0 else u1
-                pick = min(int(nb_random(st) * n_area), n_area - 1) if n_area > 1 else 0
-                j = area_idx[pick]
+                u0 = r2n[k, 0] + cn0 + rd * LIGHT_SHIFT
+                u0 = u0 - np.floor(u0)
+                u1 = r2n[k, 1] + cn1 + rd * LIGHT_SHIFT
+                u1 = u1 - np.floor(u1)
+                if every:
+                    j = area_idx[rd]
+                else:
+                    j = area_idx[min(int(nb_random(st) * n_area), n_area - 1)]
                 dx, dy, dz, dist, r, g, b, pdf = _nee_sample(
                     kind[j], par[j], img, pmf, cdf, tb, px, py, pz, u0, u1
                 )
@@ -1082,8 +1115,8 @@ def _native_pass(
                     ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
                     sx, sy, sz, tf = _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist)
                     _set_row(srays, ns, ox, oy, oz, sx, sy, sz, tf)
-                    pl = pdf / n_area
-                    wgt = _wl(mode, pl, INV_2PI) / pl
+                    pl = pdf * sel_area
+                    wgt = _wl(mode, pl, (1.0 + 2.0 * lz) * _INV_4PI) / pl
                     sval[ns, 0], sval[ns, 1], sval[ns, 2] = r * wgt, g * wgt, b * wgt
                     sval[ns, 3] = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
                     sval[ns, 4] = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
@@ -1104,7 +1137,7 @@ def _native_pass(
                         nee[i, 1, c9] += g * Y[c9]
                         nee[i, 2, c9] += b * Y[c9]
                     yl[sidx[q]] += _IZ * (_LUM[0] * r + _LUM[1] * g + _LUM[2] * b) * Y[2]
-        # SH sums of the hemisphere samples (radiance 2 pi / p folded in)
+        # SH sums of the hemisphere samples (weights 1/p, p = sampling.texel_hemisphere_pdf)
         ys = 0.0
         ys2 = 0.0
         for k in range(s):
@@ -1112,8 +1145,9 @@ def _native_pass(
             y1, y2, y3 = -_C1 * y, _C1 * z, -_C1 * x
             y4, y5 = _C2 * x * y, -_C2 * y * z
             y6, y7, y8 = _C20 * (3.0 * z * z - 1.0), -_C2 * x * z, _C22 * (x * x - y * y)
+            wp = _4PI / (1.0 + 2.0 * z)
             for c in range(3):
-                w = _TWO_PI * R[k, c]
+                w = wp * R[k, c]
                 H[9 * c] += w * _C0
                 H[9 * c + 1] += w * y1
                 H[9 * c + 2] += w * y2
@@ -1123,53 +1157,56 @@ def _native_pass(
                 H[9 * c + 6] += w * y6
                 H[9 * c + 7] += w * y7
                 H[9 * c + 8] += w * y8
-            if regression:  # upper triangle of Y Y^T (rows 1..8; row 0 is C0 * sum Y)
-                G[0] += y1
-                G[1] += y2
-                G[2] += y3
-                G[3] += y4
-                G[4] += y5
-                G[5] += y6
-                G[6] += y7
-                G[7] += y8
-                G[8] += y1 * y1
-                G[9] += y1 * y2
-                G[10] += y1 * y3
-                G[11] += y1 * y4
-                G[12] += y1 * y5
-                G[13] += y1 * y6
-                G[14] += y1 * y7
-                G[15] += y1 * y8
-                G[16] += y2 * y2
-                G[17] += y2 * y3
-                G[18] += y2 * y4
-                G[19] += y2 * y5
-                G[20] += y2 * y6
-                G[21] += y2 * y7
-                G[22] += y2 * y8
-                G[23] += y3 * y3
-                G[24] += y3 * y4
-                G[25] += y3 * y5
-                G[26] += y3 * y6
-                G[27] += y3 * y7
-                G[28] += y3 * y8
-                G[29] += y4 * y4
-                G[30] += y4 * y5
-                G[31] += y4 * y6
-                G[32] += y4 * y7
-                G[33] += y4 * y8
-                G[34] += y5 * y5
-                G[35] += y5 * y6
-                G[36] += y5 * y7
-                G[37] += y5 * y8
-                G[38] += y6 * y6
-                G[39] += y6 * y7
-                G[40] += y6 * y8
-                G[41] += y7 * y7
-                G[42] += y7 * y8
-                G[43] += y8 * y8
+            if regression:  # upper triangle of w Y Y^T (rows 1..8; row 0 is C0 * sum w Y)
+                G[44] += wp
+                w1, w2, w3, w4 = wp * y1, wp * y2, wp * y3, wp * y4
+                w5, w6, w7, w8 = wp * y5, wp * y6, wp * y7, wp * y8
+                G[0] += w1
+                G[1] += w2
+                G[2] += w3
+                G[3] += w4
+                G[4] += w5
+                G[5] += w6
+                G[6] += w7
+                G[7] += w8
+                G[8] += w1 * y1
+                G[9] += w1 * y2
+                G[10] += w1 * y3
+                G[11] += w1 * y4
+                G[12] += w1 * y5
+                G[13] += w1 * y6
+                G[14] += w1 * y7
+                G[15] += w1 * y8
+                G[16] += w2 * y2
+                G[17] += w2 * y3
+                G[18] += w2 * y4
+                G[19] += w2 * y5
+                G[20] += w2 * y6
+                G[21] += w2 * y7
+                G[22] += w2 * y8
+                G[23] += w3 * y3
+                G[24] += w3 * y4
+                G[25] += w3 * y5
+                G[26] += w3 * y6
+                G[27] += w3 * y7
+                G[28] += w3 * y8
+                G[29] += w4 * y4
+                G[30] += w4 * y5
+                G[31] += w4 * y6
+                G[32] += w4 * y7
+                G[33] += w4 * y8
+                G[34] += w5 * y5
+                G[35] += w5 * y6
+                G[36] += w5 * y7
+                G[37] += w5 * y8
+                G[38] += w6 * y6
+                G[39] += w6 * y7
+                G[40] += w6 * y8
+                G[41] += w7 * y7
+                G[42] += w7 * y8
+                G[43] += w8 * y8
             lum = _LUM[0] * R[k, 0] + _LUM[1] * R[k, 1] + _LUM[2] * R[k, 2]
-            ylum = _TWO_PI * _IZ * lum * y2 + yl[k]
+            ylum = wp * _IZ * lum * y2 + yl[k]
             ys += ylum
             ys2 += ylum * ylum
         for c in range(3):
@@ -1182,7 +1219,7 @@ def _native_pass(
         count[i] += s
         rng_state[i] = st[0]
         if regression:
-            _gram_unpack(gram, i, G, s)
+            _gram_unpack(gram, i, G)
     return traced
 
 
@@ -1193,7 +1230,7 @@ def _native_work(s):
         embree_native.new_packet(),
         np.zeros(1, np.uint64),
         np.zeros(9),
-        np.zeros(44),
+        np.zeros(GRAM_SUMS),
         np.zeros(27),
         np.zeros((s, PATH_COLS)),
         np.zeros((s, 7)),

@@ -25,6 +25,7 @@ import numpy as np
 from usdahd import models
 from usdahd._version import __version__
 from usdahd.errors import BakeError, InputError, StageError, UsageError, UsdAhdError
+from usdahd.usd.normals import RULE_VERSION as NORMALS_RULE_VERSION
 
 #: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
 DEFAULTS = {
@@ -96,6 +97,7 @@ class PrimJob:
     sh: object = None  # (n, 3, 9) float32 radiance SH
     stats: dict = field(default_factory=dict)
     charts: object = None  # (n,) int32 chart id per texel
+    normals: object = None  # usd.scene.ComputedNormals to author, None when authored
 
 
 def default_output(stage_path: Path) -> Path:
@@ -228,7 +230,10 @@ def content_hash(parts: dict, prim_path: str, settings: dict) -> tuple[str, dict
         "settings": hashlib.sha256(
             json.dumps(settings, sort_keys=True, default=str).encode()
         ).hexdigest(),
-        "generator": hashlib.sha256(f"usdahd {__version__}".encode()).hexdigest(),
+        # The normals rule is part of the generator: a rule change re-bakes every prim.
+        "generator": hashlib.sha256(
+            f"usdahd {__version__}; {NORMALS_RULE_VERSION}".encode()
+        ).hexdigest(),
     }
     total = hashlib.sha256(json.dumps(named, sort_keys=True).encode()).hexdigest()
     return f"sha256:{total}", named
@@ -382,6 +387,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             failed += 1
             continue
         entry["resolution"] = list(job.resolution)
+        job.normals = scene.computed_normals.get(mesh.path)
         if max(job.resolution) < TINY_RESOLUTION and not settings_resolution_given(job):
             entry["warnings"].append(
                 f"texel density {job.settings['texel_density']:g}/m gives only "
@@ -663,6 +669,30 @@ def _author_uvs(stage, job) -> str | None:
     return None
 
 
+def _author_normals(stage, job) -> str:
+    """Author the normals the scene computed for a mesh (faceVarying, object space, float32:
+    exactly the values the bake traced with), so renderers shade with them; returns the rule
+    token for ``ahdLightmap:baked:normals`` ("authored" when the mesh had its own)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    comp = job.normals
+    if comp is None:
+        return "authored"
+    prim = stage.GetPrimAtPath(job.path)
+    values = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(comp.values, dtype=np.float32))
+    if comp.attr == "primvars:normals":
+        pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(
+            "normals", Sdf.ValueTypeNames.Normal3fArray, UsdGeom.Tokens.faceVarying
+        )
+        pv.Set(values)
+        pv.BlockIndices()
+    else:
+        mesh = UsdGeom.Mesh(prim)
+        mesh.CreateNormalsAttr().Set(values)
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
+    return comp.rule
+
+
 def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bool:
     """Write the override layer atomically; returns False when its content is unchanged."""
     from pxr import Sdf, Usd, UsdGeom
@@ -700,14 +730,21 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
             if job.mesh is None and old_layer is not None:
                 # A kept prim (not selected this time): carry over a UV set an earlier run
                 # unwrapped and authored here, or its kept textures would lose their UVs.
-                uv_path = Sdf.Path(job.path).AppendProperty(f"primvars:{res.uv_primvar}")
-                if old_layer.GetAttributeAtPath(uv_path) is not None:
-                    Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
-                    Sdf.CopySpec(old_layer, uv_path, layer, uv_path)
+                # Same for the normals it computed (baked:normals says which rule).
+                names = [f"primvars:{res.uv_primvar}"]
+                if res.normals != "authored":
+                    names += ["normals", "primvars:normals"]
+                for name in names:
+                    spec_path = Sdf.Path(job.path).AppendProperty(name)
+                    if old_layer.GetAttributeAtPath(spec_path) is not None:
+                        Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
+                        Sdf.CopySpec(old_layer, spec_path, layer, spec_path)
             if job.uv_primvar_values is not None:
                 warning = _author_uvs(ostage, job)
                 if warning and warning not in job.report.setdefault("warnings", []):
                     job.report["warnings"].append(warning)
+            if job.mesh is not None:
+                res.normals = _author_normals(ostage, job)
             schema.write_results(prim, res, layer_dir=out.parent)
         layer.Save()
         new = tmp.read_bytes()

@@ -39,10 +39,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from usdahd.bake import lights as L
 from usdahd.bake.types import MeshData
 from usdahd.errors import StageError
+from usdahd.usd import normals as N
 
-#: Corners whose smooth normal deviates more than this from the face normal use the face
-#: normal instead (keeps boxes flat-shaded while smoothing tessellated curves).
-SMOOTH_COS_LIMIT = math.cos(math.radians(45.0))
 #: UsdPreviewSurface diffuseColor fallback.
 DEFAULT_ALBEDO = (0.18, 0.18, 0.18)
 #: Largest emitted radiance (or point-light intensity) accepted from a light or an emissive
@@ -162,6 +160,20 @@ class Material:
 
 
 @dataclass
+class ComputedNormals:
+    """Normals the scene computed for a mesh that authors none (usdahd.usd.normals).
+
+    rule : usdahd.usd.normals.RULE_CREASE or RULE_SMOOTH; values : (c, 3) float32 unit
+    object-space normals, one per faceVertexIndices entry (faceVarying); attr : the attribute
+    to author them in (``normals``, or ``primvars:normals`` when the mesh has that primvar).
+    """
+
+    rule: str
+    values: np.ndarray
+    attr: str = "normals"
+
+
+@dataclass
 class Scene:
     meshes: list[MeshData]
     materials: list[Material]
@@ -172,6 +184,8 @@ class Scene:
     texcoords: list[dict[str, np.ndarray]] = field(default_factory=list)
     source: str = ""
     failed: dict[str, str] = field(default_factory=dict)
+    #: prim path -> ComputedNormals, for meshes without usable authored normals.
+    computed_normals: dict[str, ComputedNormals] = field(default_factory=dict)
 
     @property
     def baked_meshes(self) -> list[MeshData]:
@@ -257,6 +271,7 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
         for path in [p for p in failed if not selected(p)]:
             ex.warn(f"{failed.pop(path)} (not selected: dropped from the occluders)")
     ex.size_warnings()
+    ex.normals_warnings()
     if bake_instances:
         for m, inst in zip(ex.meshes, ex.instanced):
             if inst and not ex.implicit.get(id(m), False):
@@ -279,6 +294,7 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
         texcoords=ex.texcoords,
         source=source,
         failed=failed,
+        computed_normals=ex.computed_normals,
     )
 
 
@@ -351,6 +367,8 @@ class _Extractor:
         self._warned: set[str] = set()
         self._textures: dict = {}
         self.failed: dict[str, str] = {}
+        self.computed_normals: dict[str, ComputedNormals] = {}
+        self.unauthored_scheme: list[str] = []
         self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
         if self.up_axis not in ("Y", "Z"):
             self.warn(
@@ -387,6 +405,35 @@ class _Extractor:
                 f"scene's extent {extent:.3g}: {', '.join(small[:5])}{more}; ray offsets exceed "
                 "10% of their size, so their lighting is approximate (a huge ground plane or a "
                 "stray far-away prim inflates the extent)"
+            )
+
+    def normals_warnings(self) -> None:
+        """One warning per stage naming the meshes whose normals were computed, and one for
+        those that leave subdivisionScheme unauthored (see docs/schema.md, Normals)."""
+
+        def names(paths):
+            more = f" and {len(paths) - 3} more" if len(paths) > 3 else ""
+            return ", ".join(paths[:3]) + more
+
+        comp = sorted(self.computed_normals)
+        if comp:
+            rules = sorted({self.computed_normals[p].rule for p in comp})
+            self.warn(
+                f"{len(comp)} meshes author no normals ({names(comp)}): normals computed by "
+                f"the {' / '.join(rules)} rule (crease angle {N.CREASE_ANGLE_DEG:g} degrees, "
+                "angle-weighted; smooth for catmullClark/loop) and authored into the output "
+                "layer; author normals to choose the shading yourself (docs/schema.md#normals)",
+                key="normals:computed",
+            )
+        if self.unauthored_scheme:
+            p = sorted(set(self.unauthored_scheme))
+            self.warn(
+                f"{len(p)} meshes without normals leave subdivisionScheme unauthored "
+                f"({names(p)}): USD's fallback is catmullClark, but usdahd does not subdivide "
+                "and shades them as polygonal meshes (crease-angle normals, as RTX renders "
+                'unsubdivided meshes faceted); author subdivisionScheme = "none" (or '
+                '"catmullClark" for smooth normals) to say which you mean',
+                key="normals:scheme",
             )
 
     def warn(self, msg: str, key: str | None = None):
@@ -496,7 +543,7 @@ class _Extractor:
                 return
         left = self.get(mesh.GetOrientationAttr()) == UsdGeom.Tokens.leftHanded
         sda = mesh.GetSubdivisionSchemeAttr()
-        sd = self.get(sda) if sda.HasAuthoredValue() else None
+        sd = str(self.get(sda)) if sda.HasAuthoredValue() else None
         if sd not in (None, UsdGeom.Tokens.none):
             self.warn(
                 f"{path}: subdivisionScheme {sd}: the control cage is baked as is", key="subdiv"
@@ -506,9 +553,22 @@ class _Extractor:
         except _SubsetError as exc:
             raise _MeshFailure(str(exc)) from None
         ctx = _Topology(counts, idx)
-        self._emit(prim, xform, path, pts, ctx, left, face_mat, instanced, bake)
+        self._emit(prim, xform, path, pts, ctx, left, face_mat, instanced, bake, scheme=sd)
 
-    def _emit(self, prim, xform, path, pts, topo, left, face_mat, instanced, bake, implicit=False):
+    def _emit(
+        self,
+        prim,
+        xform,
+        path,
+        pts,
+        topo,
+        left,
+        face_mat,
+        instanced,
+        bake,
+        implicit=False,
+        scheme=None,
+    ):
         m3 = xform[:3, :3]
         _check_transform(xform, path)
         flip = left ^ (np.linalg.det(m3) < 0)
@@ -533,8 +593,15 @@ class _Extractor:
         normals = None
         if not implicit:
             normals = self._authored_normals(prim, topo, corners, m3, path)
+        computed = None
         if normals is None:
-            normals = _smooth_normals(wp, tri)
+            rule = N.rule_for_scheme(scheme)
+            fv = N.compute_normals(pts, topo.counts, topo.idx, rule, left_handed=left)
+            normals = N.to_world(fv[corners], m3)
+            if not implicit:
+                computed = ComputedNormals(rule, fv, self._normals_attr(prim))
+                if scheme is None:
+                    self.unauthored_scheme.append(path)
         uv = None
         texcoords = {}
         if not implicit:
@@ -577,6 +644,8 @@ class _Extractor:
             bake=bake and not instanced and not implicit,
         )
         self.meshes.append(md)
+        if computed is not None:
+            self.computed_normals[path] = computed
         self.texcoords.append(texcoords)
         self.instanced.append(bool(instanced) and not implicit)
         self.implicit[id(md)] = implicit
@@ -696,12 +765,19 @@ class _Extractor:
             v = v[sel]
         if v is None:
             return None
-        n = v[corners] @ np.linalg.inv(m3).T
-        ln = np.linalg.norm(n, axis=-1, keepdims=True)
-        if not np.all(np.isfinite(n)) or np.any(ln < 1e-12):
+        v = v[corners]
+        ln = np.linalg.norm(v, axis=-1)
+        if not np.all(np.isfinite(v)) or np.any(ln < 1e-12):
             self.warn(f"{path}: degenerate or NaN authored normals; normals recomputed")
             return None
-        return n / ln
+        return N.to_world(v, m3)
+
+    @staticmethod
+    def _normals_attr(prim) -> str:
+        """The attribute a renderer reads normals from: ``primvars:normals`` when the mesh has
+        one (it wins over ``normals``), else ``normals``; the bake authors computed ones there."""
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+        return "primvars:normals" if pv and pv.HasAuthoredValue() else "normals"
 
     # --------------------------------------------------------------------- implicit gprims
     def _implicit(self, prim, xform, path, instanced):
@@ -1249,24 +1325,6 @@ def _drop_degenerate(wp, topo, corners, path, warn):
             "(repeated or collinear points)"
         )
     return corners[keep], keep
-
-
-def _smooth_normals(wp, tri):
-    """Area-weighted vertex normals; corners deviating > 45 deg from their face use the face
-    normal. wp : (v,3) float64, tri : (t,3) int. returns (t,3,3) float64 unit."""
-    a, b, c = wp[tri[:, 0]], wp[tri[:, 1]], wp[tri[:, 2]]
-    fn = np.cross(b - a, c - a)  # length = 2 * area
-    vn = np.zeros_like(wp)
-    for j in range(3):
-        np.add.at(vn, tri[:, j], fn)  # once per mesh at load time, not per ray
-    fl = np.linalg.norm(fn, axis=1, keepdims=True)
-    fu = np.where(fl > 0, fn / np.where(fl > 0, fl, 1), [0, 0, 1.0])
-    vl = np.linalg.norm(vn, axis=1, keepdims=True)
-    vu = np.where(vl > 0, vn / np.where(vl > 0, vl, 1), 0.0)
-    n = vu[tri]  # (t,3,3)
-    cosang = np.einsum("tcj,tj->tc", n, fu)
-    use_face = cosang < SMOOTH_COS_LIMIT
-    return np.where(use_face[..., None], fu[:, None, :], n)
 
 
 def _fmt(v) -> str:

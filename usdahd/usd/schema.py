@@ -42,6 +42,7 @@ __all__ = [
     "MODELS",
     "RATIOS",
     "TANGENT_FRAMES",
+    "NORMALS_RULES",
     "SIDECAR_ROLE",
     "FILE_ROLES",
     "COLOR_SPACES",
@@ -76,6 +77,10 @@ MODELS = tuple(REGISTRY)
 RATIOS = ("luminance", "rgb", "none", "linear", "nonlinear", "8bit")
 #: allowedTokens of ``ahdLightmap:baked:tangentFrame``.
 TANGENT_FRAMES = ("mikktspace_uv",)
+#: allowedTokens of ``ahdLightmap:baked:normals`` (usdahd.usd.normals.RULES): where the
+#: normals the bake used came from (authored by the scene, or computed by a rule and authored
+#: by the bake in the override layer).
+NORMALS_RULES = ("authored", "creaseAngle30", "smooth")
 #: Role name of the radiance SH sidecar (``ahdLightmap:sidecar:sh``), next to the texture ROLES.
 SIDECAR_ROLE = "sh"
 #: Every file-valued role: texture roles of models.base.ROLES, then the sidecar.
@@ -329,6 +334,7 @@ class BakeResults:
     settings : every setting used (JSON-serialisable).
     generator : e.g. "usdahd 0.1.0".
     format_version : layout version (FORMAT_VERSION).
+    normals : one of NORMALS_RULES (``baked:normals``).
     """
 
     model: str
@@ -345,6 +351,7 @@ class BakeResults:
     generator: str = ""
     format_version: int = FORMAT_VERSION
     asset_paths: dict[str, str] = field(default_factory=dict)
+    normals: str = "authored"
 
     def factor(self, name: str) -> float:
         """A decode factor, or its schema fallback when not set."""
@@ -363,6 +370,10 @@ def result_problems(results: BakeResults) -> list[str]:
     if results.tangent_frame not in TANGENT_FRAMES:
         out.append(
             f"tangent frame {results.tangent_frame!r} is not one of {', '.join(TANGENT_FRAMES)}"
+        )
+    if results.normals not in NORMALS_RULES:
+        out.append(
+            f"normals rule {results.normals!r} is not one of {', '.join(NORMALS_RULES)}"
         )
     res = tuple(results.resolution)
     if len(res) != 2 or any(not isinstance(r, int) or r <= 0 for r in res):
@@ -461,6 +472,7 @@ def write_results(
     _set(prim, "baked:settings", settings)
     _set(prim, "baked:generator", results.generator)
     _set(prim, "baked:formatVersion", int(results.format_version))
+    _set(prim, "baked:normals", results.normals)
 
 
 def is_baked(prim: Usd.Prim) -> bool:
@@ -516,6 +528,7 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
         generator=str(_get(prim, "baked:generator")),
         format_version=int(_get(prim, "baked:formatVersion")),
         asset_paths=assets,
+        normals=str(_get(prim, "baked:normals")),
     )
     if validate:
         problems = result_problems(results)

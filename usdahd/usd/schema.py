@@ -372,9 +372,7 @@ def result_problems(results: BakeResults) -> list[str]:
             f"tangent frame {results.tangent_frame!r} is not one of {', '.join(TANGENT_FRAMES)}"
         )
     if results.normals not in NORMALS_RULES:
-        out.append(
-            f"normals rule {results.normals!r} is not one of {', '.join(NORMALS_RULES)}"
-        )
+        out.append(f"normals rule {results.normals!r} is not one of {', '.join(NORMALS_RULES)}")
     res = tuple(results.resolution)
     if len(res) != 2 or any(not isinstance(r, int) or r <= 0 for r in res):
         out.append(f"resolution {results.resolution!r} must be two positive integers")

@@ -155,7 +155,11 @@ class Material:
             repr((self.opacity, self.opacity_threshold, self.texcoord)),
         ]
         for t in (self.albedo_tex, self.emission_tex, self.opacity_tex):
-            parts.append("" if t is None else f"{t.path}:{_digest(t.data.tobytes())}")
+            if t is None:
+                parts.append("")
+                continue
+            sb = repr((np.round(t.scale, 7).tolist(), np.round(t.bias, 7).tolist()))
+            parts.append(f"{t.path}:{_digest(t.data.tobytes())}:{sb}:{t.channels}:{t.wrap}")
         return "|".join(parts)
 
 
@@ -186,6 +190,15 @@ class Scene:
     failed: dict[str, str] = field(default_factory=dict)
     #: prim path -> ComputedNormals, for meshes without usable authored normals.
     computed_normals: dict[str, ComputedNormals] = field(default_factory=dict)
+    #: the time every attribute was read at (None: Usd.TimeCode.Default()), and whether it was
+    #: chosen automatically (resolve_time) rather than given.
+    time: float | None = None
+    time_auto: bool = True
+
+    @property
+    def time_setting(self):
+        """The bake time as recorded in ``baked:settings``: a number or ``"default"``."""
+        return "default" if self.time is None else self.time
 
     @property
     def baked_meshes(self) -> list[MeshData]:
@@ -236,9 +249,14 @@ def _digest(b: bytes) -> str:
 # ----------------------------------------------------------------------------- entry point
 
 
-def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool = False) -> Scene:
+def load_scene(
+    stage, *, uv_name: str = "st", prims=None, bake_instances: bool = False, time=None
+) -> Scene:
     """Extract a :class:`Scene` from a ``Usd.Stage`` or a path to one.
 
+    time : the time every attribute is read at: None (default) picks the stage's
+        startTimeCode when anything the bake reads is animated, else the default time (see
+        :func:`resolve_time`); a number; or ``"default"`` for ``Usd.TimeCode.Default()``.
     uv_name : lightmap UV primvar read per mesh (``MeshData.uv`` None when absent).
     prims : optional iterable of prim paths; only meshes at or under them are baked (all
         others still occlude). Unknown paths raise StageError.
@@ -251,7 +269,11 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
     """
     stage, source = _open(stage)
     mpu = _stage_checks(stage, source)
-    ex = _Extractor(stage, uv_name)
+    warnings: list[str] = []
+    t, auto = resolve_time(stage, time, warnings.append)
+    ex = _Extractor(stage, uv_name, t)
+    for w in warnings:
+        ex.warn(w)
     _composition_warnings(stage, source, ex.warn)
     ex.run()
     if not ex.meshes and not ex.failed:
@@ -272,6 +294,8 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
             ex.warn(f"{failed.pop(path)} (not selected: dropped from the occluders)")
     ex.size_warnings()
     ex.normals_warnings()
+    ex.light_warnings()
+    ex.link_membership()
     if bake_instances:
         for m, inst in zip(ex.meshes, ex.instanced):
             if inst and not ex.implicit.get(id(m), False):
@@ -295,7 +319,110 @@ def load_scene(stage, *, uv_name: str = "st", prims=None, bake_instances: bool =
         source=source,
         failed=failed,
         computed_normals=ex.computed_normals,
+        time=None if t.IsDefault() else float(t.GetValue()),
+        time_auto=auto,
     )
+
+
+#: Prim types whose time samples never change a bake (the scene reader does not read them).
+_UNREAD_TYPES = ("Camera", "RenderSettings", "RenderProduct", "RenderVar", "RenderPass")
+
+
+def animated_attributes(stage) -> list:
+    """Attributes with time samples on the prims the scene reader reads (geometry, xforms,
+    visibility, lights, materials and shaders, subsets; cameras and render settings excluded),
+    prototypes of scenegraph instances included once. returns [Usd.Attribute]."""
+    out = []
+    roots = [stage.GetPseudoRoot(), *stage.GetPrototypes()]
+    for root in roots:
+        for prim in Usd.PrimRange(root):
+            if prim.GetTypeName() in _UNREAD_TYPES:
+                continue
+            for attr in prim.GetAttributes():
+                if attr.GetNumTimeSamples() > 0:
+                    out.append(attr)
+    return out
+
+
+def parse_time(value):
+    """A ``--time`` value: None, ``"default"`` or a finite number (str or float) -> None,
+    "default" or float. Raises ValueError with the accepted forms."""
+    if value is None or value == "default":
+        return value
+    try:
+        t = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"--time {value!r}: expected a time code (a number such as 1 or 101.5) or 'default'"
+        ) from None
+    if not math.isfinite(t):
+        raise ValueError(f"--time {value!r}: the time code must be finite")
+    return t
+
+
+def resolve_time(stage, time=None, warn=None):
+    """The time the bake reads the stage at, and whether it was chosen automatically.
+
+    time : None (automatic), "default" or a number (see :func:`parse_time`).
+    Automatic: the stage's startTimeCode when any attribute the bake reads has time samples
+    (the first of their samples if startTimeCode is not authored), else the default time. A
+    warning names the animated attributes, and one per attribute whose default value and
+    time samples disagree at the chosen time (a default plus samples: USD renderers show the
+    sample at a numeric time, the default only at the default time).
+    returns (Usd.TimeCode, auto: bool).
+    """
+    warn = warn or (lambda m: None)
+    time = parse_time(time)
+    anim = animated_attributes(stage)
+    auto = time is None
+    if time == "default":
+        t = Usd.TimeCode.Default()
+    elif time is not None:
+        t = Usd.TimeCode(time)
+    elif not anim:
+        t = Usd.TimeCode.Default()
+    elif stage.HasAuthoredMetadata("startTimeCode"):
+        t = Usd.TimeCode(stage.GetStartTimeCode())
+    else:
+        first = min(a.GetTimeSamples()[0] for a in anim)
+        t = Usd.TimeCode(first)
+        warn(
+            f"the stage has time samples but no startTimeCode: baked at the first sample, time "
+            f"{first:g} (author startTimeCode or pass --time)"
+        )
+    when = "the default time" if t.IsDefault() else f"time {t.GetValue():g}"
+    if anim:
+        names = [str(a.GetPath()) for a in anim[:4]]
+        more = f" and {len(anim) - 4} more" if len(anim) > 4 else ""
+        start = stage.HasAuthoredMetadata("startTimeCode") and not t.IsDefault()
+        why = " (the stage's startTimeCode)" if auto and start else ""
+        hint = ""
+        if t.IsDefault():
+            hint = (
+                ": animated attributes use their default value, or their schema fallback if "
+                "they have none"
+            )
+        warn(
+            f"{len(anim)} attributes have time samples ({', '.join(names)}{more}): baked at "
+            f"{when}{why}{hint}; pass --time to bake another time"
+        )
+    for a in anim:
+        # a default authored next to the samples (in any layer of the stack)
+        if not any(spec.HasDefaultValue() for spec in a.GetPropertyStack(t)):
+            continue
+        d = a.Get(Usd.TimeCode.Default())
+        v = a.Get(Usd.TimeCode(a.GetTimeSamples()[0]) if t.IsDefault() else t)
+        try:
+            same = bool(d == v)
+        except Exception:  # pragma: no cover - exotic value types
+            same = False
+        if not same:
+            used = "the default" if t.IsDefault() else "the time sample"
+            warn(
+                f"{a.GetPath()}: its default value and its time samples disagree; {used} is "
+                f"used (baked at {when}); remove the one you do not mean"
+            )
+    return t, auto
 
 
 def _stage_checks(stage, source) -> float:
@@ -351,11 +478,14 @@ def _open(stage):
 
 
 class _Extractor:
-    def __init__(self, stage, uv_name):
+    def __init__(self, stage, uv_name, time=None):
         self.stage = stage
         self.uv_name = uv_name
-        self.time = Usd.TimeCode.Default()
+        self.time = Usd.TimeCode.Default() if time is None else time
         self.xf = UsdGeom.XformCache(self.time)
+        self.when = (
+            "the default time" if self.time.IsDefault() else f"time {self.time.GetValue():g}"
+        )
         self.meshes: list[MeshData] = []
         self.texcoords: list[dict] = []
         self.instanced: list[bool] = []
@@ -366,9 +496,14 @@ class _Extractor:
         self.warnings: list[str] = []
         self._warned: set[str] = set()
         self._textures: dict = {}
+        self._tc_transforms: dict = {}  # derived texcoord name -> (primvar, A (2,2), b (2,))
         self.failed: dict[str, str] = {}
         self.computed_normals: dict[str, ComputedNormals] = {}
         self.unauthored_scheme: list[str] = []
+        self.unauthored_intensity: list[str] = []
+        self._link_queries: list = []
+        self.link_paths: list[str] = []  # per mesh: the prim path collections are queried by
+        self._instancer: str | None = None  # the PointInstancer being expanded
         self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
         if self.up_axis not in ("Y", "Z"):
             self.warn(
@@ -459,18 +594,30 @@ class _Extractor:
     def run(self):
         pred = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         it = iter(Usd.PrimRange(self.stage.GetPseudoRoot(), pred))
+        purposes = {}  # prim path -> UsdGeom.Imageable.PurposeInfo, for the children
         for prim in it:
             if prim.IsPseudoRoot():
                 continue
             img = UsdGeom.Imageable(prim)
             if img:
-                vis = self.get(img.GetVisibilityAttr(), UsdGeom.Tokens.inherited)
-                purpose = self.get(img.GetPurposeAttr(), UsdGeom.Tokens.default_)
-                if vis == UsdGeom.Tokens.invisible or purpose in (
-                    UsdGeom.Tokens.guide,
-                    UsdGeom.Tokens.proxy,
-                ):
+                va = img.GetVisibilityAttr()
+                vis = self.get(va, UsdGeom.Tokens.inherited)
+                if va.GetNumTimeSamples() > 0:
+                    self.warn(
+                        f"{prim.GetPath()}: visibility is animated; baked as it is at "
+                        f"{self.when} ({vis})"
+                    )
+                if vis == UsdGeom.Tokens.invisible:  # invisibility is inherited: prune
                     it.PruneChildren()
+                    continue
+                # Purpose is inherited unless a descendant authors its own: a render child
+                # of a guide parent is rendered (UsdGeomImageable::ComputePurposeInfo).
+                parent = purposes.get(prim.GetParent().GetPath())
+                info = img.ComputePurposeInfo(parent) if parent else img.ComputePurposeInfo()
+                purposes[prim.GetPath()] = info
+                if info.purpose in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                    if prim.IsA(UsdGeom.PointInstancer):
+                        it.PruneChildren()  # its prototypes are not scene geometry
                     continue
             if prim.IsA(UsdGeom.PointInstancer):
                 self._point_instancer(prim)
@@ -619,14 +766,17 @@ class _Extractor:
                     )
                     and name not in texcoords
                 ):
+                    base, a, b = self._tc_transforms.get(name, (name, None, None))
                     tc = (
                         uv
-                        if name == self.uv_name
-                        else self._primvar2(prim, name, topo, corners, path)
+                        if base == self.uv_name
+                        else self._primvar2(prim, base, topo, corners, path)
                     )
+                    if tc is not None and a is not None:  # UsdTransform2d (affine: exact)
+                        tc = (tc.astype(np.float64) @ a.T + b).astype(np.float32)
                     if tc is None:
                         self.warn(
-                            f"{path}: material texture reads primvar '{name}' which the "
+                            f"{path}: material texture reads primvar '{base}' which the "
                             "mesh lacks; texture sampled at (0, 0)"
                         )
                     else:
@@ -644,6 +794,7 @@ class _Extractor:
             bake=bake and not instanced and not implicit,
         )
         self.meshes.append(md)
+        self.link_paths.append(self._instancer or str(prim.GetPath()))
         if computed is not None:
             self.computed_normals[path] = computed
         self.texcoords.append(texcoords)
@@ -829,12 +980,17 @@ class _Extractor:
                     m = np.array(rel) @ local_root @ inst_m
                     name = f"{path}/instance_{i}{str(p.GetPath())[len(str(root.GetPath())) :]}"
                     fn = self._mesh if p.IsA(UsdGeom.Mesh) else self._implicit
-                    self._guarded(fn, p, m, name, True)
+                    self._instancer = path
+                    try:
+                        self._guarded(fn, p, m, name, True)
+                    finally:
+                        self._instancer = None
 
     # --------------------------------------------------------------------- materials
     def _face_materials(self, prim, n_faces, path):
         api = UsdShade.MaterialBindingAPI(prim)
-        base = self._material_index(api.ComputeBoundMaterial()[0], prim)
+        # A baker renders final quality: the "full" binding, else the all-purpose one.
+        base = self._material_index(api.ComputeBoundMaterial(UsdShade.Tokens.full)[0], prim)
         fm = np.full(n_faces, base, np.int32)
         for subset in api.GetMaterialBindSubsets():
             ind = self.get(subset.GetIndicesAttr())
@@ -846,7 +1002,8 @@ class _Extractor:
                     f"{path}: GeomSubset {subset.GetPath()} indices out of range [0, {n_faces}); "
                     "fix the subset"
                 )
-            mat = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0]
+            sub = UsdShade.MaterialBindingAPI(subset.GetPrim())
+            mat = sub.ComputeBoundMaterial(UsdShade.Tokens.full)[0]
             fm[ind] = self._material_index(mat, prim)
         return fm
 
@@ -897,14 +1054,80 @@ class _Extractor:
         thr = shader.GetInput("opacityThreshold")
         out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
         self._check_material(out)
+        self._metallic(shader, out)
+        self._unhonoured_inputs(shader, name)
         if tc_names:
             out.texcoord = tc_names[0]
             if len(set(tc_names)) > 1:
                 self.warn(
-                    f"{name}: textures read different primvars {sorted(set(tc_names))}; "
-                    f"using '{tc_names[0]}'"
+                    f"{name}: textures read different primvars or UsdTransform2d "
+                    f"{sorted(set(tc_names))}; using '{tc_names[0]}' for all"
                 )
         return out
+
+    def _metallic(self, shader, out: Material) -> None:
+        """UsdPreviewSurface metallic workflow: a metal has no diffuse lobe, so the diffuse
+        albedo is diffuseColor x (1 - metallic) (constant metallic; a metallic texture is
+        warned and ignored). The specular workflow (useSpecularWorkflow = 1) ignores metallic."""
+        wf = shader.GetInput("useSpecularWorkflow")
+        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+            return
+        inp = shader.GetInput("metallic")
+        if not inp:
+            return
+        if inp.HasConnectedSource():
+            self.warn(
+                f"{out.name}: a metallic texture is not supported: the diffuse albedo is not "
+                "reduced where the texture is metallic (author a constant metallic)",
+                key=f"metaltex:{out.name}",
+            )
+            return
+        m = self.get(inp.GetAttr(), 0.0)
+        m = float(np.ravel(np.asarray(m, np.float64))[0]) if m is not None else 0.0
+        if not math.isfinite(m):
+            raise StageError(f"{out.name}: UsdPreviewSurface inputs:metallic is {m}: fix it")
+        if not 0.0 <= m <= 1.0:
+            self.warn(f"{out.name}: metallic {m:g} outside [0, 1]; clamped")
+            m = min(max(m, 0.0), 1.0)
+        if m == 0.0:
+            return
+        k = np.float32(1.0 - m)
+        out.albedo = (out.albedo * k).astype(np.float32)
+        if out.albedo_tex is not None:
+            tex = out.albedo_tex
+            tex.scale = tex.scale.copy()
+            tex.bias = tex.bias.copy()
+            tex.scale[:3] *= k
+            tex.bias[:3] *= k
+
+    def _unhonoured_inputs(self, shader, name) -> None:
+        """One warning per material naming the UsdPreviewSurface inputs that change the
+        diffuse response and that the baker ignores (a Lambertian bake of the base layer)."""
+        neutral = {
+            "normal": (0.0, 0.0, 1.0),
+            "displacement": 0.0,
+            "occlusion": 1.0,
+            "clearcoat": 0.0,
+        }
+        found = []
+        for inp_name, value in neutral.items():
+            inp = shader.GetInput(inp_name)
+            if not inp:
+                continue
+            if inp.HasConnectedSource():
+                found.append(f"{inp_name} (connected)")
+                continue
+            if not inp.GetAttr().HasAuthoredValue():
+                continue
+            v = self.get(inp.GetAttr())
+            if v is not None and not np.allclose(np.asarray(v, np.float64), value):
+                found.append(f"{inp_name} = {_fmt(v)}")
+        if found:
+            self.warn(
+                f"{name}: UsdPreviewSurface {', '.join(found)} not honoured by the bake (it "
+                "shades the flat diffuse base layer): the lightmap ignores them",
+                key=f"unhonoured:{name}",
+            )
 
     def _check_material(self, out: Material) -> None:
         """NaN/Inf or negative emission is a broken light source (StageError); non-physical
@@ -971,15 +1194,58 @@ class _Extractor:
             )
             ch = _channels(out_name)
             return (f4[list(ch)] if len(ch) == fb.size else fb), None
+        tc_names.append(self._texcoord_name(tex_shader, mat_name))
+        return fb, tex
+
+    def _texcoord_name(self, tex_shader, mat_name) -> str:
+        """The texcoord a UsdUVTexture reads: the primvar of its UsdPrimvarReader_float2,
+        optionally through a UsdTransform2d (then a derived name ``<primvar>@<transform>``
+        whose values :meth:`_emit` computes: out = rotate(scale * in) + translation)."""
         st = tex_shader.GetInput("st")
+        if not st or not st.HasConnectedSource():
+            return "st"
+        node = UsdShade.Shader(st.GetConnectedSources()[0][0].source.GetPrim())
+        nid = node.GetIdAttr().Get() if node.GetIdAttr() else None
+        xf = None
+        if nid == "UsdTransform2d":
+
+            def val(n, d):
+                i = node.GetInput(n)
+                v = self.get(i.GetAttr()) if i else None
+                return np.array(d if v is None else v, np.float64).reshape(-1)
+
+            scale, rot, trans = (
+                val("scale", (1, 1)),
+                val("rotation", 0.0),
+                val("translation", (0, 0)),
+            )
+            if not (np.all(np.isfinite(scale)) and np.all(np.isfinite(rot))):
+                raise StageError(f"{node.GetPath()}: UsdTransform2d inputs are NaN/Inf: fix it")
+            xf = (float(scale[0]), float(scale[1]), float(rot[0]), float(trans[0]), float(trans[1]))
+            inp = node.GetInput("in")
+            if not inp or not inp.HasConnectedSource():
+                self.warn(
+                    f"{mat_name}: {node.GetPath()} (UsdTransform2d) has no connected 'in'; "
+                    "the texture reads primvar 'st'"
+                )
+                reader = None
+            else:
+                reader = UsdShade.Shader(inp.GetConnectedSources()[0][0].source.GetPrim())
+        else:
+            reader = node
         var = "st"
-        if st and st.HasConnectedSource():
-            rd = UsdShade.Shader(st.GetConnectedSources()[0][0].source.GetPrim())
-            vn = rd.GetInput("varname")
+        if reader:
+            vn = reader.GetInput("varname")
             if vn:
                 var = str(self.get(vn.GetAttr(), "st"))
-        tc_names.append(var)
-        return fb, tex
+        if xf is None or xf == (1.0, 1.0, 0.0, 0.0, 0.0):
+            return var
+        sx, sy, r, tx, ty = (f"{v:.9g}" for v in xf)
+        name = f"{var}@scale({sx},{sy})rotate({r})translate({tx},{ty})"
+        c, s_ = math.cos(math.radians(xf[2])), math.sin(math.radians(xf[2]))
+        a = np.array([[c, -s_], [s_, c]]) @ np.diag([xf[0], xf[1]])
+        self._tc_transforms[name] = (var, a, np.array([xf[3], xf[4]]))
+        return name
 
     def _texture(self, tex_shader, out_name, mat_name):
         fin = tex_shader.GetInput("file")
@@ -992,7 +1258,9 @@ class _Extractor:
             return None
         cs = tex_shader.GetInput("sourceColorSpace")
         cs = str(self.get(cs.GetAttr(), "auto")) if cs else "auto"
-        data = self._read_image(path, cs, mat_name)
+        fattr = fin.GetAttr()
+        file_cs = str(fattr.GetColorSpace()) if fattr.HasColorSpace() else ""
+        data = self._read_image(path, cs, mat_name, file_cs)
         if data is None:
             return None
 
@@ -1015,11 +1283,13 @@ class _Extractor:
             (wrap[0], wrap[1]),
         )
 
-    def _read_image(self, path, colorspace, owner):
-        key = (path, colorspace)
+    def _read_image(self, path, colorspace, owner, file_colorspace=""):
+        key = (path, colorspace, file_colorspace)
         if key in self._textures:
             return self._textures[key]
-        data = read_image(path, colorspace, lambda m: self.warn(f"{owner}: {m}"))
+        data = read_image(
+            path, colorspace, lambda m: self.warn(f"{owner}: {m}"), file_colorspace=file_colorspace
+        )
         if data is not None:
             data = _sanitize_image(data, f"{owner}: {path}", self.warn)
         self._textures[key] = data
@@ -1031,6 +1301,8 @@ class _Extractor:
         api = UsdLux.LightAPI(prim)
         g = lambda a, d=None: self.get(a, d)  # noqa: E731
         intensity = g(api.GetIntensityAttr(), 1.0)
+        if not api.GetIntensityAttr().HasAuthoredValue():
+            self.unauthored_intensity.append(path)
         exposure = g(api.GetExposureAttr(), 0.0)
         color = np.array(g(api.GetColorAttr(), (1, 1, 1)), np.float64)
         diffuse = g(api.GetDiffuseAttr(), 1.0)
@@ -1097,8 +1369,10 @@ class _Extractor:
             if ies is not None and (ies.path or ""):
                 self.warn(f"{path}: IES profiles not supported (ignored)")
         sa = prim.GetAttribute("inputs:shadow:enable")
-        if sa and sa.HasAuthoredValue() and not sa.Get():
+        if sa and sa.HasAuthoredValue() and not self.get(sa, True):
             self.warn(f"{path}: shadow:enable = false is not supported (shadows are cast)")
+        self._shadow_warnings(prim, path)
+        self._current_light = prim
         m = np.array(self.xf.GetLocalToWorldTransform(prim))
         if not np.all(np.isfinite(m)):
             raise StageError(
@@ -1218,7 +1492,103 @@ class _Extractor:
                 f"{e:g}, after normalize/area) overflows the baker's range (max "
                 f"{MAX_RADIANCE:.0e}); lower the exposure or intensity, or enlarge the light"
             )
+        prim = getattr(self, "_current_light", None)
+        if prim is not None and str(prim.GetPath()) == light.path:
+            self._link_queries.append((light, prim))
         self.lights.append(light)
+
+    def _shadow_warnings(self, prim, path) -> None:
+        """ShadowAPI inputs that change what a renderer shows and that the baker ignores."""
+        col = prim.GetAttribute("inputs:shadow:color")
+        if col and col.HasAuthoredValue():
+            c = np.asarray(self.get(col, (0, 0, 0)), np.float64)
+            if np.any(c != 0):
+                self.warn(
+                    f"{path}: inputs:shadow:color {_fmt(c)} is not supported: shadows are "
+                    "black (physically correct); remove it or bake with a fill light"
+                )
+        for name, neutral in (("inputs:shadow:distance", -1.0), ("inputs:shadow:falloff", -1.0)):
+            a = prim.GetAttribute(name)
+            if a and a.HasAuthoredValue() and float(self.get(a, neutral)) != neutral:
+                self.warn(f"{path}: {name} is not supported (shadows reach any distance)")
+
+    def link_membership(self) -> None:
+        """Per light, the baked-scene mesh indices its ``collection:lightLink`` includes
+        (``light.lit_meshes``) and whose shadows its ``collection:shadowLink`` includes
+        (``light.shadow_meshes``): (k,) int32 sorted, or None when the collection includes
+        every mesh (the default). Read through Usd.CollectionAPI membership queries; copies
+        of a PointInstancer are queried by the instancer's path. Not yet used by the
+        integrators (docs/lights.md)."""
+        if not self._link_queries:
+            return
+        paths = [self.link_paths[i] for i in range(len(self.meshes))]
+        for light, prim in self._link_queries:
+            api = UsdLux.LightAPI(prim)
+            for attr, coll in (
+                ("lit_meshes", api.GetLightLinkCollectionAPI()),
+                ("shadow_meshes", api.GetShadowLinkCollectionAPI()),
+            ):
+                query = coll.ComputeMembershipQuery()
+                inc = np.array([bool(query.IsPathIncluded(Sdf.Path(p))) for p in paths], bool)
+                setattr(light, attr, None if inc.all() else np.flatnonzero(inc).astype(np.int32))
+
+    def light_warnings(self) -> None:
+        """Stage-level light warnings: unauthored intensities (the schema fallback 1 is used)
+        and DistantLights too dim to contribute next to the other light sources."""
+        if self.unauthored_intensity:
+            p = sorted(self.unauthored_intensity)
+            more = f" and {len(p) - 3} more" if len(p) > 3 else ""
+            self.warn(
+                f"{len(p)} lights do not author inputs:intensity ({', '.join(p[:3])}{more}): "
+                "the UsdLux fallback 1 is used (very dim in physical units); author the "
+                "intensity you mean",
+                key="lights:intensity",
+            )
+        if not self.lights:
+            return
+        # Rough illuminance each source can deliver at the scene's centre (a warning only).
+        pts = [m.points for m in self.meshes]
+        centre = np.mean([p.mean(axis=0) for p in pts], axis=0) if pts else np.zeros(3)
+        scale = {}
+        for light in self.lights:
+            rad = float(np.max(light.radiance))
+            if isinstance(light, L.DistantLight):
+                h = light.half_angle
+                scale[light.path] = rad * (np.pi * math.sin(h) ** 2 if h > 0 else 1.0)
+            elif isinstance(light, L.DomeLight):
+                img = getattr(light, "image", None)
+                scale[light.path] = np.pi * rad * (float(np.mean(img)) if img is not None else 1)
+            else:
+                c = np.asarray(getattr(light, "center", centre), np.float64)
+                size = float(getattr(light, "radius", 0.0) or 0.0)
+                for k in ("ex", "ey"):
+                    if getattr(light, k, None) is not None:
+                        size = max(size, float(np.linalg.norm(getattr(light, k))))
+                d2 = max(float(np.sum((c - centre) ** 2)), size * size, 1e-12)
+                solid = min(np.pi * size * size / d2, np.pi) if size > 0 else 1.0 / d2
+                scale[light.path] = rad * solid
+        for m in self.materials:
+            if m.emissive:
+                scale[m.name] = np.pi * float(np.max(m.emission)) or np.pi
+        for light in self.lights:
+            if not isinstance(light, L.DistantLight):
+                continue
+            others = [v for k, v in scale.items() if k != light.path]
+            if others and scale[light.path] < 1e-3 * max(others):
+                ratio = scale[light.path] / max(others)
+                hint = ""
+                if light.half_angle > 0:
+                    solid = np.pi * math.sin(light.half_angle) ** 2
+                    hint = (
+                        "; with inputs:normalize off, intensity is the radiance of the sun "
+                        f"disc (illuminance = intensity x {solid:.2g}): set inputs:normalize "
+                        "= 1 to make it the illuminance"
+                    )
+                self.warn(
+                    f"{light.path}: this DistantLight delivers about {ratio:.1e} of the "
+                    f"brightest light source's illuminance, so it contributes nothing "
+                    f"visible{hint}"
+                )
 
     def _dome(self, prim, path, rad, m3):
         is1 = prim.IsA(UsdLux.DomeLight_1)
@@ -1244,7 +1614,9 @@ class _Extractor:
                 if not asset.resolvedPath:
                     problems.append("file not found")
                 else:
-                    image = read_image(file, "auto", problems.append)
+                    ta = lt.GetTextureFileAttr()
+                    fcs = str(ta.GetColorSpace()) if ta.HasColorSpace() else ""
+                    image = read_image(file, "auto", problems.append, file_colorspace=fcs)
                 if image is None:
                     raise StageError(
                         f"{path}: DomeLight texture:file {asset.path} cannot be read "
@@ -1355,43 +1727,97 @@ def _to_rgb(img):
     return np.repeat(img[..., :1], 3, axis=2)
 
 
-def _srgb_to_linear(x):
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+#: The colour space the baker works in (Gf.ColorSpaceNames / OpenImageIO's built-in config).
+LINEAR_SPACE = "lin_rec709_scene"
+#: Source colour spaces that need no conversion (data, or already the working space).
+_NO_CONVERSION = ("raw", "data", "lin_rec709_scene", "lin_rec709", "linear", "lin_srgb")
 
 
-def read_image(path: str, colorspace: str = "auto", warn=None):
+def source_color_space(colorspace: str, file_colorspace: str, fmt: str, nchannels: int):
+    """The colour space a texture's texels are in, or None for data (no conversion).
+
+    colorspace : UsdUVTexture ``inputs:sourceColorSpace`` (``raw``, ``sRGB`` or ``auto``);
+    file_colorspace : ``colorSpace`` metadata authored on ``inputs:file`` (or "");
+    fmt : OpenImageIO pixel format of the file; nchannels : its channel count.
+    ``raw`` and ``sRGB`` are explicit. ``auto`` takes the file's colorSpace metadata when
+    authored, else Hydra's rule (HioImage): an 8-bit image with 3 or 4 channels is sRGB,
+    anything else (1- or 2-channel masks, 16-bit, float) is linear.
+    """
+    if colorspace == "raw":
+        return None
+    if colorspace == "sRGB":
+        return "srgb_rec709_scene"
+    if file_colorspace:
+        return None if file_colorspace in _NO_CONVERSION else file_colorspace
+    if fmt == "uint8" and nchannels in (3, 4):
+        return "srgb_rec709_scene"
+    return None
+
+
+def _colorconvert(data, space: str, warn, path: str):
+    """Convert the colour channels of (h, w, c) float32 texels from ``space`` to LINEAR_SPACE
+    with OpenImageIO's colour management (alpha and the second channel of grey+alpha stay)."""
+    import OpenImageIO as oiio
+
+    h, w, c = data.shape
+    rgb = data[..., :3] if c >= 3 else np.repeat(data[..., :1], 3, axis=2)
+    buf = oiio.ImageBuf(np.ascontiguousarray(rgb, np.float32))
+    out = oiio.ImageBufAlgo.colorconvert(buf, space, LINEAR_SPACE)
+    if out.has_error or not out.initialized:
+        if warn:
+            warn(
+                f"texture {path}: OpenImageIO cannot convert colour space {space!r} to "
+                f"{LINEAR_SPACE} ({_one_line(out.geterror(), 150)}); texels read unconverted"
+            )
+        return data
+    conv = np.asarray(out.get_pixels(oiio.FLOAT), np.float32).reshape(h, w, 3)
+    data = data.copy()
+    if c >= 3:
+        data[..., :3] = conv
+    else:
+        data[..., 0] = conv[..., 0]
+    return data
+
+
+def read_image(path: str, colorspace: str = "auto", warn=None, file_colorspace: str = ""):
     """Read an image as linear float32 (h, w, c) through OpenImageIO, or None (with a warning).
 
-    colorspace : UsdUVTexture sourceColorSpace: ``raw`` (no conversion), ``sRGB`` (decode) or
-    ``auto`` (decode 8-bit images and those tagged sRGB).
+    path : a resolved asset path: a file, or an asset inside a usdz package / from a studio
+    resolver (read through USD's asset resolver, usdahd.usd.assets).
+    colorspace, file_colorspace : see :func:`source_color_space`; the conversion to
+    lin_rec709_scene is OpenImageIO's (``ImageBufAlgo.colorconvert``).
     """
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        if warn:
-            warn(f"cannot read texture {path} ({oiio.geterror()[:200]}); fallback used")
-        return None
+    from usdahd.usd import assets
+
     try:
-        spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        fmt = str(spec.format)
-        tagged = str(spec.get_string_attribute("oiio:ColorSpace", "")).lower()
-    finally:
-        inp.close()
+        with assets.local_file(path) as local:
+            inp = oiio.ImageInput.open(local)
+            if inp is None:
+                if warn:
+                    warn(f"cannot read texture {path} ({oiio.geterror()[:200]}); fallback used")
+                return None
+            try:
+                spec = inp.spec()
+                data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+                fmt = str(spec.format)
+            finally:
+                inp.close()
+    except OSError as exc:
+        if warn:
+            warn(f"cannot read texture {path} ({_one_line(exc, 200)}); fallback used")
+        return None
     if data is None:
         if warn:
             warn(f"cannot decode texture {path}; fallback used")
         return None
     data = np.asarray(data, np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    decode = colorspace == "sRGB" or (
-        colorspace == "auto"
-        and ("srgb" in tagged or fmt in ("uint8", "uint16") and "lin" not in tagged)
-    )
-    if decode:
-        c = min(3, data.shape[2])
-        data = data.copy()
-        data[..., :c] = _srgb_to_linear(data[..., :c])
+    if colorspace not in ("raw", "sRGB", "auto") and warn:
+        warn(f"texture {path}: unknown sourceColorSpace {colorspace!r}; treated as auto")
+    space = source_color_space(colorspace, file_colorspace, fmt, spec.nchannels)
+    if space is not None:
+        data = _colorconvert(data, space, warn, path)
     return data
 
 

@@ -76,6 +76,7 @@ class BakeOptions:
     force: bool = False
     dry_run: bool = False
     quiet: bool = False
+    time: float | str | None = None  # None: automatic (usd.scene.resolve_time); "default"
 
 
 @dataclass
@@ -179,6 +180,14 @@ def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float =
     s["adaptive"] = bool(opts.adaptive)
     s["denoise"] = bool(opts.denoise)
     return s
+
+
+def record_time(settings: dict, scene) -> None:
+    """The bake time in ``baked:settings`` (so in the content hash): ``time`` is the time code
+    or "default"; ``time_auto`` whether it was chosen from the stage (startTimeCode), so the
+    validator can tell when a re-bake would read another time."""
+    settings["time"] = scene.time_setting
+    settings["time_auto"] = bool(scene.time_auto)
 
 
 def _shape_digest(m):
@@ -343,7 +352,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     # Meshes carrying the API select themselves (bake on); else every visible mesh.
     api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}
     uv_default = opts.uv or DEFAULTS["uv"]
-    scene = load_scene(stage, uv_name=uv_default, prims=opts.prims)
+    scene = load_scene(stage, uv_name=uv_default, prims=opts.prims, time=opts.time)
     if api_prims:
         for m in scene.meshes:
             if m.bake:
@@ -353,6 +362,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     report = {
         "stage": str(src),
         "output": str(out),
+        "time": scene.time_setting,
         "prims": [],
         "warnings": list(scene.warnings),
         "written": False,
@@ -572,6 +582,7 @@ def _plan(
     except SchemaError as exc:
         raise InputError(str(exc)) from None
     settings = resolve_settings(opts, authored, scene.meters_per_unit)
+    record_time(settings, scene)
     if settings["resolution"] and not 1 <= int(settings["resolution"]) <= MAX_RESOLUTION:
         raise UsageError(
             f"{mesh.path}: resolution {settings['resolution']} is outside 1..{MAX_RESOLUTION}; "

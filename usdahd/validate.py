@@ -267,15 +267,30 @@ def read_image(path: str) -> Image:
 
     Raises OSError with OpenImageIO's message when the file cannot be opened.
     """
-    st = os.stat(path)
-    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+    from usdahd.usd import assets
+
+    key = assets.stamp(path)
+    if key is None:
+        if not assets.exists(path):
+            raise FileNotFoundError(f"{path} does not exist")
     with _LOCK:
-        if key in _IMAGE_CACHE:
+        if key is not None and key in _IMAGE_CACHE:
             _IMAGE_CACHE.move_to_end(key)
             return _IMAGE_CACHE[key]
+    with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
+        img = _read_local(local, path)
+    if key is not None:
+        with _LOCK:
+            _IMAGE_CACHE[key] = img
+            while len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE:
+                _IMAGE_CACHE.popitem(last=False)
+    return img
+
+
+def _read_local(local: str, path: str) -> Image:
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(path)
+    inp = oiio.ImageInput.open(local)
     if inp is None:
         raise OSError(oiio.geterror() or f"OpenImageIO cannot open {path}")
     try:
@@ -293,10 +308,6 @@ def read_image(path: str) -> Image:
         )
     finally:
         inp.close()
-    with _LOCK:
-        _IMAGE_CACHE[key] = img
-        while len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE:
-            _IMAGE_CACHE.popitem(last=False)
     return img
 
 
@@ -336,12 +347,10 @@ _BAKE_CACHE: OrderedDict = OrderedDict()
 
 def _bake_key(prim, results) -> tuple:
     stamps = []
+    from usdahd.usd import assets
+
     for role, path in sorted(results.textures.items()):
-        try:
-            st = os.stat(path)
-            stamps.append((role, path, st.st_size, st.st_mtime_ns))
-        except OSError:
-            stamps.append((role, path, None, None))
+        stamps.append((role, path, assets.stamp(path)))
     rec = (results.model, results.ratio, results.resolution, tuple(sorted(results.factors.items())))
     return (str(prim.GetPath()), rec, tuple(stamps))
 
@@ -595,6 +604,8 @@ def _uv_tiles(prim, uv_name: str) -> set[int]:
 
 def check_textures(prim) -> list[Finding]:
     """Rule Textures (see RULES)."""
+    from usdahd.usd import assets
+
     r = _Rule("Textures", prim)
     try:
         results = schema.read_results(prim, validate=False)
@@ -637,7 +648,7 @@ def check_textures(prim) -> list[Finding]:
             files = [(f"tile {t}", p) for t, p in tiles]
         else:
             resolved = attr.Get().resolvedPath if attr.Get() else ""
-            if not resolved or not os.path.isfile(resolved):
+            if not assets.exists(resolved):  # Ar: files and assets inside usdz packages
                 r.error(
                     "MissingFile",
                     f"{prop} @{asset}@ does not resolve to a file",
@@ -648,7 +659,8 @@ def check_textures(prim) -> list[Finding]:
                 continue
             files = [("", resolved)]
         for label, path in files:
-            where = f"{prop}{' ' + label if label else ''} ({os.path.basename(path)})"
+            base = os.path.basename(path.rstrip("]"))  # a package path ends in ...[dir/a.exr]
+            where = f"{prop}{' ' + label if label else ''} ({base})"
             try:
                 img = read_image(path)
             except OSError as exc:
@@ -707,7 +719,7 @@ def check_textures(prim) -> list[Finding]:
             file_cs = img.color_space
             # PNG has no way to say "raw": OpenImageIO reports every PNG as sRGB. Compare the
             # file's own claim only for formats that record it (EXR, TIFF).
-            if file_cs and not path.lower().endswith(".png"):
+            if file_cs and assets.extension(path) != ".png":
                 lin = lay.color_space == "lin_rec709_scene"
                 srgb_claim = "srgb" in file_cs.lower()
                 if srgb_claim or (not lin and "rec709" in file_cs.lower() and "lin" in file_cs):
@@ -977,7 +989,7 @@ class _SceneCache:
         self._data: OrderedDict = OrderedDict()
 
     @staticmethod
-    def key(stage, uv_name: str):
+    def key(stage, uv_name: str, time=None):
         parts = []
         for layer in stage.GetUsedLayers():
             if layer.anonymous and layer != stage.GetSessionLayer():
@@ -993,12 +1005,13 @@ class _SceneCache:
             except OSError:
                 return None
             parts.append((layer.identifier, st.st_size, st.st_mtime_ns))
-        return (tuple(sorted(parts)), uv_name)
+        return (tuple(sorted(parts)), uv_name, repr(time))
 
-    def get(self, stage, uv_name: str):
+    def get(self, stage, uv_name: str, time=None):
+        """Hash parts of the stage read at ``time`` (the bake's: a number or "default")."""
         from usdahd.usd.scene import load_scene
 
-        key = self.key(stage, uv_name)
+        key = self.key(stage, uv_name, time)
         if key is not None:
             with _LOCK:
                 if key in self._data:
@@ -1006,13 +1019,29 @@ class _SceneCache:
                     return self._data[key]
         from usdahd.pipeline import scene_hash_parts
 
-        parts = scene_hash_parts(load_scene(stage, uv_name=uv_name))
+        parts = scene_hash_parts(load_scene(stage, uv_name=uv_name, time=time))
         if key is not None:
             with _LOCK:
                 self._data[key] = parts
                 while len(self._data) > 8:
                     self._data.popitem(last=False)
         return parts
+
+    def auto_time(self, stage):
+        """The time a bake would pick now (usd.scene.resolve_time): a number or "default"."""
+        from usdahd.usd.scene import resolve_time
+
+        key = self.key(stage, "", "auto-time")
+        if key is not None:
+            with _LOCK:
+                if key in self._data:
+                    return self._data[key]
+        t, _ = resolve_time(stage, None)
+        now = "default" if t.IsDefault() else float(t.GetValue())
+        if key is not None:
+            with _LOCK:
+                self._data[key] = now
+        return now
 
     def clear(self):
         with _LOCK:
@@ -1093,8 +1122,10 @@ def check_staleness(prim) -> list[Finding]:
     uv_name = str(results.settings.get("uv") or results.uv_primvar or "st")
     from usdahd.errors import StageError
 
+    # Read the stage at the time the bake read it (older bakes: the default time).
+    time = results.settings.get("time", "default")
     try:
-        parts = _SCENES.get(prim.GetStage(), uv_name)
+        parts = _SCENES.get(prim.GetStage(), uv_name, time)
     except StageError as exc:
         r.error(
             "SceneUnreadable",
@@ -1112,6 +1143,11 @@ def check_staleness(prim) -> list[Finding]:
         return r.out
     current, named = pipeline.content_hash(parts, path, results.settings)
     drift = settings_drift(prim, results.settings)
+    if results.settings.get("time_auto"):
+        # A time chosen from the stage: a re-bake would read the stage's time now.
+        now = _SCENES.auto_time(prim.GetStage())
+        if now != time:
+            drift.append(f"bake time ({time!r} -> {now!r}: the stage's startTimeCode or animation)")
     if current == results.content_hash and not drift:
         return r.out
     changed = pipeline.changed_parts(results.part_hashes, named) if results.part_hashes else []

@@ -42,6 +42,12 @@ def add_parser(sub):
         "so the default is converged; a small N truncates indirect light)",
     )
     a("--seed", type=int, default=0, help="random seed (default 0)")
+    a(
+        "--time",
+        metavar="T",
+        help="time code every attribute is read at, or 'default' (default: the stage's "
+        "startTimeCode when anything the bake reads is animated, else the default time)",
+    )
     a("--padding", type=int, metavar="N", help="gutter dilation in texels (default 4)")
     a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")
     a("--denoise", action="store_true", help="denoise the SH with Intel Open Image Denoise")
@@ -75,7 +81,14 @@ def run(args) -> int:
         )
     if args.texel_density is not None and not args.texel_density > 0:
         raise UsageError(f"--texel-density must be > 0, got {args.texel_density}")
+    from usdahd.usd.scene import parse_time
+
+    try:
+        time = parse_time(args.time)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     opts = BakeOptions(
+        time=time,
         output=args.output,
         prims=args.prim,
         model=args.model,

@@ -144,6 +144,21 @@ def validate_stage(stage, prims: list[str] | None = None) -> list:
     return findings
 
 
+def no_lightmaps_finding(path: str):
+    """The error for a stage on which no prim has AhdLightmapAPI (nothing was validated)."""
+    from usdahd import validate as v
+
+    return v.Finding(
+        "SchemaValues",
+        "error",
+        "/",
+        "NoAhdLightmapAPI",
+        f"no prim of {path} has {v.schema.API_NAME} applied, so there is no lightmap to "
+        "validate. Fix: validate the baked override layer (usually NAME.lightmaps.usda), or "
+        "bake the stage with usdahd bake",
+    )
+
+
 def format_finding(f) -> str:
     where = f.prim if f.prim.startswith("@") else f"<{f.prim}>" if f.prim else "<stage>"
     return f"{f.severity:<7} {where} {f.rule}: {f.message}"
@@ -182,6 +197,9 @@ def run(args) -> int:
 
         baked = [p for p in schema.prims_with_api(stage)]
         findings = validate_stage(stage, args.prim)
+        if not baked:
+            # A CI job pointed at the source stage (or the wrong file) must not stay green.
+            findings.insert(0, no_lightmaps_finding(args.stage))
     finally:
         v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning = old
     code = exit_code(findings, args.strict)

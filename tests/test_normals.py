@@ -197,7 +197,7 @@ def test_unauthored_scheme_uses_the_crease_rule_and_warns_once():
     sc = load_scene(st)
     n, g = _box_normals_by_triangle(sc.meshes[0])
     np.testing.assert_allclose(n, np.repeat(g[:, None], 3, axis=1), atol=1e-7)
-    scheme = [w for w in sc.warnings if "subdivisionScheme unauthored" in w]
+    scheme = [w for w in sc.warnings if "leave subdivisionScheme unauthored" in w]
     assert len(scheme) == 1 and "catmullClark" in scheme[0] and "/A, /B" in scheme[0]
     computed = [w for w in sc.warnings if "author no normals" in w]
     assert len(computed) == 1 and computed[0].startswith("2 meshes")

@@ -159,7 +159,9 @@ class Material:
                 parts.append("")
                 continue
             sb = repr((np.round(t.scale, 7).tolist(), np.round(t.bias, 7).tolist()))
-            parts.append(f"{t.path}:{_digest(t.data.tobytes())}:{sb}:{t.channels}:{t.wrap}")
+            # the texels, not the resolved path: moving or packaging the project (usdz)
+            # does not make a bake stale
+            parts.append(f"{_digest(t.data.tobytes())}:{sb}:{t.channels}:{t.wrap}")
         return "|".join(parts)
 
 
@@ -360,6 +362,20 @@ def parse_time(value):
     return t
 
 
+def _start_time_code(stage):
+    """startTimeCode of the strongest layer of the root layer stack that authors one, or None.
+
+    USD reads it from the root (or session) layer only; a bake's override layer sublayers the
+    source without a timeline of its own, so its sublayers count too (the validator opens the
+    override layer and must find the time the bake used)."""
+    if stage.HasAuthoredMetadata("startTimeCode"):
+        return float(stage.GetStartTimeCode())
+    for layer in stage.GetLayerStack(includeSessionLayers=True):
+        if layer.HasStartTimeCode():
+            return float(layer.startTimeCode)
+    return None
+
+
 def resolve_time(stage, time=None, warn=None):
     """The time the bake reads the stage at, and whether it was chosen automatically.
 
@@ -381,8 +397,8 @@ def resolve_time(stage, time=None, warn=None):
         t = Usd.TimeCode(time)
     elif not anim:
         t = Usd.TimeCode.Default()
-    elif stage.HasAuthoredMetadata("startTimeCode"):
-        t = Usd.TimeCode(stage.GetStartTimeCode())
+    elif _start_time_code(stage) is not None:
+        t = Usd.TimeCode(_start_time_code(stage))
     else:
         first = min(a.GetTimeSamples()[0] for a in anim)
         t = Usd.TimeCode(first)
@@ -394,7 +410,7 @@ def resolve_time(stage, time=None, warn=None):
     if anim:
         names = [str(a.GetPath()) for a in anim[:4]]
         more = f" and {len(anim) - 4} more" if len(anim) > 4 else ""
-        start = stage.HasAuthoredMetadata("startTimeCode") and not t.IsDefault()
+        start = _start_time_code(stage) is not None and not t.IsDefault()
         why = " (the stage's startTimeCode)" if auto and start else ""
         hint = ""
         if t.IsDefault():
@@ -563,10 +579,11 @@ class _Extractor:
         if self.unauthored_scheme:
             p = sorted(set(self.unauthored_scheme))
             self.warn(
-                f"{len(p)} meshes without normals leave subdivisionScheme unauthored "
-                f"({names(p)}): USD's fallback is catmullClark, but usdahd does not subdivide "
-                "and shades them as polygonal meshes (crease-angle normals, as RTX renders "
-                'unsubdivided meshes faceted); author subdivisionScheme = "none" (or '
+                f"{len(p)} meshes leave subdivisionScheme unauthored ({names(p)}): USD's "
+                "fallback is catmullClark (a subdividing renderer smooths them and ignores "
+                "their authored normals), but usdahd bakes the polygons as they are, with their "
+                "normals or, without normals, crease-angle normals (as RTX renders unsubdivided "
+                'meshes without normals faceted); author subdivisionScheme = "none" (or '
                 '"catmullClark" for smooth normals) to say which you mean',
                 key="normals:scheme",
             )
@@ -700,6 +717,8 @@ class _Extractor:
         except _SubsetError as exc:
             raise _MeshFailure(str(exc)) from None
         ctx = _Topology(counts, idx)
+        if sd is None:
+            self.unauthored_scheme.append(path)
         self._emit(prim, xform, path, pts, ctx, left, face_mat, instanced, bake, scheme=sd)
 
     def _emit(
@@ -747,8 +766,6 @@ class _Extractor:
             normals = N.to_world(fv[corners], m3)
             if not implicit:
                 computed = ComputedNormals(rule, fv, self._normals_attr(prim))
-                if scheme is None:
-                    self.unauthored_scheme.append(path)
         uv = None
         texcoords = {}
         if not implicit:

@@ -394,3 +394,29 @@ def test_pillar_without_normals_bakes_like_the_authored_flat_normals(tmp_path, c
     # flat computed normals equal the authored ones to float32 rounding, so the paths agree
     scale = float(np.abs(want).max())
     assert np.abs(got - want).max() <= 1e-3 * scale
+
+
+def test_broken_primvars_normals_are_recomputed_and_overridden_in_place(tmp_path, capsys):
+    """primvars:normals wins over normals in USD, so a broken one (NaN) is replaced by the
+    computed normals in primvars:normals itself (indices blocked), not in normals."""
+    src = _box_stage(tmp_path)
+    st = Usd.Stage.Open(str(src))
+    m = UsdGeom.Mesh(st.GetPrimAtPath("/World/Box"))
+    pv = UsdGeom.PrimvarsAPI(m).CreatePrimvar(
+        "normals", Sdf.ValueTypeNames.Normal3fArray, UsdGeom.Tokens.faceVarying
+    )
+    pv.Set(Vt.Vec3fArray([Gf.Vec3f(0, 0, 1), Gf.Vec3f(float("nan"), 0, 0)]))
+    pv.SetIndices(Vt.IntArray([0, 1] * 12))
+    st.GetRootLayer().Save()
+    sc = load_scene(str(src))
+    assert any("/World/Box: degenerate or NaN authored normals" in w for w in sc.warnings)
+    assert sc.computed_normals["/World/Box"].attr == "primvars:normals"
+    assert cli.main(["bake", str(src), *FAST]) == 0
+    baked = Usd.Stage.Open(str(tmp_path / "box.lightmaps.usda"))
+    got = UsdGeom.PrimvarsAPI(baked.GetPrimAtPath("/World/Box")).GetPrimvar("normals")
+    assert not got.IsIndexed()
+    np.testing.assert_array_equal(
+        np.asarray(got.Get(), np.float32), sc.computed_normals["/World/Box"].values
+    )
+    capsys.readouterr()
+    assert cli.main(["validate", str(tmp_path / "box.lightmaps.usda"), "--strict"]) == 0

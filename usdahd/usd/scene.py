@@ -22,8 +22,11 @@ Whole-stage problems raise :class:`usdahd.errors.StageError`: an unreadable file
 a composition cycle, metersPerUnit <= 0 or non-finite, a light or emissive material with
 negative/NaN/Inf or overflowing emission, a DomeLight texture that cannot be read.
 
-Everything is evaluated at ``Usd.TimeCode.Default()``; attributes that only have time samples
-are read at their first sample (with a warning).
+Everything is read at one time (``load_scene(time=...)``, :func:`resolve_time`): the stage's
+startTimeCode when anything the bake reads is animated, else ``Usd.TimeCode.Default()``; at
+the default time, attributes that only have time samples are read at their first sample (with
+a warning). Textures are read through USD's asset resolver (usdz packages). docs/lights.md and
+docs/usd-semantics.md list what is honoured and what is warned.
 """
 
 from __future__ import annotations

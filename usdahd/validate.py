@@ -1000,11 +1000,12 @@ class _SceneCache:
                 if not layer.empty:
                     return None
                 continue
-            try:
-                st = os.stat(layer.realPath)
-            except OSError:
+            from usdahd.usd import assets
+
+            stamp = assets.stamp(layer.realPath)  # a layer inside a usdz: its package's
+            if stamp is None:
                 return None
-            parts.append((layer.identifier, st.st_size, st.st_mtime_ns))
+            parts.append((layer.identifier, *stamp))
         return (tuple(sorted(parts)), uv_name, repr(time))
 
     def get(self, stage, uv_name: str, time=None):

@@ -1566,7 +1566,9 @@ class _Extractor:
             )
         if not self.lights:
             return
-        # Rough illuminance each source can deliver at the scene's centre (a warning only).
+        # Rough illuminance each light delivers at the scene's centre (a warning only; emissive
+        # surfaces are left out: their extent is unknown here, and overrating them would flag
+        # a sun as dim).
         pts = [m.points for m in self.meshes]
         centre = np.mean([p.mean(axis=0) for p in pts], axis=0) if pts else np.zeros(3)
         scale = {}
@@ -1587,9 +1589,6 @@ class _Extractor:
                 d2 = max(float(np.sum((c - centre) ** 2)), size * size, 1e-12)
                 solid = min(np.pi * size * size / d2, np.pi) if size > 0 else 1.0 / d2
                 scale[light.path] = rad * solid
-        for m in self.materials:
-            if m.emissive:
-                scale[m.name] = np.pi * float(np.max(m.emission)) or np.pi
         for light in self.lights:
             if not isinstance(light, L.DistantLight):
                 continue
@@ -1606,7 +1605,7 @@ class _Extractor:
                     )
                 self.warn(
                     f"{light.path}: this DistantLight delivers about {ratio:.1e} of the "
-                    f"brightest light source's illuminance, so it contributes nothing "
+                    f"brightest other light's illuminance, so it contributes nothing "
                     f"visible{hint}"
                 )
 

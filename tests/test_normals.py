@@ -420,3 +420,11 @@ def test_broken_primvars_normals_are_recomputed_and_overridden_in_place(tmp_path
     )
     capsys.readouterr()
     assert cli.main(["validate", str(tmp_path / "box.lightmaps.usda"), "--strict"]) == 0
+
+
+def test_bogus_normals_rule_in_a_bake_record_is_reported():
+    from usdahd.usd import schema
+
+    res = schema.BakeResults("hhd", "luminance", "", "st", (4, 4), {}, normals="wobbly")
+    assert any("normals rule 'wobbly' is not one of" in p for p in schema.result_problems(res))
+    assert schema.NORMALS_RULES == N.RULES

@@ -611,3 +611,53 @@ def test_validate_a_stage_without_lightmaps_fails(tmp_path, capsys):
     report = json.loads(out.out)
     assert report["exit_code"] == 1
     assert [f["code"] for f in report["findings"]] == ["NoAhdLightmapAPI"]
+
+
+# ----------------------------------------------------------------------- bad material inputs
+
+
+def test_bad_metallic_values(tmp_path):
+    from usdahd.errors import StageError
+
+    st = _new_stage()
+    m = _plane(st)
+    mat, _ = _material(st, "/World/Odd", metallic=(Sdf.ValueTypeNames.Float, 1.5))
+    _bind(m.GetPrim(), mat)
+    sc = load_scene(st)
+    assert any("/World/Odd: metallic 1.5 outside [0, 1]; clamped" in w for w in sc.warnings)
+    np.testing.assert_allclose(sc.materials[sc.meshes[0].material[0]].albedo, 0.0)
+    st2 = _new_stage()
+    m2 = _plane(st2)
+    nan, _ = _material(st2, "/World/Nan", metallic=(Sdf.ValueTypeNames.Float, float("nan")))
+    _bind(m2.GetPrim(), nan)
+    with pytest.raises(StageError, match="/World/Nan: UsdPreviewSurface inputs:metallic is nan"):
+        load_scene(st2)
+
+
+def test_bad_transform2d(tmp_path):
+    from usdahd.errors import StageError
+
+    png = tmp_path / "c.png"
+    _write_png(png, np.full((2, 2, 3), 128, np.uint8))
+    st = _new_stage()
+    m = _plane(st)
+    mat = _textured_material(st, "/World/T", png, transform=((float("nan"), 1), 0.0, (0, 0)))
+    _bind(m.GetPrim(), mat)
+    with pytest.raises(StageError, match="/World/T/Transform: UsdTransform2d inputs are NaN"):
+        load_scene(st)
+    st2 = _new_stage()
+    m2 = _plane(st2)
+    mat2 = _textured_material(st2, "/World/T", png, transform=((2, 2), 0.0, (0, 0)))
+    UsdShade.Shader(st2.GetPrimAtPath("/World/T/Transform")).GetInput("in").ClearSources()
+    _bind(m2.GetPrim(), mat2)
+    sc = load_scene(st2)
+    assert any("(UsdTransform2d) has no connected 'in'" in w for w in sc.warnings)
+
+
+def test_unknown_source_colour_space_token_warns(tmp_path):
+    png = tmp_path / "x.png"
+    _write_png(png, np.full((2, 2, 3), 128, np.uint8))
+    warnings = []
+    data = read_image(str(png), "bogus", warnings.append)
+    assert any("unknown sourceColorSpace 'bogus'; treated as auto" in w for w in warnings)
+    np.testing.assert_allclose(data[0, 0], [_srgb_decode(128 / 255)] * 3, atol=1e-4)

@@ -331,7 +331,10 @@ def test_metallic_scales_the_diffuse_albedo():
     np.testing.assert_allclose(alb["/World/B"], 0.5 * 0.75)
     np.testing.assert_allclose(alb["/World/C"], 0.5)  # specular workflow: metallic unused
     np.testing.assert_allclose(alb["/World/D"], 0.5)
-    assert any("/World/M4: a metallic texture is not supported" in w for w in sc.warnings)
+    assert any(
+        "metallic (connected) is not honoured by the bake in 1 materials (/World/M4)" in w
+        for w in sc.warnings
+    )
 
 
 def test_metallic_scales_an_albedo_texture(tmp_path):
@@ -365,9 +368,21 @@ def test_unhonoured_inputs_get_one_warning():
         nrm.ConnectableAPI(), "rgb"
     )
     _bind(m.GetPrim(), mat)
+    m2 = _plane(st, "/World/Other", z=1)
+    mat2, sh2 = _material(st, "/World/Bumpy2")
+    sh2.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(
+        nrm.ConnectableAPI(), "rgb"
+    )
+    _bind(m2.GetPrim(), mat2)
     w = [x for x in load_scene(st).warnings if "not honoured" in x]
-    assert len(w) == 1
-    assert "normal (connected)" in w[0] and "clearcoat = 1" in w[0] and "occlusion = 0.5" in w[0]
+    assert len(w) == 3  # one per input, naming every material
+    assert any(
+        "normal (connected) is not honoured by the bake in 2 materials (/World/Bumpy, "
+        "/World/Bumpy2)" in x
+        for x in w
+    )
+    assert any("clearcoat = 1 is not honoured" in x for x in w)
+    assert any("occlusion = 0.5 is not honoured" in x for x in w)
 
 
 def test_transform2d_applies_to_the_texture_coordinates(tmp_path):

@@ -300,6 +300,7 @@ def load_scene(
     ex.size_warnings()
     ex.normals_warnings()
     ex.light_warnings()
+    ex.material_warnings()
     ex.link_membership()
     if bake_instances:
         for m, inst in zip(ex.meshes, ex.instanced):
@@ -520,6 +521,7 @@ class _Extractor:
         self.computed_normals: dict[str, ComputedNormals] = {}
         self.unauthored_scheme: list[str] = []
         self.unauthored_intensity: list[str] = []
+        self.unhonoured: dict[str, list[str]] = {}  # UsdPreviewSurface input -> materials
         self._link_queries: list = []
         self.link_paths: list[str] = []  # per mesh: the prim path collections are queried by
         self._instancer: str | None = None  # the PointInstancer being expanded
@@ -1096,11 +1098,7 @@ class _Extractor:
         if not inp:
             return
         if inp.HasConnectedSource():
-            self.warn(
-                f"{out.name}: a metallic texture is not supported: the diffuse albedo is not "
-                "reduced where the texture is metallic (author a constant metallic)",
-                key=f"metaltex:{out.name}",
-            )
+            self.unhonoured.setdefault("metallic (connected)", []).append(out.name)
             return
         m = self.get(inp.GetAttr(), 0.0)
         m = float(np.ravel(np.asarray(m, np.float64))[0]) if m is not None else 0.0
@@ -1121,32 +1119,42 @@ class _Extractor:
             tex.bias[:3] *= k
 
     def _unhonoured_inputs(self, shader, name) -> None:
-        """One warning per material naming the UsdPreviewSurface inputs that change the
-        diffuse response and that the baker ignores (a Lambertian bake of the base layer)."""
+        """Record the UsdPreviewSurface inputs that change the diffuse response and that the
+        baker ignores (a Lambertian bake of the base layer); see material_warnings."""
         neutral = {
             "normal": (0.0, 0.0, 1.0),
             "displacement": 0.0,
             "occlusion": 1.0,
             "clearcoat": 0.0,
         }
-        found = []
         for inp_name, value in neutral.items():
             inp = shader.GetInput(inp_name)
             if not inp:
                 continue
             if inp.HasConnectedSource():
-                found.append(f"{inp_name} (connected)")
+                self.unhonoured.setdefault(f"{inp_name} (connected)", []).append(name)
                 continue
             if not inp.GetAttr().HasAuthoredValue():
                 continue
             v = self.get(inp.GetAttr())
             if v is not None and not np.allclose(np.asarray(v, np.float64), value):
-                found.append(f"{inp_name} = {_fmt(v)}")
-        if found:
+                self.unhonoured.setdefault(f"{inp_name} = {_fmt(v)}", []).append(name)
+
+    def material_warnings(self) -> None:
+        """One warning per stage and unhonoured UsdPreviewSurface input, naming materials."""
+        for what, mats in sorted(self.unhonoured.items()):
+            mats = sorted(set(mats))
+            more = f" and {len(mats) - 3} more" if len(mats) > 3 else ""
+            fix = (
+                " (the diffuse albedo is not reduced where the texture is metallic; author a "
+                "constant metallic)"
+                if what.startswith("metallic")
+                else " (the bake shades the flat diffuse base layer)"
+            )
             self.warn(
-                f"{name}: UsdPreviewSurface {', '.join(found)} not honoured by the bake (it "
-                "shades the flat diffuse base layer): the lightmap ignores them",
-                key=f"unhonoured:{name}",
+                f"UsdPreviewSurface {what} is not honoured by the bake in {len(mats)} "
+                f"materials ({', '.join(mats[:3])}{more}){fix}",
+                key=f"unhonoured:{what}",
             )
 
     def _check_material(self, out: Material) -> None:

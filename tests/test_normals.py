@@ -261,6 +261,11 @@ def _box_stage(tmp_path, scheme="none", name="box.usda"):
     m = _mesh(st, "/World/Cyl", pts, faces, scheme=scheme)
     m.AddRotateXYZOp().Set(Gf.Vec3f(10, 20, 30))
     _mesh(st, "/World/Box", BOX_P, BOX_Q, scheme=scheme)
+    # mirrored and left-handed (clockwise quads: outward): still bit for bit after the trip
+    lh = _mesh(st, "/World/Mirrored", BOX_P, [q[::-1] for q in BOX_Q], scheme=scheme)
+    lh.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
+    lh.AddTranslateOp().Set(Gf.Vec3d(3, 0, 0))
+    lh.AddScaleOp().Set(Gf.Vec3f(-1, 1, 2))
     from pxr import UsdLux
 
     sun = UsdLux.DistantLight.Define(st, "/World/Sun")
@@ -282,7 +287,7 @@ def test_baked_normals_round_trip_through_the_override_layer(tmp_path, capsys):
     scene = load_scene(str(src))
     layer = tmp_path / "box.lightmaps.usda"
     baked = Usd.Stage.Open(str(layer))
-    for path in ("/World/Cyl", "/World/Box"):
+    for path in ("/World/Cyl", "/World/Box", "/World/Mirrored"):
         prim = baked.GetPrimAtPath(path)
         mesh = UsdGeom.Mesh(prim)
         assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.faceVarying

@@ -676,3 +676,22 @@ def test_unknown_source_colour_space_token_warns(tmp_path):
     data = read_image(str(png), "bogus", warnings.append)
     assert any("unknown sourceColorSpace 'bogus'; treated as auto" in w for w in warnings)
     np.testing.assert_allclose(data[0, 0], [_srgb_decode(128 / 255)] * 3, atol=1e-4)
+
+
+def test_moving_a_baked_project_keeps_it_fresh(tmp_path, capsys):
+    """The material hash covers texels, not resolved paths: a moved project validates clean."""
+    import shutil
+
+    work = tmp_path / "a"
+    work.mkdir()
+    _write_png(work / "albedo.png", np.full((4, 4, 3), 180, np.uint8))
+    st = _new_stage(work / "s.usda")
+    m = _plane(st)
+    _bind(m.GetPrim(), _textured_material(st, "/World/Look", "./albedo.png"))
+    _sun(st, intensity=3.0)
+    st.GetRootLayer().Save()
+    assert _run(["bake", str(work / "s.usda"), *FAST], capsys)[0] == 0
+    moved = tmp_path / "b" / "deeper"
+    shutil.copytree(work, moved)
+    code, out = _run(["validate", str(moved / "s.lightmaps.usda"), "--strict"], capsys)
+    assert code == 0, out.out

@@ -433,3 +433,21 @@ def test_bogus_normals_rule_in_a_bake_record_is_reported():
     res = schema.BakeResults("hhd", "luminance", "", "st", (4, 4), {}, normals="wobbly")
     assert any("normals rule 'wobbly' is not one of" in p for p in schema.result_problems(res))
     assert schema.NORMALS_RULES == N.RULES
+
+
+def test_validate_names_stale_computed_normals_when_the_mesh_moves_under_them(tmp_path, capsys):
+    src = _box_stage(tmp_path)
+    assert cli.main(["bake", str(src), *FAST]) == 0
+    st = Usd.Stage.Open(str(src))
+    pts = st.GetPrimAtPath("/World/Box").GetAttribute("points")
+    p = np.array(pts.Get())
+    p[7] += (0.3, 0.2, 0.4)  # a corner pulled out: the crease normals change
+    pts.Set(Vt.Vec3fArray.FromNumpy(p.astype(np.float32)))
+    st.GetRootLayer().Save()
+    capsys.readouterr()
+    code = cli.main(["validate", str(tmp_path / "box.lightmaps.usda"), "--json"])
+    findings = json.loads(capsys.readouterr().out)["findings"]
+    assert code == 1
+    stale = [f for f in findings if f["code"] == "Stale" and f["prim"] == "/World/Box"]
+    assert stale
+    assert "creaseAngle30 normals the bake authored no longer match" in stale[0]["message"]

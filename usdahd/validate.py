@@ -1159,6 +1159,9 @@ def check_staleness(prim) -> list[Finding]:
         what = (what + "; " if what else "") + "settings: " + ", ".join(drift)
     if current != results.content_hash and not changed and not drift:
         what = "unknown (no part hashes stored)"
+    stale_normals = _normals_drift(prim, results) if "geometry" in changed else None
+    if stale_normals:
+        what += f" ({stale_normals})"
     if changed == ["generator"] and not drift:
         r.warning(
             "OtherGenerator",
@@ -1175,6 +1178,40 @@ def check_staleness(prim) -> list[Finding]:
         settings=drift,
     )
     return r.out
+
+
+def _normals_drift(prim, results) -> str | None:
+    """When the bake computed and authored the prim's normals (``baked:normals`` not
+    "authored"): a sentence if the rule (usdahd.usd.normals, the baker's own function) gives
+    other normals on the current points, i.e. the mesh changed under the authored normals."""
+    from usdahd.usd import normals as N
+
+    if results.normals not in (N.RULE_CREASE, N.RULE_SMOOTH):
+        return None
+    mesh = UsdGeom.Mesh(prim)
+    time = results.settings.get("time", "default")
+    t = Usd.TimeCode.Default() if time == "default" else Usd.TimeCode(float(time))
+    pts, counts, idx = (
+        mesh.GetPointsAttr().Get(t),
+        mesh.GetFaceVertexCountsAttr().Get(t),
+        mesh.GetFaceVertexIndicesAttr().Get(t),
+    )
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+    authored = pv.ComputeFlattened(t) if pv and pv.HasValue() else mesh.GetNormalsAttr().Get(t)
+    if pts is None or counts is None or idx is None or authored is None:
+        return None
+    idx = np.asarray(idx, np.int64)
+    if len(idx) == 0 or idx.min() < 0 or idx.max() >= len(pts) or len(authored) != len(idx):
+        return "the normals the bake authored no longer fit the mesh's topology"
+    left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
+    want = N.compute_normals(np.asarray(pts, np.float64), counts, idx, results.normals, left)
+    got = np.asarray(authored, np.float32).reshape(-1, 3)
+    if np.abs(got - want).max() > 1e-5:
+        return (
+            f"the {results.normals} normals the bake authored no longer match the mesh: "
+            "re-baking recomputes them"
+        )
+    return None
 
 
 # ------------------------------------------------------------------------------ rule 7: UVSet

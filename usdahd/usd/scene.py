@@ -521,6 +521,7 @@ class _Extractor:
         self.computed_normals: dict[str, ComputedNormals] = {}
         self.unauthored_scheme: list[str] = []
         self.unauthored_intensity: list[str] = []
+        self.computed_instanced = 0
         self.unhonoured: dict[str, list[str]] = {}  # UsdPreviewSurface input -> materials
         self._link_queries: list = []
         self.link_paths: list[str] = []  # per mesh: the prim path collections are queried by
@@ -572,13 +573,19 @@ class _Extractor:
             return ", ".join(paths[:3]) + more
 
         comp = sorted(self.computed_normals)
-        if comp:
-            rules = sorted({self.computed_normals[p].rule for p in comp})
+        if comp or self.computed_instanced:
+            rules = sorted({self.computed_normals[p].rule for p in comp}) or [N.RULE_CREASE]
+            copies = (
+                f" and {self.computed_instanced} instanced copies"
+                if self.computed_instanced
+                else ""
+            )
             self.warn(
-                f"{len(comp)} meshes author no normals ({names(comp)}): normals computed by "
-                f"the {' / '.join(rules)} rule (crease angle {N.CREASE_ANGLE_DEG:g} degrees, "
-                "angle-weighted; smooth for catmullClark/loop) and authored into the output "
-                "layer; author normals to choose the shading yourself (docs/schema.md#normals)",
+                f"{len(comp)} meshes{copies} author no normals ({names(comp)}): normals "
+                f"computed by the {' / '.join(rules)} rule (crease angle "
+                f"{N.CREASE_ANGLE_DEG:g} degrees, angle-weighted; smooth for catmullClark/loop) "
+                "and authored into the output layer for baked meshes; author normals to choose "
+                "the shading yourself (docs/schema.md#normals)",
                 key="normals:computed",
             )
         if self.unauthored_scheme:
@@ -769,8 +776,10 @@ class _Extractor:
             rule = N.rule_for_scheme(scheme)
             fv = N.compute_normals(pts, topo.counts, topo.idx, rule, left_handed=left)
             normals = N.to_world(fv[corners], m3)
-            if not implicit:
+            if not implicit and not instanced:
                 computed = ComputedNormals(rule, fv, self._normals_attr(prim))
+            elif not implicit:
+                self.computed_instanced += 1  # copies of a prototype: counted, not authored
         uv = None
         texcoords = {}
         if not implicit:

@@ -816,6 +816,7 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                     seed=_job_seed(opts.seed, job.path),
                     adaptive=bool(job.settings["adaptive"]),
                     progress=bar.update,
+                    mesh=next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None),
                 )
                 bar.close()
         except UsdAhdError as exc:

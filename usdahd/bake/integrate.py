@@ -121,6 +121,9 @@ ADAPTIVE_FLOOR = 1e-3
 #: own supporting geometry, e.g. a RectLight on an emissive quad).
 SHADOW_SHORTEN = 1e-4
 INV_2PI = 1.0 / (2.0 * np.pi)
+#: Surfaces a shadow ray of a shadow-linked light passes through (meshes its shadowLink
+#: collection excludes) at most; a ray still going after that counts as unoccluded.
+LINK_MAX_CROSSINGS = 32
 #: Up to this many sampled lights, every light gets every texel light sample (selection noise
 #: removed at m shadow rays per sample); beyond, each sample picks one light uniformly.
 ALL_LIGHTS_MAX = 8
@@ -173,6 +176,7 @@ def bake_texels(
     adaptive_tol: float = ADAPTIVE_TOL,
     stream: int = 0,
     strategy: str = "mis",
+    mesh: int | None = None,
 ):
     """Bake incident radiance SH for ``texels`` of one mesh.
 
@@ -182,6 +186,8 @@ def bake_texels(
         lights); bounces : cap on surface reflections along a path (0 = direct light only;
         paths end earlier by Russian roulette, so the default is converged global illumination);
     strategy : one of STRATEGIES ("mis"; the others exist for the consistency tests);
+    mesh : index of the texels' mesh in ``scene.meshes`` (the receiver for UsdLux light
+        linking; None: lit by every light);
     stream : an integer identifying this task (e.g. the mesh index) for independent random
         streams; progress : optional callable(done_rays, total_estimate).
     returns : (sh (n, 3, 9) float32, stats dict with ``rays``, ``time``, ``invalid`` (n,) bool,
@@ -206,12 +212,14 @@ def bake_texels(
     invalid = np.zeros(n, bool)
     backfrac = np.zeros(n, np.float32)
     used = np.zeros(n, np.int32)
-    ctx = _Ctx(scene, tracer, bounces, estimator, strategy)
+    ctx = _Ctx(scene, tracer, bounces, estimator, strategy, mesh)
     if n == 0:
         return out, _stats(tracer, rays0, t0, invalid, backfrac, used, 0)
     passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1
     per_pass = int(np.ceil(samples / passes))
-    native = getattr(tracer, "backend", "embreex") == "native"
+    # the native kernel has no light linking yet: linked stages take the numpy path (with the
+    # same tracer's batch queries)
+    native = getattr(tracer, "backend", "embreex") == "native" and not _linked(scene.lights)
     if native:
         ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy)
         chunk = max(64, NATIVE_CHUNK_RAYS // max(per_pass, 1))
@@ -309,12 +317,21 @@ class _Accum:
 
 
 class _Ctx:
-    def __init__(self, scene, tracer, bounces, estimator, strategy="mis"):
+    def __init__(self, scene, tracer, bounces, estimator, strategy="mis", mesh=None):
         self.strategy = strategy
         self.scene = scene
         self.tr = tracer
         self.bounces = bounces
         self.lights = _Lights(scene.lights, tracer)
+        # light linking (UsdLux collection:lightLink / shadowLink): per light, a bool mask over
+        # scene meshes of the receivers it lights and of the meshes that cast its shadows
+        # (None: every mesh); the texels' own mesh index receives as ``mesh``
+        nm = len(scene.meshes)
+        self.recv = {id(lt): _mesh_mask(getattr(lt, "lit_meshes", None), nm) for lt in scene.lights}
+        self.cast = {
+            id(lt): _mesh_mask(getattr(lt, "shadow_meshes", None), nm) for lt in scene.lights
+        }
+        self.texel_mesh = -1 if mesh is None else int(mesh)
         self.texel_sel = _texel_selection(len(self.lights.area))
         self.estimator = estimator
         # rays per hemisphere sample, for the rays_saved estimate
@@ -327,11 +344,12 @@ class _Ctx:
             d, dist, val, _ = lt.sample(P, np.zeros((len(P), 2)))
             loc = to_local(d, F)
             ok = (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NG) > 0)
+            ok &= self._lit(lt, np.full(len(P), self.texel_mesh))
             if not np.any(ok):
                 continue
             idx = np.nonzero(ok)[0]
             o = self.tr.offset(P[idx], NG[idx], d[idx])
-            occ = self.tr.occluded(o, *_shadow(o, P[idx], d[idx], dist[idx]))
+            occ = self._occluded(lt, o, *_shadow(o, P[idx], d[idx], dist[idx]))
             idx = idx[~occ]
             acc.delta[idx] += np.einsum("nc,nk->nck", val[idx], shmod.basis(loc[idx]))
 
@@ -354,8 +372,9 @@ class _Ctx:
             hit = tri >= 0
             gn = self.tr.geom_normal[np.where(hit, tri, 0)]
             back[idx] = hit & (np.einsum("ij,ij->i", d[idx], gn) > 0)
+            src = np.full(len(idx), self.texel_mesh)
             radiance[idx] = self.incoming(
-                o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng
+                o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng, src
             )
         Y = shmod.basis(loc).reshape(n, s, 9)
         R = radiance.reshape(n, s, 3)
@@ -402,12 +421,12 @@ class _Ctx:
             d, dist, val, pdf = lt.sample(Pf[idx], uj)
             loc = to_local(d, Ff[idx])
             ok = (pdf > 0) & (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NGf[idx]) > 0)
-            ok &= np.any(val > 0, axis=1)
+            ok &= np.any(val > 0, axis=1) & self._lit(lt, np.full(len(idx), self.texel_mesh))
             idx, d, dist, val, pdf, loc = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], loc[ok]
             if len(idx) == 0:
                 continue
             o = self.tr.offset(Pf[idx], NGf[idx], d)
-            vis = ~self.tr.occluded(o, *_shadow(o, Pf[idx], d, dist), rng=rng)
+            vis = ~self._occluded(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
             idx, val, pdf, loc = idx[vis], val[vis], pdf[vis], loc[vis]
             pl = pdf * self.texel_sel
             w = _w_light(self.strategy, pl, texel_hemisphere_pdf(loc[:, 2]))
@@ -418,12 +437,13 @@ class _Ctx:
         return c, y.reshape(n, s)
 
     # ------------------------------------------------------------------ path level
-    def incoming(self, o, d, hits, pdf_dir, sel_area, depth, rng):
+    def incoming(self, o, d, hits, pdf_dir, sel_area, depth, rng, src):
         """Radiance arriving at ``o`` along ``d`` (m,3), MIS-weighted against light sampling.
 
         pdf_dir : (m,) solid-angle pdf the direction was sampled with; sel_area : selection
         probability of an area light in the NEE the direction is paired with; depth :
-        reflections already made along the path.
+        reflections already made along the path; src : (m,) int mesh index of the surface
+        the rays leave (the receiver, for light linking; -1: unknown, lit by every light).
         """
         m = len(o)
         L = np.zeros((m, 3))
@@ -432,7 +452,14 @@ class _Ctx:
         miss = tri < 0
         for lt in self.lights.visible:
             hit, tl, rad = lt.intersect(o, d)
-            vis = hit & (miss if lt.infinite else (tl < t))
+            if self.cast.get(id(lt)) is None:
+                vis = hit & (miss if lt.infinite else (tl < t))
+            else:  # shadow-linked: only casting meshes may stand between the ray and the light
+                vis = hit.copy()
+                idx = np.nonzero(hit)[0]
+                if len(idx):
+                    vis[idx] = ~self._occluded(lt, o[idx], d[idx], tl[idx])
+            vis &= self._lit(lt, src)
             if not np.any(vis):
                 continue
             w = np.ones(int(vis.sum()))
@@ -472,11 +499,12 @@ class _Ctx:
         gn = gn * side  # face the incoming ray (two-sided shading)
         ns = ns * side
         ns = np.where((np.einsum("ij,ij->i", ns, gn) > 0)[:, None], ns, gn)
-        L[surf] += albedo * self.reflect(p, gn, ns, depth + 1, rng)
+        L[surf] += albedo * self.reflect(p, gn, ns, depth + 1, rng, self.tr.tri_mesh[tri_s])
         return L
 
-    def reflect(self, p, gn, ns, depth, rng):
-        """(1/pi) * integral of incoming radiance * cos at surface points: NEE + one BSDF ray."""
+    def reflect(self, p, gn, ns, depth, rng, mesh):
+        """(1/pi) * integral of incoming radiance * cos at surface points: NEE + one BSDF ray.
+        mesh : (m,) int scene mesh index of each point (light linking)."""
         m = len(p)
         out = np.zeros((m, 3))
         nee = self.lights.nee
@@ -491,12 +519,12 @@ class _Ctx:
                 d, dist, val, pdf = lt.sample(p[idx], uu[idx])
                 cos = np.einsum("ij,ij->i", d, ns[idx])
                 ok = (cos > 0) & (np.einsum("ij,ij->i", d, gn[idx]) > 0) & (pdf > 0)
-                ok &= np.any(val > 0, axis=1)
+                ok &= np.any(val > 0, axis=1) & self._lit(lt, mesh[idx])
                 idx, d, dist, val, pdf, cos = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], cos[ok]
                 if len(idx) == 0:
                     continue
                 o = self.tr.offset(p[idx], gn[idx], d)
-                vis = ~self.tr.occluded(o, *_shadow(o, p[idx], d, dist), rng=rng)
+                vis = ~self._occluded(lt, o, *_shadow(o, p[idx], d, dist), rng=rng)
                 if lt.delta:
                     f = val * (cos / np.pi * n_nee)[:, None]
                 else:
@@ -514,8 +542,42 @@ class _Ctx:
                 o = self.tr.offset(p[idx], gn[idx], d[idx])
                 hits = self.tr.intersect(o, d[idx], rng=rng)
                 sel = 1.0 / max(1, n_nee)
-                out[idx] += self.incoming(o, d[idx], hits, pdf[idx], sel, depth, rng)
+                out[idx] += self.incoming(o, d[idx], hits, pdf[idx], sel, depth, rng, mesh[idx])
         return out
+
+    # ------------------------------------------------------------------ light linking
+    def _lit(self, lt, mesh):
+        """(m,) bool: light ``lt`` lights receivers of scene mesh index ``mesh`` (m,) int."""
+        mask = self.recv.get(id(lt))
+        if mask is None:
+            return np.ones(len(mesh), bool)
+        return np.where(mesh >= 0, mask[np.maximum(mesh, 0)], True)
+
+    def _occluded(self, lt, o, d, tfar, rng=None):
+        """Shadow rays of light ``lt``: only meshes its shadowLink collection includes cast
+        shadows (others are passed through, up to LINK_MAX_CROSSINGS surfaces)."""
+        casters = self.cast.get(id(lt))
+        if casters is None:
+            return self.tr.occluded(o, d, tfar, rng=rng)
+        occ = np.zeros(len(o), bool)
+        todo = np.arange(len(o))
+        o, tfar = o.copy(), tfar.astype(np.float64).copy()
+        for _ in range(LINK_MAX_CROSSINGS):
+            if len(todo) == 0:
+                break
+            h = self.tr.intersect(o[todo], d[todo], tfar[todo], rng=rng)
+            hit = h["tri"] >= 0
+            mesh = self.tr.tri_mesh[np.where(hit, h["tri"], 0)]
+            blocks = hit & casters[mesh]
+            occ[todo[blocks]] = True
+            go = hit & ~blocks  # a non-caster: continue past it
+            nxt = todo[go]
+            step = h["t"][go].astype(np.float64) + self.tr.offset_eps
+            o[nxt] = o[nxt] + step[:, None] * d[nxt]
+            tfar[nxt] = tfar[nxt] - step
+            keep = tfar[nxt] > 0
+            todo = nxt[keep]
+        return occ
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -626,6 +688,24 @@ class _NativeCtx:
 
         self.tr.run_parallel(run, np.arange(n, dtype=np.int64))
         return out, bf
+
+
+def _mesh_mask(indices, n):
+    """(n,) bool mask of scene meshes from sorted indices, or None for "every mesh"."""
+    if indices is None:
+        return None
+    mask = np.zeros(n, bool)
+    mask[np.asarray(indices, np.int64)] = True
+    return mask
+
+
+def _linked(lights) -> bool:
+    """Whether any light restricts the meshes it lights or whose shadows it casts."""
+    return any(
+        getattr(lt, "lit_meshes", None) is not None
+        or getattr(lt, "shadow_meshes", None) is not None
+        for lt in lights
+    )
 
 
 def _texel_selection(m):

@@ -67,8 +67,13 @@ def test_fit_shapes_and_irradz_exact(sky, kind, ratio, solver):
     np.testing.assert_allclose(f.evaluate(np.broadcast_to(Z, (4, 12, 3))), f.iz, rtol=2e-6)
     mod = models.get(kind)
     ch, factors = mod.encode(f.params, ratio=ratio)
-    assert ch["iz"].dtype == np.float16 and ch["direction"].dtype == np.int8
-    assert ch["ratio"].dtype == (np.int8 if kind == "hlsh" else np.uint8)
+    assert ch["iz"].dtype == np.float16 and ch["direction"].dtype == np.uint8
+    assert ch["direction"].shape[-1] == 3  # (u, v, w_a | reserved): no 2-channel texture
+    if ratio == "rgb":
+        assert ch["ratio"].dtype == np.uint8 and ch["ratio"].shape[-1] == 3
+        assert np.all(ch["direction"][..., 2] == 128)
+    else:
+        assert "ratio" not in ch
     dec = mod.decode(ch, ratio=ratio, factors=factors)
     np.testing.assert_allclose(
         mod.evaluate(dec, np.broadcast_to(Z, (4, 12, 3))), dec["iz"], rtol=2e-6

@@ -290,7 +290,9 @@ def test_sh_l1_8bit_codes_follow_enlighten_decode():
     params = {"coefficients": sh_l1.from_enlighten(l0, l1).astype(np.float32)}
     ch, fac = sh_l1.encode(params, ratio="8bit")
     assert fac["l0Scale"] == 0.25  # power of two >= max L0
-    codes = ch["coefficientsL1"].reshape(3, 4)
+    # one RGBA texture per colour: coefficients0 = red (L0, L1x, L1y, L1z)
+    assert set(ch) == {"coefficients0", "coefficients1", "coefficients2"}
+    codes = np.stack([ch[f"coefficients{i}"] for i in range(3)])
     np.testing.assert_array_equal(codes[0], [255, 159, 0, 127])
     dec = sh_l1.decode(ch, ratio="8bit", factors=fac)
     dl0, dl1 = sh_l1.to_enlighten(dec["coefficients"])
@@ -302,7 +304,7 @@ def test_sh_l1_8bit_codes_follow_enlighten_decode():
 def test_sh_l1_8bit_clamps_ratio_beyond_one():
     params = {"coefficients": sh_l1.from_enlighten(np.ones(3), np.tile([3.0, 0, 0], (3, 1)))}
     ch, fac = sh_l1.encode(params, ratio="8bit")
-    assert ch["coefficientsL1"].reshape(3, 4)[0, 1] == 254
+    assert ch["coefficients0"][1] == 254
 
 
 # --- sh_l2 ----------------------------------------------------------------------------------

@@ -107,6 +107,7 @@ def test_clean_asset_has_no_errors_or_warnings(assets):
     iz = [f for f in found if f.rule == "IzCheck"]
     assert [f.code for f in iz] == ["IzOk"]
     assert iz[0].data["max_relative"] <= V.FORMAT_RELATIVE_TOLERANCE["half"]
+    assert iz[0].data["worst_error_over_tolerance"] <= 1.0
     assert iz[0].data["texels"] > 100
     enc = [f for f in found if f.rule == "EncodingError"]
     assert enc[0].data["relative_rmse"] < V.OPTIONS.rmse_warning
@@ -133,7 +134,11 @@ def test_bad_asset_details(assets):
     tok = _ours(_findings(assets["bogus_token"]))[0]
     assert tok.code == "TokenNotAllowed" and "ahdLightmap:ratio" in tok.message
     enc = _ours(_findings(assets["mirrored_directions"]))[0]
-    assert enc.severity == "warning" and enc.data["relative_rmse"] > V.OPTIONS.rmse_warning
+    assert enc.severity == "warning" and enc.data["quantization_rmse"] > V.OPTIONS.rmse_warning
+    rep = _ours(_findings(assets["replaced_texture"]))
+    assert [(f.code, f.data["property"]) for f in rep] == [
+        ("TextureReplaced", "ahdLightmap:texture:direction")
+    ]
 
 
 def _edited_copy(assets, tmp_path, edit):

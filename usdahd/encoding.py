@@ -3,7 +3,9 @@
 - Hemi-octahedral direction encoding (Meyer et al. 2010) of upper-hemisphere unit vectors to two
   SNORM8 values. SNORM (codes -127..127, decoded ``c / 127``) represents 0 exactly, so the
   direction ``d = z`` (code (0, 0)) is exact; UNORM cannot do this.
-- UNORM8 / SNORM8 scalar quantizers with the D3D/Vulkan/GL decode rules.
+- UNORM8 / SNORM8 scalar quantizers with the D3D/Vulkan/GL decode rules, and signed values
+  biased into UNORM8 (``code = snorm + 128``, decoded ``(q - 128) / 127``): PNG, engines and
+  usdz packages hold unsigned 8-bit data only (format version 2 stores no int8 texture).
 - float16 storage of HDR colours with an overflow pre-scale: values above the float16 range
   (65504) are divided by a power-of-two scale which the caller records (``izScale``).
 
@@ -59,6 +61,28 @@ def dequantize_snorm8(c: np.ndarray) -> np.ndarray:
     return np.maximum(np.asarray(c).astype(np.float32) / np.float32(127.0), np.float32(-1.0))
 
 
+#: Bias of signed values stored in UNORM8 (format version 2): code = snorm code + 128, so
+#: 128 is 0 exactly and the SNORM8 codes -127..127 become 1..255.
+SNORM_BIAS = 128
+
+
+def bias_snorm8(codes: np.ndarray) -> np.ndarray:
+    """int8 SNORM codes (-127..127; -128 is treated as -127) -> biased uint8 codes (1..255)."""
+    c = np.maximum(np.asarray(codes).astype(np.int16), -127)
+    return (c + SNORM_BIAS).astype(np.uint8)
+
+
+def quantize_snorm8_biased(x: np.ndarray) -> np.ndarray:
+    """[-1, 1] floats -> biased uint8 codes ``round(127 x) + 128`` in 1..255 (clamped)."""
+    return bias_snorm8(quantize_snorm8(x))
+
+
+def dequantize_snorm8_biased(c: np.ndarray) -> np.ndarray:
+    """Biased uint8 codes -> float32 ``max((q - 128) / 127, -1)`` (q = 0 decodes as -1)."""
+    q = np.asarray(c).astype(np.float32) - np.float32(SNORM_BIAS)
+    return np.maximum(q / np.float32(127.0), np.float32(-1.0))
+
+
 def hemioct_encode(d: np.ndarray) -> np.ndarray:
     """Upper-hemisphere unit vectors -> hemi-octahedral (u, v) in [-1, 1] (unquantized).
 
@@ -95,6 +119,17 @@ def encode_direction(d: np.ndarray) -> np.ndarray:
 def decode_direction(codes: np.ndarray) -> np.ndarray:
     """(..., 2) int8 SNORM8 hemi-octahedral codes -> (..., 3) float32 unit vectors."""
     return hemioct_decode(dequantize_snorm8(codes))
+
+
+def encode_direction_u8(d: np.ndarray) -> np.ndarray:
+    """Unit vectors (..., 3), d_z >= 0 -> (..., 2) biased uint8 codes (2..254), see
+    :func:`encode_direction` (same quantization, stored as ``snorm code + 128``)."""
+    return bias_snorm8(encode_direction(d))
+
+
+def decode_direction_u8(codes: np.ndarray) -> np.ndarray:
+    """(..., 2) biased uint8 hemi-octahedral codes -> (..., 3) float32 unit vectors."""
+    return hemioct_decode(dequantize_snorm8_biased(codes))
 
 
 def half_scale(x: np.ndarray, headroom: float = 0.5) -> float:

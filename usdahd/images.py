@@ -7,8 +7,8 @@ format    dtype       files                            use
 ========  ==========  ===============================  ====================================
 half      float16     .exr (zip compression)           HDR irradiance, SH coefficients
 float     float32     .exr (zip), .tif                 debug / sidecar images
-unorm8    uint8       .png, .tif                       quantized ratios
-snorm8    int8        .tif (SampleFormat = signed)     quantized directions
+unorm8    uint8       .png, .tif                       every 8-bit lightmap texture
+snorm8    int8        .tif (SampleFormat = signed)     not used by lightmaps (not usdz-legal)
 ========  ==========  ===============================  ====================================
 
 Pixels are ``(height, width, channels)`` numpy arrays, row 0 = top of the image (the
@@ -16,7 +16,8 @@ Pixels are ``(height, width, channels)`` numpy arrays, row 0 = top of the image 
 alpha (un)premultiplication, no dithering.
 
 Colour space: written as ``oiio:ColorSpace`` (EXR ``colorInteropID``; for PNG an sRGB chunk
-when it is sRGB) and, because PNG and TIFF keep no such tag for data textures, also as the
+when it is sRGB, else a gAMA chunk of 1.0, i.e. linear/raw data) and, because PNG and TIFF
+keep no "raw" tag for data textures, also as the
 ``usdahd:ColorSpace`` attribute and in ``ImageDescription`` (``usdahd {"colorSpace": "raw",
 "channels": [...], "attributes": {...}}``, JSON, which also carries channel names and extra
 attributes through TIFF/PNG); :func:`read` takes the first of these it finds. Names are
@@ -152,6 +153,10 @@ def write(
     spec.alpha_channel = -1
     spec.attribute("oiio:ColorSpace", color_space)
     spec.attribute("usdahd:ColorSpace", color_space)
+    if ext == ".png" and "srgb" not in color_space.lower():
+        # PNG's only way to say "not sRGB": a gAMA chunk of 1.0 (OpenImageIO, browsers and
+        # engine importers then take the values as linear data instead of sRGB).
+        spec.attribute("oiio:Gamma", 1.0)
     extra = dict(attributes or {})
     desc = {"colorSpace": color_space, "channels": list(channels), "attributes": extra}
     spec.attribute("ImageDescription", f"{_DESCRIPTION_PREFIX} {json.dumps(desc)}")

@@ -255,8 +255,6 @@ def changed_parts(old: dict, new: dict) -> list[str]:
 
 # ------------------------------------------------------------------------------------ bake
 
-EXTENSIONS = {"half": ".exr", "float": ".exr", "unorm8": ".png", "snorm8": ".tif"}
-
 
 def _open_stage(path: Path):
     from pxr import Sdf, Usd
@@ -896,7 +894,6 @@ def _factor_attrs(factors: dict) -> dict:
 def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     """Fit the model, quantize, dilate, write textures + SH sidecar; set job.results."""
     from usdahd import images
-    from usdahd import sh as shmod
     from usdahd.bake import post
     from usdahd.usd import schema
 
@@ -906,10 +903,11 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     fitted = models.fit(job.sh, s["model"], ratio=s["ratio"], solver=s["solver"])
     channels, factors = mod.encode(fitted.params, ratio=s["ratio"])
     decoded = mod.decode(channels, ratio=s["ratio"], factors=factors)
-    # The property the format exists for: I(z) after quantization equals the baked I_z.
+    # Quantization error at n = z (what validate's IzCheck measures): the decoded model against
+    # the unquantized fit (for IrradZ models the fit's I_z = max(0, I_z of the SH) exactly).
     z = np.broadcast_to(np.array([0.0, 0.0, 1.0], np.float32), (len(job.texels), 3))
     got = mod.evaluate(decoded, z)
-    want = shmod.iz(job.sh.astype(np.float64))
+    want = mod.evaluate(models.representable(fitted, mod), z).astype(np.float64)
     scale = np.maximum(np.abs(want).max(axis=-1, keepdims=True), 1e-6)
     err = np.abs(got - want) / scale
     job.report["iz_max_rel_error"] = float(err.max()) if err.size else 0.0
@@ -922,13 +920,13 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     mask = np.zeros((h, w), bool)
     mask[job.texels.xy[:, 1], job.texels.xy[:, 0]] = True
     padding = int(s["padding"])
-    textures = {}
+    textures, digests = {}, {}
     for lay in mod.layout(s["ratio"]):
         values = np.asarray(channels[lay.role])
         values = values.reshape(len(job.texels), -1)
         img = post.dilate(_image_from_texels(values, job.texels), mask, padding)
         img = img.astype(values.dtype, copy=False)
-        path = lm_dir / f"{stem}.{lay.role}{EXTENSIONS[lay.format]}"
+        path = lm_dir / f"{stem}.{lay.role}{lay.extension}"
         images.write(
             path,
             img,
@@ -938,6 +936,7 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
             attributes=_factor_attrs(factors),
         )
         textures[lay.role] = str(path)
+        digests[lay.role] = schema.file_digest(path)
     # The SH sidecar (float32, with coverage) the validator checks I_z against.
     side = np.concatenate(
         [
@@ -952,6 +951,7 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         side_path, side_img, format="float", color_space="raw", channels=schema.SH_SIDECAR_CHANNELS
     )
     textures[schema.SIDECAR_ROLE] = str(side_path)
+    digests[schema.SIDECAR_ROLE] = schema.file_digest(side_path)
     job.results = schema.BakeResults(
         model=s["model"],
         ratio=s["ratio"],
@@ -964,6 +964,7 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         part_hashes=job.parts,
         settings=s,
         generator=f"usdahd {__version__}",
+        digests=digests,
     )
     job.report["status"] = "baked"
     job.report["seconds"] = job.report.get("trace_seconds", 0.0) + time.perf_counter() - t0

@@ -87,7 +87,7 @@ RULES = (
     Rule(
         "EncodingError",
         "Reports the hemispherical RMSE of the decoded model against the baked SH irradiance "
-        "per prim, warning above a threshold.",
+        "per prim, warning when the textures add more than a threshold to the model's own fit.",
     ),
     Rule(
         "Staleness",
@@ -117,9 +117,11 @@ class Options:
 
     iz_tolerance : relative I_z tolerance; None derives it from the storage format
         (:data:`FORMAT_RELATIVE_TOLERANCE`).
-    rmse_warning : relative hemispherical RMSE (per prim) above which EncodingError warns;
-        0.25 is far above what the fitted models reach on plausible lighting (a few percent)
-        and well below a wrong decode (order 1).
+    rmse_warning : relative hemispherical RMSE (per prim) of the decoded textures against the
+        model's own unquantized fit above which EncodingError warns; 0.25 is 4x the largest
+        quantization error measured on the samples (hlsh, whose 8-bit w_a spans up to +-16:
+        0.061; float16 models ~3e-4) and well below a wrong decode (order 1). The model's own
+        fit error is reported, not warned about: it is a choice of model, not a defect.
     rmse_normals : normals of the hemispherical RMSE (spherical Fibonacci, upper hemisphere).
     rmse_max_texels : texels sampled (evenly) for the RMSE, so big lightmaps stay fast.
     uv_epsilon : UVs may leave [0, 1] by this much (float32 rounding of authored 0 and 1).
@@ -138,6 +140,8 @@ class Options:
 
 
 OPTIONS = Options()
+#: Model fit RMSE above which the EncodingError note suggests a closer-fitting model.
+MODEL_RMSE_NOTE = 0.25
 
 #: Relative tolerance of a stored value by storage format: float16 rounds to nearest with a
 #: relative error <= 2^-11 = 4.88e-4 (normal range), so 5e-4; float32 2^-24, so 1e-6.
@@ -290,7 +294,9 @@ def read_image(path: str) -> Image:
 def _read_local(local: str, path: str) -> Image:
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(local)
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # PNG alpha is data: never premultiply
+    inp = oiio.ImageInput.open(local, config)
     if inp is None:
         raise OSError(oiio.geterror() or f"OpenImageIO cannot open {path}")
     try:
@@ -394,8 +400,8 @@ def _load_bake(results) -> Bake:
             img = read_image(path)
         except OSError:
             raise _Skip(f"texture {role!r} unreadable; see Textures") from None
-        if (img.width, img.height) != (w, h) or img.data.shape[2] != len(lay.channels):
-            raise _Skip(f"texture {role!r} has the wrong shape; see Textures")
+        if (img.width, img.height) != (w, h) or set(img.channel_names) != set(lay.channels):
+            raise _Skip(f"texture {role!r} has the wrong shape or channels; see Textures")
         images[role] = img
     sh = cov = None
     sc = results.textures.get(schema.SIDECAR_ROLE)
@@ -414,8 +420,11 @@ def _load_bake(results) -> Bake:
     else:
         ys, xs = np.nonzero(cov)
         xy = np.stack([xs, ys], axis=-1).astype(np.int32)
+    # Channels by name, in the layout's order (EXR stores them sorted, so never by position).
     channels = {
-        role: images[role].data[xy[:, 1], xy[:, 0]].astype(FORMAT_DTYPES[lay.format])
+        role: images[role]
+        .channels(lay.channels)[xy[:, 1], xy[:, 0]]
+        .astype(FORMAT_DTYPES[lay.format])
         for role, lay in layout.items()
     }
     factors = decode_factors(results)
@@ -448,11 +457,15 @@ def check_schema_values(prim) -> list[Finding]:
     r = _Rule("SchemaValues", prim)
     defn = _prim_definition()
     ns = schema.NAMESPACE + ":"
+    version_attr = prim.GetAttribute(schema.property_name("baked:formatVersion"))
+    old = int((version_attr.Get() if version_attr else 0) or 0) in schema.OLD_FORMAT_VERSIONS
     for attr in prim.GetAuthoredAttributes():
         name = attr.GetName()
         if not name.startswith(ns):
             continue
         adef = defn.GetAttributeDefinition(name) if defn else None
+        if not adef and old:
+            continue  # a property of the older layout: RebakeNeeded below says it all
         if not adef:
             r.warning(
                 "UnknownProperty",
@@ -498,6 +511,17 @@ def check_schema_values(prim) -> list[Finding]:
                 "(ahdLightmap:baked:formatVersion is 0)",
                 "run usdahd bake on the stage, or set ahdLightmap:bake = false",
             )
+        return r.out
+    if int(version) in schema.OLD_FORMAT_VERSIONS:
+        r.error(
+            "RebakeNeeded",
+            f"re-bake needed: ahdLightmap:baked:formatVersion = {version} is the texture layout "
+            f"of an older usdahd; this one reads version "
+            f"{', '.join(map(str, schema.KNOWN_FORMAT_VERSIONS))} (docs/schema.md, Versions). "
+            "The textures are not checked",
+            "re-bake the stage with this usdahd (usdahd bake --force)",
+            version=int(version),
+        )
         return r.out
     if int(version) not in schema.KNOWN_FORMAT_VERSIONS:
         r.error(
@@ -563,6 +587,17 @@ def check_schema_values(prim) -> list[Finding]:
                 f"{results.model!r} needs it",
                 "re-bake the prim",
             )
+    want_packing = {t.role: t.packing for t in mod.layout(results.ratio)}
+    for role in needed:
+        got = results.packing.get(role)
+        if role in results.textures and got != want_packing[role]:
+            r.error(
+                "Packing",
+                f"{schema.packing_property_name(role)} = {got or '(not authored)'!r} but model "
+                f"{results.model!r} with ratio {results.ratio!r} writes {want_packing[role]!r}",
+                "re-bake the prim (engines read the channels as the packing attribute says)",
+                property=schema.packing_property_name(role),
+            )
     for role in results.textures:
         if role not in needed and role != schema.SIDECAR_ROLE:
             r.warning(
@@ -611,8 +646,8 @@ def check_textures(prim) -> list[Finding]:
         results = schema.read_results(prim, validate=False)
     except Exception:
         return r.out  # SchemaValues reports it
-    if results is None:
-        return r.out
+    if results is None or results.format_version not in schema.KNOWN_FORMAT_VERSIONS:
+        return r.out  # SchemaValues reports the version (RebakeNeeded / UnknownVersion)
     try:
         layout = {t.role: t for t in models.get(results.model).layout(results.ratio)}
     except Exception:
@@ -658,6 +693,28 @@ def check_textures(prim) -> list[Finding]:
                 )
                 continue
             files = [("", resolved)]
+            digest = results.digests.get(role)
+            if not digest:
+                r.warning(
+                    "NoDigest",
+                    f"{schema.digest_property_name(role)} is not authored, so a replaced "
+                    f"{os.path.basename(resolved)} would go unnoticed",
+                    "re-bake the prim (usdahd bake records a digest per texture)",
+                    property=prop,
+                )
+            else:
+                actual = schema.file_digest(resolved)  # a file or an asset in a package
+                if actual != digest:
+                    r.error(
+                        "TextureReplaced",
+                        f"{prop} ({os.path.basename(resolved)}) is not the file the bake wrote: "
+                        f"its digest is {actual[:19]}..., {schema.digest_property_name(role)} "
+                        f"records {digest[:19]}...",
+                        "re-bake the prim; edit lightmaps only through usdahd bake",
+                        property=prop,
+                        expected=digest,
+                        actual=actual,
+                    )
         for label, path in files:
             base = os.path.basename(path.rstrip("]"))  # a package path ends in ...[dir/a.exr]
             where = f"{prop}{' ' + label if label else ''} ({base})"
@@ -700,11 +757,12 @@ def check_textures(prim) -> list[Finding]:
             lay = layout.get(role)
             if lay is None:
                 continue
-            if img.data.shape[2] != len(lay.channels):
+            if sorted(img.channel_names) != sorted(lay.channels):
                 r.error(
                     "Channels",
-                    f"{where} has {img.data.shape[2]} channel(s); model {results.model!r} "
-                    f"with ratio {results.ratio!r} stores {len(lay.channels)}",
+                    f"{where} has channel(s) {' '.join(img.channel_names)}; model "
+                    f"{results.model!r} with ratio {results.ratio!r} stores "
+                    f"{' '.join(lay.channels)}",
                     "re-bake the prim",
                     property=prop,
                 )
@@ -717,9 +775,27 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
             file_cs = img.color_space
-            # PNG has no way to say "raw": OpenImageIO reports every PNG as sRGB. Compare the
-            # file's own claim only for formats that record it (EXR, TIFF).
-            if file_cs and assets.extension(path) != ".png":
+            want_ext = lay.extension
+            if assets.extension(path) != want_ext:
+                r.error(
+                    "FileType",
+                    f"{where} is not a {want_ext} file; the {role} texture is {lay.format} "
+                    f"({want_ext}: what engines and usdz packages accept)",
+                    "re-bake the prim",
+                    property=prop,
+                )
+            # PNG says "not sRGB" only with a gAMA chunk of 1.0 (OpenImageIO then reports it
+            # linear); without one every reader takes the bytes as sRGB and converts them.
+            if assets.extension(path) == ".png":
+                if "srgb" in (file_cs or "srgb").lower() and "srgb" not in lay.color_space:
+                    r.warning(
+                        "FileColorSpace",
+                        f"{where} carries no gAMA 1.0 chunk, so image tools and engine "
+                        f"importers read it as sRGB although it holds {lay.color_space} data",
+                        "re-bake the prim (usdahd writes the gAMA chunk)",
+                        property=prop,
+                    )
+            elif file_cs:
                 lin = lay.color_space == "lin_rec709_scene"
                 srgb_claim = "srgb" in file_cs.lower()
                 if srgb_claim or (not lin and "rec709" in file_cs.lower() and "lin" in file_cs):
@@ -833,20 +909,58 @@ def check_texel_values(prim) -> list[Finding]:
 # ---------------------------------------------------------------------------- rule 4: IzCheck
 
 
-def iz_tolerance(bake: Bake) -> tuple[float, float]:
-    """(relative, absolute) tolerance of decoded I_z for this bake's storage format."""
-    role = "iz" if "iz" in bake.layout else next(iter(bake.layout))
-    fmt = bake.layout[role].format
-    rel = FORMAT_RELATIVE_TOLERANCE.get(fmt, 1.0 / 127.0)
-    if bake.results.model not in IRRADZ and any(
-        t.format in ("unorm8", "snorm8") for t in bake.layout.values()
-    ):
-        rel = max(rel, 1.0 / 127.0)  # an 8-bit channel enters the evaluation at z
-    scale = bake.factors.get(f"{role}Scale", 1.0)
-    absolute = HALF_ABSOLUTE_TOLERANCE * scale if fmt == "half" else 0.0
-    if OPTIONS.iz_tolerance is not None:
-        rel = float(OPTIONS.iz_tolerance)
-    return rel, absolute
+#: Slack on the derived tolerance: the first-order bound ignores products of two code errors
+#: (the 8-bit sh_l1 L1 = ratio x L0, at most 1/127 of the bound) and float32 evaluation.
+TOLERANCE_SLACK = 0.02
+
+
+def _step(codes: np.ndarray, up: bool) -> np.ndarray:
+    """Each stored code moved by one code step: the next float16, or the 8-bit code +-1."""
+    if codes.dtype == np.float16:
+        toward = np.float16(np.inf if up else -np.inf)
+        out = np.nextafter(codes, toward)
+        return np.where(np.isfinite(out), out, codes).astype(np.float16)
+    c = codes.astype(np.int16) + (1 if up else -1)
+    return np.clip(c, 0, 255).astype(codes.dtype)
+
+
+def _at_z(bake: Bake, channels: dict) -> np.ndarray:
+    """Decoded I(n = z) (n, 3) float64 of stored channels (as an engine computes it)."""
+    params = bake.mod.decode(channels, ratio=bake.results.ratio, factors=bake.factors)
+    z = np.zeros((len(bake.xy), 3))
+    z[:, 2] = 1.0
+    return bake.mod.evaluate(params, z).astype(np.float64)
+
+
+def quantization_tolerance(bake: Bake, got: np.ndarray | None = None) -> np.ndarray:
+    """Per texel and colour, how far the decoded I(z) may lie from the unquantized fit: (n, 3).
+
+    Derived from the storage, not guessed: every stored code c_j is the rounding of the exact
+    value to the nearest code (half a code step away at most), so to first order
+    ``|I(z) - I_exact(z)| <= sum_j 0.5 |I(z; c_j + 1 step) - I(z)|`` (the larger of the two
+    one-sided differences). One step is the next float16 (an ULP, 2^-11 relative at most, times
+    the decode scale) or one 8-bit code; every channel of every texture enters, so a model
+    whose I(z) involves several coefficients or an 8-bit direction gets the sum of their
+    quantization errors at z. Plus TOLERANCE_SLACK of that. docs/validate.md, IzCheck.
+    """
+    base = _at_z(bake, bake.channels) if got is None else got
+    tol = np.zeros_like(base)
+    for role, codes in bake.channels.items():
+        lay = bake.layout[role]
+        for j, code in enumerate(lay.codes):
+            if code == "reserved":
+                continue
+            worst = np.zeros_like(base)
+            for up in (True, False):
+                moved = dict(bake.channels)
+                c = codes.copy()
+                c[:, j] = _step(codes[:, j], up)
+                moved[role] = c
+                with np.errstate(all="ignore"):
+                    diff = np.abs(_at_z(bake, moved) - base)
+                worst = np.maximum(worst, np.where(np.isfinite(diff), diff, 0.0))
+            tol += 0.5 * worst
+    return tol * (1.0 + TOLERANCE_SLACK)
 
 
 def check_iz(prim) -> list[Finding]:
@@ -863,29 +977,37 @@ def check_iz(prim) -> list[Finding]:
     res = bake.results
     z = np.array([0.0, 0.0, 1.0])
     with np.errstate(all="ignore"):
-        ref = np.maximum(shm.iz(bake.sh), 0.0)  # the fit stores max(I_z, 0) (SH ringing)
+        got = _at_z(bake, bake.channels)
         if res.model in IRRADZ:
-            got = bake.params["iz"].astype(np.float64)
+            ref = np.maximum(shm.iz(bake.sh), 0.0)  # the fit stores max(I_z, 0) (SH ringing)
             what = "I_z"
         else:
             fitted = models.fit(bake.sh, res.model, ratio=res.ratio, solver=res.solver or None)
-            ref = fitted.evaluate(np.broadcast_to(z, bake.sh.shape[:-2] + (3,))).astype(np.float64)
-            got = bake.mod.evaluate(bake.params, np.broadcast_to(z, ref.shape)).astype(np.float64)
+            params = models.representable(fitted, bake.mod)
+            zz = np.broadcast_to(z, bake.sh.shape[:-2] + (3,))
+            ref = bake.mod.evaluate(params, zz).astype(np.float64)
             what = f"{res.model} irradiance at n = z"
-    rel, absolute = iz_tolerance(bake)
-    ok = np.isfinite(got).all(axis=1) & np.isfinite(ref).all(axis=1)
+        allowed = quantization_tolerance(bake, got)
+    if OPTIONS.iz_tolerance is not None:  # --tolerance: a plain relative tolerance instead
+        allowed = float(OPTIONS.iz_tolerance) * np.abs(ref).max(axis=1, keepdims=True) + 0 * ref
+    # Texels TexelValues rejects (non-finite values, d_z below the floor) are its findings.
+    ok = bake.valid & np.isfinite(got).all(axis=1) & np.isfinite(ref).all(axis=1)
     n_skip = int((~ok).sum())
     if not ok.any():
         r.info("Skipped", "IzCheck did not run: no texel decodes to finite values (TexelValues)")
         return r.out
-    err = np.abs(got - ref)
-    allowed = rel * np.abs(ref) + absolute
-    # Relative error against the texel's brightest channel (a black channel next to a bright
-    # one is judged relative to the bright one, like the tolerance).
-    denom = np.maximum(np.abs(ref).max(axis=1, keepdims=True), absolute or 1e-30)
-    relerr = np.where(ok[:, None], err / denom, 0.0)
-    fail = ok & (err > allowed + rel * 1e-3 * denom).any(axis=1)
-    worst = int(np.argmax(relerr.max(axis=1)))
+    err = np.where(ok[:, None], np.abs(got - ref), 0.0)
+    # Relative figures against the texel's brightest channel (a black channel next to a bright
+    # one is judged relative to the bright one).
+    denom = np.maximum(np.abs(ref).max(axis=1, keepdims=True), 1e-30)
+    relerr = err / denom
+    lit = ok & (denom[:, 0] > 1e-6 * denom[ok].max())  # texels bright enough for a ratio
+    reltol = np.where(lit[:, None], allowed / denom, 0.0)
+    fail = ok & (err > allowed).any(axis=1)
+    ratio = np.where(
+        allowed > 0, err / np.where(allowed > 0, allowed, 1.0), np.where(err > 0, np.inf, 0.0)
+    )
+    worst = int(np.argmax(ratio.max(axis=1))) if fail.any() else int(np.argmax(relerr.max(axis=1)))
     x, y = _texel(bake, worst)
     stats = dict(
         texels=int(ok.sum()),
@@ -893,13 +1015,17 @@ def check_iz(prim) -> list[Finding]:
         max_relative=float(relerr.max()),
         mean_relative=float(relerr[ok].mean()),
         worst_texel=(x, y),
-        tolerance=rel,
+        tolerance=float(reltol[lit].max()) if lit.any() else 0.0,
+        tolerance_median=float(np.median(reltol[lit].max(axis=1))) if lit.any() else 0.0,
+        worst_error_over_tolerance=float(ratio[ok].max()),
         skipped_nonfinite=n_skip,
     )
     summary = (
         f"{what} vs the SH sidecar over {stats['texels']} covered texels: max relative error "
         f"{stats['max_relative']:.3g}, mean {stats['mean_relative']:.3g}, worst at texel "
-        f"({x}, {y}); tolerance {rel:.3g} relative"
+        f"({x}, {y}); tolerance from the quantization up to {stats['tolerance']:.3g} relative "
+        f"(median {stats['tolerance_median']:.3g}), worst error "
+        f"{stats['worst_error_over_tolerance']:.3g} of it"
     )
     if fail.any():
         r.error(
@@ -917,8 +1043,23 @@ def check_iz(prim) -> list[Finding]:
 # ---------------------------------------------------------------------- rule 5: EncodingError
 
 
+def _relative_rmse(got: np.ndarray, ref: np.ndarray, scale: np.ndarray):
+    """(per texel (n,), whole prim) RMSE of got - ref (n, d, 3) relative to ``scale`` (n,)."""
+    sq = ((got - ref) ** 2).mean(axis=(1, 2))
+    per_texel = np.sqrt(sq) / np.where(scale > 0, scale, np.inf)
+    return per_texel, float(np.sqrt(sq.mean()) / max(float(scale.mean()), 1e-30))
+
+
 def check_encoding_error(prim) -> list[Finding]:
-    """Rule EncodingError (see RULES)."""
+    """Rule EncodingError (see RULES and docs/validate.md).
+
+    Three hemispherical RMSEs over OPTIONS.rmse_normals upper-hemisphere normals (spherical
+    Fibonacci), each relative to the mean |SH irradiance| over those normals and texels:
+    ``relative_rmse`` decoded textures vs the SH irradiance (what a renderer gets), ``model_rmse``
+    the unquantized refit vs the SH irradiance (the model's own approximation error, a note:
+    a model choice, not a defect), ``quantization_rmse`` decoded vs the unquantized refit (what
+    the textures add). Warns when the quantization part exceeds OPTIONS.rmse_warning.
+    """
     r = _Rule("EncodingError", prim)
     try:
         bake = load_bake(prim)
@@ -937,40 +1078,56 @@ def check_encoding_error(prim) -> list[Finding]:
     dirs = shm.fibonacci_sphere(OPTIONS.rmse_normals, hemisphere=True)
     sh = bake.sh[idx]
     params = {k: v[idx] for k, v in bake.params.items()}
+    res = bake.results
     with np.errstate(all="ignore"):
         target = shm.irradiance(sh[:, None], dirs[None])  # (n, d, 3)
         normals = np.broadcast_to(dirs, (idx.size,) + dirs.shape)
         got = bake.mod.evaluate(params, normals).astype(np.float64)
-    sq = ((got - target) ** 2).mean(axis=(1, 2))
+        fitted = models.fit(sh, res.model, ratio=res.ratio, solver=res.solver or None)
+        exact = bake.mod.evaluate(models.representable(fitted, bake.mod), normals)
+        exact = exact.astype(np.float64)
     scale = np.abs(target).mean(axis=(1, 2))
-    per_texel = np.sqrt(sq) / np.where(scale > 0, scale, np.inf)
-    total = float(np.sqrt(sq.mean()) / max(float(scale.mean()), 1e-30))
+    per_texel, total = _relative_rmse(got, target, scale)
+    _, model_total = _relative_rmse(exact, target, scale)
+    q_texel, q_total = _relative_rmse(got, exact, scale)
     worst = int(np.argmax(per_texel))
     x, y = int(bake.xy[idx[worst], 0]), int(bake.xy[idx[worst], 1])
+    qw = int(np.argmax(np.where(np.isfinite(q_texel), q_texel, 0.0)))
     stats = dict(
         texels=int(idx.size),
         relative_rmse=total,
+        model_rmse=model_total,
+        quantization_rmse=q_total,
         texel_relative_rmse_mean=float(per_texel.mean()),
         texel_relative_rmse_max=float(per_texel.max()),
+        texel_quantization_rmse_max=float(q_texel.max()),
         worst_texel=(x, y),
         threshold=OPTIONS.rmse_warning,
     )
     msg = (
-        f"{bake.results.model} ({bake.results.ratio}) decoded vs SH irradiance over "
+        f"{res.model} ({res.ratio}) decoded vs SH irradiance over "
         f"{OPTIONS.rmse_normals} hemisphere normals and {idx.size} texels: relative RMSE "
-        f"{total:.3g}; per texel mean {stats['texel_relative_rmse_mean']:.3g}, max "
-        f"{stats['texel_relative_rmse_max']:.3g} at texel ({x}, {y})"
+        f"{total:.3g} (model fit {model_total:.3g}, quantization {q_total:.3g}); per texel mean "
+        f"{stats['texel_relative_rmse_mean']:.3g}, max {stats['texel_relative_rmse_max']:.3g} "
+        f"at texel ({x}, {y})"
     )
-    if total > OPTIONS.rmse_warning:
+    if not math.isfinite(q_total) or q_total > OPTIONS.rmse_warning:
+        qx, qy = int(bake.xy[idx[qw], 0]), int(bake.xy[idx[qw], 1])
         r.warning(
             "HighEncodingError",
-            f"{msg}, above the {OPTIONS.rmse_warning:g} threshold",
-            "bake with a model that fits this lighting better (hhd or sh_l2) or check the "
-            "textures decode as the schema says",
+            f"{msg}; the textures add {q_total:.3g} to the model's own fit (worst texel "
+            f"({qx}, {qy})), above the {OPTIONS.rmse_warning:g} threshold",
+            "check the textures decode as docs/schema.md says (channel order, biases, scale "
+            "factors), or re-bake the prim",
             **stats,
         )
     else:
-        r.info("EncodingError", msg, **stats)
+        hint = (
+            "; the model fits this lighting loosely, hhd or sh_l2 fit closer"
+            if model_total > MODEL_RMSE_NOTE
+            else ""
+        )
+        r.info("EncodingError", msg + hint, **stats)
     return r.out
 
 

@@ -48,15 +48,16 @@ def add_parser(sub):
         type=float,
         default=None,
         metavar="REL",
-        help="relative I_z tolerance of IzCheck (default: from the storage format, "
-        "5e-4 for float16)",
+        help="relative I(z) tolerance of IzCheck (default: derived per texel from the "
+        "textures' quantization, docs/validate.md)",
     )
     p.add_argument(
         "--rmse-threshold",
         type=float,
         default=None,
         metavar="REL",
-        help="relative hemispherical RMSE above which EncodingError warns (default 0.25)",
+        help="relative hemispherical RMSE the textures may add to the model's own fit before "
+        "EncodingError warns (default 0.25)",
     )
     p.add_argument("--list-rules", action="store_true", help="list the rules and exit")
     p.add_argument("--quiet", action="store_true", help="print errors and warnings only")

@@ -78,3 +78,12 @@ def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None 
         raise ModelError(f"model {model!r} has solvers {', '.join(mod.SOLVERS)}, not {solver!r}")
     params = mod.fit(sh, ratio=ratio, solver=solver, **options)
     return Fit(model=model, ratio=ratio, solver=solver, params=params)
+
+
+def representable(fitted: Fit, mod=None) -> dict:
+    """A fit's params clamped to what the model's textures can store (before rounding to
+    codes), via the model's optional ``representable(params, *, ratio)``; else unchanged.
+    What the decoded textures are compared against (validate's IzCheck, the bake log)."""
+    mod = mod or get(fitted.model)
+    rep = getattr(mod, "representable", None)
+    return rep(fitted.params, ratio=fitted.ratio) if rep is not None else fitted.params

@@ -8,8 +8,8 @@ point sampling): Gb and P are computed once, in closed form or by exact quadratu
 
 Conventions shared by these models (see docs/models-linear.md):
 
-- params ``coefficients`` : (..., N, 3) float32, basis k x RGB (the texture stores them as
-  ``N x 3`` float16 channels ``<basis>.R, <basis>.G, <basis>.B`` in that order);
+- params ``coefficients`` : (..., N, 3) float32, basis k x RGB (stored as N RGB float16
+  textures ``coefficients<k>``, one per basis function, channels R, G, B);
 - params ``invalid`` : (..., 1) float32, 1.0 where the input texel held NaN/Inf (its colours are
   then 0: black output, never propagated);
 - ``evaluate`` returns float32 (..., 3); with ``albedo`` it adds the self-bounce of 2024 App. A
@@ -23,7 +23,7 @@ import numpy as np
 from usdahd import encoding, hemi
 from usdahd import sh as shm
 from usdahd.errors import InputError, ModelError
-from usdahd.models.base import TextureLayout
+from usdahd.models.base import MAX_COEFFICIENT_TEXTURES, TextureLayout, rgb_layout
 
 #: Largest float32: fitted values are clipped to it (inputs near 1e200 would overflow).
 F32_MAX = float(np.finfo(np.float32).max)
@@ -111,31 +111,52 @@ def with_self_bounce(eval_fn, params: dict, normals, albedo) -> np.ndarray:
     return np.clip(out, -F32_MAX, F32_MAX).astype(np.float32)
 
 
-def coefficients_layout(names: tuple[str, ...]) -> TextureLayout:
-    """The ``coefficients`` texture: N x RGB float16 channels ``<name>.R`` ... (raw)."""
-    channels = tuple(f"{b}.{c}" for b in names for c in CHANNELS)
-    return TextureLayout("coefficients", channels, "half", "raw")
+def coefficient_role(k: int) -> str:
+    """Texture role of basis function k: ``coefficients<k>``."""
+    return f"coefficients{k}"
 
 
-def encode_coefficients(params: dict, role: str = "coefficients") -> tuple[dict, dict]:
-    """(..., N, 3) coefficients -> float16 (..., 3N) channels and ``<role>Scale`` factor."""
+def coefficients_layout(names: tuple[str, ...]) -> list[TextureLayout]:
+    """One RGB float16 texture per basis function k: ``coefficients<k>`` holds
+    ``<name k>.R, .G, .B`` (raw, × coefficientsScale)."""
+    if len(names) > MAX_COEFFICIENT_TEXTURES:
+        raise ModelError(f"{len(names)} basis functions; the schema has {MAX_COEFFICIENT_TEXTURES}")
+    return [
+        rgb_layout(coefficient_role(k), b, "half", "raw", "coefficientsScale")
+        for k, b in enumerate(names)
+    ]
+
+
+def encode_coefficients(params: dict) -> tuple[dict, dict]:
+    """(..., N, 3) coefficients -> {coefficients<k>: float16 (..., 3)} and coefficientsScale
+    (one power-of-two scale for all N textures)."""
     c = np.asarray(params["coefficients"], dtype=np.float64)
-    flat = c.reshape(c.shape[:-2] + (c.shape[-2] * c.shape[-1],))
-    h, s = encoding.encode_half(flat)
-    return {role: h}, {f"{role}Scale": s}
+    h, s = encoding.encode_half(c)
+    return {coefficient_role(k): h[..., k, :] for k in range(c.shape[-2])}, {"coefficientsScale": s}
 
 
-def decode_coefficients(
-    channels: dict, factors: dict | None, n_basis: int, role: str = "coefficients"
-) -> np.ndarray:
-    """float16 (..., 3N) channels -> float32 coefficients (..., N, 3)."""
-    if role not in channels:
-        raise InputError(f"missing texture role {role!r} (have {', '.join(channels) or 'none'})")
-    h = np.asarray(channels[role])
-    if h.shape[-1] != 3 * n_basis:
-        raise InputError(f"{role} texture must have {3 * n_basis} channels, got {h.shape[-1]}")
-    c = encoding.decode_half(h, (factors or {}).get(f"{role}Scale", 1.0))
-    return c.reshape(c.shape[:-1] + (n_basis, 3))
+def gather_coefficients(channels: dict, n_basis: int, n_channels: int = 3) -> np.ndarray:
+    """The ``coefficients<k>`` textures (..., n_channels) each -> (..., n_basis, n_channels)."""
+    missing = [coefficient_role(k) for k in range(n_basis) if coefficient_role(k) not in channels]
+    if missing:
+        raise InputError(
+            f"missing texture role(s) {', '.join(missing)} (have {', '.join(channels) or 'none'})"
+        )
+    out = []
+    for k in range(n_basis):
+        h = np.asarray(channels[coefficient_role(k)])
+        if h.shape[-1] != n_channels:
+            raise InputError(
+                f"{coefficient_role(k)} texture must have {n_channels} channels, got {h.shape[-1]}"
+            )
+        out.append(h)
+    return np.stack(out, axis=-2)
+
+
+def decode_coefficients(channels: dict, factors: dict | None, n_basis: int) -> np.ndarray:
+    """float16 ``coefficients<k>`` textures -> float32 coefficients (..., N, 3)."""
+    h = gather_coefficients(channels, n_basis)
+    return encoding.decode_half(h, (factors or {}).get("coefficientsScale", 1.0))
 
 
 def valid_flag(shape) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 from usdahd import encoding
 from usdahd.errors import InputError
 from usdahd.models import _irradz
-from usdahd.models.base import TextureLayout
+from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
 
 NAME = "ahd_classic"
 RATIOS = ("none",)
@@ -57,22 +57,22 @@ def evaluate(params, normals, *, albedo=None):
 
 def layout(ratio="none"):
     return [
-        TextureLayout("ambient", ("R", "G", "B"), "half", "lin_rec709_scene"),
-        TextureLayout("direction", ("R", "G"), "snorm8", "raw"),
-        TextureLayout("directional", ("R", "G", "B"), "half", "lin_rec709_scene"),
+        rgb_layout("ambient", "C_a", "half", "lin_rec709_scene", "ambientScale"),
+        TextureLayout(
+            "direction", "unorm8", "raw", ("u", "v", "_"), ("snorm8b", "snorm8b", "reserved")
+        ),
+        rgb_layout("directional", "C_d", "half", "lin_rec709_scene", "directionalScale"),
     ]
 
 
 def encode(params, *, ratio="none"):
-    """-> ({"ambient": float16, "direction": int8 (..., 2), "directional": float16},
-    {"ambientScale": s, "directionalScale": s})."""
+    """-> ({"ambient": float16 (..., 3), "direction": uint8 (..., 3), "directional": float16
+    (..., 3)}, {"ambientScale": s, "directionalScale": s})."""
     amb, sa = encoding.encode_half(params["ambient"])
     dirl, sd = encoding.encode_half(params["directional"])
-    ch = {
-        "ambient": amb,
-        "direction": encoding.encode_direction(params["direction"]),
-        "directional": dirl,
-    }
+    uv = encoding.encode_direction_u8(params["direction"])
+    reserved = np.full(uv.shape[:-1] + (1,), RESERVED_CODE, np.uint8)
+    ch = {"ambient": amb, "direction": np.concatenate([uv, reserved], -1), "directional": dirl}
     return ch, {"ambientScale": sa, "directionalScale": sd}
 
 
@@ -83,7 +83,7 @@ def decode(channels, *, ratio="none", factors=None):
             raise InputError(f"ahd_classic decode needs a {role!r} channel set")
     return {
         "ambient": encoding.decode_half(channels["ambient"], factors.get("ambientScale", 1.0)),
-        "direction": encoding.decode_direction(channels["direction"]),
+        "direction": encoding.decode_direction_u8(np.asarray(channels["direction"])[..., :2]),
         "directional": encoding.decode_half(
             channels["directional"], factors.get("directionalScale", 1.0)
         ),

@@ -14,10 +14,10 @@ A model is a plain module in ``usdahd/models/`` registered by name in
                     normalized irradiance (..., 3) in tangent-space normals (..., 3); with
                     ``albedo`` (..., 3) the self-bounce term of 2024 App. A is included.
 ``layout(ratio) -> list[TextureLayout]``
-                    the textures this model writes (see ``ROLES``).
+                    the textures this model writes (see ``ROLES``; 3 or 4 channels each).
 ``encode(params, *, ratio) -> tuple[dict[str, ndarray], dict[str, float]]``
-                    quantized texture channels per role (..., channels) in the stored dtype
-                    (float16, uint8 or int8) and the scalar decode factors (e.g. ``izScale``).
+                    quantized texture channels per role (..., 3|4) in the stored dtype
+                    (float16 or uint8) and the scalar decode factors (e.g. ``izScale``).
 ``decode(channels, *, ratio, factors) -> dict[str, ndarray]``
                     what an engine does: stored channels -> parameters (float32).
 
@@ -32,33 +32,102 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Texture roles shared by the schema (one asset-valued property per role), the baker and the
-#: validator. Changing this list changes schema/schema.usda.
+#: validator (format version 2). Every texture has 3 or 4 channels (R, G, B[, A]): what engines'
+#: importers take (at most 4 channels; no 1- or 2-channel PNGs, which are grey/grey+alpha).
+#: Changing this list changes schema/schema.usda.
 ROLES = (
-    "iz",  # IrradZ irradiance in local z, RGB, float16 HDR, lin_rec709_scene
-    "direction",  # hemi-octahedral tangent-space direction, 2 x SNORM8, raw
-    "ratio",  # ambient ratio w_a: 1 or 3 x UNORM8 (SNORM8 with range for hlsh), raw
-    "ambient",  # classic AHD C_a / hemisphere colour, RGB float16, lin_rec709_scene
-    "directional",  # classic AHD C_d, RGB float16, lin_rec709_scene
-    "coefficients",  # linear bases (sh_l1, sh_l2, ambient_cube, hl2): N x 3 float16, raw
-    "coefficientsL1",  # 8-bit compressed L1 directional part (sh_l1 "8bit"), raw
-)
+    "iz",  # IrradZ irradiance in local z, RGB, float16 EXR, lin_rec709_scene
+    "direction",  # hemi-octahedral direction (u, v) + luminance w_a (or reserved), PNG, raw
+    "ratio",  # per-channel ambient ratio w_a (ratio "rgb"), RGB PNG, raw
+    "ambient",  # classic AHD C_a / hemisphere colour, RGB float16 EXR, lin_rec709_scene
+    "directional",  # classic AHD C_d, RGB float16 EXR, lin_rec709_scene
+) + tuple(f"coefficients{k}" for k in range(9))  # linear bases: one RGB texture per basis k
+#: How many ``coefficients<k>`` roles exist (sh_l2 needs 9).
+MAX_COEFFICIENT_TEXTURES = 9
 
-FORMATS = ("half", "float", "unorm8", "snorm8")
+#: Storage formats of textures (the SH sidecar is "float").
+FORMATS = ("half", "unorm8")
+#: File extension per texture format: EXR for HDR data, PNG for 8-bit data (no TIFF: USD's
+#: usdz checks reject it, and engines import neither signed 8-bit TIFF nor > 4 channels).
+EXTENSIONS = {"half": ".exr", "unorm8": ".png", "float": ".exr"}
+#: File channel names by channel count. EXR stores channels sorted by name, and every EXR
+#: reader (OpenEXR's RGBA interface, OpenImageIO, engine importers) maps R, G, B, A by *name*
+#: to the texture's red, green, blue, alpha components; PNG has no names, only that order.
+CHANNEL_NAMES = {3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+
+#: Channel codes: how a stored channel value becomes the quantity it holds. ``q`` is the stored
+#: integer code (0..255) of an 8-bit channel, ``t = q / 255`` what a GPU samples from UNORM8.
+CODES = {
+    "half": "IEEE float16 value h; quantity = h × scale (scale 1 when none is named)",
+    "unorm8": "quantity = q / 255 (× scale when named); [0, 1]",
+    "snorm8b": "signed value biased into UNORM8: quantity = (q − 128) / 127 (× scale when "
+    "named) = (255 t − 128) / 127; q = 128 is 0 exactly; q = 0 decodes as −1 like 1",
+    "l0_8bit": "Enlighten's compressed L0: L0 = l0Scale × (q / 255)²",
+    "l1_8bit": "Enlighten's compressed L1 component: L1_i = (q − 127) / 127 × L0 (the L0 of the "
+    "same texture)",
+    "reserved": "unused; written as 128, ignore it",
+}
+#: Code written into ``reserved`` channels.
+RESERVED_CODE = 128
 
 
 @dataclass(frozen=True)
 class TextureLayout:
-    """One texture a model writes.
+    """One texture a model writes (format version 2): the single table the writer, the readers,
+    the schema's ``packing`` attributes and docs/schema.md are all generated from.
 
-    role : one of ROLES; channels : channel names in file order (e.g. ("R", "G", "B"));
-    format : one of FORMATS; color_space : a Gf.ColorSpaceNames token
-    (``lin_rec709_scene`` for HDR irradiance, ``raw`` for coefficients).
+    role : one of ROLES; format : one of FORMATS (the file type follows, EXTENSIONS);
+    color_space : a Gf.ColorSpaceNames token (``lin_rec709_scene`` for HDR irradiance, ``raw``
+    for data); quantities : what each channel holds, in channel order (R, G, B[, A]), e.g.
+    ``("u", "v", "w_a")``; codes : the CODES entry decoding each channel; scales : the decode
+    factor (``usdahd.usd.schema.FACTORS``) multiplying each channel, or None.
     """
 
     role: str
-    channels: tuple[str, ...]
     format: str
     color_space: str
+    quantities: tuple[str, ...]
+    codes: tuple[str, ...]
+    scales: tuple[str | None, ...] = ()
+
+    def __post_init__(self):
+        n = len(self.quantities)
+        if n not in CHANNEL_NAMES:
+            raise ValueError(f"texture {self.role!r}: {n} channels; textures have 3 or 4")
+        if self.role not in ROLES or self.format not in FORMATS:
+            raise ValueError(f"texture {self.role!r}: unknown role or format {self.format!r}")
+        if len(self.codes) != n or any(c not in CODES for c in self.codes):
+            raise ValueError(f"texture {self.role!r}: one known code per channel")
+        if not self.scales:
+            object.__setattr__(self, "scales", (None,) * n)
+        if len(self.scales) != n:
+            raise ValueError(f"texture {self.role!r}: one scale (or None) per channel")
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """File channel names in order: ("R", "G", "B") or ("R", "G", "B", "A")."""
+        return CHANNEL_NAMES[len(self.quantities)]
+
+    @property
+    def extension(self) -> str:
+        return EXTENSIONS[self.format]
+
+    @property
+    def packing(self) -> str:
+        """``R=u:snorm8b G=v:snorm8b B=w_a:unorm8`` (``*scale`` appended when scaled): the
+        value of the schema's ``ahdLightmap:texture:<role>:packing`` attribute."""
+        out = []
+        for ch, q, code, s in zip(self.channels, self.quantities, self.codes, self.scales):
+            out.append(f"{ch}={q}:{code}" + (f"*{s}" if s else ""))
+        return " ".join(out)
+
+
+def rgb_layout(role: str, name: str, format: str, color_space: str, scale: str | None):
+    """A 3-channel texture holding one colour ``<name>.R, <name>.G, <name>.B``."""
+    code = "half" if format == "half" else "unorm8"
+    return TextureLayout(
+        role, format, color_space, tuple(f"{name}.{c}" for c in "RGB"), (code,) * 3, (scale,) * 3
+    )
 
 
 @dataclass

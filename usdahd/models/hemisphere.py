@@ -22,7 +22,7 @@ from usdahd import encoding
 from usdahd import sh as shm
 from usdahd.errors import InputError
 from usdahd.models import _linear
-from usdahd.models.base import TextureLayout
+from usdahd.models.base import rgb_layout
 
 NAME = "hemisphere"
 RATIOS = ("none",)
@@ -61,7 +61,7 @@ def evaluate(params, normals, *, albedo=None):
 
 def layout(ratio="none"):
     _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    return [TextureLayout("ambient", _linear.CHANNELS, "half", "lin_rec709_scene")]
+    return [rgb_layout("ambient", "C", "half", "lin_rec709_scene", "ambientScale")]
 
 
 def encode(params, *, ratio="none"):

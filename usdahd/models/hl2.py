@@ -126,11 +126,11 @@ def evaluate(params, normals, *, albedo=None):
 
 def layout(ratio="none"):
     _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    return [_linear.coefficients_layout(BASIS)]
+    return _linear.coefficients_layout(BASIS)
 
 
 def encode(params, *, ratio="none"):
-    """-> ({"coefficients": float16 (..., 9)}, {"coefficientsScale": s})."""
+    """-> ({"coefficients0".."coefficients2": float16 (..., 3)}, {"coefficientsScale": s})."""
     _linear.check_choice("ratio", ratio, RATIOS, NAME)
     return _linear.encode_coefficients(params)
 

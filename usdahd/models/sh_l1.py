@@ -7,13 +7,13 @@ receives no ratio, so the variant travels with the parameters; decode restores i
 
 The ratio slot selects the variant (sh_l1 has no ambient ratio):
 
-``linear``     ``I(n) = sum_k A_k l_k Y_k(n)`` (cosine factors A = [1, 2/3]); texture
-               ``coefficients`` 4 x RGB float16.
+``linear``     ``I(n) = sum_k A_k l_k Y_k(n)`` (cosine factors A = [1, 2/3]); textures
+               ``coefficients0..3``, one RGB float16 per basis function.
 ``nonlinear``  Geomerics' non-linear reconstruction from the Enlighten documentation, per
                channel, never negative (see :func:`nonlinear_irradiance`); same texture.
 ``8bit``       Enlighten's compressed L1: per colour channel 4 UNORM8 values ``sqrt(L0 /
-               l0Scale)`` and ``L1 / L0`` mapped from [-1, 1] to [0, 254] (texture
-               ``coefficientsL1``, 12 channels); linear evaluation of the decoded SH.
+               l0Scale)`` and ``L1 / L0`` mapped from [-1, 1] to [0, 254] (textures
+               ``coefficients0..2``: one RGBA UNORM8 PNG per colour); linear evaluation.
 
 Enlighten's L0 / L1 are the mean and first moment of the radiance: ``L0 = <L>``,
 ``L1 = <L w>`` over the sphere, so ``L = L0 + 3 L1 . w`` and, for non-negative radiance,
@@ -39,7 +39,6 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd import sh as shm
-from usdahd.errors import InputError
 from usdahd.models import _linear
 from usdahd.models.base import TextureLayout
 
@@ -137,14 +136,38 @@ def evaluate(params, normals, *, albedo=None):
 def layout(ratio="linear"):
     _linear.check_choice("ratio", ratio, RATIOS, NAME)
     if ratio == "8bit":
-        ch = tuple(f"{c}.{k}" for c in _linear.CHANNELS for k in ("L0", "L1x", "L1y", "L1z"))
-        return [TextureLayout("coefficientsL1", ch, "unorm8", "raw")]
-    return [_linear.coefficients_layout(BASIS)]
+        return [
+            TextureLayout(
+                _linear.coefficient_role(i),
+                "unorm8",
+                "raw",
+                tuple(f"{k}.{c}" for k in ("L0", "L1x", "L1y", "L1z")),
+                ("l0_8bit", "l1_8bit", "l1_8bit", "l1_8bit"),
+                ("l0Scale", None, None, None),
+            )
+            for i, c in enumerate(_linear.CHANNELS)
+        ]
+    return _linear.coefficients_layout(BASIS)
+
+
+def representable(params, *, ratio="linear"):
+    """The params the stored range can represent (before rounding to codes): for ``8bit``,
+    L0 >= 0 and each ratio L1_i / L0 clipped to [-1, 1], as :func:`encode` does (SH of
+    non-negative radiance satisfies it; noisy or denoised SH may not). Other variants: as is.
+    The validator compares the decoded textures against this, so the clip is no mismatch."""
+    if ratio != "8bit":
+        return params
+    l0, l1 = to_enlighten(params["coefficients"])
+    l0 = np.maximum(l0, 0.0)
+    r = np.where(l0[..., None] > 0, l1 / np.where(l0 > 0, l0, 1.0)[..., None], 0.0)
+    c = from_enlighten(l0, np.clip(r, -1.0, 1.0) * l0[..., None])
+    return {**params, "coefficients": c.astype(np.float32)}
 
 
 def encode(params, *, ratio="linear"):
-    """Quantize. linear/nonlinear: float16 ``coefficients`` (..., 12) + coefficientsScale;
-    8bit: uint8 ``coefficientsL1`` (..., 12) (R.L0, R.L1x, R.L1y, R.L1z, G..., B...) + l0Scale."""
+    """Quantize. linear/nonlinear: float16 ``coefficients0..3`` (..., 3) + coefficientsScale;
+    8bit: uint8 ``coefficients0..2`` (..., 4), one RGBA texture per colour R, G, B holding
+    (L0, L1x, L1y, L1z) codes, + l0Scale."""
     _linear.check_choice("ratio", ratio, RATIOS, NAME)
     if ratio != "8bit":
         return _linear.encode_coefficients(params)
@@ -158,9 +181,9 @@ def encode(params, *, ratio="linear"):
     u0 = np.rint(255.0 * np.sqrt(np.clip(l0 / scale, 0.0, 1.0)))
     ratio_v = np.where(l0[..., None] > 0, l1 / np.where(l0 > 0, l0, 1.0)[..., None], 0.0)
     u1 = np.rint(U8_CENTER + 127.0 * np.clip(ratio_v, -1.0, 1.0))
-    codes = np.concatenate([u0[..., None], u1], axis=-1)  # (..., 3 colours, 4)
-    codes = codes.reshape(codes.shape[:-2] + (12,)).astype(np.uint8)
-    return {"coefficientsL1": codes}, {"l0Scale": scale}
+    codes = np.concatenate([u0[..., None], u1], axis=-1).astype(np.uint8)  # (..., 3, 4)
+    out = {_linear.coefficient_role(i): codes[..., i, :] for i in range(3)}
+    return out, {"l0Scale": scale}
 
 
 def decode(channels, *, ratio="linear", factors=None):
@@ -170,12 +193,7 @@ def decode(channels, *, ratio="linear", factors=None):
     if ratio != "8bit":
         c = _linear.decode_coefficients(channels, factors, 4)
     else:
-        if "coefficientsL1" not in channels:
-            raise InputError("sh_l1 ratio '8bit' needs the 'coefficientsL1' texture")
-        u = np.asarray(channels["coefficientsL1"])
-        if u.shape[-1] != 12:
-            raise InputError(f"coefficientsL1 must have 12 channels, got {u.shape[-1]}")
-        u = u.astype(np.float64).reshape(u.shape[:-1] + (3, 4))
+        u = _linear.gather_coefficients(channels, 3, 4).astype(np.float64)  # (..., RGB, 4)
         l0 = factors.get("l0Scale", 1.0) * (u[..., 0] / 255.0) ** 2
         l1 = (u[..., 1:] - U8_CENTER) * (l0[..., None] / 127.0)
         c = np.clip(from_enlighten(l0, l1), -_linear.F32_MAX, _linear.F32_MAX).astype(np.float32)

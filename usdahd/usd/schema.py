@@ -18,6 +18,7 @@ layer as the stage's edit target); texture paths are authored relative to that l
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -62,14 +63,23 @@ __all__ = [
     "is_baked",
     "property_name",
     "file_property_name",
+    "packing_property_name",
+    "digest_property_name",
+    "file_digest",
+    "layout_packing",
+    "OLD_FORMAT_VERSIONS",
 ]
 
 #: Property namespace of every schema property.
 NAMESPACE = "ahdLightmap"
 #: Texture and property layout version this code writes (``ahdLightmap:baked:formatVersion``).
-FORMAT_VERSION = 1
+#: 2: every texture <= 4 channels, EXR half / PNG UNORM8 (signed values biased), one RGB texture
+#: per basis function, per-texture packing and content digests (docs/schema.md "Versions").
+FORMAT_VERSION = 2
 #: Versions this code can read; 0 (the fallback) means "not baked".
-KNOWN_FORMAT_VERSIONS = (1,)
+KNOWN_FORMAT_VERSIONS = (2,)
+#: Versions earlier usdahd releases wrote: valid bakes, but their textures need a re-bake.
+OLD_FORMAT_VERSIONS = (1,)
 #: allowedTokens of ``ahdLightmap:model`` / ``ahdLightmap:baked:model`` (= models.REGISTRY).
 MODELS = tuple(REGISTRY)
 #: allowedTokens of ``ahdLightmap:ratio`` / ``ahdLightmap:baked:ratio`` (IrradZ ratio types,
@@ -92,8 +102,7 @@ COLOR_SPACES = {
     "ratio": "raw",
     "ambient": "lin_rec709_scene",
     "directional": "lin_rec709_scene",
-    "coefficients": "raw",
-    "coefficientsL1": "raw",
+    **{r: "raw" for r in ROLES if r.startswith("coefficients")},
     SIDECAR_ROLE: "raw",
 }
 #: Scalar decode factors (a model's ``encode`` returns them by these names) and their fallbacks.
@@ -114,6 +123,42 @@ SH_SIDECAR_CHANNELS = tuple(f"{c}{k}" for c in "RGB" for k in range(9)) + ("A",)
 def property_name(key: str) -> str:
     """Full property name of a schema key: ``"baked:izScale"`` -> ``ahdLightmap:baked:izScale``."""
     return f"{NAMESPACE}:{key}"
+
+
+def packing_property_name(role: str) -> str:
+    """``ahdLightmap:texture:<role>:packing``: the channel packing the bake wrote."""
+    if role not in ROLES:
+        raise SchemaError(f"unknown texture role {role!r}; roles are {', '.join(ROLES)}")
+    return file_property_name(role) + ":packing"
+
+
+def digest_property_name(role: str) -> str:
+    """``<file property>:digest``: sha256 of the file the bake wrote (textures and sidecar)."""
+    return file_property_name(role) + ":digest"
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """``sha256:<hex>`` of a file's bytes (what ``...:digest`` records); a resolved path
+    inside a package (``a.usdz[lightmaps/b.png]``) is read through USD's asset resolver."""
+    path = os.fspath(path)
+    h = hashlib.sha256()
+    if not os.path.isfile(path):  # e.g. an asset inside a usdz package: read it through Ar
+        from usdahd.usd import assets
+
+        h.update(assets.read_bytes(path))
+        return "sha256:" + h.hexdigest()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return "sha256:" + h.hexdigest()
+
+
+def layout_packing(model: str, ratio: str) -> dict[str, str]:
+    """role -> packing string of the textures ``model`` writes with ``ratio`` (the writer's
+    table, usdahd.models.base.TextureLayout.packing)."""
+    from usdahd.models import get
+
+    return {t.role: t.packing for t in get(model).layout(ratio)}
 
 
 def file_property_name(role: str) -> str:
@@ -335,6 +380,9 @@ class BakeResults:
     generator : e.g. "usdahd 0.1.0".
     format_version : layout version (FORMAT_VERSION).
     normals : one of NORMALS_RULES (``baked:normals``).
+    digests : role (FILE_ROLES) -> "sha256:<hex>" of the file as written (``...:digest``).
+    packing : role -> channel packing as authored (filled by read_results; write_results
+        authors the model layout's own packing).
     """
 
     model: str
@@ -352,6 +400,8 @@ class BakeResults:
     format_version: int = FORMAT_VERSION
     asset_paths: dict[str, str] = field(default_factory=dict)
     normals: str = "authored"
+    digests: dict[str, str] = field(default_factory=dict)
+    packing: dict[str, str] = field(default_factory=dict)
 
     def factor(self, name: str) -> float:
         """A decode factor, or its schema fallback when not set."""
@@ -376,7 +426,12 @@ def result_problems(results: BakeResults) -> list[str]:
     res = tuple(results.resolution)
     if len(res) != 2 or any(not isinstance(r, int) or r <= 0 for r in res):
         out.append(f"resolution {results.resolution!r} must be two positive integers")
-    if results.format_version not in KNOWN_FORMAT_VERSIONS:
+    if results.format_version in OLD_FORMAT_VERSIONS:
+        out.append(
+            f"format version {results.format_version} was written by an older usdahd: re-bake "
+            f"needed (this usdahd reads {', '.join(map(str, KNOWN_FORMAT_VERSIONS))})"
+        )
+    elif results.format_version not in KNOWN_FORMAT_VERSIONS:
         out.append(
             f"format version {results.format_version} is not one of "
             f"{', '.join(map(str, KNOWN_FORMAT_VERSIONS))}"
@@ -386,6 +441,11 @@ def result_problems(results: BakeResults) -> list[str]:
     for role in results.textures:
         if role not in FILE_ROLES:
             out.append(f"unknown texture role {role!r}; roles are {', '.join(FILE_ROLES)}")
+    for role, digest in results.digests.items():
+        if role not in FILE_ROLES:
+            out.append(f"digest of unknown texture role {role!r}")
+        elif not (isinstance(digest, str) and digest.startswith("sha256:")):
+            out.append(f"digest of {role} must be 'sha256:<hex>', got {digest!r}")
     for name, v in results.factors.items():
         if name not in FACTORS:
             out.append(
@@ -445,18 +505,35 @@ def write_results(
     layer_dir = Path(layer_dir) if layer_dir is not None else _layer_dir(prim)
     settings = _json(results.settings, "bake settings")
     part_hashes = _json(results.part_hashes, "part hashes")
+    try:
+        packing = layout_packing(results.model, results.ratio)
+    except Exception:  # an unimplemented model: result_problems accepted its name
+        packing = {}
     apply(prim)
     for role in FILE_ROLES:
         attr = prim.GetAttribute(file_property_name(role))
+        extra = [prim.GetAttribute(digest_property_name(role))]
+        if role != SIDECAR_ROLE:
+            extra.append(prim.GetAttribute(packing_property_name(role)))
         if role in results.textures:
             asset = relative_asset_path(results.textures[role], layer_dir)
             if not attr.Set(Sdf.AssetPath(asset)):
                 raise SchemaError(f"could not author {attr.GetPath()} = @{asset}@")
             attr.SetColorSpace(COLOR_SPACES[role])
+            values = [results.digests.get(role, "")]
+            if role != SIDECAR_ROLE:
+                values.append(packing.get(role, ""))
+            for a, v in zip(extra, values):
+                if v:
+                    if not a.Set(v):
+                        raise SchemaError(f"could not author {a.GetPath()} = {v!r}")
+                else:
+                    a.Clear()
         else:
-            attr.Clear()
-            if attr.HasAuthoredValue():
-                attr.Block()
+            for a in [attr] + extra:
+                a.Clear()
+                if a.HasAuthoredValue():
+                    a.Block()
     _set(prim, "baked:resolution", Gf.Vec2i(*(int(r) for r in results.resolution)))
     _set(prim, "baked:model", results.model)
     _set(prim, "baked:ratio", results.ratio)
@@ -499,7 +576,7 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
     _require_api(prim)
     if not is_baked(prim):
         return None
-    textures, assets = {}, {}
+    textures, assets, digests, packing = {}, {}, {}, {}
     for role in FILE_ROLES:
         attr = prim.GetAttribute(file_property_name(role))
         if not attr.HasAuthoredValue():
@@ -509,6 +586,13 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
             continue
         assets[role] = value.path
         textures[role] = value.resolvedPath or value.path
+        d = prim.GetAttribute(digest_property_name(role))
+        if d and d.HasAuthoredValue() and d.Get():
+            digests[role] = str(d.Get())
+        if role != SIDECAR_ROLE:
+            pk = prim.GetAttribute(packing_property_name(role))
+            if pk and pk.HasAuthoredValue() and pk.Get():
+                packing[role] = str(pk.Get())
     factors = {name: float(_get(prim, f"baked:{name}")) for name in FACTORS}
     res = _get(prim, "baked:resolution")
     results = BakeResults(
@@ -527,6 +611,8 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
         format_version=int(_get(prim, "baked:formatVersion")),
         asset_paths=assets,
         normals=str(_get(prim, "baked:normals")),
+        digests=digests,
+        packing=packing,
     )
     if validate:
         problems = result_problems(results)

@@ -28,7 +28,7 @@ if str(ROOT) not in sys.path:
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt  # noqa: E402,I001
 
 import usdahd  # noqa: E402,F401  (registers the plugins before any stage exists)
-from usdahd import models  # noqa: E402
+from usdahd import images, models  # noqa: E402
 from usdahd import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
@@ -38,7 +38,6 @@ SOURCE = "source.usda"
 LAYER = "scene.lightmaps.usda"
 PRIM = "/World/Quad"
 LIGHT = "/World/Sun"
-EXT = {"half": ".exr", "float": ".exr", "unorm8": ".png", "snorm8": ".tif"}
 
 
 # --------------------------------------------------------------------------------- geometry
@@ -176,16 +175,16 @@ def bake(
         vals = channels[lay.role]
         img = np.zeros((h, w, vals.shape[-1]), vals.dtype)
         img[ys, xs] = vals
-        f = lm / f"quad.{lay.role}{EXT[lay.format]}"
-        cs = lay.color_space if f.suffix == ".exr" else ""
-        write_image(f, img, channels=lay.channels if f.suffix == ".exr" else None, color_space=cs)
+        f = lm / f"quad.{lay.role}{lay.extension}"
+        images.write(f, img, format=lay.format, color_space=lay.color_space, channels=lay.channels)
         textures[lay.role] = str(f)
     side = np.zeros((h, w, 28), np.float32)
     side[ys, xs, :27] = sh.reshape(-1, 27)
     side[ys, xs, 27] = 1.0
     f = lm / "quad.sh.exr"
-    write_image(f, side, channels=schema.SH_SIDECAR_CHANNELS)
+    images.write(f, side, format="float", color_space="raw", channels=schema.SH_SIDECAR_CHANNELS)
     textures[schema.SIDECAR_ROLE] = str(f)
+    digests = {role: schema.file_digest(path) for role, path in textures.items()}
 
     layer_path = directory / LAYER
     layer = Sdf.Layer.CreateNew(str(layer_path))
@@ -212,6 +211,7 @@ def bake(
         part_hashes=named,
         settings=settings,
         generator=f"usdahd {usdahd.__version__}",
+        digests=digests,
     )
     schema.write_results(prim, results)
     stage.GetRootLayer().Save()
@@ -227,14 +227,25 @@ def _layer_stage(layer_path: Path):
     return stage
 
 
-def _edit_image(path: Path, fn) -> None:
-    from usdahd.validate import read_image
-
-    img = read_image(str(path))
-    data = np.array(img.data)
-    data = fn(data)
-    names = img.channel_names if path.suffix == ".exr" else None
-    write_image(path, data, channels=names, color_space=img.color_space if names else "")
+def _edit_image(path: Path, fn, *, record: bool = True) -> None:
+    """Rewrite a texture through ``fn(pixels)``. With ``record`` the layer's digest of that
+    file is updated too, so the defect reads as a bake that wrote bad data (the rule under test
+    fires alone); without it the file looks replaced behind the layer's back (Textures)."""
+    img = images.read(path)
+    data = fn(np.array(img.pixels))
+    if data.dtype.kind == "f" and not np.isfinite(data).all():  # images.write refuses NaN
+        write_image(path, data, channels=img.channels, color_space=img.color_space or "raw")
+    else:
+        images.write(path, data, color_space=img.color_space or "raw", channels=img.channels)
+    if not record:
+        return
+    layer = path.parent.parent / LAYER
+    stage = _layer_stage(layer)
+    prim = stage.GetPrimAtPath(PRIM)
+    for role, f in schema.read_results(prim, validate=False).textures.items():
+        if Path(f).resolve() == path.resolve():
+            prim.GetAttribute(schema.digest_property_name(role)).Set(schema.file_digest(path))
+    stage.GetRootLayer().Save()
 
 
 def _covered(directory: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -251,11 +262,13 @@ def bogus_token(d: Path) -> None:
 
 
 def missing_file(d: Path) -> None:
-    (d / "lightmaps" / "quad.direction.tif").unlink()
+    (d / "lightmaps" / "quad.direction.png").unlink()
 
 
 def wrong_resolution(d: Path) -> None:
-    _edit_image(d / "lightmaps" / "quad.ratio.png", lambda a: np.ascontiguousarray(a[::2, ::2]))
+    _edit_image(
+        d / "lightmaps" / "quad.direction.png", lambda a: np.ascontiguousarray(a[::2, ::2])
+    )
 
 
 def nan_texel(d: Path) -> None:
@@ -272,10 +285,10 @@ def horizon_direction(d: Path) -> None:
     ys, xs = _covered(d)
 
     def fn(a):
-        a[ys[5], xs[5]] = (127, 0)  # decodes to d_z = 0
+        a[ys[5], xs[5], :2] = (255, 128)  # (u, v) = (1, 0) decodes to d_z = 0
         return a
 
-    _edit_image(d / "lightmaps" / "quad.direction.tif", fn)
+    _edit_image(d / "lightmaps" / "quad.direction.png", fn)
 
 
 def corrupted_iz(d: Path) -> None:
@@ -290,9 +303,18 @@ def corrupted_iz(d: Path) -> None:
 
 def mirrored_directions(d: Path) -> None:
     def fn(a):
-        return (-a.astype(np.int16)).astype(np.int8)  # d = (-x, -y, z): I_z unchanged
+        a[..., :2] = 256 - a[..., :2].astype(np.int16)  # biased: d = (-x, -y, z), I_z unchanged
+        return a
 
-    _edit_image(d / "lightmaps" / "quad.direction.tif", fn)
+    _edit_image(d / "lightmaps" / "quad.direction.png", fn)
+
+
+def replaced_texture(d: Path) -> None:
+    def fn(a):
+        a[0, 0, 0] ^= 1  # one code of a padding texel: no texel rule can see it
+        return a
+
+    _edit_image(d / "lightmaps" / "quad.direction.png", fn, record=False)
 
 
 def moved_light(d: Path) -> None:
@@ -311,6 +333,7 @@ DEFECTS = {
     "corrupted_iz": ("IzCheck", corrupted_iz),
     "mirrored_directions": ("EncodingError", mirrored_directions),
     "moved_light": ("Staleness", moved_light),
+    "replaced_texture": ("Textures", replaced_texture),
     "overlapping_uvs": ("UVSet", {"uvs": "overlap"}),
     "uvs_outside": ("UVSet", {"uvs": "outside"}),
 }

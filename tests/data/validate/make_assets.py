@@ -266,9 +266,7 @@ def missing_file(d: Path) -> None:
 
 
 def wrong_resolution(d: Path) -> None:
-    _edit_image(
-        d / "lightmaps" / "quad.direction.png", lambda a: np.ascontiguousarray(a[::2, ::2])
-    )
+    _edit_image(d / "lightmaps" / "quad.direction.png", lambda a: np.ascontiguousarray(a[::2, ::2]))
 
 
 def nan_texel(d: Path) -> None:

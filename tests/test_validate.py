@@ -351,3 +351,93 @@ def test_module_entry_point_subprocess(assets):
 # ------------------------------------------------------------------------- real bakes
 
 # A fresh bake of every sample validating clean is tested in tests/test_bake.py.
+
+
+# ------------------------------------------------------------- IzCheck: derived tolerance
+
+
+def _sensitivities(bake):
+    """(n, channels, 3) |I(z; code + 1 step) - I(z)| (max of both sides) per stored channel."""
+    base = V._at_z(bake, bake.channels)
+    out, where = [], []
+    for role, codes in bake.channels.items():
+        for j, code in enumerate(bake.layout[role].codes):
+            if code == "reserved":
+                continue
+            worst = np.zeros_like(base)
+            for up in (True, False):
+                moved = dict(bake.channels)
+                c = codes.copy()
+                c[:, j] = V._step(codes[:, j], up)
+                moved[role] = c
+                worst = np.maximum(worst, np.abs(V._at_z(bake, moved) - base))
+            out.append(worst)
+            where.append((role, j))
+    return np.stack(out, axis=1), where
+
+
+VARIANTS = [(m, r) for m in V.models.names() for r in V.models.get(m).RATIOS]
+
+
+@pytest.mark.parametrize("variant", VARIANTS, ids=[f"{m}-{r}" for m, r in VARIANTS])
+def test_iz_tolerance_is_the_quantization_and_one_flipped_code_is_caught(tmp_path, variant):
+    """Clean right after the bake; one code moved by one step (the next float16 or 8-bit code,
+    away from the reference) in the texel channel that carries most of the texel's
+    quantization budget is an IzMismatch naming that texel."""
+    model, ratio = variant
+    layer = MA.bake(tmp_path / "b", model=model, ratio=ratio, seed=5)
+    stage = Usd.Stage.Open(str(layer))
+    prim = stage.GetPrimAtPath(MA.PRIM)
+    (clean,) = V.check_iz(prim)
+    assert clean.code == "IzOk" and clean.data["worst_error_over_tolerance"] <= 1.0
+    bake = V.load_bake(prim)
+    sens, where = _sensitivities(bake)
+    # The documented bound: half a step per channel, summed (plus TOLERANCE_SLACK).
+    tol = V.quantization_tolerance(bake)
+    np.testing.assert_allclose(tol, 0.5 * sens.sum(axis=1) * (1 + V.TOLERANCE_SLACK), rtol=1e-9)
+    # Share of one channel in a texel colour's quantization budget at z.
+    share = sens / np.maximum(sens.sum(axis=1, keepdims=True), 1e-300)
+    texel, k, colour = np.unravel_index(np.argmax(share), share.shape)
+    assert share[texel, k, colour] > 0.55, f"{variant}: no channel dominates I(z) anywhere"
+    role, j = where[k]
+    ref_err = V._at_z(bake, bake.channels)[texel] - _reference(bake)[texel]
+    x, y = (int(v) for v in bake.xy[texel])
+    img = V.read_image(bake.results.textures[role])
+    name = bake.layout[role].channels[j]
+    for up in (True, False):
+        moved = dict(bake.channels)
+        c = bake.channels[role].copy()
+        c[texel, j] = V._step(c[texel : texel + 1, j], up)[0]
+        moved[role] = c
+        if np.sign(
+            V._at_z(bake, moved)[texel, colour] - V._at_z(bake, bake.channels)[texel, colour]
+        ) == np.sign(ref_err[colour] or 1.0):
+            break
+    path = Path(bake.results.textures[role])
+
+    def flip(a):
+        a[y, x, list(img.channel_names).index(name)] = c[texel, j]
+        return a
+
+    recorded = bake.results.digests[role]
+    MA._edit_image(path, flip)  # re-records the digest: a bake that wrote one bad code
+    V._BAKE_CACHE.clear()
+    stage = Usd.Stage.Open(str(layer))
+    prim = stage.GetPrimAtPath(MA.PRIM)
+    (found,) = V.check_iz(prim)
+    assert found.code == "IzMismatch" and found.data["failing"] == 1, found.message
+    assert tuple(found.data["worst_texel"]) == (x, y)
+    # The same flip behind the layer's back (digest as baked): Textures names the file, for
+    # any code, also those I(z) cannot see.
+    prim.GetAttribute(V.schema.digest_property_name(role)).Set(recorded)
+    codes = [f.code for f in V.check_textures(prim) if f.severity == "error"]
+    assert codes == ["TextureReplaced"]
+
+
+def _reference(bake):
+    z = np.broadcast_to([0.0, 0.0, 1.0], bake.sh.shape[:-2] + (3,))
+    res = bake.results
+    if res.model in V.IRRADZ:
+        return np.maximum(V.shm.iz(bake.sh), 0.0)
+    fitted = V.models.fit(bake.sh, res.model, ratio=res.ratio, solver=res.solver or None)
+    return bake.mod.evaluate(V.models.representable(fitted, bake.mod), z).astype(np.float64)

@@ -97,7 +97,7 @@ def test_hemi_errors_zero_for_exact_model():
 
 
 def test_bytes_per_texel_follows_layout():
-    # hhd luminance: I_z half RGB (6) + direction 2 x snorm8 (2) + ratio unorm8 (1)
+    # hhd luminance: I_z half RGB (6) + direction (u, v, w_a) unorm8 RGB (3)
     assert common.bytes_per_texel("hhd", "luminance") == 9
     assert common.bytes_per_texel("sh_l2", "none") == 27 * 2
 

@@ -93,3 +93,32 @@ def test_quantizers_reject_nan():
         encoding.encode_direction(np.array([[np.inf, 0, 1]]))
     with pytest.raises(InputError, match="NaN"):
         encoding.encode_half(np.array([np.nan]))
+
+
+def test_biased_snorm8_is_snorm8_plus_128_and_zero_is_exact():
+    """Format version 2 stores signed codes biased in UNORM8: q = snorm + 128 (exhaustive)."""
+    codes = np.arange(-128, 128).astype(np.int8)
+    q = encoding.bias_snorm8(codes)
+    assert q.dtype == np.uint8 and q.min() == 1 and q.max() == 255  # -128 is treated as -127
+    np.testing.assert_array_equal(
+        encoding.dequantize_snorm8_biased(q), encoding.dequantize_snorm8(codes)
+    )
+    assert encoding.dequantize_snorm8_biased(np.uint8(128)) == 0.0
+    assert encoding.dequantize_snorm8_biased(np.uint8(0)) == -1.0
+    x = np.linspace(-1, 1, 20001)
+    err = np.abs(encoding.dequantize_snorm8_biased(encoding.quantize_snorm8_biased(x)) - x)
+    assert err.max() <= 0.5 / 127 + 1e-7
+    # directions: the same quantization as int8 codes, d = z exact, d_z >= 1/127 everywhere
+    u, v = np.meshgrid(np.arange(256), np.arange(256))
+    d = encoding.decode_direction_u8(np.stack([u, v], -1).astype(np.uint8).reshape(-1, 2))
+    assert np.isfinite(d).all()
+    z = encoding.encode_direction_u8(np.array([[0.0, 0.0, 1.0]]))
+    assert z.tolist() == [[128, 128]]
+    rng = np.random.default_rng(0)
+    dirs = rng.normal(size=(5000, 3))
+    dirs[:, 2] = np.abs(dirs[:, 2])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    q = encoding.encode_direction_u8(dirs)
+    assert q.min() >= 2 and q.max() <= 254
+    np.testing.assert_array_equal(q, encoding.bias_snorm8(encoding.encode_direction(dirs)))
+    assert encoding.decode_direction_u8(q)[:, 2].min() >= 1 / 127

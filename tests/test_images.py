@@ -137,3 +137,24 @@ def test_exr_many_channels_read_back_by_name_in_written_order(tmp_path):
     whole = images.read(path)
     for i, n in enumerate(names):
         np.testing.assert_array_equal(whole.channel(n), px[..., i])
+
+
+def test_data_png_is_tagged_linear_and_rgba_round_trips_bit_exactly(tmp_path):
+    """Lightmap PNGs: RGB/RGBA uint8 data, gAMA 1.0 (not sRGB) in the file, alpha never
+    premultiplied on write or read."""
+    import OpenImageIO as oiio
+
+    rng = np.random.default_rng(7)
+    px = rng.integers(0, 256, (5, 7, 4)).astype(np.uint8)
+    px[0, 0] = (200, 100, 50, 0)  # alpha 0 must keep its colour
+    f = tmp_path / "d.png"
+    images.write(f, px, color_space="raw")
+    assert b"gAMA" in f.read_bytes() and b"sRGB" not in f.read_bytes()[:64]
+    back = images.read(f)
+    assert back.channels == ("R", "G", "B", "A") and back.color_space == "raw"
+    np.testing.assert_array_equal(back.pixels, px)
+    inp = oiio.ImageInput.open(str(f))  # the file's own claim, as other tools read it
+    assert inp.spec().get_string_attribute("oiio:ColorSpace") == "lin_rec709_scene"
+    inp.close()
+    images.write(tmp_path / "s.png", px[..., :3], color_space="srgb_rec709_scene")
+    assert b"sRGB" in (tmp_path / "s.png").read_bytes()  # colour PNGs keep their sRGB chunk

@@ -175,6 +175,23 @@ def test_unknown_version_and_bad_resolution_are_schema_errors(assets, tmp_path):
     assert any(f.rule == "SchemaValues" and "resolution" in f.message for f in found)
 
 
+def test_version_1_bake_is_rebake_needed_not_a_corrupt_texture(assets, tmp_path):
+    from pxr import Sdf
+
+    def edit(p):
+        p.GetAttribute("ahdLightmap:baked:formatVersion").Set(1)
+        # what a version-1 bake also carried: a 27-channel coefficients role, gone in v2
+        p.CreateAttribute(
+            "ahdLightmap:texture:coefficients", Sdf.ValueTypeNames.Asset, custom=False
+        ).Set(Sdf.AssetPath("./lightmaps/quad.coefficients.exr"))
+
+    layer = _edited_copy(assets, tmp_path, edit)
+    found = _ours(_findings(layer))
+    assert [(f.rule, f.code) for f in found] == [("SchemaValues", "RebakeNeeded")]
+    assert "re-bake needed" in found[0].message and "usdahd bake --force" in found[0].message
+    assert cli.main(["validate", str(layer)]) == 1
+
+
 def test_colour_space_metadata_is_checked(assets, tmp_path):
     layer = _edited_copy(
         assets, tmp_path, lambda p: p.GetAttribute("ahdLightmap:texture:iz").SetColorSpace("raw")

@@ -50,7 +50,7 @@ def _decoded_iz(res):
 
     mod = models.get(res.model)
     lay = mod.layout(res.ratio)
-    chans = {lt.role: images.read(res.textures[lt.role]).pixels for lt in lay}
+    chans = {lt.role: images.read(res.textures[lt.role], channels=lt.channels).pixels for lt in lay}
     side = images.read(res.textures["sh"], channels=_sidecar_channels()).pixels
     cover = side[..., -1] > 0
     dec = mod.decode({k: v[cover] for k, v in chans.items()}, ratio=res.ratio, factors=res.factors)

@@ -99,6 +99,7 @@ class PrimJob:
     stats: dict = field(default_factory=dict)
     charts: object = None  # (n,) int32 chart id per texel
     normals: object = None  # usd.scene.ComputedNormals to author, None when authored
+    refit_from: str | None = None  # SH sidecar of the previous bake to refit from (no tracing)
 
 
 def default_output(stage_path: Path) -> Path:
@@ -429,6 +430,18 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
         else:
             what = changed_parts(old.part_hashes, job.parts)
             reason = "changed: " + ", ".join(what) if what else "texture files missing"
+            refit = _refit_source(job, old, what)
+            if refit is not None:
+                job.refit_from = refit
+                changed = sorted(
+                    k
+                    for k in REFIT_SETTINGS
+                    if _norm(old.settings).get(k) != _norm(job.settings).get(k)
+                )
+                reason = (
+                    f"refit: only {', '.join(changed)} changed; fitted from the SH sidecar, "
+                    "0 rays traced"
+                )
         job.report["reason"] = reason
     # Prims not selected this time (--prim) or failing now keep their previous results: nothing
     # already baked is lost (the validator reports them stale if their inputs changed).
@@ -459,6 +472,64 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     report["exit_code"] = 1 if failed else 0
     report["seconds"] = time.perf_counter() - t_start
     return report
+
+
+#: Settings that only change the fit and encoding of the baked SH, never the SH: a change of
+#: only these refits from the previous bake's float32 SH sidecar instead of tracing.
+REFIT_SETTINGS = ("model", "ratio", "solver", "padding")
+
+
+def _norm(settings: dict) -> dict:
+    """Settings as the layer stores them (JSON round trip: tuples become lists)."""
+    return json.loads(json.dumps(settings, sort_keys=True, default=str))
+
+
+def _refit_source(job, old, changed: list[str]) -> str | None:
+    """The previous bake's SH sidecar when ``job`` differs from it only in REFIT_SETTINGS (same
+    geometry, UVs, lights, materials, baker, resolution), and the sidecar is the file that bake
+    wrote (digest); else None (trace again)."""
+    if not changed or set(changed) != {"settings"}:
+        return None
+    a, b = _norm(old.settings), _norm(job.settings)
+    if {k for k in set(a) | set(b) if a.get(k) != b.get(k)} - set(REFIT_SETTINGS):
+        return None
+    side = old.textures.get("sh")
+    if side is None or not Path(side).is_file() or tuple(old.resolution) != tuple(job.resolution):
+        return None
+    from usdahd.usd import schema
+
+    want = old.digests.get("sh")
+    if not want or schema.file_digest(side) != want:
+        return None
+    return side
+
+
+def _refit_sh(job) -> None:
+    """job.sh from the previous bake's sidecar at job's texels (the SH after fill, denoise and
+    stitching, exactly what was fitted); BakeError if the sidecar does not cover them."""
+    from usdahd import images
+    from usdahd.bake.texels import rasterize
+    from usdahd.usd import schema
+
+    if job.texels is None:
+        job.texels = rasterize(job.mesh, job.resolution)
+    px = images.read(job.refit_from, channels=schema.SH_SIDECAR_CHANNELS).pixels
+    w, h = job.texels.resolution
+    if px.shape[:2] != (h, w):
+        raise BakeError(f"{job.path}: SH sidecar {job.refit_from} is not {w}x{h}")
+    vals = px[job.texels.xy[:, 1], job.texels.xy[:, 0]].astype(np.float32)
+    if not (vals[:, 27] > 0.5).all():
+        raise BakeError(f"{job.path}: SH sidecar {job.refit_from} does not cover every texel")
+    job.sh = np.ascontiguousarray(vals[:, :27].reshape(-1, 3, 9))
+    job.stats = {"rays": 0, "invalid": np.zeros(len(job.texels), bool)}
+    job.report.update(
+        texels=len(job.texels),
+        rays=0,
+        rays_saved=0,
+        invalid_texels=0,
+        trace_seconds=0.0,
+        refit=True,
+    )
 
 
 def _texels_per_unit(settings: dict, scene) -> float:
@@ -844,7 +915,18 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
     """Trace, post-process, fit, encode and write textures for every job (atomically)."""
     from usdahd.bake import post
 
-    _trace_jobs(scene, jobs, opts)
+    refits = []
+    for job in [j for j in jobs if j.refit_from]:
+        try:
+            _refit_sh(job)
+            refits.append(job)
+            _status(opts, f"{job.path}: refit from the SH sidecar, 0 rays traced")
+        except (UsdAhdError, OSError) as exc:  # an unusable sidecar: trace after all
+            job.refit_from = None
+            job.report["reason"] += f" (sidecar unusable: {exc}; traced)"
+    jobs = [j for j in jobs if j not in refits]
+    if jobs:  # no BVH when every job refits
+        _trace_jobs(scene, jobs, opts)
     ok = [j for j in jobs if j.report.get("status") != "failed"]
     from usdahd.bake.texels import chart_ids
 
@@ -876,7 +958,7 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         for job, values in zip(ok, stitched, strict=True):
             job.sh = np.asarray(values, dtype=np.float32)
         _status(opts, f"seams: stitched in {time.perf_counter() - t0:.2f}s")
-    for job in ok:
+    for job in refits + ok:
         try:
             _encode_and_write(job, out, opts)
         except UsdAhdError as exc:  # ImageError, BakeError, InputError: this prim only

@@ -38,6 +38,7 @@ DEFAULTS = {
     "samples": 256,
     "bounces": 64,  # a safety cap: paths end by Russian roulette (integrate.DEFAULT_BOUNCES)
     "padding": 4,
+    "container": "files",  # "ktx2": also write KTX2 engine containers (usdahd.ktx2)
 }
 #: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).
 MAX_RESOLUTION = 8192
@@ -72,6 +73,7 @@ class BakeOptions:
     padding: int | None = None
     adaptive: bool = False
     denoise: bool = False
+    container: str | None = None
     unwrap: bool = True
     force: bool = False
     dry_run: bool = False
@@ -321,6 +323,15 @@ def _check_options(opts: BakeOptions) -> None:
         )
     if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
         raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
+    if opts.container not in (None, "files", "ktx2"):
+        raise UsageError(f"--container must be files or ktx2, got {opts.container!r}")
+    if opts.container == "ktx2":
+        try:
+            import etcpak  # noqa: F401
+        except ImportError:
+            raise UsageError(
+                "--container ktx2 needs etcpak (the BC7 encoder): pip install 'usdahd[ktx2]'"
+            ) from None
 
 
 def bake(stage_path, opts: BakeOptions | None = None) -> dict:
@@ -476,7 +487,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
 
 #: Settings that only change the fit and encoding of the baked SH, never the SH: a change of
 #: only these refits from the previous bake's float32 SH sidecar instead of tracing.
-REFIT_SETTINGS = ("model", "ratio", "solver", "padding")
+REFIT_SETTINGS = ("model", "ratio", "solver", "padding", "container")
 
 
 def _norm(settings: dict) -> dict:
@@ -968,6 +979,21 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
             )
 
 
+def _write_ktx2(job, lay, img, mask, path: Path, factors: dict) -> None:
+    """The KTX2 engine container of one texture (chart-aware mips, BC7 / RGBA16F), next to the
+    EXR/PNG; its key/value data carries the packing and decode factors."""
+    from usdahd import ktx2
+    from usdahd.bake.texels import chart_ids
+
+    if job.charts is None:
+        job.charts = chart_ids(job.mesh)[job.texels.triangle]
+    charts = _image_from_texels(np.asarray(job.charts)[:, None], job.texels, fill=-1)[..., 0]
+    kv = {"usdahd:packing": lay.packing, "usdahd:role": lay.role}
+    kv.update({f"usdahd:{k}": repr(float(v)) for k, v in factors.items()})
+    info = ktx2.write(path, img, mask, charts, lay.format, attributes=kv)
+    job.report.setdefault("ktx2", {})[lay.role] = {"path": str(path), **info}
+
+
 def _factor_attrs(factors: dict) -> dict:
     """Decode factors also stored in each file's metadata (the schema is authoritative)."""
     return {f"usdahd:{k}": float(v) for k, v in factors.items()}
@@ -1019,6 +1045,8 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         )
         textures[lay.role] = str(path)
         digests[lay.role] = schema.file_digest(path)
+        if s.get("container") == "ktx2":
+            _write_ktx2(job, lay, img, mask, path.with_suffix(".ktx2"), factors)
     # The SH sidecar (float32, with coverage) the validator checks I_z against.
     side = np.concatenate(
         [

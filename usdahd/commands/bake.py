@@ -52,6 +52,12 @@ def add_parser(sub):
     a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")
     a("--denoise", action="store_true", help="denoise the SH with Intel Open Image Denoise")
     a(
+        "--container",
+        choices=["files", "ktx2"],
+        help="files: EXR/PNG textures (default); ktx2: also a KTX2 per texture with a "
+        "chart-aware mip chain, BC7 for 8-bit data, RGBA16F for HDR (needs etcpak)",
+    )
+    a(
         "--no-unwrap",
         action="store_true",
         help="fail on meshes without the UV set instead of unwrapping them with xatlas",
@@ -103,6 +109,7 @@ def run(args) -> int:
         padding=args.padding,
         adaptive=args.adaptive,
         denoise=args.denoise,
+        container=args.container,
         unwrap=not args.no_unwrap,
         force=args.force,
         dry_run=args.dry_run,

@@ -107,8 +107,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--sections",
-        default="bake,fit,encodings,skipping,soak",
-        help="comma-separated subset of bake,fit,encodings,skipping,soak",
+        default="bake,fit,encodings,skipping,soak,ktx2",
+        help="comma-separated subset of bake,fit,encodings,skipping,soak,ktx2",
     )
     ap.add_argument(
         "--fresh", action="store_true", help="delete cached reference bakes first (from scratch)"
@@ -132,11 +132,11 @@ def run(args) -> Path:
     plan_name = "quick" if args.quick else "full"
     plan = PLANS[plan_name]
     sections = {s.strip() for s in args.sections.split(",") if s.strip()}
-    unknown = sections - {"bake", "fit", "encodings", "skipping", "soak"}
+    unknown = sections - {"bake", "fit", "encodings", "skipping", "soak", "ktx2"}
     if unknown:
         raise UsageError(
             f"unknown --sections {', '.join(sorted(unknown))}; "
-            "choose from bake, fit, encodings, skipping, soak"
+            "choose from bake, fit, encodings, skipping, soak, ktx2"
         )
     common.VERBOSE = not getattr(args, "quiet", False)
     out = Path(args.out)
@@ -221,6 +221,10 @@ def run(args) -> Path:
         )
     if "soak" in sections:
         results["soak"] = timed_section("soak", lambda: soak.soak(plan.soak_texels))
+    if "ktx2" in sections:
+        import ktx2_bench
+
+        results["ktx2"] = timed_section("ktx2", ktx2_bench.run)
     total = time.perf_counter() - t_start
 
     md.append(report_header(facts, plan_name, plan, total, timings, no_denoise))
@@ -235,6 +239,10 @@ def run(args) -> Path:
         md.append(section_skipping(results, plan))
     if "soak" in results:
         md.append(section_soak(results["soak"]))
+    if "ktx2" in results:
+        import ktx2_bench
+
+        md.append(ktx2_bench.section(results["ktx2"]))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n\n".join(md).rstrip() + "\n")
     raw = CACHE / f"results-{plan_name}.json"

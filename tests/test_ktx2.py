@@ -103,6 +103,8 @@ def _errors(layer: Path) -> tuple[float, float, float]:
             assert k["levels"] == math.floor(math.log2(max(k["size"]))) + 1  # full chain
             px = k["images"][0][..., : len(lay.channels)]
             packed[lay.role] = px[cov].astype(files[lay.role].dtype)
+            if lay.role == "direction":  # docs/schema.md: clamp block-decoded (u, v) codes
+                packed[lay.role][..., :2] = np.clip(packed[lay.role][..., :2], 2, 254)
             diff = packed[lay.role].astype(np.float64) - files[lay.role]
             if lay.format == "half":  # RGBA16F: the same float16 values
                 assert np.array_equal(packed[lay.role], files[lay.role]), lay.role

@@ -96,3 +96,27 @@ def test_other_changes_or_a_replaced_sidecar_trace_again(tmp_path, capsys):
     by_path = {p["path"]: p for p in rep["prims"]}
     assert by_path[path0]["rays"] > 0 and not by_path[path0].get("refit")
     assert all(p["rays"] == 0 for path, p in by_path.items() if path != path0)
+
+
+def test_bad_container_and_missing_encoder_are_usage_errors_up_front(tmp_path, monkeypatch):
+    import builtins
+
+    import pytest
+
+    from usdahd import pipeline
+    from usdahd.errors import UsageError
+
+    stage = _stage(tmp_path)
+    with pytest.raises(UsageError, match="--container must be files or ktx2, got 'zip'"):
+        pipeline.bake(stage, pipeline.BakeOptions(container="zip"))
+    real = builtins.__import__
+
+    def no_etcpak(name, *a, **k):
+        if name == "etcpak":
+            raise ImportError("no etcpak")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_etcpak)
+    with pytest.raises(UsageError, match=r"needs etcpak .*pip install 'usdahd\[ktx2\]'"):
+        pipeline.bake(stage, pipeline.BakeOptions(container="ktx2"))
+    assert not (tmp_path / "cornell_box.lightmaps.usda").exists()  # checked before any work

@@ -192,6 +192,15 @@ def test_version_1_bake_is_rebake_needed_not_a_corrupt_texture(assets, tmp_path)
     assert cli.main(["validate", str(layer)]) == 1
 
 
+def test_packing_attribute_that_disagrees_with_the_layout_is_an_error(assets, tmp_path):
+    def edit(p):
+        p.GetAttribute("ahdLightmap:texture:direction:packing").Set("R=v:snorm8b G=u:snorm8b")
+
+    found = _ours(_findings(_edited_copy(assets, tmp_path, edit)))
+    assert [(f.rule, f.code) for f in found] == [("SchemaValues", "Packing")]
+    assert "R=u:snorm8b G=v:snorm8b B=w_a:unorm8" in found[0].message
+
+
 def test_colour_space_metadata_is_checked(assets, tmp_path):
     layer = _edited_copy(
         assets, tmp_path, lambda p: p.GetAttribute("ahdLightmap:texture:iz").SetColorSpace("raw")

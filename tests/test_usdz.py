@@ -83,6 +83,12 @@ def _check_variant(layer: Path, model: str, ratio: str, capsys, tmp: Path) -> No
     names = zipfile.ZipFile(usdz).namelist()
     assert sum(n.startswith("lightmaps/") for n in names) >= len(prims)
     assert usd_usdz_errors(usdz) == [], (model, ratio)
+    # and usdahd validate reads the package itself (textures and digests through Ar)
+    capsys.readouterr()
+    code = cli.main(["validate", str(usdz), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    bad = [f for f in report["findings"] if f["severity"] in ("error", "warning")]
+    assert code == 0 and not bad and len(report["prims"]) == len(prims), (model, ratio, bad)
 
 
 def _sweep(stage_name: str, variants, tmp_path, capsys) -> None:

@@ -151,11 +151,12 @@ def section(result: dict) -> str:
         "independently texel to texel, its worst case, and a block that straddles two charts "
         "of one atlas (pillar_room's Room: floor, walls and ceiling in one 32x32 map) mixes "
         "unrelated directions. The IrradZ decode divides by d_z, so a direction code BC7 moves "
-        "towards the horizon (measured: 234 -> 254 at the worst Room texel, d_z 0.17 -> 0.01) "
-        "multiplies C_d: the large pillar_room figures are a few such texels (the other "
-        "pillar_room prims: 0.05-0.09). The (u, v) codes are clamped to 2..254 after decoding, "
-        "as docs/schema.md asks of engines. hlsh suffers most on cornell_box: its w_a spans up "
-        "to ±16 (`ratioScale`), so a few codes of BC7 error are a large ratio error. Keep the "
+        "towards the horizon multiplies C_d: the large pillar_room figures come from a few "
+        "such texels of the Room atlas (its small single-chart prims stay near the "
+        "cornell_box figures). The (u, v) codes are clamped to 2..254 after decoding, as "
+        "docs/schema.md asks of engines. hlsh's w_a spans up to ±16 (`ratioScale`), so a few "
+        "codes of BC7 error are a large ratio error. Block-aligned chart packing (charts on "
+        "4-texel boundaries) would keep BC7 blocks inside one chart; until then keep the "
         "PNG for IrradZ directions where this matters; no BC6H encoder is maintained on the "
         "package index, so HDR stays RGBA16F (8 B/texel) and is exact.",
         END,

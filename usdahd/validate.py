@@ -115,8 +115,9 @@ def validator_name(rule: str) -> str:
 class Options:
     """Every tolerance of the rules, with the reason for its default.
 
-    iz_tolerance : relative I_z tolerance; None derives it from the storage format
-        (:data:`FORMAT_RELATIVE_TOLERANCE`).
+    iz_tolerance : relative I(z) tolerance (times the texel's brightest reference channel);
+        None (default) derives it per texel from the codes' quantization
+        (:func:`quantization_tolerance`).
     rmse_warning : relative hemispherical RMSE (per prim) of the decoded textures against the
         model's own unquantized fit above which EncodingError warns; 0.25 is 4x the largest
         quantization error measured on the samples (hlsh, whose 8-bit w_a spans up to +-16:
@@ -143,8 +144,9 @@ OPTIONS = Options()
 #: Model fit RMSE above which the EncodingError note suggests a closer-fitting model.
 MODEL_RMSE_NOTE = 0.25
 
-#: Relative tolerance of a stored value by storage format: float16 rounds to nearest with a
-#: relative error <= 2^-11 = 4.88e-4 (normal range), so 5e-4; float32 2^-24, so 1e-6.
+#: Relative rounding bound of a stored value by storage format (documentation and tests; IzCheck
+#: derives its tolerance per texel, :func:`quantization_tolerance`): float16 rounds to nearest
+#: with a relative error <= 2^-11 = 4.88e-4 (normal range), so 5e-4; float32 2^-24, so 1e-6.
 FORMAT_RELATIVE_TOLERANCE = {"half": 5e-4, "float": 1e-6}
 #: Absolute tolerance (times the decode scale) for values in float16's subnormal range, where
 #: the spacing is 2^-24 (rounding error <= 2^-25).
@@ -989,7 +991,9 @@ def check_iz(prim) -> list[Finding]:
             what = f"{res.model} irradiance at n = z"
         allowed = quantization_tolerance(bake, got)
     if OPTIONS.iz_tolerance is not None:  # --tolerance: a plain relative tolerance instead
-        allowed = float(OPTIONS.iz_tolerance) * np.abs(ref).max(axis=1, keepdims=True) + 0 * ref
+        allowed = np.broadcast_to(
+            float(OPTIONS.iz_tolerance) * np.abs(ref).max(axis=1, keepdims=True), ref.shape
+        )
     # Texels TexelValues rejects (non-finite values, d_z below the floor) are its findings.
     ok = bake.valid & np.isfinite(got).all(axis=1) & np.isfinite(ref).all(axis=1)
     n_skip = int((~ok).sum())

@@ -120,3 +120,18 @@ def test_bad_container_and_missing_encoder_are_usage_errors_up_front(tmp_path, m
     with pytest.raises(UsageError, match=r"needs etcpak .*pip install 'usdahd\[ktx2\]'"):
         pipeline.bake(stage, pipeline.BakeOptions(container="ktx2"))
     assert not (tmp_path / "cornell_box.lightmaps.usda").exists()  # checked before any work
+
+
+def test_container_change_alone_refits(tmp_path, capsys):
+    import pytest
+
+    pytest.importorskip("etcpak")
+    stage = _stage(tmp_path)
+    assert _bake([str(stage), *FAST], capsys)[0] == 0
+    code, rep, err = _bake([str(stage), *FAST, "--container", "ktx2"], capsys)
+    assert code == 0, err
+    assert all(p["status"] == "baked" and p["rays"] == 0 for p in rep["prims"])
+    assert all("container" in p["reason"] for p in rep["prims"])
+    for p in rep["prims"]:
+        assert set(p["ktx2"]) == {"iz", "direction"}
+        assert all(Path(v["path"]).is_file() for v in p["ktx2"].values())

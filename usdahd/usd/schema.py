@@ -181,7 +181,7 @@ class BakeInputs:
     (models without an ambient ratio treat it as "none"); solver : "" for the model's default;
     uv_primvar : lightmap UV primvar name; resolution : texels per side (0: from
     texel_density); texel_density : texels per metre; samples : paths per texel; bounces :
-    maximum indirect bounces.
+    cap on reflections per path (Russian roulette ends paths earlier).
     """
 
     bake: bool = True
@@ -192,7 +192,7 @@ class BakeInputs:
     resolution: int = 0
     texel_density: float = 16.0
     samples: int = 256
-    bounces: int = 3
+    bounces: int = 64
 
     def replace(self, **changes) -> BakeInputs:
         """A copy with some fields changed (e.g. command-line overrides)."""

@@ -61,7 +61,8 @@ def test_pluginfo_declares_every_rule_with_its_description():
     (plug,) = info["Plugins"]
     assert plug["Type"] == "python" and plug["Name"] == V.PLUGIN_NAME
     declared = plug["Info"]["Validators"]
-    assert list(declared) == list(V.RULE_NAMES)
+    # + the opt-in Retrace rule (own keyword; checked in tests/test_retrace.py)
+    assert list(declared) == [*V.RULE_NAMES, "Retrace"]
     schema_types = json.loads(
         (ROOT / "plugins/usdAhd/resources/plugInfo.json").read_text().split("\n", 3)[3]
     )["Plugins"][0]["Info"]["Types"]

@@ -1714,3 +1714,8 @@ def dumps(findings: list[Finding]) -> str:
 
 # Plug imports this module to load the plugin: register the implementations now.
 register()
+
+# Opt-in rules declared in the same plugInfo under their own keyword (not UsdAhdValidators).
+from usdahd import validate_retrace as _retrace  # noqa: E402
+
+_retrace.register()

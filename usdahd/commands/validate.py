@@ -59,6 +59,29 @@ def add_parser(sub):
         help="relative hemispherical RMSE the textures may add to the model's own fit before "
         "EncodingError warns (default 0.25)",
     )
+    p.add_argument(
+        "--retrace",
+        type=int,
+        default=None,
+        metavar="N",
+        help="also run the opt-in Retrace rule: re-trace I_z at N random covered texel centres "
+        "per prim with the baker's integrator and compare with the bake (costs time; "
+        "docs/validate.md gives the cost per texel)",
+    )
+    p.add_argument(
+        "--retrace-samples",
+        type=int,
+        default=None,
+        metavar="S",
+        help="retrace samples per texel (default 4096, split into independent batches)",
+    )
+    p.add_argument(
+        "--retrace-seed",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="random stream of the retrace (texel choice and tracing; default 0)",
+    )
     p.add_argument("--list-rules", action="store_true", help="list the rules and exit")
     p.add_argument("--quiet", action="store_true", help="print errors and warnings only")
     p.set_defaults(func=run)
@@ -72,9 +95,12 @@ def list_rules(out=None) -> None:
     width = max(len(r.name) for r in v.RULES)
     for r in v.RULES:
         print(f"{r.name:<{width}}  {r.description}", file=out)
+    from usdahd import validate_retrace as rt
+
+    print(f"{rt.RULE:<{width}}  {rt.DESCRIPTION} (--retrace N)", file=out)
     print(
         f"\n(UsdValidation validators {v.PLUGIN_NAME}:<rule>, keyword {v.KEYWORD}; "
-        f"also run: {', '.join(v.BUILTIN_VALIDATORS)})",
+        f"{rt.RULE} has keyword {rt.KEYWORD}; also run: {', '.join(v.BUILTIN_VALIDATORS)})",
         file=out,
     )
 
@@ -97,8 +123,9 @@ def _open(path: str):
     return stage
 
 
-def context():
-    """The ValidationContext ``usdahd validate`` uses: our keyword plus the built-ins."""
+def context(retrace: bool = False):
+    """The ValidationContext ``usdahd validate`` uses: our keyword plus the built-ins (plus the
+    opt-in Retrace validator with ``retrace``)."""
     from pxr import UsdValidation
 
     from usdahd import validate as v
@@ -117,16 +144,29 @@ def context():
         m = reg.GetValidatorMetadata(name)
         if m is not None:
             metas.append(m)
+    if retrace:
+        from usdahd import validate_retrace as rt
+
+        m = reg.GetValidatorMetadata(rt.validator_name())
+        if m is None or not reg.HasValidator(rt.validator_name()):
+            raise StageError(
+                f"the usdahd validator {rt.validator_name()} is not registered: its plugInfo "
+                "(plugins/usdAhdValidators) is older than this usdahd; reinstall usdahd"
+            )
+        metas.append(m)
     return UsdValidation.ValidationContext(metadata=metas, includeAllAncestors=False)
 
 
-def validate_stage(stage, prims: list[str] | None = None) -> list:
-    """Run the validation context on a stage (or some prims); returns usdahd.validate.Finding."""
+def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False) -> list:
+    """Run the validation context on a stage (or some prims); returns usdahd.validate.Finding.
+
+    retrace : also run the opt-in Retrace rule (settings in usdahd.validate_retrace.OPTIONS).
+    """
     from pxr import Sdf, Usd
 
     from usdahd import validate as v
 
-    ctx = context()
+    ctx = context(retrace)
     if prims:
         selected = []
         for p in prims:
@@ -175,6 +215,35 @@ def exit_code(findings, strict: bool) -> int:
     return 0
 
 
+def _retrace_options(args, rt):
+    """RetraceOptions from --retrace/--retrace-samples/--retrace-seed, or None (not asked)."""
+    if args.retrace is None:
+        if args.retrace_samples is not None or args.retrace_seed is not None:
+            raise UsageError("--retrace-samples and --retrace-seed need --retrace N")
+        return None
+    if args.retrace < rt.MIN_TEXELS:
+        raise UsageError(
+            f"--retrace {args.retrace}: give at least {rt.MIN_TEXELS} texels per prim "
+            "(64 is a good start)"
+        )
+    opts = rt.RetraceOptions(progress=None if args.quiet else _progress)
+    if args.retrace_samples is not None:
+        if args.retrace_samples < 2 * opts.min_batches:
+            raise UsageError(
+                f"--retrace-samples {args.retrace_samples}: give at least "
+                f"{2 * opts.min_batches} ({opts.min_batches} batches of 2 or more samples)"
+            )
+        opts.samples = args.retrace_samples
+    opts.texels = args.retrace
+    if args.retrace_seed is not None:
+        opts.seed = args.retrace_seed
+    return opts
+
+
+def _progress(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
 def run(args) -> int:
     if args.list_rules:
         list_rules()
@@ -182,8 +251,11 @@ def run(args) -> int:
     if not args.stage:
         raise UsageError("give a STAGE to validate (or --list-rules)")
     from usdahd import validate as v
+    from usdahd import validate_retrace as rt
 
+    retrace = _retrace_options(args, rt)
     old = (v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning)
+    old_rt = rt.OPTIONS
     if args.tolerance is not None:
         if not args.tolerance > 0:
             raise UsageError(f"--tolerance {args.tolerance}: must be > 0")
@@ -197,12 +269,15 @@ def run(args) -> int:
         from usdahd.usd import schema
 
         baked = [p for p in schema.prims_with_api(stage)]
-        findings = validate_stage(stage, args.prim)
+        if retrace is not None:
+            rt.OPTIONS = retrace
+        findings = validate_stage(stage, args.prim, retrace=retrace is not None)
         if not baked:
             # A CI job pointed at the source stage (or the wrong file) must not stay green.
             findings.insert(0, no_lightmaps_finding(args.stage))
     finally:
         v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning = old
+        rt.OPTIONS = old_rt
     code = exit_code(findings, args.strict)
     counts = {s: sum(f.severity == s for f in findings) for s in ("error", "warning", "info")}
     if args.json:

@@ -1,0 +1,723 @@
+"""Rule ``Retrace`` (opt-in): re-estimate I_z at random texels and compare it with the bake.
+
+``usdahd validate --retrace N`` (and the UsdValidation validator ``usdahd.validate:Retrace``,
+keyword ``UsdAhdRetrace``, not run by the ``UsdAhdValidators`` keyword because it costs time)
+picks N random covered texel *centres* per baked prim, re-traces their incident radiance with
+the baker's own integrator (:func:`usdahd.bake.integrate.bake_texels`) at a high sample count,
+on its own random stream, with plain Monte Carlo (``estimator="mc"``, unbiased) and no
+practical bounce cap (:data:`RETRACE_BOUNCES` with Russian roulette), and compares the I_z of
+the retrace with the baked I_z. It catches what the other rules cannot see because they only
+check the files against each other: a bake made with a bounce cap, textures *and* sidecar
+rescaled together, the wrong light units, a stale bake whose hash was copied.
+
+Texels: the prim's lightmap UVs (``baked:uvPrimvar`` on the validated stage) rasterised at
+``baked:resolution`` by the baker's rasteriser (:func:`usdahd.bake.texels.rasterize`), so the
+sample points and tangent frames are the ones the bake traced. Texels must match the bake's
+coverage (the SH sidecar's ``A``); texels the retrace finds inside geometry (back-face
+fraction above the baker's threshold: the baker filled those from neighbours) are dropped.
+
+Baked I_z: from the float32 SH sidecar when it exists (``usdahd.sh.iz``; the encoding's
+quantization is IzCheck's job, not this rule's), else the decoded textures at n = z.
+
+Statistics (per RGB channel c, over the n usable texels; docs/validate.md has the derivation):
+
+- The retrace runs in K independent batches of s samples (``K * s`` = the retrace samples;
+  s is at most the bake's sample count when possible), giving per texel a mean ``r_i`` and a
+  sample variance ``v_i`` (K - 1 degrees of freedom).
+- Mean test: the ratio ``R = sum b_i / sum r_i`` with standard error
+  ``SE = max(SE_emp, SE_model)``: ``SE_emp`` from the scatter of the linearised residuals
+  ``b_i - R r_i`` (it contains the bake's noise, whatever it is), ``SE_model`` from the
+  variances (bake noise bounded by the retrace's per-batch variance scaled to the bake's
+  sample count). A finding when ``|R - 1| > margin + q SE``, q the Student-t quantile with
+  n - 1 degrees of freedom at two-sided level ``alpha / 2`` Bonferroni-split over channels.
+- Per-texel test (texels whose 5 x 5 neighbourhood is covered by the same chart, so seam
+  stitching and gutter dilation did not touch them; skipped for denoised bakes): a finding
+  when ``|b_i - r_i| > margin max(r_i, 0.1 mean r) + q_t sqrt(v_i / K + v_b,i)``, q_t the
+  t quantile with K - 1 degrees of freedom at ``alpha / 2`` Bonferroni-split over texels and
+  channels.
+- False-alarm rate: at most ``alpha`` (default 1e-3) per prim for a bake whose mean is
+  within ``margin`` of the truth and whose per-texel noise does not exceed plain Monte Carlo
+  at its sample count; lower in practice (the margin, conservative variance bounds).
+
+The statistics (:func:`compare`, :func:`t_sf`, :func:`t_isf`) import only numpy; pxr and the
+baker are imported when a prim is checked.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from usdahd.errors import UsageError
+
+#: Rule name, UsdValidation keyword (opt-in) and the one-sentence doc (the plugInfo ``doc``).
+RULE = "Retrace"
+KEYWORD = "UsdAhdRetrace"
+DESCRIPTION = (
+    "Opt-in: I_z re-traced at random covered texel centres with the baker's integrator at a "
+    "high sample count and no bounce cap agrees with the baked I_z within a statistical bound."
+)
+#: Bounce cap of the retrace: far above any path Russian roulette lets live (no practical cap).
+RETRACE_BOUNCES = 256
+#: Channel names of the per-channel statistics.
+CHANNELS = ("R", "G", "B")
+#: Channels whose retraced sum is below this fraction of the brightest channel's are not
+#: ratio-tested (a black channel of a coloured light has no meaningful ratio).
+DARK_CHANNEL = 1e-3
+#: Per-texel margins are taken against max(r_i, TEXEL_FLOOR * mean r): texels far darker than
+#: the prim's average are judged on the prim's scale (their relative noise is huge).
+TEXEL_FLOOR = 0.1
+#: Fewer usable texels than this: the mean test has too few degrees of freedom; skipped.
+MIN_TEXELS = 4
+#: A rasterised texel set that differs from the bake's coverage on more than this fraction
+#: means the UVs or resolution changed since the bake (Staleness reports it); skipped.
+COVERAGE_MISMATCH = 0.01
+
+
+@dataclass
+class RetraceOptions:
+    """Settings of the Retrace rule (module-level :data:`OPTIONS`; the CLI sets them).
+
+    texels : random covered texel centres per prim (N); samples : retrace samples per texel,
+        split into batches; seed : the retrace's random stream (texel choice and tracing);
+    margin : relative bias accepted before the statistics (legitimate differences: the bake's
+        regression estimator, denoising, float16 storage, seam stitching; a few 1e-3 here);
+    alpha : false-alarm rate per prim (Bonferroni over channels and texels);
+    min_batches, max_batches : number of independent batches K (K - 1 degrees of freedom of
+        the per-texel variance); bounces : the retrace's path cap; progress : callable(str) for
+        progress lines (the CLI prints them on stderr) or None.
+    """
+
+    texels: int = 64
+    samples: int = 4096
+    seed: int = 0
+    margin: float = 0.03
+    alpha: float = 1e-3
+    min_batches: int = 16
+    max_batches: int = 256
+    bounces: int = RETRACE_BOUNCES
+    progress: object = None
+
+
+OPTIONS = RetraceOptions()
+
+
+# ---------------------------------------------------------------------- Student-t (numpy only)
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the regularized incomplete beta (modified Lentz)."""
+    tiny = 1e-300
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 10000):
+        m2 = 2 * m
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-15:
+            break
+    return h
+
+
+def betainc(a: float, b: float, x: float) -> float:
+    """Regularized incomplete beta I_x(a, b) for a, b > 0, x in [0, 1] (float)."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    ln = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x)
+    ln += b * math.log1p(-x)
+    front = math.exp(ln)
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _betacf(a, b, x) / a
+    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+
+
+def t_sf(t: float, dof: float) -> float:
+    """P(T > t) for Student's t with ``dof`` degrees of freedom (float)."""
+    if dof <= 0:
+        raise UsageError(f"the t distribution needs dof > 0, got {dof}")
+    if math.isinf(dof):
+        return 0.5 * math.erfc(t / math.sqrt(2.0))
+    tail = 0.5 * betainc(0.5 * dof, 0.5, dof / (dof + t * t))
+    return tail if t >= 0 else 1.0 - tail
+
+
+def t_isf(p: float, dof: float) -> float:
+    """The t with P(T > t) = p, for p in (0, 0.5] (bisection to 1e-12 relative)."""
+    if not 0.0 < p <= 0.5:
+        raise UsageError(f"t_isf needs 0 < p <= 0.5, got {p}")
+    lo, hi = 0.0, 1.0
+    while t_sf(hi, dof) > p:
+        lo, hi = hi, 2.0 * hi
+        if hi > 1e300:
+            return math.inf
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if t_sf(mid, dof) > p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+# ------------------------------------------------------------------------------- statistics
+
+
+def batch_plan(samples: int, bake_samples: int, options: RetraceOptions) -> tuple[int, int]:
+    """(K batches, s samples per batch) for ``samples`` retrace samples per texel.
+
+    s is at most the bake's sample count when the batch count allows it, so the bake's noise
+    bound (the batch variance scaled by s / S_bake) never extrapolates to fewer samples than
+    measured.
+    """
+    k = max(options.min_batches, math.ceil(samples / max(int(bake_samples), 1)))
+    k = max(2, min(k, options.max_batches, samples))
+    return k, max(1, samples // k)
+
+
+def bake_variance_factor(batch_samples: int, bake_samples: int) -> float:
+    """Factor f with Var(bake texel) <= f * Var(batch) for a bake at ``bake_samples``.
+
+    Monte Carlo variance falls as 1/S (randomized QMC at least as fast), so from s to
+    S >= s the factor is s / S (an upper bound). Extrapolating to S < s, RQMC's faster decay
+    makes s / S an underestimate; (s / S)^2 bounds decay rates up to S^-2.
+    """
+    ratio = batch_samples / max(int(bake_samples), 1)
+    return ratio if ratio <= 1.0 else ratio * ratio
+
+
+def compare(
+    baked: np.ndarray,
+    batches: np.ndarray,
+    *,
+    bake_factor: float,
+    margin: float,
+    alpha: float,
+    texel_mask: np.ndarray | None = None,
+    adaptive_tol: float | None = None,
+) -> dict:
+    """The Retrace statistics of one prim.
+
+    baked : (n, 3) float64 baked I_z; batches : (K, n, 3) float64 independent retrace
+        estimates (K >= 2); bake_factor : :func:`bake_variance_factor`; margin, alpha : see
+        :class:`RetraceOptions`; texel_mask : (n,) bool texels eligible for the per-texel test
+        (None: all; an all-False mask disables it); adaptive_tol : the bake's adaptive
+        tolerance when it was adaptive (its texels may stop at that relative standard error).
+    returns : dict with ``ratio``, ``se``, ``se_empirical``, ``se_model``, ``bound`` (3,) float
+        (|R - 1| allowed), ``tested`` (3,) bool channels ratio-tested, ``mean_fail`` (3,) bool,
+        ``q_mean``, ``q_texel`` floats, ``texel_fail`` (n, 3) bool, ``texel_excess`` (n, 3)
+        float (|b - r| / bound, > 1 fails), ``retrace`` (n, 3), ``retrace_sd`` (n, 3) standard
+        error of the retrace mean, ``n``, ``batches`` ints.
+    """
+    b = np.asarray(baked, np.float64)
+    e = np.asarray(batches, np.float64)
+    if e.ndim != 3 or e.shape[1:] != b.shape or b.ndim != 2 or e.shape[0] < 2:
+        raise ValueError(
+            f"compare: baked (n, 3) and batches (K>=2, n, 3), got {b.shape}, {e.shape}"
+        )
+    k, n, c = e.shape
+    r = e.mean(axis=0)
+    v = e.var(axis=0, ddof=1)  # per-batch variance
+    v_r = v / k
+    v_b = v * bake_factor
+    if adaptive_tol is not None:
+        level = np.maximum(np.abs(r), 1e-3 * np.abs(r).max(axis=0, keepdims=True))
+        v_b = np.maximum(v_b, (adaptive_tol * level) ** 2)
+    sum_r, sum_b = r.sum(axis=0), b.sum(axis=0)
+    top = np.abs(sum_r).max() if n else 0.0
+    tested = (sum_r > DARK_CHANNEL * top) & (top > 0)
+    n_tested = max(int(tested.sum()), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(tested, sum_b / np.where(tested, sum_r, 1.0), np.nan)
+        res = b - np.where(tested, ratio, 0.0) * r
+        se_emp = np.sqrt(n / max(n - 1, 1) * (res * res).sum(axis=0)) / np.abs(sum_r)
+        rr = np.where(tested, ratio, 1.0)
+        se_mod = np.sqrt((v_b + rr * rr * v_r).sum(axis=0)) / np.abs(sum_r)
+    se = np.maximum(se_emp, se_mod)
+    q_mean = t_isf(0.5 * alpha / (2.0 * n_tested), max(n - 1, 1))
+    bound = margin + q_mean * se
+    mean_fail = tested & (np.abs(ratio - 1.0) > bound)
+    # per texel
+    mask = np.ones(n, bool) if texel_mask is None else np.asarray(texel_mask, bool)
+    m_t = int(mask.sum())
+    q_texel = t_isf(0.5 * alpha / (2.0 * max(m_t, 1) * n_tested), k - 1)
+    mean_level = np.abs(r).mean(axis=0, keepdims=True)
+    level = np.maximum(np.abs(r), TEXEL_FLOOR * mean_level)
+    allowed = margin * level + q_texel * np.sqrt(v_r + v_b)
+    diff = np.abs(b - r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        excess = np.where(allowed > 0, diff / allowed, np.where(diff > 0, np.inf, 0.0))
+    texel_fail = mask[:, None] & tested[None, :] & (excess > 1.0)
+    return {
+        "ratio": ratio,
+        "se": se,
+        "se_empirical": se_emp,
+        "se_model": se_mod,
+        "bound": bound,
+        "tested": tested,
+        "mean_fail": mean_fail,
+        "q_mean": float(q_mean),
+        "q_texel": float(q_texel),
+        "texel_fail": texel_fail,
+        "texel_excess": np.where(mask[:, None] & tested[None, :], excess, 0.0),
+        "retrace": r,
+        "retrace_sd": np.sqrt(v_r),
+        "n": int(n),
+        "batches": int(k),
+        "texels_tested": m_t,
+    }
+
+
+# ------------------------------------------------------------------------------ texel choice
+
+
+def retrace_seed(seed: int, prim_path: str) -> int:
+    """The retrace's 32-bit seed for a prim (a stream of its own: the baker hashes
+    ``f"{seed}:{path}"``, this ``f"retrace:{seed}:{path}"``)."""
+    return int.from_bytes(
+        hashlib.sha256(f"retrace:{seed}:{prim_path}".encode()).digest()[:4], "little"
+    )
+
+
+def interior_mask(xy: np.ndarray, chart: np.ndarray, resolution, radius: int = 2) -> np.ndarray:
+    """(n,) bool: texels whose (2 radius + 1)^2 neighbourhood is covered by their own chart.
+
+    xy : (n, 2) int texel column/row; chart : (n,) int chart id per texel. With radius 2 no
+    bilinear tap of a seam sample (taps lie within one texel of the chart border) and no
+    dilated gutter texel is among them, so stitching and dilation leave them unchanged.
+    """
+    w, h = resolution
+    img = np.full((h + 2 * radius, w + 2 * radius), -1, np.int64)
+    x = np.asarray(xy[:, 0], np.int64) + radius
+    y = np.asarray(xy[:, 1], np.int64) + radius
+    img[y, x] = np.asarray(chart, np.int64)
+    ok = np.ones(len(xy), bool)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            ok &= img[y + dy, x + dx] == img[y, x]
+    return ok
+
+
+def pick_texels(candidates: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``count`` distinct sorted entries of ``candidates`` (all if fewer), seeded."""
+    candidates = np.asarray(candidates)
+    if len(candidates) <= count:
+        return np.sort(candidates)
+    rng = np.random.default_rng([seed, 0])
+    return np.sort(rng.choice(candidates, size=count, replace=False))
+
+
+# --------------------------------------------------------------------------- scene + tracer
+
+
+class _TracerCache:
+    """(scene, tracer) per stage (keyed by its layers' files, like Staleness) and UV name.
+
+    The geometry is the same for every UV name, so one tracer serves them all; stages with
+    unsaved or anonymous layers are not cached.
+    """
+
+    def __init__(self):
+        self._data: OrderedDict = OrderedDict()
+
+    @staticmethod
+    def key(stage):
+        import os
+
+        parts = []
+        for layer in stage.GetUsedLayers():
+            if layer.anonymous:
+                if layer == stage.GetSessionLayer() and layer.empty:
+                    continue
+                return None
+            if layer.dirty:
+                return None
+            try:
+                st = os.stat(layer.realPath)
+            except OSError:
+                return None
+            parts.append((layer.identifier, st.st_size, st.st_mtime_ns))
+        return tuple(sorted(parts))
+
+    def get(self, stage, uv_name: str):
+        from usdahd.bake.trace import Tracer
+        from usdahd.pipeline import is_dark
+        from usdahd.usd.scene import load_scene
+
+        key = self.key(stage)
+        entry = self._data.get(key) if key is not None else None
+        if entry is None:
+            entry = {"scenes": {}, "tracer": None}
+        if uv_name not in entry["scenes"]:
+            entry["scenes"][uv_name] = load_scene(stage, uv_name=uv_name)
+        scene = entry["scenes"][uv_name]
+        if entry["tracer"] is None and not is_dark(scene):
+            entry["tracer"] = Tracer(scene)
+        if key is not None:
+            self._data[key] = entry
+            self._data.move_to_end(key)
+            while len(self._data) > 2:
+                self._data.popitem(last=False)
+        return scene, entry["tracer"]
+
+    def clear(self):
+        self._data.clear()
+
+
+_TRACERS = _TracerCache()
+#: One retrace at a time: the tracer's first run is not thread-safe and it uses every core.
+_RETRACE_LOCK = threading.Lock()
+
+
+# ------------------------------------------------------------------------------------ rule
+
+
+def _finding(prim, severity, code, message, fix="", **data):
+    from usdahd.validate import Finding, _jsonable
+
+    text = message.rstrip(".") + "." + (f" Fix: {fix.rstrip('.')}." if fix else "")
+    return Finding(RULE, severity, str(prim.GetPath()), code, text, _jsonable(data))
+
+
+def _baked_iz(bake, rows: np.ndarray) -> np.ndarray:
+    """(m, 3) float64 baked I_z of bake rows: sidecar SH when present, else decoded at z."""
+    from usdahd import sh as shm
+
+    if bake.sh is not None:
+        return shm.iz(np.asarray(bake.sh[rows], np.float64))
+    params = {k: np.asarray(v)[rows] for k, v in bake.params.items()}
+    if "iz" in params:
+        return params["iz"].astype(np.float64)
+    z = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (len(rows), 3))
+    return np.asarray(bake.mod.evaluate(params, z), np.float64)
+
+
+def check_retrace(prim, options: RetraceOptions | None = None) -> list:
+    """Rule Retrace on one prim (see the module doc); returns usdahd.validate.Finding."""
+    with _RETRACE_LOCK:
+        return _check(prim, options or OPTIONS)
+
+
+def _check(prim, opt: RetraceOptions) -> list:
+    from usdahd import sh as shm
+    from usdahd import validate as V
+    from usdahd.bake import integrate
+    from usdahd.bake.texels import chart_ids, rasterize
+    from usdahd.errors import UsdAhdError
+
+    def skipped(why):
+        return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]
+
+    path = str(prim.GetPath())
+    try:
+        bake = V.load_bake(prim)
+    except V._Skip as why:
+        return skipped(str(why))
+    res = bake.results
+    uv_name = str(res.uv_primvar or res.settings.get("uv") or "st")
+    try:
+        scene, tracer = _TRACERS.get(prim.GetStage(), uv_name)
+    except UsdAhdError as exc:
+        return skipped(f"the stage cannot be read as a scene ({exc}); see Staleness")
+    mesh = next((m for m in scene.meshes if m.path == path), None)
+    if mesh is None:
+        return skipped("the prim is not a visible mesh the baker would bake; see Staleness")
+    if mesh.uv is None:
+        return skipped(f"primvars:{uv_name} cannot be read as lightmap UVs; see UVSet")
+    try:
+        texels = rasterize(mesh, res.resolution)
+    except UsdAhdError as exc:
+        return skipped(f"the lightmap UVs do not rasterise ({exc}); see UVSet")
+    w, h = res.resolution
+    rows_img = np.full((h, w), -1, np.int64)
+    rows_img[bake.xy[:, 1], bake.xy[:, 0]] = np.arange(len(bake.xy))
+    rows = rows_img[texels.xy[:, 1], texels.xy[:, 0]]
+    if bake.sh is not None:
+        mism = int((rows < 0).sum()) + (len(bake.xy) - int((rows >= 0).sum()))
+        if mism > COVERAGE_MISMATCH * max(len(bake.xy), 1):
+            return skipped(
+                f"primvars:{uv_name} rasterised at {w}x{h} covers {len(texels)} texels but the "
+                f"bake covered {len(bake.xy)} ({mism} differ): the UVs changed since the bake; "
+                "see Staleness"
+            )
+    ok = rows >= 0
+    ok[ok] = bake.valid[rows[ok]]
+    candidates = np.nonzero(ok & texels.center_inside)[0]
+    if len(candidates) < MIN_TEXELS:
+        return skipped(f"only {len(candidates)} covered texel centre(s) decode validly")
+    seed = retrace_seed(opt.seed, path)
+    pick = pick_texels(candidates, int(opt.texels), seed)
+    charts = chart_ids(mesh)[texels.triangle]
+    interior = interior_mask(texels.xy, charts, (w, h))[pick]
+    sub = replace(
+        texels,
+        xy=texels.xy[pick],
+        position=texels.position[pick],
+        geom_normal=texels.geom_normal[pick],
+        frame=texels.frame[pick],
+        triangle=texels.triangle[pick],
+        center_inside=texels.center_inside[pick],
+        stats={},
+    )
+    baked = _baked_iz(bake, rows[pick])
+    settings = res.settings or {}
+    bake_samples = int(settings.get("samples") or 256)
+    k, s = batch_plan(int(opt.samples), bake_samples, opt)
+    t0 = time.perf_counter()
+    if opt.progress:
+        opt.progress(f"retrace {path}: {len(pick)} texels x {k * s} samples ({k} batches)")
+    dark = tracer is None
+    if dark:
+        batches = np.zeros((k, len(pick), 3))
+        backface = np.zeros(len(pick))
+        rays = 0
+    else:
+        batches = np.empty((k, len(pick), 3))
+        backface = np.zeros(len(pick))
+        rays = 0
+        for j in range(k):
+            sh, st = integrate.bake_texels(
+                scene,
+                tracer,
+                sub,
+                samples=s,
+                bounces=int(opt.bounces),
+                seed=seed,
+                stream=1 + j,
+                estimator="mc",
+            )
+            batches[j] = shm.iz(sh.astype(np.float64))
+            backface += np.asarray(st["backface_fraction"], np.float64) / k
+            rays += int(st["rays"])
+    seconds = time.perf_counter() - t0
+    inside = backface > _backface_threshold()
+    finite = np.isfinite(baked).all(axis=1) & np.isfinite(batches).all(axis=(0, 2))
+    use = ~inside & finite
+    n = int(use.sum())
+    base = dict(
+        texels=n,
+        texels_inside_geometry=int(inside.sum()),
+        samples=k * s,
+        batches=k,
+        bounces=int(opt.bounces),
+        seconds=seconds,
+        rays=rays,
+        seed=int(opt.seed),
+        bake_samples=bake_samples,
+        bake_bounces=settings.get("bounces"),
+    )
+    if n < MIN_TEXELS:
+        return skipped(f"only {n} of the sampled texels lie outside geometry")
+    denoised = bool(settings.get("denoise"))
+    adaptive = integrate.ADAPTIVE_TOL if settings.get("adaptive") else None
+    st = compare(
+        baked[use],
+        batches[:, use],
+        bake_factor=bake_variance_factor(s, bake_samples),
+        margin=float(opt.margin),
+        alpha=float(opt.alpha),
+        texel_mask=np.zeros(n, bool) if denoised else interior[use],
+        adaptive_tol=adaptive,
+    )
+    xy = sub.xy[use]
+    return _report(prim, st, xy, baked[use], base, settings, opt, denoised, dark)
+
+
+def _backface_threshold() -> float:
+    import inspect
+
+    from usdahd.bake import integrate
+
+    p = inspect.signature(integrate.bake_texels).parameters.get("backface_threshold")
+    return float(p.default) if p is not None and p.default is not p.empty else 0.25
+
+
+def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
+    if dark:  # nothing emits light: the exact answer is 0 (the baker traces nothing either)
+        top = float(np.abs(baked).max())
+        if top > 0:
+            return [
+                _finding(
+                    prim,
+                    "error",
+                    "RetraceMismatch",
+                    f"the stage has no light source, yet the baked I_z reaches {top:.4g} at "
+                    f"{base['texels']} sampled texels: the lighting changed since the bake or "
+                    "the textures were edited",
+                    "check Staleness, re-bake the prim",
+                    **base,
+                )
+            ]
+        return [_finding(prim, "info", "RetraceOk", "no light source: baked I_z is 0", **base)]
+    ratio, se, bound, tested = st["ratio"], st["se"], st["bound"], st["tested"]
+    chans = [c for c, t in zip(CHANNELS, tested) if t]
+    data = dict(
+        base,
+        ratio=[float(x) if t else None for x, t in zip(ratio, tested)],
+        standard_error=[float(x) if t else None for x, t in zip(se, tested)],
+        bound=[float(x) if t else None for x, t in zip(bound, tested)],
+        margin=float(opt.margin),
+        alpha=float(opt.alpha),
+        texels_per_texel_test=st["texels_tested"] if not denoised else 0,
+    )
+    ratio_txt = ", ".join(
+        f"{c} {ratio[i]:.4f} +- {se[i]:.2g}" for i, c in enumerate(CHANNELS) if tested[i]
+    )
+    head = (
+        f"baked/retraced I_z over {base['texels']} random texel centres ({base['samples']} "
+        f"samples each, plain Monte Carlo, up to {base['bounces']} bounces with Russian "
+        f"roulette): {ratio_txt}"
+    )
+    out = []
+    if st["mean_fail"].any():
+        i = int(np.argmax(np.where(st["mean_fail"], np.abs(ratio - 1.0) - bound, -np.inf)))
+        darker = ratio[i] < 1.0
+        bounces = settings.get("bounces")
+        if darker and bounces is not None and int(bounces) <= 8:
+            why = (
+                f"the bake is darker than its own integrator with unbounded paths and was "
+                f"made with bounces={int(bounces)}: light of longer paths (indirect bounces) "
+                "is missing"
+            )
+            fix = "re-bake without a bounce cap (the default --bounces)"
+        elif darker:
+            why = (
+                "the bake is darker than the retrace: light is missing (lights or materials "
+                "changed since the bake, or the textures and sidecar were scaled down)"
+            )
+            fix = "check Staleness, re-bake the prim"
+        else:
+            why = (
+                "the bake is brighter than the retrace: the textures (and the SH sidecar) "
+                "were scaled after the bake, or the lights changed since"
+            )
+            fix = "check Staleness, re-bake the prim"
+        out.append(
+            _finding(
+                prim,
+                "error",
+                "RetraceMismatch",
+                f"{head}; channel {CHANNELS[i]} is {abs(ratio[i] - 1.0):.3g} from 1, beyond "
+                f"the bound {bound[i]:.3g} (margin {opt.margin:g} + {st['q_mean']:.2f} "
+                f"standard errors; false-alarm rate <= {opt.alpha:g} per prim): {why}",
+                fix,
+                **data,
+            )
+        )
+    fail = st["texel_fail"]
+    if fail.any():
+        exc = st["texel_excess"]
+        worst = int(np.argmax(exc.max(axis=1)))
+        c = int(np.argmax(exc[worst]))
+        x, y = (int(v) for v in xy[worst])
+        r = st["retrace"][worst, c]
+        sd = st["retrace_sd"][worst, c]
+        nfail = int(fail.any(axis=1).sum())
+        out.append(
+            _finding(
+                prim,
+                "error",
+                "RetraceOutlier",
+                f"{nfail} of {st['texels_tested']} interior texel(s) differ from the retrace "
+                f"beyond the per-texel bound (margin {opt.margin:g} of the texel's level + "
+                f"{st['q_texel']:.2f} standard deviations of bake and retrace noise, "
+                f"Bonferroni over texels; false-alarm rate <= {opt.alpha:g} per prim); worst "
+                f"at texel ({x}, {y}) channel {CHANNELS[c]}: baked {baked[worst, c]:.4g}, "
+                f"retraced {r:.4g} +- {sd:.2g}: local light is wrong there (a leak, an "
+                "edited texel, a moved occluder)",
+                "check Staleness and TexelValues, re-bake the prim",
+                **dict(data, failing_texels=nfail, worst_texel=(x, y)),
+            )
+        )
+    if not out:
+        note = "" if not denoised else "; per-texel test off (denoised bake)"
+        if len(chans) < 3:
+            note += f"; channels tested: {', '.join(chans) or 'none'}"
+        out.append(_finding(prim, "info", "RetraceOk", head + note, **data))
+    return out
+
+
+# ------------------------------------------------------------------------------ registration
+
+
+def validator_name() -> str:
+    from usdahd.validate import PLUGIN_NAME
+
+    return f"{PLUGIN_NAME}:{RULE}"
+
+
+def _task(prim, time_range=None):
+    from pxr import UsdValidation
+
+    from usdahd import validate as V
+    from usdahd.usd import schema
+
+    try:
+        if not schema.has_api(prim):
+            return []
+        try:
+            found = check_retrace(prim)
+        except Exception as exc:  # noqa: BLE001 - reported, never raised (see validate.run_rule)
+            first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
+            found = [
+                _finding(
+                    prim,
+                    "error",
+                    "InternalError",
+                    f"rule {RULE} could not run: {type(exc).__name__}: {first}",
+                    "report this as a usdahd bug (with the stage) and check the prim by hand",
+                )
+            ]
+        stage = prim.GetStage()
+        with V._LOCK:
+            for f in found:
+                V.FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
+        return [f.to_usd(stage) for f in found]
+    except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
+        site = UsdValidation.ValidationErrorSite(prim.GetStage(), prim.GetPath())
+        return [
+            UsdValidation.ValidationError(
+                "InternalError",
+                UsdValidation.ValidationErrorType.Error,
+                [site],
+                f"rule {RULE} could not run: {exc}",
+            )
+        ]
+
+
+_task.__name__ = f"usdahd_{RULE}"
+
+
+def register() -> list[str]:
+    """Register the Retrace validator with UsdValidation (idempotent; only when the plugInfo
+    declares it). Returns the names registered by this call."""
+    from pxr import UsdValidation
+
+    reg = UsdValidation.ValidationRegistry()
+    name = validator_name()
+    if reg.HasValidator(name) or reg.GetValidatorMetadata(name) is None:
+        return []
+    reg.RegisterPluginPrimValidator(name, _task)
+    return [name]

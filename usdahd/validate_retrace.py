@@ -234,8 +234,8 @@ def compare(
     b = np.asarray(baked, np.float64)
     e = np.asarray(batches, np.float64)
     if e.ndim != 3 or e.shape[1:] != b.shape or b.ndim != 2 or e.shape[0] < 2:
-        raise ValueError(
-            f"compare: baked (n, 3) and batches (K>=2, n, 3), got {b.shape}, {e.shape}"
+        raise UsageError(
+            f"compare needs baked (n, 3) and batches (K >= 2, n, 3), got {b.shape}, {e.shape}"
         )
     k, n, c = e.shape
     r = e.mean(axis=0)

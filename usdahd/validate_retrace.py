@@ -45,6 +45,7 @@ baker are imported when a prim is checked.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import threading
@@ -162,8 +163,9 @@ def t_sf(t: float, dof: float) -> float:
     return tail if t >= 0 else 1.0 - tail
 
 
+@functools.lru_cache(maxsize=256)
 def t_isf(p: float, dof: float) -> float:
-    """The t with P(T > t) = p, for p in (0, 0.5] (bisection to 1e-12 relative)."""
+    """The t with P(T > t) = p, for p in (0, 0.5] (bisection to 1e-12 relative; cached)."""
     if not 0.0 < p <= 0.5:
         raise UsageError(f"t_isf needs 0 < p <= 0.5, got {p}")
     lo, hi = 0.0, 1.0

@@ -323,6 +323,45 @@ def test_false_alarms_over_seeds_on_a_clean_bake(cornell, capsys):
     assert findings == 0
 
 
+def test_denoised_bake_passes_with_the_per_texel_test_off(tmp_path, capsys):
+    pytest.importorskip("pyoidn")
+    layer = _bake(tmp_path, "cornell_box.usda", "denoised", "--denoise")
+    code, found = _validate(layer, capsys, *RETRACE)
+    assert code == 0
+    for fs in _retrace(found).values():
+        assert [f["code"] for f in fs] == ["RetraceOk"]
+        assert "per-texel test off (denoised bake)" in fs[0]["message"]
+        assert fs[0]["data"]["texels_per_texel_test"] == 0
+
+
+def test_stage_without_light(tmp_path, capsys):
+    """A dark stage bakes to 0 and passes; a bake whose lights were removed afterwards fails."""
+    from pxr import Usd
+
+    layer = _bake(tmp_path, "open_plane.usda", "lit")
+    src = tmp_path / "open_plane.usda"
+    stage = Usd.Stage.Open(str(src))
+    stage.RemovePrim("/World/Lights")
+    stage.GetRootLayer().Save()
+    _, found = _validate(layer, capsys, *RETRACE)  # the old bake over the now dark stage
+    (f,) = _retrace(found)["/World/Geometry/Plane"]
+    assert f["code"] == "RetraceMismatch" and "no light source" in f["message"]
+    dark = _bake(tmp_path, "open_plane.usda", "dark")
+    code, found = _validate(dark, capsys, *RETRACE)
+    (f,) = _retrace(found)["/World/Geometry/Plane"]
+    assert code == 0 and f["code"] == "RetraceOk" and "no light source" in f["message"]
+
+
+def test_exception_in_the_rule_is_an_internal_error(cornell, capsys, monkeypatch):
+    def boom(*a, **k):
+        raise RuntimeError("synthetic failure")
+
+    monkeypatch.setattr(RT, "_check", boom)
+    assert cli.main(["validate", str(cornell["default"]), *RETRACE, "--quiet"]) == 2
+    out = capsys.readouterr().out
+    assert "Retrace: rule Retrace could not run: RuntimeError: synthetic failure" in out
+
+
 def test_uvs_changed_since_the_bake_skip_with_a_reason(cornell, capsys):
     from pxr import Usd, UsdGeom, Vt
 

@@ -548,12 +548,10 @@ def _check(prim, opt: RetraceOptions) -> list:
 
 
 def _backface_threshold() -> float:
-    import inspect
-
+    """The baker's inside-geometry threshold (bake_texels' default, which the pipeline uses)."""
     from usdahd.bake import integrate
 
-    p = inspect.signature(integrate.bake_texels).parameters.get("backface_threshold")
-    return float(p.default) if p is not None and p.default is not p.empty else 0.25
+    return float((integrate.bake_texels.__kwdefaults__ or {}).get("backface_threshold", 0.25))
 
 
 def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:

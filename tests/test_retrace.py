@@ -379,6 +379,34 @@ def test_uvs_changed_since_the_bake_skip_with_a_reason(cornell, capsys):
     assert "UVs changed since the bake" in floor[0]["message"]
 
 
+def test_too_few_texels_and_hidden_prims_skip_with_a_reason(cornell, tmp_path, capsys):
+    from pxr import Usd, UsdGeom
+
+    src = tmp_path / "open_plane.usda"
+    shutil.copy(SAMPLES / "open_plane.usda", src)
+    tiny = tmp_path / "tiny" / "x.lightmaps.usda"
+    assert cli.main(["bake", str(src), "-o", str(tiny), "--resolution", "1", "--quiet"]) == 0
+    _, found = _validate(tiny, capsys, *RETRACE)
+    (f,) = _retrace(found)["/World/Geometry/Plane"]
+    assert f["code"] == "Skipped" and "only 1 covered texel centre" in f["message"]
+    layer = _bake(tmp_path, "open_plane.usda", "hidden")
+    stage = Usd.Stage.Open(str(layer))
+    UsdGeom.Imageable(stage.GetPrimAtPath("/World/Geometry/Plane")).MakeInvisible()
+    stage.GetRootLayer().Save()
+    _, found = _validate(layer, capsys, *RETRACE)  # the only mesh hidden: no scene at all
+    (f,) = _retrace(found)["/World/Geometry/Plane"]
+    assert f["code"] == "Skipped" and "cannot be read as a scene" in f["message"]
+    dst = cornell["default"].parent.parent / "hidden_floor"
+    shutil.copytree(cornell["default"].parent, dst)
+    layer = dst / cornell["default"].name
+    stage = Usd.Stage.Open(str(layer))
+    UsdGeom.Imageable(stage.GetPrimAtPath("/World/Geometry/Floor")).MakeInvisible()
+    stage.GetRootLayer().Save()
+    _, found = _validate(layer, capsys, *RETRACE)
+    (f,) = _retrace(found)["/World/Geometry/Floor"]
+    assert f["code"] == "Skipped" and "not a visible mesh" in f["message"]
+
+
 def test_cli_usage_errors(cornell, capsys):
     layer = str(cornell["default"])
     for argv, needle in [

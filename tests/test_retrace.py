@@ -212,6 +212,26 @@ def test_per_texel_outlier_is_found_and_masked_texels_are_not_tested():
     assert not st["texel_fail"].any() and st["texels_tested"] == 39
 
 
+def test_heavy_tailed_bake_noise_trips_only_the_per_texel_warning():
+    """1% of 256-sample estimates carry a firefly of +100% (zero-mean overall), in the bake and
+    in the retrace batches alike: the mean test stays quiet; the Gaussian per-texel bound does
+    not hold for such tails, which is why it is a warning (docs/validate.md)."""
+    rng = np.random.default_rng(5)
+    texel = mean = 0
+    for _ in range(300):
+        truth = rng.uniform(0.2, 2.0, size=(96, 3))
+
+        def draw(shape, truth=truth):
+            fire = rng.random(shape[:-1] + (1,)) < 0.01
+            return truth * (1 + 0.05 * rng.standard_normal(shape) + fire - 0.01)
+
+        st = RT.compare(draw((96, 3)), draw((16, 96, 3)), bake_factor=1.0, margin=0.03, alpha=1e-3)
+        mean += bool(st["mean_fail"].any())
+        texel += bool(st["texel_fail"].any())
+    assert mean == 0
+    assert texel > 30  # far above alpha: the tail assumption is what breaks
+
+
 def test_dark_channels_are_not_ratio_tested_and_bad_shapes_raise():
     rng = np.random.default_rng(1)
     baked, batches = _synthetic(rng, n=16, k=8, factor=1.0)
@@ -281,6 +301,9 @@ def test_bounces_1_bake_of_the_closed_box_is_caught(cornell, capsys):
         assert "bounces=1" in mism[0]["message"] and "Fix:" in mism[0]["message"]
         ratios = [r for r in mism[0]["data"]["ratio"] if r is not None]
         assert max(ratios) < 0.95  # indirect light missing: darker in every channel
+        for f in fs:  # per-texel outliers are warnings (bake noise can be heavy-tailed)
+            assert f["severity"] == ("error" if f["code"] == "RetraceMismatch" else "warning")
+    assert any(f["code"] == "RetraceOutlier" for fs in per_prim.values() for f in fs)
     # the other rules cannot see it: only Retrace fails
     assert {f["rule"] for f in found if f["severity"] == "error"} == {RT.RULE}
 

@@ -90,7 +90,24 @@ def _scaled_copy(layer: Path, name: str, factor: float, sidecar: bool = True) ->
             px[..., side.channels.index(f"{ch}2")] = iz[..., c] / shm.IZ_FROM_L10
         px[side.pixels[..., side.channels.index("A")] <= 0.5] = 0.0
         _rewrite(side_path, side, px.astype(side.pixels.dtype))
+    _record_digests(new)
     return new
+
+
+def _record_digests(layer: Path) -> None:
+    """Re-record the file digests the bake stores (as a bake with consistently wrong light
+    would have them), so only the physics can tell."""
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    stage = Usd.Stage.Open(str(layer))
+    for prim in schema.prims_with_api(stage):
+        for role, path in schema.read_results(prim).textures.items():
+            attr = prim.GetAttribute(schema.digest_property_name(role))
+            if attr and attr.HasAuthoredValue() and os.path.isfile(path):
+                attr.Set(schema.file_digest(path))
+    stage.GetRootLayer().Save()
 
 
 def _rewrite(path, img, pixels):

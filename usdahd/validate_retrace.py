@@ -1,7 +1,9 @@
 """Rule ``Retrace`` (opt-in): re-estimate I_z at random texels and compare it with the bake.
 
 ``usdahd validate --retrace N`` (and the UsdValidation validator ``usdahd.validate:Retrace``,
-keyword ``UsdAhdRetrace``, not run by the ``UsdAhdValidators`` keyword because it costs time)
+keyword ``UsdAhdRetrace``, not run by the ``UsdAhdValidators`` keyword because it costs time;
+declared without ``schemaTypes``, since a context built with ``includeAllAncestors`` adds every
+validator of the selected validators' schema types, and it checks for the API itself)
 picks N random covered texel *centres* per baked prim, re-traces their incident radiance with
 the baker's own integrator (:func:`usdahd.bake.integrate.bake_texels`) at a high sample count,
 on its own random stream, with plain Monte Carlo (``estimator="mc"``, unbiased) and no

@@ -526,6 +526,7 @@ def _check(prim, opt: RetraceOptions) -> list:
                 seed=seed,
                 stream=1 + j,
                 estimator="mc",
+                mesh=next((i for i, m in enumerate(scene.meshes) if m is mesh), None),
             )
             batches[j] = shm.iz(sh.astype(np.float64))
             backface += np.asarray(st["backface_fraction"], np.float64) / k

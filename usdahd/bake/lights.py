@@ -223,14 +223,22 @@ class RectLight(_PlanarLight):
         return float(4.0 * np.linalg.norm(np.cross(self.ex, self.ey)))
 
     def _solid(self, p):
-        """(m,) solid angle when the solid-angle sampler applies at ``p``, else 0."""
+        """(m,) solid angle when the solid-angle sampler applies at ``p``, else 0 (the rule of
+        SPHERICAL_RECT_MIN_SR: an estimate from the centre first, the exact set-up only where
+        that estimate is large)."""
+        out = np.zeros(len(p))
         if not self.orthogonal:
-            return np.zeros(len(p))
-        _, sr = spherical_rectangle(
-            p, self.center - self.ex - self.ey, 2 * self.ex, 2 * self.ey, None
-        )
-        use = (sr >= SPHERICAL_RECT_MIN_SR) & (sr <= SPHERICAL_RECT_MAX_SR)
-        return np.where(use, sr, 0.0)
+            return out
+        w = p - self.center
+        d2 = np.einsum("ij,ij->i", w, w)
+        cos_l = (w @ self.normal) / np.sqrt(np.maximum(d2, 1e-300))
+        cand = np.nonzero(self.area * np.maximum(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2)[0]
+        if len(cand):
+            _, sr = spherical_rectangle(
+                p[cand], self.center - self.ex - self.ey, 2 * self.ex, 2 * self.ey, None
+            )
+            out[cand] = np.where((sr > 0) & (sr <= SPHERICAL_RECT_MAX_SR), sr, 0.0)
+        return out
 
     def sample(self, p, u):
         dirs, dist, value, pdf = super().sample(p, u)
@@ -854,12 +862,23 @@ def _sph_rect(p, ox, oy, oz, sample, u0, u1):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _rect_candidate(p, ox, oy, oz):
+    """``RectLight._solid``'s first test: the solid angle estimated from the centre is large."""
+    if p[PAR_RECT_ORTHO] == 0.0:
+        return False
+    wx, wy, wz = ox - p[3], oy - p[4], oz - p[5]
+    d2 = wx * wx + wy * wy + wz * wz
+    cos_l = (wx * p[12] + wy * p[13] + wz * p[14]) / np.sqrt(max(d2, 1e-300))
+    return p[16] * max(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _rect_solid(p, ox, oy, oz):
     """Solid angle of a rect light when its solid-angle sampler applies at o, else 0."""
-    if p[PAR_RECT_ORTHO] == 0.0:
+    if not _rect_candidate(p, ox, oy, oz):
         return 0.0
     sr, _, _, _ = _sph_rect(p, ox, oy, oz, False, 0.0, 0.0)
-    if sr >= SPHERICAL_RECT_MIN_SR and sr <= SPHERICAL_RECT_MAX_SR:
+    if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
         return sr
     return 0.0
 
@@ -898,10 +917,9 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         if outside:
             return dx, dy, dz, t, p[0], p[1], p[2], 1.0 / (TWO_PI * max(omc, 1e-300))
         return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
-    if kind == KIND_RECT:
-        sr = _rect_solid(p, x, y, z)
-        if sr > 0.0:
-            _, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)
+    if kind == KIND_RECT and _rect_candidate(p, x, y, z):
+        sr, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)  # one set-up: test, then sample
+        if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
             wx, wy, wz = qx - x, qy - y, qz - z
             dist = np.sqrt(wx * wx + wy * wy + wz * wz)
             inv = 1.0 / max(dist, 1e-300)

@@ -1,0 +1,30 @@
+"""``python -m benchmarks.reference {compare,bake,calibrate} ...`` (see README.md)."""
+
+from __future__ import annotations
+
+import sys
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(__doc__.strip())
+        print("  compare STAGE --resolution N [--usdahd-args ...]: usdahd vs Cycles (see --help)")
+        print("  bake STAGE --resolution N --spp S: Cycles I_z per mesh into an .npz")
+        print("  calibrate [--spp S]: the analytic cases")
+        return 0 if argv else 2
+    cmd, rest = argv[0], argv[1:]
+    if cmd == "calibrate":
+        from benchmarks.reference import calibrate
+
+        return calibrate.main(rest)
+    if cmd in ("compare", "bake"):
+        from benchmarks.reference import compare
+
+        return compare.main([cmd, *rest])
+    print(f"error: unknown command {cmd!r} (compare, bake, calibrate)", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

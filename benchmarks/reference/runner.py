@@ -1,0 +1,128 @@
+"""Run ``cycles_bake.py`` with a bpy interpreter, and cache its results on disk.
+
+The bpy interpreter is a separate Python 3.11 with ``bpy`` (bpy 5.0.1 pins numpy 1.26, which
+breaks OpenImageIO in the project's environment, so it cannot be an extra of the package):
+``--bpy-python PATH`` or ``$USDAHD_BPY_PYTHON``. Results are cached under
+``$USDAHD_REFERENCE_CACHE`` (default ``~/.cache/usdahd-reference/``), keyed by the exported
+scene's digest, spp, seed and the bake script's own hash.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SCRIPT = HERE / "cycles_bake.py"
+ENV_VAR = "USDAHD_BPY_PYTHON"
+CACHE_VAR = "USDAHD_REFERENCE_CACHE"
+HOW_TO = (
+    "create one with: python3.11 -m venv .venv-ref && .venv-ref/bin/pip install bpy==5.0.1, "
+    f"then pass --bpy-python .venv-ref/bin/python or set {ENV_VAR}"
+)
+
+
+class ReferenceUnavailable(Exception):
+    """No usable bpy interpreter (the message says how to create one)."""
+
+
+def find_bpy(explicit: str | None = None, check: bool = True) -> str:
+    """Path of a Python interpreter that can ``import bpy``; ReferenceUnavailable if none."""
+    cand = explicit or os.environ.get(ENV_VAR)
+    if not cand:
+        raise ReferenceUnavailable(f"no bpy interpreter configured; {HOW_TO}")
+    if not (os.path.isfile(cand) and os.access(cand, os.X_OK)):
+        raise ReferenceUnavailable(f"bpy interpreter {cand!r} is not an executable file; {HOW_TO}")
+    if check:
+        try:
+            r = subprocess.run(
+                [cand, "-c", "import bpy; print(bpy.app.version_string)"],
+                capture_output=True,
+                text=True,
+                timeout=120,
+            )
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise ReferenceUnavailable(f"{cand}: cannot run ({exc}); {HOW_TO}") from None
+        if r.returncode != 0:
+            last = (r.stderr.strip().splitlines() or ["?"])[-1]
+            raise ReferenceUnavailable(f"{cand}: 'import bpy' fails ({last}); {HOW_TO}")
+    return cand
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get(CACHE_VAR) or Path.home() / ".cache" / "usdahd-reference")
+
+
+def _script_hash() -> str:
+    return hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16]
+
+
+def cache_key(digest: str, spp: int, seed: int) -> str:
+    return hashlib.sha256(f"{digest}:{spp}:{seed}:{_script_hash()}".encode()).hexdigest()[:32]
+
+
+def run_cycles(
+    scene_file, spp: int, *, seed: int = 0, bpy: str, threads: int = 0, quiet: bool = False
+) -> tuple[dict, dict]:
+    """Bake ``scene_file`` with Cycles; returns (info, {mesh index: iz (h, w, 3) float32}).
+
+    info has the per-mesh paths, ``bake_seconds`` (Cycles' bake call) and ``wall_seconds``
+    (the whole subprocess, Blender start-up and scene set-up included).
+    """
+    with tempfile.TemporaryDirectory(prefix="usdahd-cycles-") as tmp:
+        out = Path(tmp) / "out.npz"
+        cmd = [bpy, str(SCRIPT), str(scene_file), str(out), "--spp", str(int(spp))]
+        cmd += ["--seed", str(int(seed)), "--threads", str(int(threads))]
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if r.returncode != 0 or not out.is_file():
+            tail = "\n".join((r.stderr or r.stdout).strip().splitlines()[-15:])
+            raise RuntimeError(f"Cycles bake failed (exit {r.returncode}):\n{tail}")
+        data = np.load(out, allow_pickle=False)
+        info = json.loads(str(data["meta"]))
+        images = {m["index"]: np.array(data[f"iz_{m['index']}"]) for m in info["meshes"]}
+    info["wall_seconds"] = wall
+    if not quiet:
+        print(f"cycles: {spp} spp in {wall:.1f}s (bake {info['bake_seconds']:.1f}s)",
+              file=sys.stderr)  # fmt: skip
+    return info, images
+
+
+def cached_cycles(
+    scene, scene_file, spp: int, *, seed: int = 0, bpy: str | None, use_cache: bool = True,
+    threads: int = 0, quiet: bool = False,
+) -> tuple[dict, dict, bool]:  # fmt: skip
+    """Like :func:`run_cycles`, through the on-disk cache; returns (info, images, hit)."""
+    key = cache_key(scene.digest(), spp, seed)
+    path = cache_dir() / f"{key}.npz"
+    if use_cache and path.is_file():
+        data = np.load(path, allow_pickle=False)
+        info = json.loads(str(data["meta"]))
+        images = {m["index"]: np.array(data[f"iz_{m['index']}"]) for m in info["meshes"]}
+        info["cached"] = str(path)
+        return info, images, True
+    if bpy is None:
+        raise ReferenceUnavailable(f"Cycles result not cached and no bpy interpreter; {HOW_TO}")
+    info, images = run_cycles(scene_file, spp, seed=seed, bpy=bpy, threads=threads, quiet=quiet)
+    if use_cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {f"iz_{k}": v for k, v in images.items()}
+        arrays["meta"] = np.array(json.dumps(info))
+        fd, tmp = tempfile.mkstemp(prefix=".ref.", suffix=".npz", dir=path.parent)
+        os.close(fd)
+        try:
+            np.savez(tmp, **arrays)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    return info, images, False

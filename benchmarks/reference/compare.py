@@ -1,0 +1,379 @@
+"""usdahd vs Cycles on one stage, per mesh: bias, relRMSE, Cycles' own noise, wall times.
+
+Usage (project environment, from the repository root)::
+
+    python -m benchmarks.reference compare samples/pillar_room.usda --resolution 64 \
+        [--uv st] [--usdahd-args "--samples 1024"] [--spp N] [--truth-spp 4096] [--json]
+    python -m benchmarks.reference bake STAGE --resolution 64 --spp 1024 -o iz.npz
+
+``compare`` bakes the stage with usdahd from the current tree (``python -m usdahd bake`` into
+a temporary folder; the source is never written), exports the *baked* stage (its output layer
+sublayers the source, so UVs the bake unwrapped are used) with ``export.py``, bakes the truth
+(Cycles at ``--truth-spp``, seed 1, cached) and Cycles at equal samples per texel (``--spp``,
+default: usdahd's samples, seed 0, cached), and compares per mesh on the texels that
+the reference covers **and whose 8 neighbours it covers** (chart-border texels are left out:
+usdahd samples them at the closest point of the triangle, Cycles inside the texel) and that
+the truth lights (luminance above ``LIT_FRACTION`` of the stage's 99th percentile):
+
+- ``bias = mean(Y_x) / mean(Y_truth) - 1`` (Rec. 709 luminance of I_z; ratio of means, so
+  dark texels do not dominate);
+- ``relRMSE = sqrt(mean((Y_x - Y_truth)^2)) / mean(Y_truth)``;
+- for x = usdahd and x = Cycles at equal spp; ``truth noise`` = Cycles' relRMSE scaled by
+  sqrt(spp / truth spp) (the truth's own relRMSE, included in both figures above).
+
+Exit 0 when the comparison ran (the figures are results, not a verdict), 2 on bad usage or a
+missing bpy interpreter / failed bake.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.reference import export, runner
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: A texel is "lit" when the truth's luminance exceeds this fraction of the stage's 99th
+#: percentile (texels the reference does not light carry no relative error information).
+LIT_FRACTION = 1e-3
+TRUTH_SEED = 1
+EQUAL_SEED = 0
+REPO = Path(__file__).resolve().parents[2]
+
+
+class CompareError(Exception):
+    """Bad usage or a failed step (message says which and how to fix)."""
+
+
+def _log(msg: str, quiet: bool = False) -> None:
+    if not quiet:
+        print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------- usdahd side
+
+
+def bake_usdahd(stage: Path, out_dir: Path, resolution: int | None, uv: str | None,
+                extra: list[str], quiet: bool = False) -> dict:  # fmt: skip
+    """``python -m usdahd bake`` into out_dir; returns {"report", "seconds", "layer"}."""
+    layer = out_dir / f"{stage.stem}.lightmaps.usda"
+    cmd = [sys.executable, "-m", "usdahd", "bake", str(stage), "-o", str(layer), "--json"]
+    if resolution:
+        cmd += ["--resolution", str(resolution)]
+    if uv:
+        cmd += ["--uv", uv]
+    cmd += extra
+    _log("usdahd: " + " ".join(shlex.quote(c) for c in cmd[1:]), quiet)
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    seconds = time.perf_counter() - t0
+    if r.returncode not in (0, 1) or not layer.is_file():
+        tail = "\n".join(r.stderr.strip().splitlines()[-10:])
+        raise CompareError(f"usdahd bake failed (exit {r.returncode}):\n{tail}")
+    try:
+        report = json.loads(r.stdout)
+    except json.JSONDecodeError:
+        report = {}
+    return {"report": report, "seconds": seconds, "layer": layer}
+
+
+def usdahd_results(layer: Path) -> dict:
+    """{prim path: {"uv", "resolution", "sidecar", "samples"}} from a bake's output layer."""
+    from pxr import Usd
+
+    from usdahd.usd import plugin, schema
+
+    plugin.register()
+    stage = Usd.Stage.Open(str(layer))
+    out = {}
+    for prim in schema.prims_with_api(stage):
+        res = schema.read_results(prim)
+        if res is None:
+            continue
+        out[str(prim.GetPath())] = {
+            "uv": res.uv_primvar,
+            "resolution": list(res.resolution),
+            "sidecar": res.textures.get(schema.SIDECAR_ROLE),
+            "samples": int((res.settings or {}).get("samples") or 0),
+        }
+    return out
+
+
+def usdahd_iz(sidecar: str) -> tuple[np.ndarray, np.ndarray]:
+    """I_z (h, w, 3) float64 and coverage (h, w) bool from a bake's float32 SH sidecar."""
+    from usdahd import images
+    from usdahd import sh as shm
+    from usdahd.usd import schema
+
+    img = images.read(sidecar, channels=schema.SH_SIDECAR_CHANNELS)
+    px = np.asarray(img.pixels, np.float64)
+    h, w = px.shape[:2]
+    sh = px[..., :27].reshape(h, w, 3, 9)
+    return shm.iz(sh), px[..., 27] > 0.5
+
+
+# ------------------------------------------------------------------------------- stats
+
+
+def interior(mask: np.ndarray) -> np.ndarray:
+    """Texels of ``mask`` (h, w) whose 8 neighbours are in ``mask`` too."""
+    p = np.pad(mask, 1, constant_values=False)
+    out = mask.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            out &= p[1 + dy : 1 + dy + mask.shape[0], 1 + dx : 1 + dx + mask.shape[1]]
+    return out
+
+
+def error_stats(x: np.ndarray, truth: np.ndarray) -> dict:
+    """Luminance bias and relRMSE of x against truth over the same texels (n, 3)."""
+    yx, yt = x @ LUMA, truth @ LUMA
+    mt = float(yt.mean()) if len(yt) else float("nan")
+    if not len(yt) or mt <= 0:
+        return {"bias": float("nan"), "rel_rmse": float("nan")}
+    return {
+        "bias": float(yx.mean()) / mt - 1.0,
+        "rel_rmse": float(np.sqrt(np.mean((yx - yt) ** 2))) / mt,
+    }
+
+
+def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict:
+    """Per-mesh and overall figures. truth/equal: {mesh index: (h, w, 3)}; ours:
+    {mesh index: (iz (h, w, 3), covered (h, w))}. Returns {"meshes": [...], "overall": {...}}."""
+    all_lum = np.concatenate(
+        [(np.nan_to_num(truth[k].reshape(-1, 3)) @ LUMA) for k in truth]
+    ) if truth else np.zeros(0)  # fmt: skip
+    p99 = float(np.percentile(all_lum, 99)) if all_lum.size else 0.0
+    rows, pool = [], {"t": [], "c": [], "u": []}
+    for k, m in enumerate(meshes):
+        if not m["baked"] or k not in truth:
+            continue
+        t = truth[k]
+        cov = np.isfinite(t[..., 0])
+        sel = interior(cov)
+        lit = sel & (np.nan_to_num(t) @ LUMA > LIT_FRACTION * p99)
+        row = {"path": m["path"], "resolution": m["resolution"], "covered": int(cov.sum()),
+               "compared": int(lit.sum())}  # fmt: skip
+        if k in ours:
+            iz, ucov = ours[k]
+            if iz.shape != t.shape:
+                row["error"] = f"usdahd lightmap is {iz.shape[1]}x{iz.shape[0]}, reference " \
+                               f"{t.shape[1]}x{t.shape[0]}"  # fmt: skip
+                rows.append(row)
+                continue
+            missing = lit & ~ucov
+            row["usdahd_uncovered"] = int(missing.sum())
+            lit &= ucov
+            row["compared"] = int(lit.sum())
+            row["usdahd"] = error_stats(iz[lit], t[lit])
+            pool["u"].append(iz[lit])
+        c = equal.get(k)
+        if c is not None:
+            ok = lit & np.isfinite(c[..., 0])
+            row["cycles"] = error_stats(c[ok], t[ok])
+        pool["t"].append(t[lit])
+        pool["c"].append(c[lit] if c is not None else t[lit] * np.nan)
+        rows.append(row)
+    overall = {"compared": int(sum(len(a) for a in pool["t"]))}
+    if pool["t"]:
+        tt = np.concatenate(pool["t"])
+        if pool["u"] and len(pool["u"]) == len(pool["t"]):
+            overall["usdahd"] = error_stats(np.concatenate(pool["u"]), tt)
+        cc = np.concatenate(pool["c"])
+        if np.isfinite(cc).all():
+            overall["cycles"] = error_stats(cc, tt)
+    c_rel = overall.get("cycles", {}).get("rel_rmse")
+    if c_rel is not None and truth_spp:
+        overall["truth_noise"] = c_rel * math.sqrt(spp / truth_spp)
+    for row in rows:
+        cr = row.get("cycles", {}).get("rel_rmse")
+        if cr is not None:
+            row["truth_noise"] = cr * math.sqrt(spp / truth_spp)
+        ur = row.get("usdahd", {}).get("rel_rmse")
+        if cr and ur is not None:
+            row["rmse_ratio"] = ur / cr
+    if overall.get("usdahd") and overall.get("cycles") and overall["cycles"]["rel_rmse"]:
+        overall["rmse_ratio"] = overall["usdahd"]["rel_rmse"] / overall["cycles"]["rel_rmse"]
+    return {"meshes": rows, "overall": overall}
+
+
+def _pct(v) -> str:
+    return "—" if v is None or not np.isfinite(v) else f"{100 * v:+.2f} %"
+
+
+def _pct0(v) -> str:
+    return "—" if v is None or not np.isfinite(v) else f"{100 * v:.2f} %"
+
+
+def table(result: dict) -> str:
+    """Markdown table of a :func:`run_compare` result."""
+    r = result
+    lines = [
+        f"stage `{r['stage']}`, usdahd `{' '.join(r['usdahd_args'])}` ({r['usdahd_samples']} "
+        f"spp), Cycles {r['spp']} spp vs truth {r['truth_spp']} spp "
+        f"(truth noise ~{_pct0(r['overall'].get('truth_noise'))} relRMSE)",
+        "",
+        "| mesh | texels | usdahd bias | usdahd relRMSE | Cycles bias | Cycles relRMSE | ratio |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for m in r["meshes"] + [dict(r["overall"], path="**overall**")]:
+        u, c = m.get("usdahd", {}), m.get("cycles", {})
+        ratio = m.get("rmse_ratio")
+        lines.append(
+            f"| {m['path']} | {m.get('compared', 0)} | {_pct(u.get('bias'))} | "
+            f"{_pct0(u.get('rel_rmse'))} | {_pct(c.get('bias'))} | {_pct0(c.get('rel_rmse'))} | "
+            f"{'—' if ratio is None else f'{ratio:.2f}x'} |"
+        )
+    t = r["seconds"]
+    lines += [
+        "",
+        f"wall: usdahd {t['usdahd']:.1f} s, Cycles {r['spp']} spp {t['cycles']:.1f} s "
+        f"(bake {t['cycles_bake']:.1f} s), truth {t['truth']}",
+    ]
+    if r.get("warnings"):
+        lines += ["", "warnings: " + "; ".join(r["warnings"][:8])]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------- driver
+
+
+def run_compare(stage, *, resolution: int | None, uv: str | None = None,
+                usdahd_args: str = "", spp: int | None = None, truth_spp: int = 4096,
+                bpy: str | None = None, use_cache: bool = True, keep: str | None = None,
+                threads: int = 0, quiet: bool = False) -> dict:  # fmt: skip
+    stage = Path(stage).resolve()
+    if not stage.is_file():
+        raise CompareError(f"{stage}: no such file")
+    if truth_spp < 1 or (spp is not None and spp < 1):
+        raise CompareError("--spp and --truth-spp must be >= 1")
+    bpy = runner.find_bpy(bpy)  # fail before any long work
+    extra = shlex.split(usdahd_args)
+    tmp_ctx = None
+    if keep:
+        work = Path(keep).resolve()
+        work.mkdir(parents=True, exist_ok=True)
+    else:
+        tmp_ctx = tempfile.TemporaryDirectory(prefix="usdahd-compare-")
+        work = Path(tmp_ctx.name)
+    try:
+        baked = bake_usdahd(stage, work, resolution, uv, extra, quiet)
+        _log(f"usdahd: {baked['seconds']:.1f} s", quiet)
+        results = usdahd_results(baked["layer"])
+        if not results:
+            raise CompareError(f"usdahd baked no prim of {stage} (see its report)")
+        scene = export.export_stage(baked["layer"], baked=results)
+        sf = export.save_scene(scene, work / "reference_scene.npz")
+        samples = max(r["samples"] for r in results.values())
+        spp_eq = int(spp or samples or 256)
+        _log(f"Cycles truth: {truth_spp} spp", quiet)
+        t_info, truth, hit = runner.cached_cycles(
+            scene, sf, truth_spp, seed=TRUTH_SEED, bpy=bpy, use_cache=use_cache,
+            threads=threads, quiet=quiet,
+        )  # fmt: skip
+        _log(f"Cycles at equal spp: {spp_eq}", quiet)
+        e_info, equal, _ = runner.cached_cycles(
+            scene, sf, spp_eq, seed=EQUAL_SEED, bpy=bpy, use_cache=False, threads=threads,
+            quiet=quiet,
+        )  # fmt: skip
+        ours = {}
+        for k, m in enumerate(scene.meshes):
+            r = results.get(m["path"])
+            if m["baked"] and r and r.get("sidecar"):
+                ours[k] = usdahd_iz(r["sidecar"])
+        out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp)
+        out.update(
+            stage=str(stage),
+            usdahd_args=[
+                *(["--resolution", str(resolution)] if resolution else []),
+                *(["--uv", uv] if uv else []),
+                *extra,
+            ],  # fmt: skip
+            usdahd_samples=samples,
+            spp=spp_eq,
+            truth_spp=truth_spp,
+            seconds={
+                "usdahd": baked["seconds"],
+                "cycles": e_info["wall_seconds"],
+                "cycles_bake": e_info["bake_seconds"],
+                "truth": "cached" if hit else f"{t_info['wall_seconds']:.1f} s",
+            },
+            warnings=scene.warnings
+            + [w for p in baked["report"].get("prims", []) for w in p.get("warnings", [])][
+                :20
+            ],  # fmt: skip
+            blender=e_info.get("blender"),
+        )
+        return out
+    finally:
+        if tmp_ctx is not None:
+            tmp_ctx.cleanup()
+
+
+def run_bake(stage, out, *, resolution, uv="st", spp=1024, seed=0, bpy=None, quiet=False):
+    """Cycles I_z of every mesh carrying ``uv`` into ``out`` (.npz: ``iz_<k>``, ``meta``)."""
+    bpy = runner.find_bpy(bpy)
+    scene = export.export_stage(stage, uv=uv, resolution=resolution)
+    with tempfile.TemporaryDirectory(prefix="usdahd-refbake-") as tmp:
+        sf = export.save_scene(scene, Path(tmp) / "scene.npz")
+        info, images = runner.run_cycles(sf, spp, seed=seed, bpy=bpy, quiet=quiet)
+    arrays = {f"iz_{k}": v for k, v in images.items()}
+    info["paths"] = {str(k): scene.meshes[k]["path"] for k in images}
+    info["warnings"] = scene.warnings
+    arrays["meta"] = np.array(json.dumps(info))
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    np.savez(out, **arrays)
+    return info
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.reference")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("compare", help="usdahd vs Cycles on one stage")
+    c.add_argument("stage")
+    c.add_argument("--resolution", type=int, help="passed to usdahd bake (lightmap side)")
+    c.add_argument("--uv", help="passed to usdahd bake")
+    c.add_argument("--usdahd-args", default="", help='more usdahd bake flags, e.g. "--samples 64"')
+    c.add_argument("--spp", type=int, help="Cycles samples per texel (default: usdahd's)")
+    c.add_argument("--truth-spp", type=int, default=4096)
+    c.add_argument("--bpy-python", help=f"Python with bpy (default ${runner.ENV_VAR})")
+    c.add_argument("--no-cache", action="store_true", help="re-bake the truth")
+    c.add_argument("--keep", help="keep the work folder (bake, scene file) here")
+    c.add_argument("--threads", type=int, default=0, help="Cycles threads (0: all)")
+    c.add_argument("--json", action="store_true")
+    c.add_argument("--quiet", action="store_true")
+    b = sub.add_parser("bake", help="Cycles I_z per mesh of a stage with lightmap UVs")
+    b.add_argument("stage")
+    b.add_argument("--resolution", type=int, required=True)
+    b.add_argument("--uv", default="st")
+    b.add_argument("--spp", type=int, default=1024)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("-o", "--output", required=True)
+    b.add_argument("--bpy-python")
+    b.add_argument("--quiet", action="store_true")
+    a = p.parse_args(argv)
+    try:
+        if a.cmd == "bake":
+            info = run_bake(a.stage, a.output, resolution=a.resolution, uv=a.uv, spp=a.spp,
+                            seed=a.seed, bpy=a.bpy_python, quiet=a.quiet)  # fmt: skip
+            print(json.dumps(info))
+            return 0
+        res = run_compare(
+            a.stage, resolution=a.resolution, uv=a.uv, usdahd_args=a.usdahd_args, spp=a.spp,
+            truth_spp=a.truth_spp, bpy=a.bpy_python, use_cache=not a.no_cache, keep=a.keep,
+            threads=a.threads, quiet=a.quiet,
+        )  # fmt: skip
+    except (runner.ReferenceUnavailable, CompareError, export.ExportError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(res, indent=1) if a.json else table(res))
+    return 0

@@ -150,9 +150,15 @@ class MeshArrays:
     corner_chart: np.ndarray  # (4f,) int32 chart of each face-vertex
 
 
-def build_mesh(charts: list[Chart]) -> MeshArrays:
-    """Grid every chart into quads, weld points, pack the lightmap UVs."""
-    scale, offsets = pack_charts([c.size for c in charts])
+def build_mesh(charts: list[Chart], stretch: list[tuple[float, float]] | None = None) -> MeshArrays:
+    """Grid every chart into quads, weld points, pack the lightmap UVs.
+
+    ``stretch`` (one (su, sv) per chart) scales each chart's lightmap UVs anisotropically
+    before packing (a chart with non-uniform texel density); default: no stretch.
+    """
+    stretch = stretch or [(1.0, 1.0)] * len(charts)
+    sizes = [(c.size[0] * su, c.size[1] * sv) for c, (su, sv) in zip(charts, stretch)]
+    scale, offsets = pack_charts(sizes)
     pts, st, uv, nrm, chart_of = [], [], [], [], []
     groups: dict[str, list[int]] = {}
     face = 0
@@ -161,13 +167,14 @@ def build_mesh(charts: list[Chart]) -> MeshArrays:
         n = np.cross(a, b)
         n /= np.linalg.norm(n)
         la, lb = c.size
+        su, sv = stretch[ci]
         for j in range(c.nb):
             for i in range(c.na):
                 for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):  # CCW around cross(a, b)
                     s, t = (i + di) / c.na, (j + dj) / c.nb
                     pts.append(o + s * a + t * b)
                     uv.append((s * la, t * lb))
-                    st.append(offsets[ci] + scale * np.array([s * la, t * lb]))
+                    st.append(offsets[ci] + scale * np.array([s * la * su, t * lb * sv]))
                     nrm.append(n)
                     chart_of.append(ci)
                 groups.setdefault(c.group, []).append(face)
@@ -238,6 +245,7 @@ def author_mesh(
     *,
     st_mode: str = "faceVarying",
     texture_uv: bool = False,
+    normals: bool = True,
 ) -> UsdGeom.Mesh:
     """Author a mesh. ``st_mode``: "faceVarying", "indexed" (faceVarying + indices) or
     "vertex" (only valid when every welded point has one UV, e.g. a single grid chart)."""
@@ -268,8 +276,9 @@ def author_mesh(
             pv.SetIndices(Vt.IntArray.FromNumpy(index.reshape(-1).astype(np.int32)))
         else:
             pv.Set(Vt.Vec2fArray.FromNumpy(m.st.astype(np.float32)))
-        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(m.normals.astype(np.float32)))
-        mesh.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
+        if normals:
+            mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(m.normals.astype(np.float32)))
+            mesh.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
     if texture_uv:
         tv = pv_api.CreatePrimvar("uv", st_type, UsdGeom.Tokens.faceVarying)
         tv.Set(Vt.Vec2fArray.FromNumpy(m.uv.astype(np.float32)))
@@ -611,11 +620,171 @@ def open_plane(out: Path) -> None:
     save(stage, out / "open_plane.usda")
 
 
+# --------------------------------------------------------------------------------------------
+# Stages for the Cycles reference (benchmarks/reference, issue 17): each exercises one thing
+# the baker got wrong. Small (a few hundred triangles) so the default test run stays fast.
+# --------------------------------------------------------------------------------------------
+
+
+def _floor(stage, path: str, size: float, n: int, look) -> None:
+    h = size / 2
+    mesh = author_mesh(
+        stage, path, build_mesh([Chart((-h, 0, h), (size, 0, 0), (0, 0, -size), n, n)])
+    )
+    bind(mesh, look)
+
+
+def stretched_boxes(out: Path) -> None:
+    stage, _ = new_stage(
+        "Two boxes WITHOUT authored normals (subdivisionScheme none: faces are flat, creases "
+        "sharp) whose lightmap charts are stretched (non-uniform texel density: u and v scaled "
+        "differently per face), on a floor with normals. Lit by a 1 x 1 m RectLight 3 m up and "
+        "a dim uniform DomeLight. Lightmap UVs: primvars:st, faceVarying. "
+        "Written by samples/make_samples.py.",
+    )
+    floor = preview_material(stage, "Floor", (0.6, 0.6, 0.6))
+    paint = preview_material(stage, "Paint", (0.7, 0.55, 0.4))
+    _floor(stage, "/World/Geometry/Floor", 4.0, 8, floor)
+    sides = ("+x", "-x", "+y", "+z", "-z")
+    for name, size, subdiv, pos, rot, stretch in (
+        ("TallBox", (0.8, 1.2, 0.8), (2, 3, 2), (-0.7, 0.0, -0.2), 20.0,
+         [(2.0, 0.5), (0.5, 2.0), (3.0, 1.0), (1.0, 3.0), (2.0, 0.5)]),
+        ("FlatBox", (1.0, 0.5, 0.6), (2, 1, 2), (0.9, 0.0, 0.5), -10.0,
+         [(3.0, 1.0), (1.0, 3.0), (0.4, 1.0), (2.0, 2.0), (1.0, 0.4)]),
+    ):  # fmt: skip
+        charts = box_charts(size, subdiv, faces=sides)
+        mesh = author_mesh(
+            stage, f"/World/Geometry/{name}", build_mesh(charts, stretch), normals=False
+        )
+        set_xform(mesh.GetPrim(), translate=pos, rotate_xyz=(0, rot, 0))
+        bind(mesh, paint)
+    light = UsdLux.RectLight.Define(stage, "/World/Lights/Panel")
+    light.CreateWidthAttr(1.0)
+    light.CreateHeightAttr(1.0)
+    light_common(light, intensity=10.0, exposure=0.0, color=(1.0, 0.95, 0.9))
+    set_xform(light.GetPrim(), translate=(0, 3.0, 0), rotate_xyz=(-90, 0, 0))  # emits -Y
+    dome = UsdLux.DomeLight.Define(stage, "/World/Lights/Fill")
+    light_common(dome, intensity=0.1, exposure=0.0, color=(0.8, 0.9, 1.0))
+    save(stage, out / "stretched_boxes.usda")
+
+
+def indirect_ceiling(out: Path) -> None:
+    stage, _ = new_stage(
+        "A closed 4 x 2.5 x 4 m room lit only by a one-sided 1 x 1 m RectLight 20 cm under the "
+        "ceiling, emitting down: the ceiling (its own mesh) and the walls above the light get "
+        "only indirect light. Lightmap UVs: primvars:st, faceVarying. "
+        "Written by samples/make_samples.py.",
+    )
+    walls = preview_material(stage, "Walls", (0.7, 0.7, 0.7))
+    ceiling = preview_material(stage, "Ceiling", (0.8, 0.8, 0.8))
+    room = box_charts((4, 2.5, 4), (4, 3, 4), inward=True)
+    by_face = dict(zip(("+x", "-x", "+y", "-y", "+z", "-z"), room))
+    shell = author_mesh(
+        stage,
+        "/World/Geometry/Walls",
+        build_mesh([by_face[f] for f in ("-y", "+x", "-x", "+z", "-z")]),
+    )
+    bind(shell, walls)
+    top = author_mesh(stage, "/World/Geometry/Ceiling", build_mesh([by_face["+y"]]))
+    bind(top, ceiling)
+    light = UsdLux.RectLight.Define(stage, "/World/Lights/Panel")
+    light.CreateWidthAttr(1.0)
+    light.CreateHeightAttr(1.0)
+    light_common(light, intensity=12.0, exposure=0.0, color=(1.0, 0.9, 0.8))
+    set_xform(light.GetPrim(), translate=(0, 2.3, 0), rotate_xyz=(-90, 0, 0))  # emits -Y
+    save(stage, out / "indirect_ceiling.usda")
+
+
+def floor_lamp(out: Path) -> None:
+    stage, _ = new_stage(
+        "A small SphereLight (radius 5 cm) 15 cm above a 3 x 3 m floor, in front of a wall: a "
+        "bright, sharp hotspot where a baker's light sampling shows its noise. "
+        "Lightmap UVs: primvars:st, faceVarying. Written by samples/make_samples.py.",
+    )
+    look = preview_material(stage, "Grey", (0.5, 0.5, 0.5))
+    _floor(stage, "/World/Geometry/Floor", 3.0, 6, look)
+    wall = author_mesh(
+        stage,
+        "/World/Geometry/Wall",
+        build_mesh([Chart((-1.5, 0, -1.5), (3, 0, 0), (0, 2, 0), 6, 4)]),
+    )
+    bind(wall, look)
+    lamp = UsdLux.SphereLight.Define(stage, "/World/Lights/Lamp")
+    lamp.CreateRadiusAttr(0.05)
+    light_common(lamp, intensity=50.0, exposure=0.0, color=(1.0, 0.8, 0.6))
+    set_xform(lamp.GetPrim(), translate=(0.3, 0.15, -0.4))
+    save(stage, out / "floor_lamp.usda")
+
+
+def emissive_only(out: Path) -> None:
+    stage, _ = new_stage(
+        "A closed 3 x 2.5 x 3 m room lit ONLY by an emissive 0.6 x 0.6 m ceiling panel (a mesh "
+        "with UsdPreviewSurface emissiveColor, facing down, 1 cm under the ceiling; no UsdLux "
+        "light), with a box on the floor. Lightmap UVs: primvars:st, faceVarying. "
+        "Written by samples/make_samples.py.",
+    )
+    walls = preview_material(stage, "Walls", (0.7, 0.68, 0.65))
+    glow = preview_material(stage, "Glow", (0.0, 0.0, 0.0), emissive=(12.0, 11.0, 9.0))
+    room = author_mesh(
+        stage, "/World/Geometry/Room", build_mesh(box_charts((3, 2.5, 3), (3, 2, 3), inward=True))
+    )
+    bind(room, walls)
+    box = author_mesh(
+        stage,
+        "/World/Geometry/Box",
+        build_mesh(box_charts((0.6, 0.6, 0.6), (1, 1, 1), faces=("+x", "-x", "+y", "+z", "-z"))),
+    )
+    set_xform(box.GetPrim(), translate=(0.5, 0.0, -0.3), rotate_xyz=(0, 30, 0))
+    bind(box, walls)
+    panel = author_mesh(
+        stage,
+        "/World/Geometry/Panel",
+        build_mesh([Chart((-0.3, 2.49, -0.3), (0.6, 0, 0), (0, 0, 0.6), 1, 1)]),  # faces -y
+    )
+    bind(panel, glow)
+    save(stage, out / "emissive_only.usda")
+
+
+def exterior_sun_sky(out: Path) -> None:
+    stage, _ = new_stage(
+        "An exterior: a 6 x 6 m ground with two boxes and a wall under a sun (DistantLight, "
+        "normalize on: intensity = illuminance 3, angle 0.53) and a uniform blue sky "
+        "(DomeLight, radiance (0.3, 0.45, 0.7)). Lightmap UVs: primvars:st, faceVarying. "
+        "Written by samples/make_samples.py.",
+    )
+    ground = preview_material(stage, "Ground", (0.35, 0.3, 0.25))
+    stone = preview_material(stage, "Stone", (0.6, 0.58, 0.55))
+    _floor(stage, "/World/Geometry/Ground", 6.0, 6, ground)
+    sides = ("+x", "-x", "+y", "+z", "-z")
+    for name, size, pos, rot in (
+        ("BoxA", (1.0, 1.0, 1.0), (-1.2, 0.0, 0.4), 25.0),
+        ("BoxB", (0.6, 1.6, 0.6), (1.0, 0.0, -0.6), -15.0),
+        ("Wall", (3.0, 1.2, 0.15), (0.0, 0.0, -2.0), 0.0),
+    ):
+        mesh = author_mesh(
+            stage, f"/World/Geometry/{name}", build_mesh(box_charts(size, (2, 2, 1), faces=sides))
+        )
+        set_xform(mesh.GetPrim(), translate=pos, rotate_xyz=(0, rot, 0))
+        bind(mesh, stone)
+    sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
+    sun.CreateAngleAttr(0.53)
+    light_common(sun, intensity=3.0, exposure=0.0, color=(1.0, 0.95, 0.85), normalize=True)
+    set_xform(sun.GetPrim(), rotate_xyz=(-50.0, 30.0, 0.0))
+    sky = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
+    light_common(sky, intensity=1.0, exposure=0.0, color=(0.3, 0.45, 0.7))
+    save(stage, out / "exterior_sun_sky.usda")
+
+
 SAMPLES = {
     "cornell_box": cornell_box,
     "pillar_room": pillar_room,
     "normal_wall": normal_wall,
     "open_plane": open_plane,
+    "stretched_boxes": stretched_boxes,
+    "indirect_ceiling": indirect_ceiling,
+    "floor_lamp": floor_lamp,
+    "emissive_only": emissive_only,
+    "exterior_sun_sky": exterior_sun_sky,
 }
 
 

@@ -4,10 +4,10 @@ Usage (project environment; a bpy interpreter from --bpy-python or $USDAHD_BPY_P
 
     python -m benchmarks.reference calibrate [--spp 4096] [--json]
 
-Each case is a small USD stage written here with pxr: a 0.1 x 0.1 m plane (y = 0, facing +y,
+Each case is a small USD stage written here with pxr: a 2 x 2 cm plane (y = 0, facing +y,
 albedo 0, so nothing bounces) baked at 4 x 4 texels, under one light. The whole harness path
 runs (USD -> export.py -> cycles_bake.py -> per-texel I_z) and every covered texel is compared
-with the exact normalized irradiance at its centre (texels are 2.5 cm and lights >= 0.5 m
+with the exact normalized irradiance at its centre (texels are 5 mm and lights >= 0.5 m
 away, so the variation across the ~half-texel jitter of Cycles' bake is < 1e-5):
 
 - sphere light (radius R, centre c, fully above the horizon): I = L (R/d)^2 cos(theta);
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-PLANE = 0.1  # metres
+PLANE = 0.02  # metres
 RES = 4
 
 

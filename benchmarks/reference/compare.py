@@ -18,8 +18,9 @@ the truth lights (luminance above ``LIT_FRACTION`` of the stage's 99th percentil
 - ``bias = mean(Y_x) / mean(Y_truth) - 1`` (Rec. 709 luminance of I_z; ratio of means, so
   dark texels do not dominate);
 - ``relRMSE = sqrt(mean((Y_x - Y_truth)^2)) / mean(Y_truth)``;
-- for x = usdahd and x = Cycles at equal spp; ``truth noise`` = Cycles' relRMSE scaled by
-  sqrt(spp / truth spp) (the truth's own relRMSE, included in both figures above).
+- for x = usdahd and x = Cycles at equal spp; ``truth noise`` = the truth's own relRMSE,
+  included in both figures above: with independent noise, Cycles' measured relRMSE^2 =
+  s^2 (1 + r) for r = spp / truth spp, so the truth's is relRMSE * sqrt(r / (1 + r)).
 
 Exit 0 when the comparison ran (the figures are results, not a verdict), 2 on bad usage or a
 missing bpy interpreter / failed bake.
@@ -146,6 +147,13 @@ def error_stats(x: np.ndarray, truth: np.ndarray) -> dict:
     }
 
 
+def truth_noise(rel_rmse: float, spp: int, truth_spp: int) -> float:
+    """The truth's own relRMSE from Cycles-at-spp's measured relRMSE against it (noise of
+    variance proportional to 1/spp, independent seeds)."""
+    r = spp / truth_spp
+    return rel_rmse * math.sqrt(r / (1 + r))
+
+
 def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict:
     """Per-mesh and overall figures. truth/equal: {mesh index: (h, w, 3)}; ours:
     {mesh index: (iz (h, w, 3), covered (h, w))}. Returns {"meshes": [...], "overall": {...}}."""
@@ -193,11 +201,11 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
             overall["cycles"] = error_stats(cc, tt)
     c_rel = overall.get("cycles", {}).get("rel_rmse")
     if c_rel is not None and truth_spp:
-        overall["truth_noise"] = c_rel * math.sqrt(spp / truth_spp)
+        overall["truth_noise"] = truth_noise(c_rel, spp, truth_spp)
     for row in rows:
         cr = row.get("cycles", {}).get("rel_rmse")
         if cr is not None:
-            row["truth_noise"] = cr * math.sqrt(spp / truth_spp)
+            row["truth_noise"] = truth_noise(cr, spp, truth_spp)
         ur = row.get("usdahd", {}).get("rel_rmse")
         if cr and ur is not None:
             row["rmse_ratio"] = ur / cr

@@ -11,6 +11,7 @@ def main(argv=None) -> int:
         print(__doc__.strip())
         print("  compare STAGE --resolution N [--usdahd-args ...]: usdahd vs Cycles (see --help)")
         print("  bake STAGE --resolution N --spp S: Cycles I_z per mesh into an .npz")
+        print("  summary A.json B.json ...: one line per stage from compare --json outputs")
         print("  calibrate [--spp S]: the analytic cases")
         return 0 if argv else 2
     cmd, rest = argv[0], argv[1:]
@@ -18,7 +19,7 @@ def main(argv=None) -> int:
         from benchmarks.reference import calibrate
 
         return calibrate.main(rest)
-    if cmd in ("compare", "bake"):
+    if cmd in ("compare", "bake", "summary"):
         from benchmarks.reference import compare
 
         return compare.main([cmd, *rest])

@@ -252,6 +252,36 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def summary(results: list[dict]) -> str:
+    """One line per stage (from ``compare --json`` outputs): pooled figures and the mesh with
+    the largest |usdahd bias|."""
+    lines = [
+        "| stage | texels | usdahd bias | worst mesh bias | usdahd relRMSE | Cycles relRMSE "
+        "(equal spp) | ratio | truth noise | usdahd s | Cycles s |",
+        "|---" * 10 + "|",
+    ]
+    for r in results:
+        ov = r["overall"]
+        worst = max(
+            (m for m in r["meshes"] if "usdahd" in m and np.isfinite(m["usdahd"]["bias"])),
+            key=lambda m: abs(m["usdahd"]["bias"]),
+            default=None,
+        )
+        w = "—" if worst is None else f"{_pct(worst['usdahd']['bias'])} ({worst['path']})"
+        ratio = ov.get("rmse_ratio")
+        c_rel = ov.get("cycles", {}).get("rel_rmse")
+        noise = truth_noise(c_rel, r["spp"], r["truth_spp"]) if c_rel is not None else None
+        lines.append(
+            f"| {Path(r['stage']).name} | {ov.get('compared', 0)} | "
+            f"{_pct(ov.get('usdahd', {}).get('bias'))} | {w} | "
+            f"{_pct0(ov.get('usdahd', {}).get('rel_rmse'))} | "
+            f"{_pct0(ov.get('cycles', {}).get('rel_rmse'))} | "
+            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {_pct0(noise)} | "
+            f"{r['seconds']['usdahd']:.1f} | {r['seconds']['cycles']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------------------- driver
 
 
@@ -368,7 +398,17 @@ def main(argv=None) -> int:
     b.add_argument("-o", "--output", required=True)
     b.add_argument("--bpy-python")
     b.add_argument("--quiet", action="store_true")
+    s = sub.add_parser("summary", help="one line per stage from compare --json files")
+    s.add_argument("files", nargs="+")
     a = p.parse_args(argv)
+    if a.cmd == "summary":
+        try:
+            res = [json.loads(Path(f).read_text()) for f in a.files]
+        except (OSError, json.JSONDecodeError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(summary(res))
+        return 0
     try:
         if a.cmd == "bake":
             info = run_bake(a.stage, a.output, resolution=a.resolution, uv=a.uv, spp=a.spp,

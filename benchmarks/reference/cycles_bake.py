@@ -34,8 +34,8 @@ import numpy as np
 
 #: Value written into bake images before baking: texels Cycles does not cover keep it.
 SENTINEL = -1.0
-#: Cycles drops closures of zero weight, so a black baked surface would bake 0: albedo is
-#: raised to at least this (its bounce light changes by < 1e-4 of the incident).
+#: Cycles drops closures of zero weight: albedo is raised to at least this elsewhere than at
+#: the baked point (its bounce light changes by < 1e-4 of the incident).
 MIN_ALBEDO = 1e-4
 
 
@@ -81,7 +81,13 @@ def _scaled_color(rgb):
 
 
 def _material(bpy, desc: dict, name: str, bake_image=None):
-    """A Cycles material: Diffuse BSDF (+ one-sided emission) [+ active bake image node]."""
+    """A Cycles material: Diffuse BSDF (+ one-sided emission) [+ active bake image node].
+
+    On a baked object the albedo is white *at the baked point* (Light Path "Is Camera Ray",
+    which Cycles sets for the bake's primary evaluation) and the material's own elsewhere:
+    the DIFFUSE pass without COLOR divides the albedo out anyway, and a dark albedo at the
+    baked point would only make Russian roulette kill its paths (fireflies on black surfaces).
+    """
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nt = mat.node_tree
@@ -89,7 +95,9 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
     diff.inputs["Roughness"].default_value = 0.0
-    diff.inputs["Color"].default_value = (*[max(float(c), MIN_ALBEDO) for c in desc["albedo"]], 1)
+    rgb = nt.nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (*[max(float(c), MIN_ALBEDO) for c in desc["albedo"]], 1)
+    albedo = rgb.outputs[0]
     if desc.get("texture"):
         img = bpy.data.images.load(desc["texture"], check_existing=True)
         img.colorspace_settings.name = "sRGB" if desc.get("texture_srgb") else "Non-Color"
@@ -104,7 +112,16 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
         floor.operation = "MAXIMUM"
         floor.inputs[1].default_value = (MIN_ALBEDO,) * 3
         nt.links.new(tex.outputs["Color"], floor.inputs[0])
-        nt.links.new(floor.outputs["Vector"], diff.inputs["Color"])
+        albedo = floor.outputs["Vector"]
+    if bake_image is not None:
+        path = nt.nodes.new("ShaderNodeLightPath")
+        mix = nt.nodes.new("ShaderNodeMix")
+        mix.data_type = "RGBA"
+        mix.inputs["B"].default_value = (1.0, 1.0, 1.0, 1.0)
+        nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Factor"])
+        nt.links.new(albedo, mix.inputs["A"])
+        albedo = mix.outputs["Result"]
+    nt.links.new(albedo, diff.inputs["Color"])
     shader = diff.outputs["BSDF"]
     color, strength = _scaled_color(desc["emission"])
     if strength > 0:

@@ -196,6 +196,21 @@ def test_box_without_normals_is_flat_and_outward(tmp_path):
     assert np.all(((p.mean(1) - 0.5) * geo).sum(1) > 0)
 
 
+def test_left_handed_box_without_normals_faces_its_front(tmp_path):
+    """orientation = leftHanded makes the clockwise side the front: computed normals (and
+    the exported winding) then point into this cube."""
+    st = _stage(tmp_path)
+    _plane(st)
+    _box(st, "/Box").CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
+    sc = _export(st)
+    k = [m["path"] for m in sc.meshes].index("/Box")
+    p, n = sc.tri_p[sc.tri_mesh == k], sc.tri_n[sc.tri_mesh == k]
+    geo = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    geo /= np.linalg.norm(geo, axis=1, keepdims=True)
+    assert np.allclose(n, geo[:, None, :], atol=1e-9)
+    assert np.all(((p.mean(1) - 0.5) * geo).sum(1) < 0)
+
+
 def test_subdivision_mesh_without_normals_is_smooth(tmp_path):
     st = _stage(tmp_path)
     _plane(st)

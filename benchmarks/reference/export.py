@@ -500,7 +500,7 @@ def dome_to_blender(img: np.ndarray, rot: np.ndarray, pole: str, rows: int = DOM
 
 def _material_faces(prim, n_faces: int):
     """[(face indices, UsdShade.Material or None)] covering every face (subsets first)."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import UsdShade
 
     bound = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]
     owner = np.full(n_faces, -1, np.int64)
@@ -513,7 +513,6 @@ def _material_faces(prim, n_faces: int):
         mats.append(m if m else None)
         owner[idx] = len(mats) - 1
     owner[owner < 0] = 0
-    del UsdGeom
     return owner, mats
 
 
@@ -530,7 +529,7 @@ def export_stage(
     baked : {prim path: {"uv": primvar name, "resolution": (w, h)}} (e.g. from a usdahd bake's
     results); None: every mesh carrying primvar ``uv`` is baked at ``resolution``.
     """
-    from pxr import Usd, UsdGeom, UsdShade
+    from pxr import Usd, UsdGeom
 
     stage_path = Path(stage_path)
     if not stage_path.is_file():
@@ -614,17 +613,13 @@ def export_stage(
         if nv is not None:
             nv = _unit(nv @ np.linalg.inv(m3).T)
         else:
-            fvw = fv
-            wpf = wp
-            cnt = counts
-            if flip:  # wind every polygon counter-clockwise about its front
-                rev = np.concatenate([s + (np.arange(c)[::-1]) for s, c in zip(starts, counts)])
-                fvw = fv[rev]
-                nv_r = computed_normals(wpf, cnt, fvw, crease_deg if _scheme(mesh) else 180.0)
-                nv = np.empty_like(nv_r)
-                nv[rev] = nv_r
-            else:
-                nv = computed_normals(wpf, cnt, fvw, crease_deg if _scheme(mesh) else 180.0)
+            crease = crease_deg if _scheme(mesh) else 180.0
+            # Wind every polygon counter-clockwise about its front (reversed when flipped).
+            order = np.arange(len(fv))
+            if flip:
+                order = np.concatenate([s + np.arange(c)[::-1] for s, c in zip(starts, counts)])
+            nv = np.empty((len(fv), 3))
+            nv[order] = computed_normals(wp, counts, fv[order], crease)
         p_t = wp[fv[corners]]
         area2 = np.linalg.norm(_tri_normal(p_t), axis=1)
         keep = area2 > 1e-12 * max(float(np.ptp(wp, axis=0).max()), 1e-30) ** 2
@@ -679,7 +674,6 @@ def export_stage(
             "usdahd first (the compare command does)"
         )
     lights, dome, dome_color = _lights(stage, xf, warn)
-    del UsdShade
     return Scene(
         tri_p=np.concatenate(tri_p),
         tri_n=np.concatenate(tri_n),

@@ -327,6 +327,10 @@ def test_compare_cli_usage_errors(tmp_path, capsys):
     assert compare.main(["compare", str(tmp_path / "none.usda"), "--bpy-python", "/x"]) == 2
     assert "no such file" in capsys.readouterr().err
     stage = ROOT / "samples" / "open_plane.usda"
+    assert (
+        compare.main(["compare", str(stage), str(tmp_path / "b.usda"), "--bpy-python", "/x"]) == 2
+    )
+    assert "b.usda: no such file" in capsys.readouterr().err  # before baking the first one
     assert compare.main(["compare", str(stage), "--truth-spp", "0"]) == 2
     assert "--truth-spp must be >= 1" in capsys.readouterr().err
 

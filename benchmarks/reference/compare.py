@@ -4,7 +4,9 @@ Usage (project environment, from the repository root)::
 
     python -m benchmarks.reference compare samples/pillar_room.usda --resolution 64 \
         [--uv st] [--usdahd-args "--samples 1024"] [--spp N] [--truth-spp 4096] [--json]
+    python -m benchmarks.reference compare samples/*.usda --resolution 32   # + a summary
     python -m benchmarks.reference bake STAGE --resolution 64 --spp 1024 -o iz.npz
+    python -m benchmarks.reference summary A.json B.json ...
 
 ``compare`` bakes the stage with usdahd from the current tree (``python -m usdahd bake`` into
 a temporary folder; the source is never written), exports the *baked* stage (its output layer
@@ -377,7 +379,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.reference")
     sub = p.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("compare", help="usdahd vs Cycles on one stage")
-    c.add_argument("stage")
+    c.add_argument("stage", nargs="+", help="one or more stages (several: a summary at the end)")
     c.add_argument("--resolution", type=int, help="passed to usdahd bake (lightmap side)")
     c.add_argument("--uv", help="passed to usdahd bake")
     c.add_argument("--usdahd-args", default="", help='more usdahd bake flags, e.g. "--samples 64"')
@@ -402,8 +404,11 @@ def main(argv=None) -> int:
     s.add_argument("files", nargs="+")
     a = p.parse_args(argv)
     if a.cmd == "summary":
+        res = []
         try:
-            res = [json.loads(Path(f).read_text()) for f in a.files]
+            for f in a.files:
+                got = json.loads(Path(f).read_text())
+                res += got if isinstance(got, list) else [got]
         except (OSError, json.JSONDecodeError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
@@ -415,13 +420,26 @@ def main(argv=None) -> int:
                             seed=a.seed, bpy=a.bpy_python, quiet=a.quiet)  # fmt: skip
             print(json.dumps(info))
             return 0
-        res = run_compare(
-            a.stage, resolution=a.resolution, uv=a.uv, usdahd_args=a.usdahd_args, spp=a.spp,
-            truth_spp=a.truth_spp, bpy=a.bpy_python, use_cache=not a.no_cache, keep=a.keep,
-            threads=a.threads, quiet=a.quiet,
-        )  # fmt: skip
+        if a.keep and len(a.stage) > 1:
+            raise CompareError("--keep takes one stage")
+        for stage in a.stage:  # every input checked before any long work
+            if not Path(stage).is_file():
+                raise CompareError(f"{stage}: no such file")
+        results = []
+        for stage in a.stage:
+            res = run_compare(
+                stage, resolution=a.resolution, uv=a.uv, usdahd_args=a.usdahd_args, spp=a.spp,
+                truth_spp=a.truth_spp, bpy=a.bpy_python, use_cache=not a.no_cache,
+                keep=a.keep, threads=a.threads, quiet=a.quiet,
+            )  # fmt: skip
+            results.append(res)
+            if not a.json:
+                print(table(res) + "\n", flush=True)
     except (runner.ReferenceUnavailable, CompareError, export.ExportError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(res, indent=1) if a.json else table(res))
+    if a.json:
+        print(json.dumps(results[0] if len(results) == 1 else results, indent=1))
+    elif len(results) > 1:
+        print(summary(results))
     return 0

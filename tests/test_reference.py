@@ -284,6 +284,25 @@ def test_compare_images_uses_interior_lit_texels_only():
     assert row["cycles"]["bias"] == pytest.approx(0.0)
 
 
+def test_texels_next_to_unlit_ones_are_reported_apart():
+    """A dark footprint (a box standing on the floor) in the middle of a lit chart: its lit
+    neighbours are 'contact' texels, not part of the main figures."""
+    meshes = [{"path": "/F", "baked": True, "resolution": [9, 9]}]
+    truth = np.ones((9, 9, 3))
+    truth[4, 4] = 0.0  # under the box
+    ours = np.ones((9, 9, 3))
+    ring = np.zeros((9, 9), bool)
+    ring[3:6, 3:6] = True
+    ring[4, 4] = False
+    ours[ring] = 1.5  # a leak along the contact edge
+    out = compare.compare_images(meshes, {0: truth}, {}, {0: (ours, np.ones((9, 9), bool))},
+                                 16, 64)  # fmt: skip
+    row = out["meshes"][0]
+    assert row["usdahd"]["bias"] == pytest.approx(0.0)
+    assert row["compared"] == 49 - 9  # interior of the chart minus the 3 x 3 around the box
+    assert row["contact"]["texels"] == 8 and row["contact"]["bias"] == pytest.approx(0.5)
+
+
 # ----------------------------------------------------------------------- bad inputs
 
 

@@ -13,9 +13,13 @@ a temporary folder; the source is never written), exports the *baked* stage (its
 sublayers the source, so UVs the bake unwrapped are used) with ``export.py``, bakes the truth
 (Cycles at ``--truth-spp``, seed 1, cached) and Cycles at equal samples per texel (``--spp``,
 default: usdahd's samples, seed 0, cached), and compares per mesh on the texels that
-the reference covers **and whose 8 neighbours it covers** (chart-border texels are left out:
-usdahd samples them at the closest point of the triangle, Cycles inside the texel) and that
-the truth lights (luminance above ``LIT_FRACTION`` of the stage's 99th percentile):
+the truth lights (covered, luminance above ``LIT_FRACTION`` of the stage's 99th percentile)
+**and whose 8 neighbours it lights too**: chart-border texels are left out (usdahd samples
+them at the closest point of the triangle, Cycles inside the texel) and so are texels next to
+unlit ones, i.e. where a box stands on a floor (Cycles averages its jittered texel footprint
+across the contact edge, usdahd samples the centre or fills texels inside geometry). Those
+"contact" texels (lit, interior to the chart, next to an unlit texel) are reported apart per
+mesh (``contact``), where a leak along a contact edge would show:
 
 - ``bias = mean(Y_x) / mean(Y_truth) - 1`` (Rec. 709 luminance of I_z; ratio of means, so
   dark texels do not dominate);
@@ -169,8 +173,12 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
             continue
         t = truth[k]
         cov = np.isfinite(t[..., 0])
-        sel = interior(cov)
-        lit = sel & (np.nan_to_num(t) @ LUMA > LIT_FRACTION * p99)
+        bright = cov & (np.nan_to_num(t) @ LUMA > LIT_FRACTION * p99)
+        # Compared: lit texels whose 8 neighbours are lit too (so not on a chart border, and
+        # not next to where the surface is covered by contact, e.g. under a box: Cycles
+        # averages its texel footprint there, usdahd samples the centre or fills it).
+        lit = interior(bright)
+        contact = interior(cov) & bright & ~lit
         row = {"path": m["path"], "resolution": m["resolution"], "covered": int(cov.sum()),
                "compared": int(lit.sum())}  # fmt: skip
         if k in ours:
@@ -186,6 +194,10 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
             row["compared"] = int(lit.sum())
             row["usdahd"] = error_stats(iz[lit], t[lit])
             pool["u"].append(iz[lit])
+            contact &= ucov
+            if contact.any():  # reported apart: where leaks at contact edges would show
+                row["contact"] = {"texels": int(contact.sum()),
+                                  **error_stats(iz[contact], t[contact])}  # fmt: skip
         c = equal.get(k)
         if c is not None:
             ok = lit & np.isfinite(c[..., 0])
@@ -232,16 +244,19 @@ def table(result: dict) -> str:
         f"spp), Cycles {r['spp']} spp vs truth {r['truth_spp']} spp "
         f"(truth noise ~{_pct0(r['overall'].get('truth_noise'))} relRMSE)",
         "",
-        "| mesh | texels | usdahd bias | usdahd relRMSE | Cycles bias | Cycles relRMSE | ratio |",
-        "|---|---|---|---|---|---|---|",
+        "| mesh | texels | usdahd bias | usdahd relRMSE | Cycles bias | Cycles relRMSE | ratio "
+        "| contact texels: usdahd bias |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for m in r["meshes"] + [dict(r["overall"], path="**overall**")]:
         u, c = m.get("usdahd", {}), m.get("cycles", {})
         ratio = m.get("rmse_ratio")
+        ct = m.get("contact")
+        ct = "—" if not ct else f"{ct['texels']}: {_pct(ct['bias'])}"
         lines.append(
             f"| {m['path']} | {m.get('compared', 0)} | {_pct(u.get('bias'))} | "
             f"{_pct0(u.get('rel_rmse'))} | {_pct(c.get('bias'))} | {_pct0(c.get('rel_rmse'))} | "
-            f"{'—' if ratio is None else f'{ratio:.2f}x'} |"
+            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {ct} |"
         )
     t = r["seconds"]
     lines += [

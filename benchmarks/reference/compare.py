@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+import usdahd  # noqa: F401  (registers the AhdLightmapAPI plugin before pxr builds its registry)
 from benchmarks.reference import export, runner
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])

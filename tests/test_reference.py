@@ -354,6 +354,8 @@ def test_compare_cli_usage_errors(tmp_path, capsys):
     assert "b.usda: no such file" in capsys.readouterr().err  # before baking the first one
     assert compare.main(["compare", str(stage), "--truth-spp", "0"]) == 2
     assert "--truth-spp must be >= 1" in capsys.readouterr().err
+    assert compare.main(["compare", str(stage), "--oversample", "2"]) == 2
+    assert "--oversample must be odd and >= 1, got 2" in capsys.readouterr().err
 
 
 def test_new_samples_regenerate_identically(tmp_path):
@@ -406,6 +408,15 @@ def test_smoke_cycles_bakes_uniform_dome_exactly(tmp_path, bpy_python):
     assert iz.shape == (8, 8, 3) and np.isfinite(iz).all()
     assert np.allclose(iz, 1.0, atol=1e-5)
     assert info["spp"] == 4
+
+
+def test_smoke_oversampled_bake_keeps_texel_centres(tmp_path, bpy_python):
+    """--oversample 3 bakes 12 x 12 and returns the 4 x 4 centre sub-texels (same layout)."""
+    sc = export.export_stage(ROOT / "samples" / "open_plane.usda", resolution=4)
+    sf = export.save_scene(sc, tmp_path / "scene.npz")
+    info, images = runner.run_cycles(sf, 2, bpy=bpy_python, quiet=True, oversample=3)
+    assert images[0].shape == (4, 4, 3) and info["oversample"] == 3
+    assert np.allclose(images[0], 1.0, atol=1e-5)
 
 
 def test_smoke_calibration_sphere_case(bpy_python):

@@ -65,13 +65,16 @@ def _script_hash() -> str:
     return hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16]
 
 
-def cache_key(digest: str, spp: int, seed: int) -> str:
-    return hashlib.sha256(f"{digest}:{spp}:{seed}:{_script_hash()}".encode()).hexdigest()[:32]
+def cache_key(digest: str, spp: int, seed: int, oversample: int = 1) -> str:
+    extra = "" if oversample == 1 else f":os{oversample}"
+    key = f"{digest}:{spp}:{seed}:{_script_hash()}{extra}"
+    return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
 def run_cycles(
-    scene_file, spp: int, *, seed: int = 0, bpy: str, threads: int = 0, quiet: bool = False
-) -> tuple[dict, dict]:
+    scene_file, spp: int, *, seed: int = 0, bpy: str, threads: int = 0, quiet: bool = False,
+    oversample: int = 1,
+) -> tuple[dict, dict]:  # fmt: skip
     """Bake ``scene_file`` with Cycles; returns (info, {mesh index: iz (h, w, 3) float32}).
 
     info has the per-mesh paths, ``bake_seconds`` (Cycles' bake call) and ``wall_seconds``
@@ -81,6 +84,7 @@ def run_cycles(
         out = Path(tmp) / "out.npz"
         cmd = [bpy, str(SCRIPT), str(scene_file), str(out), "--spp", str(int(spp))]
         cmd += ["--seed", str(int(seed)), "--threads", str(int(threads))]
+        cmd += ["--oversample", str(int(oversample))]
         t0 = time.perf_counter()
         r = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -99,10 +103,10 @@ def run_cycles(
 
 def cached_cycles(
     scene, scene_file, spp: int, *, seed: int = 0, bpy: str | None, use_cache: bool = True,
-    threads: int = 0, quiet: bool = False,
+    threads: int = 0, quiet: bool = False, oversample: int = 1,
 ) -> tuple[dict, dict, bool]:  # fmt: skip
     """Like :func:`run_cycles`, through the on-disk cache; returns (info, images, hit)."""
-    key = cache_key(scene.digest(), spp, seed)
+    key = cache_key(scene.digest(), spp, seed, oversample)
     path = cache_dir() / f"{key}.npz"
     if use_cache and path.is_file():
         data = np.load(path, allow_pickle=False)
@@ -112,7 +116,9 @@ def cached_cycles(
         return info, images, True
     if bpy is None:
         raise ReferenceUnavailable(f"Cycles result not cached and no bpy interpreter; {HOW_TO}")
-    info, images = run_cycles(scene_file, spp, seed=seed, bpy=bpy, threads=threads, quiet=quiet)
+    info, images = run_cycles(
+        scene_file, spp, seed=seed, bpy=bpy, threads=threads, quiet=quiet, oversample=oversample
+    )
     if use_cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f"iz_{k}": v for k, v in images.items()}

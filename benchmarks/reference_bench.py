@@ -130,16 +130,16 @@ def plot(rows: list[dict], path: Path) -> bool:
     stages = sorted({r["stage"] for r in rows})
     for i, s in enumerate(stages):
         for ren, mk in (("usdahd", "o-"), ("cycles", "s--")):
-            pts = sorted(
+            pts = [
                 (r["seconds"], r["rel_rmse"])
-                for r in rows
+                for r in sorted(rows, key=lambda r: r["spp"])
                 if r["stage"] == s and r["renderer"] == ren and "rel_rmse" in r
-            )
+            ]
             if pts:
                 ax.plot(*zip(*pts), mk, color=f"C{i}", label=f"{s} {ren}")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("bake time (s, 2 shared cores)")
+    ax.set_xlabel("bake time (s, 2 shared cores; points: 16, 64, 256, 1024 spp)")
     ax.set_ylabel("relRMSE of I_z vs truth")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
@@ -157,7 +157,15 @@ def main(argv=None) -> int:
     p.add_argument("--truth-spp", type=int, default=4096)
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
+    p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
     a = p.parse_args(argv)
+    if a.from_json:
+        rows = json.loads(a.from_json.read_text())
+        png = a.out.with_name("reference_time_error.png")
+        has_plot = plot(rows, png)
+        a.out.write_text(markdown(rows, a, png.name if has_plot else None), encoding="utf-8")
+        print(a.out)
+        return 0
     try:
         bpy = runner.find_bpy(a.bpy_python)
     except runner.ReferenceUnavailable as exc:

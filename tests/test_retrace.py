@@ -301,7 +301,11 @@ def test_default_bake_of_every_sample_passes(tmp_path, capsys, sample):
     per_prim = _retrace(found)
     assert set(per_prim) == set(_results(layer))
     for prim, fs in per_prim.items():
-        assert [f["code"] for f in fs] == ["RetraceOk"], (prim, fs)
+        # the mean test passes; isolated fireflies of a default bake may add RetraceOutlier
+        # warnings (floor_lamp's 5 cm lamp 15 cm above the floor does), never an error
+        codes = [f["code"] for f in fs]
+        assert codes and set(codes) <= {"RetraceOk", "RetraceOutlier"}, fs
+        assert all(f["severity"] != "error" for f in fs), (prim, fs)
         d = fs[0]["data"]
         assert d["texels"] >= 16 and d["samples"] == 4096 and d["bounces"] == RT.RETRACE_BOUNCES
         assert d["rays"] > 0 and d["seconds"] > 0

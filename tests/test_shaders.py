@@ -732,3 +732,41 @@ def test_unknown_language_or_model_names_the_choices():
         shaders.source("glsl", "vpl")
     with pytest.raises(UsageError, match=r"no shader file 'nope'; there are common, "):
         shaders.path("wgsl", "nope")
+
+
+def test_the_glsl_example_in_docs_schema_compiles(tmp_path):
+    """The fragment-shader snippet of docs/schema.md "Reference shaders" is valid GLSL with the
+    shipped files (glslang, OpenGL GLSL 4.50 fragment shader)."""
+    import re
+
+    text = (ROOT / "docs" / "schema.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```glsl\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 1
+    src = "\n".join(
+        [
+            "#version 450",
+            shaders.source("glsl", "hhd"),
+            "layout(location = 0) in vec3 v_normal;",
+            "layout(location = 1) in vec4 v_lightmap_tangent;",
+            "layout(location = 2) in vec2 v_uv;",
+            "layout(location = 3) in vec2 v_lightmap_st;",
+            "layout(location = 4) in vec3 v_material_t;",
+            "layout(location = 5) in vec3 v_material_b;",
+            "layout(location = 0) out vec4 color;",
+            "layout(binding = 0) uniform sampler2D normal_map;",
+            "layout(binding = 1) uniform sampler2D iz_tex;",
+            "layout(binding = 2) uniform sampler2D direction_tex;",
+            "layout(location = 6) uniform float izScale;",
+            "void main() {",
+            "UsdahdFrame material_frame = UsdahdFrame(v_material_t, v_material_b, v_normal);",
+            blocks[0],
+            "color = vec4(irradiance, 1.0);",
+            "}",
+        ]
+    )
+    exe = shutil.which("glslangValidator")
+    assert exe, INSTALL_HINT
+    f = tmp_path / "example.frag"
+    f.write_text(src, encoding="utf-8")
+    run = subprocess.run([exe, str(f)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout + run.stderr

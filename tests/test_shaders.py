@@ -53,33 +53,8 @@ FACTORS = (
 
 
 def _spec(model: str, ratio: str):
-    """(struct type, decode call, fields, evaluate function) of a variant. ``s<k>`` in the call is
-    the RGBA sample of the k-th texture of the model's layout; factor names are variables."""
-    rgb = "true" if ratio == "rgb" else "false"
-    if model in ("ahd", "hhd", "hlsh"):
-        ratio_arg = "s2.rgb" if ratio == "rgb" else "s1.rgb"  # ignored for luminance
-        extra = ", ratioScale" if model == "hlsh" else ""
-        call = f"usdahd_{model}_decode(s0.rgb, s1.rgb, {ratio_arg}, izScale{extra}, {rgb})"
-        return "UsdahdIrradZ", call, ("iz", "d", "wa"), f"usdahd_{model}_evaluate"
-    if model == "ahd_classic":
-        call = "usdahd_ahd_classic_decode(s0.rgb, s1.rgb, s2.rgb, ambientScale, directionalScale)"
-        return "UsdahdAhdClassic", call, ("ca", "d", "cd"), "usdahd_ahd_classic_evaluate"
-    if model == "hemisphere":
-        call = "usdahd_hemisphere_decode(s0.rgb, ambientScale)"
-        return "UsdahdHemisphere", call, ("c",), "usdahd_hemisphere_evaluate"
-    if model == "sh_l1" and ratio == "8bit":
-        call = "usdahd_sh_l1_decode_8bit(s0, s1, s2, l0Scale)"
-        return "UsdahdShL1", call, tuple(f"c[{k}]" for k in range(4)), "usdahd_sh_l1_evaluate"
-    n = {"sh_l1": 4, "sh_l2": 9, "ambient_cube": 6, "hl2": 3}[model]
-    args = ", ".join(f"s{k}.rgb" for k in range(n))
-    struct = {"sh_l1": "UsdahdShL1", "sh_l2": "UsdahdShL2", "ambient_cube": "UsdahdAmbientCube"}
-    evaluate = f"usdahd_{model}_evaluate" + ("_nonlinear" if ratio == "nonlinear" else "")
-    return (
-        struct.get(model, "UsdahdHl2"),
-        f"usdahd_{model}_decode({args}, coefficientsScale)",
-        tuple(f"c[{k}]" for k in range(n)),
-        evaluate,
-    )
+    """(struct type, decode call, fields, evaluate function) of a variant (usdahd.shaders)."""
+    return shaders.calls(model, ratio)
 
 
 def _reference_fields(model: str, params: dict) -> np.ndarray:

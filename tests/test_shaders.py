@@ -13,6 +13,7 @@ is Mesa's lavapipe on the CPU here (a GPU adapter when present); ``.ci/run`` ins
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import zlib
@@ -243,21 +244,26 @@ class Bakes:
         shutil.copy(ROOT / "samples" / "cornell_box.usda", self.stage)
         self.layer = tmp / "cornell_box.lightmaps.usda"
         self.cache: dict = {}
+        self.current = None  # the (model, ratio) the layer holds now
 
     def __call__(self, model: str, ratio: str):
         key = (model, ratio)
-        if key not in self.cache:
+        if key not in self.cache or self.current != key:
             argv = ["bake", str(self.stage), "--resolution", "16", "--samples", "16"]
             argv += ["--bounces", "1", "--model", model, "--ratio", ratio, "--quiet"]
             assert cli.main(argv) == 0
+            self.current = key
             self.cache[key] = self._read(model, ratio)
         return self.cache[key]
 
     def _read(self, model, ratio):
-        from pxr import Usd
+        from pxr import Sdf, Usd
 
         from usdahd.usd import schema
 
+        held = Sdf.Layer.Find(str(self.layer))
+        if held is not None:  # a stage still holds the layer: read the refit from disk
+            held.Reload()
         stage = Usd.Stage.Open(str(self.layer))
         out = []
         for prim in schema.prims_with_api(stage):
@@ -745,3 +751,84 @@ def test_the_glsl_example_in_docs_schema_compiles(tmp_path):
     f.write_text(src, encoding="utf-8")
     run = subprocess.run([exe, str(f)], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout + run.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# usdahd preview
+
+
+def _preview(layer, out, *extra):
+    return cli.main(["preview", str(layer), "-o", str(out), "--size", "96", "72", *extra])
+
+
+def test_preview_of_models_that_agree_at_the_normal_gives_the_same_image(bakes, tmp_path, capsys):
+    """At the shading normal (no normal map) hhd, hlsh and hemisphere (solver iz) all return the
+    stored I_z, which is linear under bilinear filtering (the point of IrradZ), so the rasterised
+    previews of the same SH through three different decoders agree per pixel within float16
+    quantization. The classic AHD, which interpolates C_a, d and C_d separately, does not (the
+    2018 paper's artefact)."""
+    imgs, reports = {}, {}
+    for model in ("hhd", "hemisphere", "hlsh", "ahd_classic"):
+        ratio = models.get(model).RATIOS[0]
+        bakes(model, ratio)
+        out = tmp_path / f"{model}.png"
+        capsys.readouterr()
+        assert _preview(bakes.layer, out, "--json") == 0
+        reports[model] = json.loads(capsys.readouterr().out)
+        assert out.exists()
+        from usdahd.commands import preview
+
+        stage, meshes, up = preview.baked_meshes(str(bakes.layer))
+        pts = np.concatenate([np.asarray(m.points) for m, *_ in meshes])
+        items = []
+        for mesh, res, tangent, sign in meshes:
+            lay = models.get(res.model).layout(res.ratio)
+            tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in lay]
+            items.append((preview.vertex_data(mesh, tangent, sign), model, ratio, tex, res.factors))
+        _, dev = preview.device()
+        imgs[model] = preview.render(dev, items, preview.auto_camera(pts, up, 96 / 72), (96, 72))
+    r = reports["hhd"]
+    assert r["meshes"] == 7 and r["models"] == ["hhd/luminance"] and r["non_finite"] == 0
+    assert 0.2 < r["covered_fraction"] < 0.6 and r["luminance"]["mean"] > 0
+    ref = imgs["hhd"]
+    cov = ref[..., 3] > 0
+    assert np.array_equal(cov, imgs["hemisphere"][..., 3] > 0)
+    scale = float(ref[cov, :3].max())
+    for model in ("hemisphere", "hlsh"):
+        err = np.abs(imgs[model][cov, :3] - ref[cov, :3])
+        assert err.max() <= 1e-5 * scale, (model, err.max(), scale)  # the same halves
+    classic = np.abs(imgs["ahd_classic"][cov, :3] - ref[cov, :3]).max()
+    assert classic > 2.0**-8 * scale  # overshoot between texels of different directions
+
+
+def test_preview_from_a_usd_camera_and_its_errors(bakes, tmp_path, capsys):
+    bakes("hhd", "luminance")
+    shot = tmp_path / "shot.usda"
+    shot.write_text(
+        "#usda 1.0\n(\n    subLayers = [@" + bakes.layer.as_posix() + "@]\n)\n"
+        'def Camera "Cam"\n{\n    float focalLength = 35\n    float verticalAperture = 20\n'
+        "    float2 clippingRange = (0.01, 100)\n"
+        "    double3 xformOp:translate = (0, 1, 4)\n"
+        '    uniform token[] xformOpOrder = ["xformOp:translate"]\n}\n'
+    )
+    capsys.readouterr()
+    assert _preview(shot, tmp_path / "cam.png", "--camera", "/Cam", "--json") == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["camera"] == "/Cam" and rep["covered_fraction"] > 0.5
+
+    assert _preview(shot, tmp_path / "x.png", "--camera", "/Nope") == 2
+    assert (
+        "--camera /Nope: no UsdGeomCamera there; cameras on the stage: /Cam"
+        in capsys.readouterr().err
+    )
+    assert _preview(bakes.layer, tmp_path / "x.jpg") == 2
+    assert "the preview is a PNG" in capsys.readouterr().err
+    assert _preview(bakes.stage, tmp_path / "x.png") == 2
+    assert "no baked prim (formatVersion 0); run usdahd bake first" in capsys.readouterr().err
+    assert (
+        cli.main(["preview", str(bakes.layer), "-o", str(tmp_path / "x.png"), "--size", "0", "5"])
+        == 2
+    )
+    assert "width and height must be 1..16384" in capsys.readouterr().err
+    assert _preview(tmp_path / "missing.usda", tmp_path / "x.png") == 2
+    assert "missing.usda: no such file" in capsys.readouterr().err

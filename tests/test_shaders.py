@@ -832,3 +832,19 @@ def test_preview_from_a_usd_camera_and_its_errors(bakes, tmp_path, capsys):
     assert "width and height must be 1..16384" in capsys.readouterr().err
     assert _preview(tmp_path / "missing.usda", tmp_path / "x.png") == 2
     assert "missing.usda: no such file" in capsys.readouterr().err
+
+
+def test_preview_of_the_open_plane_is_the_analytic_irradiance(tmp_path, capsys):
+    """samples/open_plane.usda: a plane under a uniform dome of radiance 1 has I = 1 at every
+    point; the rasterised preview (automatic framing from above, so the plane is not edge-on)
+    shows exactly that on every covered pixel."""
+    stage = tmp_path / "open_plane.usda"
+    shutil.copy(ROOT / "samples" / "open_plane.usda", stage)
+    argv = ["bake", str(stage), "--resolution", "8", "--samples", "16", "--quiet"]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    assert _preview(tmp_path / "open_plane.lightmaps.usda", tmp_path / "v.png", "--json") == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["covered_fraction"] > 0.05
+    lum = rep["luminance"]
+    assert abs(lum["min"] - 1.0) < 2e-3 and abs(lum["max"] - 1.0) < 2e-3, lum

@@ -28,6 +28,8 @@ INSTALL_HINT = (
 )
 #: Vertical field of view of the automatic framing (degrees).
 AUTO_FOV = 40.0
+#: Tangent of the automatic framing's elevation above the horizon (0.5: ~27 degrees).
+ELEVATION = 0.5
 #: Rec. 709 luminance.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 FACTORS = (
@@ -94,12 +96,15 @@ def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> np.
 
 def auto_camera(points: np.ndarray, up_axis: str, aspect: float) -> np.ndarray:
     """View-projection (4, 4) framing the bounding sphere of points (n, 3) from the front
-    (+z for a Y-up stage, -y for Z-up), so back-face culling opens closed rooms."""
+    (+z for a Y-up stage, -y for Z-up) and above; back-face culling opens closed rooms (their
+    front wall and ceiling face away from the camera)."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     c = 0.5 * (lo + hi)
     r = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6)
     up = np.array([0.0, 1.0, 0.0]) if up_axis == "Y" else np.array([0.0, 0.0, 1.0])
-    back = np.array([0.0, 0.0, 1.0]) if up_axis == "Y" else np.array([0.0, -1.0, 0.0])
+    front = np.array([0.0, 0.0, 1.0]) if up_axis == "Y" else np.array([0.0, -1.0, 0.0])
+    back = front + ELEVATION * up  # from the front and above: floors and planes are not edge-on
+    back /= np.linalg.norm(back)
     half = math.radians(AUTO_FOV) / 2.0
     fit = min(half, math.atan(math.tan(half) * aspect))
     dist = r / math.sin(fit)

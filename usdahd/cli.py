@@ -21,6 +21,7 @@ COMMANDS = {
     "fit": "usdahd.commands.fit",
     "bench": "usdahd.commands.bench",
     "plugin-path": "usdahd.commands.plugin_path",
+    "preview": "usdahd.commands.preview",
 }
 
 

@@ -1,0 +1,33 @@
+// L2 SH (HLSL): coefficients0..8 -> radiance SH l_k (Y00, Y1-1, Y10, Y11, Y2-2, Y2-1, Y20, Y21,
+// Y22) x RGB -> I(n) = sum_k A_k l_k Y_k(n), A = (1, 2/3, 1/4).
+
+struct UsdahdShL2 {
+    float3 c[9];
+};
+
+UsdahdShL2 usdahd_sh_l2_decode(float3 c0, float3 c1, float3 c2, float3 c3, float3 c4, float3 c5,
+                               float3 c6, float3 c7, float3 c8, float coefficients_scale) {
+    float s = coefficients_scale;
+    UsdahdShL2 p;
+    p.c[0] = c0 * s;
+    p.c[1] = c1 * s;
+    p.c[2] = c2 * s;
+    p.c[3] = c3 * s;
+    p.c[4] = c4 * s;
+    p.c[5] = c5 * s;
+    p.c[6] = c6 * s;
+    p.c[7] = c7 * s;
+    p.c[8] = c8 * s;
+    return p;
+}
+
+float3 usdahd_sh_l2_evaluate(UsdahdShL2 p, float3 n) {
+    float a1 = USDAHD_SH_C1 * (2.0 / 3.0);
+    float a2 = 0.25;
+    float3 e = USDAHD_SH_C0 * p.c[0];
+    e += a1 * (p.c[2] * n.z - p.c[1] * n.y - p.c[3] * n.x);
+    e += (a2 * USDAHD_SH_C2) * (p.c[4] * (n.x * n.y) - p.c[5] * (n.y * n.z) - p.c[7] * (n.x * n.z));
+    e += (a2 * USDAHD_SH_C20) * p.c[6] * (3.0 * n.z * n.z - 1.0);
+    e += (a2 * USDAHD_SH_C22) * p.c[8] * (n.x * n.x - n.y * n.y);
+    return e;
+}

@@ -1,13 +1,22 @@
 """The ``usdahd`` command line: one subcommand per module in ``usdahd/commands/``.
 
 Results go to stdout, progress and status to stderr. Exit status: 0 ok, 1 findings or a
-failed prim, 2 usage or input error (argparse's own errors also exit 2).
+failed prim, 2 usage or input error (argparse's own errors also exit 2), 130 interrupted.
+
+Every subcommand takes the options of one parent parser (:func:`common_parser`): ``--json``
+(stdout is always one JSON object, errors included) and ``-q/--quiet`` (no progress or status;
+warnings still reach stderr; ``-qq`` prints errors only). Every error a user can cause ends in
+:func:`main` as one line ``usdahd CMD: error: ...`` naming the file, prim or flag and the fix,
+never a traceback (set ``USDAHD_DEBUG=1`` to see one for an internal error).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import json
+import os
 import sys
 
 from usdahd._version import __version__
@@ -34,6 +43,39 @@ def _available():
                 raise
 
 
+def common_parser() -> argparse.ArgumentParser:
+    """The options every subcommand takes (an argparse parent parser)."""
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("output")
+    g.add_argument(
+        "--json",
+        action="store_true",
+        help="print one machine-readable JSON object on stdout (also on errors)",
+    )
+    g.add_argument(
+        "-q",
+        "--quiet",
+        action="count",
+        default=0,
+        help="no progress or status on stderr (warnings still shown); -qq: errors only",
+    )
+    return p
+
+
+class _Subparsers:
+    """Wraps argparse's subparsers so every ``add_parser`` gets the common parent parser."""
+
+    def __init__(self, sub):
+        self._sub = sub
+
+    def add_parser(self, name, **kw):
+        kw["parents"] = [*kw.get("parents", []), common_parser()]
+        return self._sub.add_parser(name, **kw)
+
+    def __getattr__(self, name):
+        return getattr(self._sub, name)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="usdahd",
@@ -44,22 +86,90 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"usdahd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    wrapped = _Subparsers(sub)
     for _name, mod in _available():
-        mod.add_parser(sub)
+        mod.add_parser(wrapped)
     return parser
 
 
+def describe_error(exc: BaseException) -> tuple[str, int]:
+    """(one-line message, exit code) for an exception a user can cause.
+
+    UsdAhdError carries its own; OS errors name the file and the fix; pxr's Tf.ErrorException
+    keeps its first line. Anything else is an internal error (exit 2, "please report").
+    """
+    if isinstance(exc, UsdAhdError):
+        return str(exc), exc.exit_code
+    if isinstance(exc, MemoryError):
+        return (
+            "out of memory; lower --resolution or --texel-density, or bake fewer prims (--prim)",
+            2,
+        )
+    if isinstance(exc, OSError):
+        where = exc.filename or ""
+        what = exc.strerror or str(exc)
+        fix = {
+            errno.EACCES: "check the permissions or choose another output with -o",
+            errno.EPERM: "check the permissions or choose another output with -o",
+            errno.EROFS: "the file system is read-only: choose another output with -o",
+            errno.ENOSPC: "the disk is full: free some space and re-run (the previous bake "
+            "is intact)",
+            errno.EISDIR: "give a file, not a directory",
+            errno.ENOTDIR: "a path component is not a directory",
+            errno.ENOENT: "check the path",
+        }.get(exc.errno, "check the path and re-run")
+        return (f"{where}: {what}; {fix}" if where else f"{what}; {fix}"), 2
+    if type(exc).__module__.startswith("pxr") or type(exc).__name__ == "ErrorException":
+        text = str(exc).strip().splitlines()
+        return f"USD: {text[0][:300] if text else type(exc).__name__}", 2
+    return (
+        f"internal error {type(exc).__name__}: {str(exc)[:300]} (please report a bug; "
+        "set USDAHD_DEBUG=1 for the traceback)",
+        2,
+    )
+
+
+def _error(command: str, message: str, code: int, as_json: bool) -> int:
+    from usdahd import progress
+
+    progress.clear_line()
+    print(f"usdahd {command}: error: {message}", file=sys.stderr)
+    if as_json:
+        print(json.dumps({"command": command, "exit_code": code, "error": message}, indent=2))
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    as_json = "--json" in argv
+    command = next((a for a in argv if a in COMMANDS), "")
     try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:
+            if exc.code not in (0, None) and as_json:
+                msg = f"invalid arguments (see usdahd {command} --help)".replace("  ", " ")
+                print(json.dumps({"command": command, "exit_code": 2, "error": msg}, indent=2))
+            raise
+        command = args.command
+        as_json = bool(getattr(args, "json", False))
         return int(args.func(args) or 0)
-    except UsdAhdError as exc:
-        print(f"usdahd {args.command}: error: {exc}", file=sys.stderr)
-        return exc.exit_code
     except KeyboardInterrupt:
-        print(f"usdahd {args.command}: interrupted", file=sys.stderr)
+        from usdahd import progress
+
+        progress.clear_line()
+        print(f"usdahd {command}: interrupted", file=sys.stderr)
+        if as_json:
+            print(json.dumps({"command": command, "exit_code": 130, "error": "interrupted"}))
         return 130
+    except SystemExit:
+        raise
+    except Exception as exc:
+        if os.environ.get("USDAHD_DEBUG") and not isinstance(exc, UsdAhdError):
+            raise
+        message, code = describe_error(exc)
+        return _error(command, message, code, as_json)
 
 
 if __name__ == "__main__":  # pragma: no cover

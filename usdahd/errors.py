@@ -46,3 +46,10 @@ class ImageError(UsdAhdError):
     """A texture could not be read or written."""
 
     exit_code = 1
+
+
+class OutputError(UsdAhdError):
+    """The output (layer, lightmaps folder) cannot be written: read-only, full, not a folder,
+    locked (exit 2). The previous bake is left as it was."""
+
+    exit_code = 2

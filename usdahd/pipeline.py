@@ -10,7 +10,9 @@ Nothing is written until a prim's bake succeeded; every file is written atomical
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import importlib.util
 import json
 import os
 import re
@@ -277,25 +279,367 @@ def _open_stage(path: Path):
     return stage
 
 
-def _previous_results(out: Path) -> dict:
-    """prim path -> BakeResults from an existing output layer (empty if none or unreadable)."""
+def _previous_results(out: Path) -> tuple[dict, list[str]]:
+    """(prim path -> BakeResults, warnings) from an existing output layer (empty if none).
+
+    A record is only trusted when every texture it names is a regular file (not a symlink)
+    inside the output's ``lightmaps/`` folder: a hand-edited layer pointing elsewhere
+    (``../../x/...``) is ignored with a warning and the prim re-baked, so a bake never reads or
+    keeps files outside its output folder.
+    """
     if not out.is_file():
-        return {}
+        return {}, []
     from usdahd.usd import schema
 
     try:
         stage = _open_stage(out)
     except StageError:
-        return {}
-    prev = {}
+        return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
+    prev, warnings = {}, []
     for prim in schema.prims_with_api(stage):
         try:
             res = schema.read_results(prim)
         except Exception:  # an invalid old record is simply re-baked
             continue
-        if res is not None:
-            prev[str(prim.GetPath())] = res
-    return prev
+        if res is None:
+            continue
+        outside = [p for p in res.textures.values() if not _inside_lightmaps(Path(p), out)]
+        if outside:
+            shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
+            warnings.append(
+                f"{prim.GetPath()}: the previous bake record in {out.name} names textures "
+                f"outside {out.parent / LIGHTMAPS_DIR} (e.g. {shown}); ignored, the prim is "
+                "re-baked"
+            )
+            continue
+        prev[str(prim.GetPath())] = res
+    return prev, warnings
+
+
+# --------------------------------------------------------------------------------- outputs
+#: Folder beside the output layer that holds its textures.
+LIGHTMAPS_DIR = "lightmaps"
+#: Bytes of working memory a whole bake may plan for (SH, fits and copies; see bake()).
+MAX_BAKE_BYTES = int(
+    os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if hasattr(os, "sysconf") and "SC_PHYS_PAGES" in os.sysconf_names
+    else 64 * 2**30
+)
+#: Hex digits of the content hash in a texture's file name.
+DIGEST_CHARS = 16
+
+
+def _inside_lightmaps(path: Path, out: Path) -> bool:
+    """``path`` is a regular file (no symlink) directly inside ``out``'s lightmaps folder."""
+    folder = (out.parent / LIGHTMAPS_DIR).resolve()
+    try:
+        return (
+            not path.is_symlink()
+            and path.resolve().parent == folder
+            and path.is_file()
+            and path.resolve().is_relative_to(folder)
+        )
+    except OSError:
+        return False
+
+
+def layer_prefix(out: Path) -> str:
+    """The file-name prefix of every texture written for the output layer ``out``.
+
+    ``day.lightmaps.usda`` -> ``day_lightmaps-<hash6>``: layers sharing a folder never share
+    (or clean up) each other's textures; the hash of the exact file name separates names that
+    only differ in punctuation.
+    """
+    clean = re.sub(r"[^A-Za-z0-9_]+", "_", out.stem)[:48] or "layer"
+    return f"{clean}-{hashlib.sha1(out.name.encode()).hexdigest()[:6]}"
+
+
+def texture_path(out: Path, prim_path: str, role: str, ext: str) -> Path:
+    """Where a new texture of ``prim_path`` is first written (a hidden staging name).
+
+    The one place that names output files: :func:`_commit_textures` renames the staged file
+    to ``<layer prefix>.<prim stem>.<role>.<content hash><ext>`` (:func:`output_name`), so a
+    new bake never overwrites a file the current layer references.
+    """
+    return out.parent / LIGHTMAPS_DIR / f".{layer_prefix(out)}.{sanitize(prim_path)}.{role}{ext}"
+
+
+def output_name(out: Path, staged: Path, digest: str) -> str:
+    """Content-addressed name of a staged texture (see :func:`texture_path`)."""
+    stem = staged.name[1 + len(layer_prefix(out)) + 1 :]  # "<prim stem>.<role><ext>"
+    base, ext = os.path.splitext(stem)
+    return f"{layer_prefix(out)}.{base}.{digest[:DIGEST_CHARS]}{ext}"
+
+
+def _owned_pattern(out: Path) -> re.Pattern:
+    """Final texture names this layer owns (written by :func:`_commit_textures`)."""
+    return re.compile(
+        re.escape(layer_prefix(out))
+        + r"\.[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.[0-9a-f]{"
+        + str(DIGEST_CHARS)
+        + r"}\.(exr|png|tif|tiff)$"
+    )
+
+
+def _fsync(path: Path, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _commit_textures(jobs: list, out: Path) -> None:
+    """Rename each job's staged textures to content-addressed names, check they read back
+    whole, and fsync them (before the layer that references them is committed).
+
+    Raises OutputError (the previous layer and its files are untouched) when a file cannot be
+    read back, e.g. truncated by a full disk.
+    """
+    from usdahd import images
+    from usdahd.errors import OutputError
+
+    folder = out.parent / LIGHTMAPS_DIR
+    for job in jobs:
+        for role, staged in list(job.results.textures.items()):
+            staged = Path(staged)
+            if not staged.name.startswith("."):
+                continue  # already committed
+            digest = hashlib.sha256(staged.read_bytes()).hexdigest()
+            final = folder / output_name(out, staged, digest)
+            try:
+                img = images.read(staged)
+                ok = np.asarray(img.pixels).shape[:2] == tuple(job.results.resolution[::-1])
+            except Exception as exc:  # a truncated or empty file
+                raise OutputError(
+                    f"{job.path}: the new {role} texture could not be read back after writing "
+                    f"({str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__}); "
+                    f"is the disk under {folder} full? Free space and re-run (the previous "
+                    "bake is intact)"
+                ) from None
+            if not ok:
+                raise OutputError(f"{job.path}: the new {role} texture came back truncated")
+            _fsync(staged)
+            if final.is_file() and not final.is_symlink():
+                staged.unlink()  # same content already there
+            else:
+                os.replace(staged, final)
+            job.results.textures[role] = str(final)
+    if jobs:
+        _fsync(folder, directory=True)
+
+
+def _referenced(out: Path) -> set[Path] | None:
+    """Resolved paths of every asset the layer file ``out`` names (None if unreadable)."""
+    from pxr import Sdf
+
+    if not out.is_file():
+        return set()
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(out))
+        if layer is None:
+            return None
+        layer.Reload(force=True)
+    except Exception:
+        return None
+    found: set[Path] = set()
+
+    def visit(path):
+        spec = layer.GetObjectAtPath(path)
+        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
+            v = spec.default
+            for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
+                if isinstance(a, Sdf.AssetPath) and a.path:
+                    found.add((out.parent / a.path).resolve())
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return found
+
+
+def cleanup_outputs(out: Path) -> list[str]:
+    """Remove files of this output layer that no layer references: textures it owns
+    (:func:`_owned_pattern`) that ``out`` does not name, and temp/staging files a killed or
+    failed bake left. Only names this tool writes, only inside the output folder; call with
+    the output lock held. returns the names removed."""
+    removed = []
+    folder = out.parent / LIGHTMAPS_DIR
+    prefix = layer_prefix(out)
+    refs = _referenced(out)
+    owned = _owned_pattern(out)
+    layer_tmp = re.compile(
+        r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
+    )
+    candidates = []
+    if folder.is_dir() and not folder.is_symlink():
+        for f in folder.iterdir():
+            name = f.name
+            staged = name.lstrip(".") != name and name.lstrip(".").startswith(prefix + ".")
+            if staged or (refs is not None and owned.match(name) and f.resolve() not in refs):
+                candidates.append(f)
+    if out.parent.is_dir():
+        candidates += [f for f in out.parent.iterdir() if layer_tmp.fullmatch(f.name)]
+    for f in candidates:
+        try:
+            if f.is_file() or f.is_symlink():
+                f.unlink()
+                removed.append(f.name)
+        except OSError:
+            pass
+    return removed
+
+
+@contextlib.contextmanager
+def output_lock(out: Path, opts: BakeOptions):
+    """Hold an exclusive lock on ``.<output name>.lock`` beside the output layer.
+
+    A second bake of the same output waits (printing who holds it) until the first has
+    committed and cleaned up, then plans against the layer the first one wrote.
+    """
+    import fcntl
+
+    from usdahd.errors import OutputError
+
+    path = out.parent / f".{out.name}.lock"
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create the bake lock ({exc.strerror})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            _warn(
+                opts,
+                f"another usdahd bake (pid {holder}) is writing {out}; waiting for it to finish…",
+            )
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _warn(opts: BakeOptions, msg: str) -> None:
+    """A warning on stderr: shown with --quiet, hidden with -qq."""
+    if int(opts.quiet or 0) < 2:
+        from usdahd import progress
+
+        progress.clear_line()
+        print(f"warning: {msg}", file=sys.stderr)
+
+
+def _probe_writable(folder: Path, what: str) -> None:
+    """Create and remove a file in ``folder``: the real test (root ignores permission bits,
+    read-only mounts ignore them too). Raises OutputError naming the folder and the fix."""
+    from usdahd.errors import OutputError
+
+    try:
+        fd, name = tempfile.mkstemp(prefix=".usdahd-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        raise OutputError(
+            f"{folder}: cannot write the {what} there ({exc.strerror}); make the folder "
+            "writable or choose another output with -o"
+        ) from None
+
+
+def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
+    """Checks that need no scene: the source is a readable regular file, the output path is
+    usable and its folders writable, and the options' dependencies are installed.
+    returns (source path, output layer path). Writes nothing (a probe file is removed)."""
+    from usdahd.errors import OutputError
+
+    src = Path(stage_path)
+    if src.is_dir():
+        raise InputError(f"{stage_path}: is a directory; give a USD stage file (.usda/.usdc/.usd)")
+    if not src.exists():
+        raise InputError(f"{stage_path}: no such file")
+    if not src.is_file():
+        raise InputError(f"{stage_path}: not a regular file (a FIFO or device?); give a stage file")
+    try:
+        with open(src, "rb") as f:
+            f.read(1)
+    except OSError as exc:
+        raise InputError(f"{stage_path}: cannot read the stage ({exc.strerror})") from None
+    out = Path(opts.output) if opts.output else default_output(src)
+    if out.suffix not in (".usda", ".usdc", ".usd"):
+        raise UsageError(f"-o {out}: the output layer must end in .usda, .usdc or .usd")
+    if out.is_dir():
+        raise UsageError(f"-o {out}: is a directory; give the output layer's file name")
+    if out.exists() and not out.is_file():
+        raise UsageError(f"-o {out}: not a regular file; give the output layer's file name")
+    if out.resolve() == src.resolve():
+        raise UsageError(f"-o {out}: refusing to overwrite the source layer; choose another path")
+    if opts.denoise and importlib.util.find_spec("pyoidn") is None:
+        raise UsageError(
+            "--denoise needs Intel Open Image Denoise: pip install pyoidn (or drop --denoise)"
+        )
+    parent = out.parent
+    existing = parent
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"{existing}: not a folder, so {out} cannot be written; check -o")
+    folder = parent / LIGHTMAPS_DIR
+    if folder.is_symlink() and not folder.exists():
+        raise OutputError(
+            f"{folder}: a dangling symbolic link where the lightmaps folder goes; remove it "
+            "or choose another output with -o"
+        )
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(
+            f"{folder}: a file where the lightmaps folder goes; move it away or choose another "
+            "output with -o"
+        )
+    if folder.is_symlink():
+        raise OutputError(
+            f"{folder}: is a symbolic link; the lightmaps folder must be a real folder inside "
+            "the output folder (remove the link or choose another output with -o)"
+        )
+    _probe_writable(existing, "output layer")
+    if folder.is_dir():
+        _probe_writable(folder, "lightmap textures")
+    if out.is_file() and not os.access(out, os.W_OK) and os.geteuid() != 0:
+        raise OutputError(f"{out}: the output layer is read-only; make it writable or use -o")
+    return src, out
+
+
+def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
+    """Checks on the opened stage before any scene is read: not an output layer of ours
+    (``usdahd bake x.lightmaps.usda`` by mistake), every ``--prim`` exists."""
+    from pxr import Sdf
+
+    doc = stage.GetRootLayer().documentation or ""
+    if doc.startswith("Directional lightmaps baked by usdahd") and not opts.output:
+        raise UsageError(
+            f"{src}: this is an output layer of usdahd bake (it would bake into "
+            f"{default_output(src).name} and re-bake everything); bake its source stage "
+            "instead, or pass -o to bake this layer on purpose"
+        )
+    for p in opts.prims or []:
+        if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
+            raise UsageError(f"--prim {p!r}: not an absolute prim path (like /World/Floor)")
+        if not stage.GetPrimAtPath(p):
+            raise UsageError(
+                f"--prim {p}: no such prim on {src.name}; list the meshes with "
+                "usdahd bake --dry-run, or check the spelling"
+            )
+
+
+def _no_mesh_message(src: Path, stage, api_prims: dict) -> str:
+    from pxr import UsdGeom
+
+    not_mesh = [p for p, prim in sorted(api_prims.items()) if not prim.IsA(UsdGeom.Mesh)]
+    if not_mesh:
+        kinds = ", ".join(f"{p} ({api_prims[p].GetTypeName() or 'untyped'})" for p in not_mesh[:5])
+        return (
+            f"{src}: no mesh to bake: AhdLightmapAPI is applied to {kinds}, which is not a "
+            "Mesh; apply it to the meshes to bake (or remove it to bake every visible mesh)"
+        )
+    return f"{src}: no mesh to bake (all meshes are occluders or have bake off)"
 
 
 def _files_exist(res) -> bool:
@@ -337,25 +681,37 @@ def _check_options(opts: BakeOptions) -> None:
 def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     """Bake a stage; returns the report printed by ``usdahd bake --json``.
 
-    Raises InputError/StageError/UsageError (exit 2) for unusable input; per-prim failures are
-    reported in the result with ``exit_code`` 1.
+    Every check that can fail runs before tracing (:func:`preflight`: source readable, output
+    folder writable, dependencies of the options present, prims exist, resolutions within
+    limits); ``dry_run`` runs them all and reports the texel total. Raises
+    InputError/StageError/UsageError/OutputError (exit 2) for unusable input or output; per-prim
+    failures are reported in the result with ``exit_code`` 1.
+
+    Outputs (see :func:`_commit`): textures go to new content-addressed names, the override
+    layer's atomic replace is the single commit point, and files of this layer no layer
+    references are removed afterwards. A lock file serialises bakes of one output: a second
+    bake of the same output waits (with a message) until the first has committed.
     """
+    from usdahd.progress import CompileNotice
     from usdahd.usd import plugin
 
     plugin.register()
     opts = opts or BakeOptions()
     _check_options(opts)
     t_start = time.perf_counter()
-    src = Path(stage_path)
-    if not src.is_file():
-        raise InputError(f"{stage_path}: no such file")
-    out = Path(opts.output) if opts.output else default_output(src)
-    if out.suffix not in (".usda", ".usdc", ".usd"):
-        raise UsageError(f"-o {out}: the output layer must end in .usda, .usdc or .usd")
-    if out.resolve() == src.resolve():
-        raise UsageError(f"-o {out}: refusing to overwrite the source layer; choose another path")
+    src, out = preflight(stage_path, opts)
     stage = _open_stage(src)
+    _check_stage(src, stage, opts)
+    if opts.dry_run:
+        return _bake_locked(src, out, stage, opts, t_start)
+    with CompileNotice(quiet=bool(opts.quiet)), output_lock(out, opts):
+        try:
+            return _bake_locked(src, out, stage, opts, t_start)
+        finally:
+            cleanup_outputs(out)
 
+
+def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float) -> dict:
     from usdahd.usd import schema
     from usdahd.usd.scene import load_scene
 
@@ -368,14 +724,17 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             if m.bake:
                 p = api_prims.get(m.path)
                 m.bake = bool(p) and bool(schema.read_inputs(p, validate=False).bake)
-    prev = _previous_results(out)
+    prev, untrusted = _previous_results(out)
     report = {
         "stage": str(src),
         "output": str(out),
         "time": scene.time_setting,
         "prims": [],
-        "warnings": list(scene.warnings),
+        "warnings": list(scene.warnings) + untrusted,
+        "notes": [],
+        "dry_run": bool(opts.dry_run),
         "written": False,
+        "output_exists": out.is_file(),
     }
     from pxr import UsdGeom
 
@@ -414,14 +773,16 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
                 f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
                 "metersPerUnit or pass --texel-density / --resolution"
             )
-        if job.unwrapped and not any("xatlas" in w for w in entry["warnings"]):
+        if job.unwrapped and not any(
+            "xatlas" in w for w in entry["warnings"] + entry.get("notes", [])
+        ):
             entry["warnings"].append(
                 f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
                 f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
             )
         jobs.append(job)
     if not jobs and not failed:
-        raise InputError(f"{src}: no mesh to bake (all meshes are occluders or have bake off)")
+        raise InputError(_no_mesh_message(src, stage, api_prims))
     # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
     # (the validator recomputes these from the output stage).
     parts = scene_hash_parts(scene)
@@ -463,22 +824,34 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             keep.report = {"path": path, "status": "kept"}
             jobs.append(keep)
     todo = [j for j in jobs if j.report["status"] == "planned"]
-    if opts.dry_run:
-        report["exit_code"] = 1 if failed else 0
-        report["seconds"] = time.perf_counter() - t_start
-        return report
-
+    texels_total = sum(int(j.resolution[0]) * int(j.resolution[1]) for j in todo)
+    report["texels_total"] = texels_total
+    # (n, 3, 9) float32 SH per texel plus the traced and fitted copies: a rough peak.
+    report["memory_estimate_bytes"] = int(texels_total * 27 * 4 * 4)
+    if report["memory_estimate_bytes"] > MAX_BAKE_BYTES:
+        raise UsageError(
+            f"{src}: the planned lightmaps total {texels_total:.3g} texels (about "
+            f"{report['memory_estimate_bytes'] / 2**30:.1f} GiB while baking); lower "
+            "--resolution / --texel-density or the ahdLightmap:resolution inputs, or bake "
+            "fewer prims at once (--prim)"
+        )
     if is_dark(scene):
         report["warnings"].append(
             "the stage has no lights and no emissive surfaces: every lightmap is black "
             "(nothing was traced); add a UsdLux light or an emissiveColor"
         )
+    if opts.dry_run:
+        report["exit_code"] = 1 if failed else 0
+        report["seconds"] = time.perf_counter() - t_start
+        return report
+
     if todo:
         _bake_jobs(scene, todo, out, opts)
     for j in todo:
         if j.report["status"] == "failed":
             failed += 1
     if any(j.results is not None or j.previous is not None for j in jobs):
+        _commit_textures([j for j in todo if j.results is not None], out)
         report["written"] = _author_layer(src, out, stage, jobs)
     report["exit_code"] = 1 if failed else 0
     report["seconds"] = time.perf_counter() - t_start
@@ -720,7 +1093,7 @@ def _plan(
             job.unwrapped = True
             job.uv_primvar_values = mesh.uv
             job.resolution = res
-            report["warnings"].append(
+            report.setdefault("notes", []).append(
                 f"no usable UV set {uv_name!r}: reusing the xatlas unwrap {settings['uv']!r} "
                 "authored by the previous bake (mesh unchanged)"
             )
@@ -785,63 +1158,88 @@ def _author_normals(stage, job) -> str:
 
 
 def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bool:
-    """Write the override layer atomically; returns False when its content is unchanged."""
+    """Write the override layer; its atomic replace is the bake's single commit point.
+
+    The layer is built in memory (sublayering the source by absolute path while authoring,
+    by relative path in the file), exported to a fresh temp file beside ``out`` (created by
+    mkstemp and kept, so no other process can take its name), fsynced, then renamed over
+    ``out``. returns False when the content is unchanged (nothing replaced). Raises
+    OutputError when the layer cannot be written (disk full, read-only); ``out`` is then
+    untouched.
+    """
     from pxr import Sdf, Usd, UsdGeom
 
+    from usdahd.errors import OutputError
     from usdahd.usd import schema
 
     out.parent.mkdir(parents=True, exist_ok=True)
+    layer = Sdf.Layer.CreateAnonymous(out.suffix if out.suffix != ".usd" else ".usdc")
+    src_root = source_stage.GetRootLayer()
+    layer.subLayerPaths.append(str(src.resolve()))
+    layer.documentation = (
+        f"Directional lightmaps baked by usdahd {__version__} for {src.name}; "
+        "regenerate with usdahd bake, do not edit by hand."
+    )
+    for key in ("defaultPrim", "upAxis", "metersPerUnit"):
+        if src_root.pseudoRoot.HasInfo(key):
+            layer.pseudoRoot.SetInfo(key, src_root.pseudoRoot.GetInfo(key))
+    ostage = Usd.Stage.Open(layer)
+    ostage.SetEditTarget(layer)
+    if not src_root.pseudoRoot.HasInfo("upAxis"):
+        UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
+    old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
+    for job in sorted(jobs, key=lambda j: j.path):
+        res = job.results or job.previous
+        if res is None:
+            continue
+        prim = ostage.GetPrimAtPath(job.path)
+        if job.mesh is None and old_layer is not None:
+            # A kept prim (not selected this time): carry over a UV set an earlier run
+            # unwrapped and authored here, or its kept textures would lose their UVs.
+            # Same for the normals it computed (baked:normals says which rule).
+            names = [f"primvars:{res.uv_primvar}"]
+            if res.normals != "authored":
+                names += ["normals", "primvars:normals"]
+            for name in names:
+                spec_path = Sdf.Path(job.path).AppendProperty(name)
+                if old_layer.GetAttributeAtPath(spec_path) is not None:
+                    Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
+                    Sdf.CopySpec(old_layer, spec_path, layer, spec_path)
+        if job.uv_primvar_values is not None:
+            warning = _author_uvs(ostage, job)
+            if warning and warning not in job.report.setdefault("warnings", []):
+                job.report["warnings"].append(warning)
+        if job.mesh is not None:
+            res.normals = _author_normals(ostage, job)
+        schema.write_results(prim, res, layer_dir=out.parent)
+    del ostage
+    layer.subLayerPaths[0] = _relative(src, out.parent)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
     os.close(fd)
-    os.unlink(tmp_name)  # Sdf wants to create the file itself
     tmp = Path(tmp_name)
     try:
-        layer = Sdf.Layer.CreateNew(str(tmp))
-        if layer is None:
-            raise BakeError(f"cannot create the output layer {out}")
-        src_root = source_stage.GetRootLayer()
-        layer.subLayerPaths.append(_relative(src, out.parent))
-        layer.documentation = (
-            f"Directional lightmaps baked by usdahd {__version__} for {src.name}; "
-            "regenerate with usdahd bake, do not edit by hand."
-        )
-        for key in ("defaultPrim", "upAxis", "metersPerUnit"):
-            if src_root.pseudoRoot.HasInfo(key):
-                layer.pseudoRoot.SetInfo(key, src_root.pseudoRoot.GetInfo(key))
-        ostage = Usd.Stage.Open(layer)
-        ostage.SetEditTarget(layer)
-        if not src_root.pseudoRoot.HasInfo("upAxis"):
-            UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
-        old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
-        for job in sorted(jobs, key=lambda j: j.path):
-            res = job.results or job.previous
-            if res is None:
-                continue
-            prim = ostage.GetPrimAtPath(job.path)
-            if job.mesh is None and old_layer is not None:
-                # A kept prim (not selected this time): carry over a UV set an earlier run
-                # unwrapped and authored here, or its kept textures would lose their UVs.
-                # Same for the normals it computed (baked:normals says which rule).
-                names = [f"primvars:{res.uv_primvar}"]
-                if res.normals != "authored":
-                    names += ["normals", "primvars:normals"]
-                for name in names:
-                    spec_path = Sdf.Path(job.path).AppendProperty(name)
-                    if old_layer.GetAttributeAtPath(spec_path) is not None:
-                        Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
-                        Sdf.CopySpec(old_layer, spec_path, layer, spec_path)
-            if job.uv_primvar_values is not None:
-                warning = _author_uvs(ostage, job)
-                if warning and warning not in job.report.setdefault("warnings", []):
-                    job.report["warnings"].append(warning)
-            if job.mesh is not None:
-                res.normals = _author_normals(ostage, job)
-            schema.write_results(prim, res, layer_dir=out.parent)
-        layer.Save()
+        try:
+            ok = layer.Export(tmp_name)
+        except Exception as exc:  # pxr raises Tf.ErrorException (e.g. no space left)
+            ok = False
+            why = str(exc).strip().splitlines()[-1][:200] if str(exc).strip() else ""
+        else:
+            why = ""
+        if not ok or tmp.stat().st_size == 0:
+            raise OutputError(
+                f"{out}: cannot write the output layer{f' ({why})' if why else ''}; is the "
+                "disk full or the folder read-only? Free space and re-run (the previous bake "
+                "is intact)"
+            )
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        _fsync(tmp)
         new = tmp.read_bytes()
         if out.is_file() and out.read_bytes() == new:
             return False
-        os.replace(tmp, out)
+        os.replace(tmp, out)  # the commit point
+        _fsync(out.parent, directory=True)
         return True
     finally:
         if tmp.exists():
@@ -1022,8 +1420,6 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     if not np.isfinite(got).all():
         raise BakeError(f"{job.path}: decoded lightmap contains NaN/Inf (please report a bug)")
 
-    lm_dir = out.parent / "lightmaps"
-    stem = sanitize(job.path)
     w, h = job.texels.resolution
     mask = np.zeros((h, w), bool)
     mask[job.texels.xy[:, 1], job.texels.xy[:, 0]] = True
@@ -1034,7 +1430,7 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         values = values.reshape(len(job.texels), -1)
         img = post.dilate(_image_from_texels(values, job.texels), mask, padding)
         img = img.astype(values.dtype, copy=False)
-        path = lm_dir / f"{stem}.{lay.role}{lay.extension}"
+        path = texture_path(out, job.path, lay.role, lay.extension)
         images.write(
             path,
             img,
@@ -1056,7 +1452,7 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         axis=1,
     )
     side_img = _image_from_texels(side, job.texels)
-    side_path = lm_dir / f"{stem}.sh.exr"
+    side_path = texture_path(out, job.path, schema.SIDECAR_ROLE, ".exr")
     images.write(
         side_path, side_img, format="float", color_space="raw", channels=schema.SH_SIDECAR_CHANNELS
     )

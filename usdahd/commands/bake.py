@@ -64,8 +64,6 @@ def add_parser(sub):
     )
     a("--force", action="store_true", help="re-bake prims even if unchanged")
     a("--dry-run", action="store_true", help="report what would be baked; write nothing")
-    a("--json", action="store_true", help="print a machine-readable report on stdout")
-    a("--quiet", action="store_true", help="no progress or status on stderr")
     p.set_defaults(func=run)
     return p
 
@@ -116,10 +114,16 @@ def run(args) -> int:
         quiet=args.quiet,
     )
     report = bake(args.stage, opts)
+    quiet = int(args.quiet or 0)
     if args.json:
         print(json.dumps(report, indent=2))
-    elif not args.quiet:
+    elif not quiet:
         _print_report(report)
+    elif quiet < 2:
+        # --quiet hides progress and the per-prim lines, not warnings: they go to stderr
+        # (-qq hides them too).
+        for w in _all_warnings(report):
+            print(f"warning: {w}", file=sys.stderr)
     # Failures reach stderr even with --quiet or --json: CI logs must show why it exited 1.
     for p in report["prims"]:
         if p.get("status") == "failed":
@@ -127,7 +131,15 @@ def run(args) -> int:
     return report["exit_code"]
 
 
+def _all_warnings(report) -> list[str]:
+    out = []
+    for p in report["prims"]:
+        out += [w if p["path"] in w else f"{p['path']}: {w}" for w in p.get("warnings", [])]
+    return out + list(report.get("warnings", []))
+
+
 def _print_report(report) -> None:
+    planned = 0
     for p in report["prims"]:
         if p["status"] == "skipped":
             print(f"{p['path']}: unchanged, skipped")
@@ -136,10 +148,9 @@ def _print_report(report) -> None:
         elif p["status"] == "failed":
             print(f"{p['path']}: FAILED (see stderr)")
         elif p["status"] == "planned":
-            print(
-                f"{p['path']}: would bake {p['resolution'][0]}x{p['resolution'][1]} "
-                f"({p.get('reason', '')})"
-            )
+            planned += 1
+            w, h = p["resolution"]
+            print(f"{p['path']}: would bake {w}x{h} = {w * h} texels ({p.get('reason', '')})")
         else:
             print(
                 f"{p['path']}: {p['texels']} texels, {p['rays']} rays, {p['seconds']:.2f}s"
@@ -151,9 +162,26 @@ def _print_report(report) -> None:
             )
         for w in p.get("warnings", []):
             print(f"  warning: {w}")
+        for n in p.get("notes", []):
+            print(f"  note: {n}")
     for w in report.get("warnings", []):
         print(f"warning: {w}")
-    if report.get("output"):
+    for n in report.get("notes", []):
+        print(f"note: {n}")
+    if planned or "texels_total" in report and report.get("dry_run"):
+        total = report.get("texels_total", 0)
         print(
-            f"output layer: {report['output']}" + ("" if report.get("written") else " (unchanged)")
+            f"dry run: {planned} prim(s) to bake, {total} texels in total "
+            f"(about {report.get('memory_estimate_bytes', 0) / 2**20:.0f} MiB while baking); "
+            "every pre-flight check passed"
         )
+    if report.get("output"):
+        if report.get("dry_run"):
+            state = "would be replaced" if report.get("output_exists") else "would be created"
+            if not planned:
+                state = "unchanged"
+        elif report.get("written"):
+            state = "written"
+        else:
+            state = "unchanged"
+        print(f"output layer: {report['output']} ({state})")

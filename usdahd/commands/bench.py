@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -74,7 +75,6 @@ def add_parser(sub):
         help="comma-separated subset of bake,fit,encodings,skipping,soak",
     )
     p.add_argument("--fresh", action="store_true", help="recompute cached reference bakes")
-    p.add_argument("--quiet", action="store_true", help="no progress lines, no report path")
     p.set_defaults(func=run)
     return p
 
@@ -90,9 +90,11 @@ def run(args) -> int:
         out=args.out or str(CHECKOUT / "docs" / "benchmarks.md"),
         sections=args.sections,
         fresh=args.fresh,
-        quiet=args.quiet,
+        quiet=bool(args.quiet or args.json),
     )
     out = runner.run(ns)
-    if not args.quiet:
+    if args.json:
+        print(json.dumps({"report": str(out), "exit_code": 0}, indent=2))
+    elif not args.quiet:
         print(out)
     return 0

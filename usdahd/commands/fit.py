@@ -40,8 +40,6 @@ def add_parser(sub):
         "(default) or to the summed RGB error",
     )
     p.add_argument("-o", "--output", help="write fitted parameters to this .npz")
-    p.add_argument("--json", action="store_true", help="print a machine-readable report")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)
     return p
 

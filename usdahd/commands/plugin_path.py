@@ -8,6 +8,7 @@ UsdValidation runs, engine importers) know the AhdLightmapAPI schema and the val
 
 from __future__ import annotations
 
+import json
 import os
 import shlex
 
@@ -41,7 +42,10 @@ def export_line(path: str, existing: str | None) -> str:
 
 def run(args) -> int:
     path = plugin.plugin_path()
-    if args.export:
+    if getattr(args, "json", False):
+        line = export_line(path, os.environ.get("PXR_PLUGINPATH_NAME"))
+        print(json.dumps({"plugin_path": path, "export": line, "exit_code": 0}, indent=2))
+    elif args.export:
         print(export_line(path, os.environ.get("PXR_PLUGINPATH_NAME")))
     else:
         print(path)

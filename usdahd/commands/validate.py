@@ -42,7 +42,6 @@ def add_parser(sub):
         help="validate only this prim and its descendants (repeatable)",
     )
     p.add_argument("--strict", action="store_true", help="warnings fail too (exit 1)")
-    p.add_argument("--json", action="store_true", help="print a machine-readable report")
     p.add_argument(
         "--tolerance",
         type=float,
@@ -83,7 +82,6 @@ def add_parser(sub):
         help="random stream of the retrace (texel choice and tracing; default 0)",
     )
     p.add_argument("--list-rules", action="store_true", help="list the rules and exit")
-    p.add_argument("--quiet", action="store_true", help="print errors and warnings only")
     p.set_defaults(func=run)
     return p
 

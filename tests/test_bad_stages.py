@@ -79,6 +79,10 @@ def _run_in_process(case: dict, tmp_path: Path, capsys) -> tuple[int, dict | Non
     rc = cli.main(["bake", str(stage), *case["args"], *TINY, "--json"])
     cap = capsys.readouterr()
     report = json.loads(cap.out) if cap.out.strip() else None
+    if report is not None and "prims" not in report:
+        # --json on an error: one object {"command", "exit_code", "error"}
+        assert report["exit_code"] == rc and report["error"] in cap.err, (report, cap.err)
+        report = None
     return rc, report, cap.out, cap.err
 
 
@@ -100,10 +104,11 @@ def test_case_in_process(case, tmp_path, capsys):
     assert rc == case["exit_code"], (rc, err, report)
     errors, warnings = _messages(report, err)
     if case["exit_code"] == 2:
-        # one line on stderr naming the problem, nothing on stdout
+        # one line on stderr naming the problem; stdout holds only the JSON error object
         lines = [ln for ln in err.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("usdahd bake: error: "), err
         assert report is None
+        assert json.loads(out)["exit_code"] == 2
     text = {"error": errors, "warning": warnings, "none": errors + warnings}[case["severity"]]
     if case["message"]:
         assert case["message"].lower() in text.lower(), (case["message"], text)
@@ -129,13 +134,13 @@ def test_case_in_process(case, tmp_path, capsys):
     check = case["check"]
     baked = [p["path"] for p in report["prims"] if p["status"] == "baked"]
     if check == "distinct_texture_names":
-        stems = {f.name.split(".")[0] for f in files}
+        stems = {f.name.split(".")[1] for f in files}
         assert len(stems) == len(baked) >= 2, (stems, baked)
         names = [f.name for f in files]
         assert len({n.lower() for n in names}) == len(names), "collide on case-insensitive FS"
     elif check == "texture_names_fit":
         assert all(len(f.name.encode("utf-8")) <= 255 for f in files)
-        assert len({f.name.split(".")[0] for f in files}) == len(baked)
+        assert len({f.name.split(".")[1] for f in files}) == len(baked)
     elif check == "inside_output_dir":
         root = tmp_path.resolve()
         for f in _written_files(tmp_path):
@@ -168,8 +173,9 @@ def _texture_paths(layer: Path) -> list[Path]:
 
 
 def test_texture_names_distinct_across_collision_cases(tmp_path, capsys):
-    """Collision cases: each prim's files are named from its own path (sanitized + hash), so
-    no two prims share a stem, even when the sanitized paths are equal."""
+    """Collision cases: each prim's files are named from the output layer and its own path
+    (sanitized + hash), so no two prims share a stem, even when the sanitized paths are equal:
+    ``<layer prefix>.<prim stem>.<role>.<content hash>.<ext>``."""
     from usdahd.pipeline import sanitize
 
     for cid in ("name_collision", "case_collision", "long_names", "unicode_names"):
@@ -180,7 +186,7 @@ def test_texture_names_distinct_across_collision_cases(tmp_path, capsys):
         baked = [p["path"] for p in report["prims"] if p["status"] == "baked"]
         stems = [sanitize(p) for p in baked]
         assert len(set(stems)) == len(stems) == len({s.lower() for s in stems})
-        on_disk = {f.name.split(".")[0] for f in (d / "lightmaps").iterdir()}
+        on_disk = {f.name.split(".")[1] for f in (d / "lightmaps").iterdir()}
         assert on_disk == set(stems)
 
 

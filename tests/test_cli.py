@@ -1,0 +1,397 @@
+"""The command line's one error path and its shared options (issue 18).
+
+Every command takes ``--json`` and ``-q/--quiet`` from one parent parser; ``--json`` prints a
+JSON object also on errors; warnings survive ``--quiet`` but not ``-qq``; every error a user
+can cause is one ``usdahd CMD: error:`` line naming the file/prim/flag and the fix, exit 2 (or
+1 for findings), never a traceback. Pre-flight checks fail before any tracing.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from usdahd import cli, pipeline
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "samples"
+FAST = ["--resolution", "8", "--samples", "4", "--bounces", "0"]
+
+
+def _copy(tmp_path: Path, name: str = "open_plane.usda") -> Path:
+    shutil.copy2(SAMPLES / name, tmp_path / name)
+    tex = SAMPLES / "textures"
+    if name == "normal_wall.usda":
+        shutil.copytree(tex, tmp_path / "textures")
+    return tmp_path / name
+
+
+def _main(capsys, *argv):
+    code = cli.main(list(argv))
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.out + cap.err
+    return code, cap.out, cap.err
+
+
+def _error_line(err: str, command: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.startswith(f"usdahd {command}: error: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------- shared options
+
+
+@pytest.mark.parametrize("command", sorted(cli.COMMANDS))
+def test_every_command_takes_json_and_quiet(command):
+    parser = cli.build_parser()
+    positional = ["x"] if command in ("bake", "validate", "fit") else []
+    args = parser.parse_args([command, "--json", "-qq", *positional])
+    assert args.json is True and args.quiet == 2
+
+
+def test_plugin_path_json(capsys):
+    code, out, _ = _main(capsys, "plugin-path", "--json", "--quiet")
+    assert code == 0
+    report = json.loads(out)
+    assert Path(report["plugin_path"]).is_dir()
+    assert report["export"].startswith("export PXR_PLUGINPATH_NAME=")
+
+
+@pytest.mark.parametrize(
+    "argv, code, words",
+    [
+        (["bake", "{tmp}/nope.usda"], 2, ["nope.usda", "no such file"]),
+        (["bake", "{tmp}"], 2, ["is a directory", "stage file"]),
+        (["validate", "{tmp}/nope.usda"], 2, ["nope.usda"]),
+        (["fit", "{tmp}/nope.npy"], 2, ["nope.npy"]),
+        (["bake", "{plane}", "--prim", "/World/Nope"], 2, ["--prim /World/Nope", "no such prim"]),
+        (["bake", "{plane}", "--model", "bogus"], 2, ["invalid arguments"]),
+    ],
+)
+def test_json_is_printed_on_errors(tmp_path, capsys, argv, code, words):
+    plane = _copy(tmp_path)
+    argv = [a.format(tmp=tmp_path, plane=plane) for a in argv]
+    if code == 2 and "bogus" in argv:
+        with pytest.raises(SystemExit) as exc:
+            cli.main([*argv, "--json"])
+        assert exc.value.code == 2
+        out = capsys.readouterr().out
+    else:
+        got, out, err = _main(capsys, *argv, "--json")
+        assert got == code
+        line = _error_line(err, argv[0])
+        for w in words:
+            assert w in line, line
+    report = json.loads(out)
+    assert report["exit_code"] == code and report["command"] == argv[0]
+    for w in words:
+        assert w in report["error"], report
+
+
+def test_interrupt_exits_130_with_one_line(capsys, monkeypatch):
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    from usdahd.commands import plugin_path
+
+    monkeypatch.setattr(plugin_path, "run", interrupted)
+    code, out, err = _main(capsys, "plugin-path", "--json")
+    assert code == 130
+    assert err.strip() == "usdahd plugin-path: interrupted"
+    assert json.loads(out)["exit_code"] == 130
+
+
+@pytest.mark.parametrize(
+    "exc, words",
+    [
+        (PermissionError(errno.EACCES, "Permission denied", "/x/lightmaps"), ["/x/lightmaps"]),
+        (OSError(errno.ENOSPC, "No space left on device", "/x/a.exr"), ["disk is full"]),
+        (IsADirectoryError(errno.EISDIR, "Is a directory", "/x/t.png"), ["not a directory"]),
+        (MemoryError(), ["out of memory", "--resolution"]),
+        (ValueError("boom"), ["internal error ValueError", "report a bug"]),
+    ],
+)
+def test_every_exception_maps_to_a_message_and_exit_2(capsys, monkeypatch, exc, words):
+    from usdahd.commands import plugin_path
+
+    def boom(args):
+        raise exc
+
+    monkeypatch.setattr(plugin_path, "run", boom)
+    code, out, err = _main(capsys, "plugin-path")
+    assert code == 2
+    line = _error_line(err, "plugin-path")
+    for w in words:
+        assert w in line, line
+
+
+# ------------------------------------------------------------------------- pre-flight checks
+
+
+def test_directory_output_layer_is_refused(tmp_path, capsys):
+    plane = _copy(tmp_path)
+    (tmp_path / "out.usda").mkdir()
+    code, _, err = _main(capsys, "bake", str(plane), "-o", str(tmp_path / "out.usda"), *FAST)
+    assert code == 2 and "is a directory" in _error_line(err, "bake")
+
+
+@pytest.mark.parametrize("kind", ["file", "dangling_symlink", "symlink"])
+def test_lightmaps_folder_replaced_is_refused_before_tracing(tmp_path, capsys, kind, monkeypatch):
+    plane = _copy(tmp_path)
+    lm = tmp_path / "lightmaps"
+    if kind == "file":
+        lm.write_text("not a folder")
+    elif kind == "dangling_symlink":
+        lm.symlink_to(tmp_path / "gone")
+    else:
+        (tmp_path / "elsewhere").mkdir()
+        lm.symlink_to(tmp_path / "elsewhere")
+    traced = []
+    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    for extra in ([], ["--dry-run"]):
+        code, _, err = _main(capsys, "bake", str(plane), *FAST, *extra)
+        assert code == 2, err
+        line = _error_line(err, "bake")
+        assert str(lm) in line and "-o" in line
+    assert not traced
+
+
+def _read_only_dir(path: Path) -> None:
+    """Make ``path`` unwritable even for root: a read-only tmpfs mount (or chmod as a user)."""
+    path.mkdir()
+    if os.geteuid() == 0:
+        proc = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(path)], capture_output=True
+        )
+        if proc.returncode:
+            pytest.skip(f"cannot mount a read-only tmpfs: {proc.stderr.decode().strip()}")
+    else:
+        path.chmod(0o555)
+
+
+def _unmount(path: Path) -> None:
+    if os.geteuid() == 0:
+        subprocess.run(["umount", str(path)], capture_output=True)
+    else:
+        path.chmod(0o755)
+
+
+def test_read_only_output_folder_fails_before_tracing(tmp_path, capsys, monkeypatch):
+    plane = _copy(tmp_path)
+    ro = tmp_path / "ro"
+    _read_only_dir(ro)
+    traced = []
+    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    try:
+        for extra in ([], ["--dry-run"]):
+            code, out, err = _main(
+                capsys, "bake", str(plane), "-o", str(ro / "x.lightmaps.usda"), "--json", *extra
+            )
+            assert code == 2
+            line = _error_line(err, "bake")
+            assert str(ro) in line and "writable" in line
+            assert json.loads(out)["exit_code"] == 2
+    finally:
+        _unmount(ro)
+    assert not traced
+
+
+def test_denoise_without_pyoidn_fails_before_tracing(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    plane = _copy(tmp_path)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "pyoidn" else real(name, *a)
+    )
+    traced = []
+    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    for extra in ([], ["--dry-run"]):
+        code, _, err = _main(capsys, "bake", str(plane), "--denoise", *FAST, *extra)
+        assert code == 2
+        assert "pip install pyoidn" in _error_line(err, "bake")
+    assert not traced
+
+
+def test_baking_an_output_layer_is_refused(tmp_path, capsys):
+    plane = _copy(tmp_path)
+    assert _main(capsys, "bake", str(plane), *FAST)[0] == 0
+    layer = tmp_path / "open_plane.lightmaps.usda"
+    code, _, err = _main(capsys, "bake", str(layer), *FAST)
+    assert code == 2
+    line = _error_line(err, "bake")
+    assert "output layer of usdahd bake" in line and "source stage" in line
+    assert not (tmp_path / "open_plane.lightmaps.lightmaps.usda").exists()
+
+
+def test_apply_on_an_xform_names_the_prim(tmp_path, capsys):
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    plane = _copy(tmp_path)
+    stage = Usd.Stage.Open(str(plane))
+    # what a hand-edited stage can hold (schema.apply refuses non-meshes)
+    stage.GetPrimAtPath("/World").AddAppliedSchema(schema.API_NAME)
+    stage.GetRootLayer().Save()
+    code, _, err = _main(capsys, "bake", str(plane), *FAST)
+    assert code == 2
+    line = _error_line(err, "bake")
+    assert "/World (Xform)" in line and "not a Mesh" in line
+
+
+def test_dry_run_reports_texel_total_and_would_create(tmp_path, capsys):
+    stage = _copy(tmp_path, "cornell_box.usda")
+    code, out, _ = _main(capsys, "bake", str(stage), "--dry-run", "--resolution", "16")
+    assert code == 0
+    assert "7 prim(s) to bake, 1792 texels in total" in out
+    assert "(would be created)" in out and "(unchanged)" not in out
+    code, out, _ = _main(capsys, "bake", str(stage), "--dry-run", "--json", "--resolution", "16")
+    report = json.loads(out)
+    assert report["texels_total"] == 7 * 16 * 16
+    assert not (tmp_path / "lightmaps").exists()
+    assert not list(tmp_path.glob(".*lock"))
+
+
+def test_planned_memory_above_the_machine_is_refused_in_dry_run(tmp_path, capsys, monkeypatch):
+    stage = _copy(tmp_path, "cornell_box.usda")
+    monkeypatch.setattr(pipeline, "MAX_BAKE_BYTES", 1000)
+    code, _, err = _main(capsys, "bake", str(stage), "--dry-run", "--resolution", "16")
+    assert code == 2
+    line = _error_line(err, "bake")
+    assert "1.79e+03 texels" in line and "--resolution" in line
+
+
+# ------------------------------------------------------------------------------ quiet levels
+
+
+def test_warnings_survive_quiet_but_not_qq(tmp_path, capsys):
+    from pxr import Usd
+
+    plane = _copy(tmp_path)
+    stage = Usd.Stage.Open(str(plane))
+    stage.RemovePrim("/World/Lights")  # nothing emits: "every lightmap is black"
+    stage.GetRootLayer().Save()
+    code, out, err = _main(capsys, "bake", str(plane), *FAST, "--quiet")
+    assert code == 0 and out == ""
+    assert "warning: the stage has no lights" in err
+    code, out, err = _main(capsys, "bake", str(plane), *FAST, "--force", "-qq")
+    assert code == 0 and out == "" and err == ""
+
+
+# ------------------------------------------------------------------------------- progress
+
+
+class _Tty:
+    def __init__(self):
+        self.text = ""
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+    def isatty(self):
+        return True
+
+
+def test_progress_log_ends_each_mesh_at_100_percent(capsys):
+    import io
+
+    from usdahd.progress import Progress
+
+    stream = io.StringIO()
+    bar = Progress("[1/1] /World/A", stream=stream)
+    bar.update(1, 0)  # first update always prints
+    bar.update(886, 1000)  # rate limited: not printed
+    bar.close()
+    lines = stream.getvalue().splitlines()
+    assert lines[-1].startswith("[1/1] /World/A") and "100.0%" in lines[-1]
+    assert "done in" in lines[-1]
+
+
+def test_progress_on_a_terminal_pads_over_longer_lines():
+    from usdahd import progress
+
+    tty = _Tty()
+    bar = progress.Progress("x" * 30, stream=tty)
+    progress._draw(tty, True, "Q" * 90)
+    bar.update(5, 10)
+    last = tty.text.split("\r")[-1]
+    assert len(last) >= 90 and "Q" not in last  # the longer line is fully overwritten
+    progress.clear_line()
+    assert tty.text.endswith("\r")
+
+
+def test_compile_notice_and_eta_exclude_compile_time():
+    import io
+    import time
+
+    import numba
+
+    from usdahd import progress
+
+    stream = io.StringIO()
+    bar = progress.Progress("trace", stream=stream)
+    t0 = time.perf_counter()
+    with progress.CompileNotice(stream=stream) as notice:
+
+        @numba.njit(cache=False)
+        def fresh(x):  # never cached: always compiles
+            s = 0.0
+            for i in range(x.shape[0]):
+                s += np.sin(x[i]) * np.cos(x[i]) + i
+            return s
+
+        fresh(np.arange(10.0))
+    wall = time.perf_counter() - t0
+    assert notice.announced
+    text = stream.getvalue()
+    assert "compiling kernels (first run only" in text
+    assert "compiled kernels in" in text
+    spent = notice.seconds()
+    assert 0 < spent <= wall
+    # the bar's clock excludes the compile: elapsed + compile == wall time since it started
+    now = time.perf_counter()
+    assert abs(bar._elapsed(now) + spent - (now - bar.start)) < 0.05
+
+
+def test_compile_notice_silent_when_nothing_compiles():
+    import io
+
+    from usdahd import progress
+
+    stream = io.StringIO()
+    with progress.CompileNotice(stream=stream) as notice:
+        np.sin(1.0)
+    assert not notice.announced and stream.getvalue() == ""
+
+
+# ------------------------------------------------------------------------------ subprocess
+
+
+def test_subprocess_directory_stage_is_one_line(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    assert proc.stderr.strip() == (
+        f"usdahd bake: error: {tmp_path}: is a directory; give a USD stage file "
+        "(.usda/.usdc/.usd)"
+    )

@@ -392,6 +392,5 @@ def test_subprocess_directory_stage_is_one_line(tmp_path):
     assert proc.returncode == 2
     assert proc.stdout == ""
     assert proc.stderr.strip() == (
-        f"usdahd bake: error: {tmp_path}: is a directory; give a USD stage file "
-        "(.usda/.usdc/.usd)"
+        f"usdahd bake: error: {tmp_path}: is a directory; give a USD stage file (.usda/.usdc/.usd)"
     )

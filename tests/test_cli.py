@@ -394,3 +394,36 @@ def test_subprocess_directory_stage_is_one_line(tmp_path):
     assert proc.stderr.strip() == (
         f"usdahd bake: error: {tmp_path}: is a directory; give a USD stage file (.usda/.usdc/.usd)"
     )
+
+
+# ------------------------------------------------------------------------------- validate
+
+
+@pytest.fixture
+def baked_box(tmp_path, capsys):
+    stage = _copy(tmp_path, "cornell_box.usda")
+    assert _main(capsys, "bake", str(stage), *FAST, "--quiet")[0] == 0
+    return tmp_path / "cornell_box.lightmaps.usda"
+
+
+def test_validate_missing_texture_is_one_finding_and_usd_noise_is_separate(baked_box, capsys):
+    victim = sorted((baked_box.parent / "lightmaps").glob("*Floor*.iz.*.exr"))[0]
+    victim.unlink()
+    code, out, err = _main(capsys, "validate", str(baked_box))
+    assert code == 1
+    errors = [ln for ln in out.splitlines() if ln.startswith("error")]
+    assert len(errors) == 1 and victim.name in errors[0] and "/World/Geometry/Floor" in errors[0]
+    assert "Ill-formed SdfPath" not in out
+    code, out, err = _main(capsys, "validate", str(baked_box), "--json")
+    report = json.loads(out)
+    assert report["counts"]["error"] == 1
+    assert all("Warning: in" not in d for d in report["usd_diagnostics"])
+
+
+def test_validate_messages_name_the_absolute_allowance_and_another_model(baked_box, capsys):
+    code, out, _ = _main(capsys, "validate", str(baked_box), "--rmse-threshold", "1e-9")
+    iz = [ln for ln in out.splitlines() if "IzCheck" in ln]
+    assert iz and all("absolute" in ln for ln in iz)
+    enc = [ln for ln in out.splitlines() if "HighEncodingError" in ln or "EncodingError" in ln]
+    fixes = [ln for ln in enc if "Fix" in ln]
+    assert fixes and all("(sh_l2)" in ln and "(hhd or" not in ln for ln in fixes)

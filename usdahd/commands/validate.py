@@ -13,8 +13,11 @@ validated (unreadable stage, validators missing, a rule that crashed).
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 from usdahd.errors import StageError, UsageError
@@ -198,6 +201,64 @@ def no_lightmaps_finding(path: str):
     )
 
 
+@contextlib.contextmanager
+def captured_stderr_fd():
+    """Capture what C++ code (USD's TfDiagnostic warnings) writes to file descriptor 2.
+
+    Yields a list that holds the captured, non-empty lines after the block, so USD's own
+    messages ("Ill-formed SdfPath", "Failed to resolve reference") do not interleave with the
+    findings; :func:`run` reports them separately.
+    """
+    lines: list[str] = []
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2 (embedded use): nothing to capture
+        yield lines
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", errors="replace")
+            lines += [ln.strip() for ln in text.splitlines() if ln.strip()]
+
+
+def _is_usd_diagnostic(line: str) -> bool:
+    """A line of USD's TfDiagnostic output (``Warning: in F at line N of x.cpp -- ...``)."""
+    return line.startswith(("Warning: in ", "Error: in ", "Coding Error: in ", "Runtime Error"))
+
+
+def _usd_diagnostic(line: str) -> str:
+    """``Warning: in F at line N of /path/x.cpp -- message`` -> ``message``."""
+    return line.split(" -- ", 1)[1] if " -- " in line else line
+
+
+def dedupe(findings: list, stage_dir: Path) -> list:
+    """Drop USD's MissingReferenceValidator finding for a texture our Textures rule already
+    reported missing (one missing file, one finding)."""
+    missing = set()
+    for f in findings:
+        asset = (getattr(f, "data", None) or {}).get("asset")
+        if f.code == "MissingFile" and asset:
+            missing.add(os.path.normpath(str(stage_dir / asset)))
+    if not missing:
+        return findings
+    out = []
+    for f in findings:
+        if f.code == "UnresolvableDependency":
+            quoted = f.message.split("'")
+            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in missing:
+                continue
+        out.append(f)
+    return out
+
+
 def format_finding(f) -> str:
     where = f.prim if f.prim.startswith("@") else f"<{f.prim}>" if f.prim else "<stage>"
     return f"{f.severity:<7} {where} {f.rule}: {f.message}"
@@ -263,19 +324,26 @@ def run(args) -> int:
             raise UsageError(f"--rmse-threshold {args.rmse_threshold}: must be > 0")
         v.OPTIONS.rmse_warning = args.rmse_threshold
     try:
-        stage = _open(args.stage)
-        from usdahd.usd import schema
+        with captured_stderr_fd() as usd_lines:
+            stage = _open(args.stage)
+            from usdahd.usd import schema
 
-        baked = [p for p in schema.prims_with_api(stage)]
-        if retrace is not None:
-            rt.OPTIONS = retrace
-        findings = validate_stage(stage, args.prim, retrace=retrace is not None)
-        if not baked:
-            # A CI job pointed at the source stage (or the wrong file) must not stay green.
-            findings.insert(0, no_lightmaps_finding(args.stage))
+            baked = [p for p in schema.prims_with_api(stage)]
+            if retrace is not None:
+                rt.OPTIONS = retrace
+            findings = validate_stage(stage, args.prim, retrace=retrace is not None)
+            if not baked:
+                # A CI job pointed at the source stage (or the wrong file) must not stay green.
+                findings.insert(0, no_lightmaps_finding(args.stage))
     finally:
         v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning = old
         rt.OPTIONS = old_rt
+    findings = dedupe(findings, Path(args.stage).resolve().parent)
+    usd = [ln for ln in usd_lines if _is_usd_diagnostic(ln)]
+    for ln in usd_lines:  # our own stderr output (progress, notices) is passed on as it was
+        if not _is_usd_diagnostic(ln):
+            print(ln, file=sys.stderr)
+    usd_notes = sorted({_usd_diagnostic(ln) for ln in usd})
     code = exit_code(findings, args.strict)
     counts = {s: sum(f.severity == s for f in findings) for s in ("error", "warning", "info")}
     if args.json:
@@ -286,6 +354,7 @@ def run(args) -> int:
                     "prims": [str(p.GetPath()) for p in baked],
                     "findings": v.findings_json(findings),
                     "counts": counts,
+                    "usd_diagnostics": usd_notes,
                     "exit_code": code,
                 },
                 indent=2,
@@ -297,6 +366,12 @@ def run(args) -> int:
         if args.quiet and f.severity == "info":
             continue
         print(format_finding(f))
+    if usd_notes and int(args.quiet or 0) < 2:
+        print(
+            f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
+        )
+        for n in usd_notes[:10]:
+            print(f"  usd: {n[:300]}", file=sys.stderr)
     if not args.quiet:
         status = "FAILED" if code else "ok"
         note = "" if baked else " (no prim has AhdLightmapAPI)"

@@ -96,6 +96,7 @@ class PrimJob:
     parts: dict = field(default_factory=dict)
     report: dict = field(default_factory=dict)
     previous: object = None  # BakeResults of an unchanged previous bake
+    fallback: object = None  # BakeResults of the previous bake, kept if this one fails
     results: object = None  # BakeResults of this bake
     uv_primvar_values: object = None  # (t, 3, 2) UVs to author when unwrapped
     texels: object = None  # Texels
@@ -411,11 +412,19 @@ def _commit_textures(jobs: list, out: Path) -> None:
                 img = images.read(staged)
                 ok = np.asarray(img.pixels).shape[:2] == tuple(job.results.resolution[::-1])
             except Exception as exc:  # a truncated or empty file
+                import shutil
+
+                free = shutil.disk_usage(folder).free
+                why = (
+                    f"the disk is full ({free / 1024:.0f} KiB free)"
+                    if free < 4 * 2**20
+                    else str(exc).splitlines()[0][:160]
+                    if str(exc)
+                    else type(exc).__name__
+                )
                 raise OutputError(
-                    f"{job.path}: the new {role} texture could not be read back after writing "
-                    f"({str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__}); "
-                    f"is the disk under {folder} full? Free space and re-run (the previous "
-                    "bake is intact)"
+                    f"{job.path}: the new {role} texture in {folder} is truncated or unreadable "
+                    f"after writing: {why}; free space and re-run (the previous bake is intact)"
                 ) from None
             if not ok:
                 raise OutputError(f"{job.path}: the new {role} texture came back truncated")
@@ -425,6 +434,7 @@ def _commit_textures(jobs: list, out: Path) -> None:
             else:
                 os.replace(staged, final)
             job.results.textures[role] = str(final)
+            _fault("first_texture_committed")
     if jobs:
         _fsync(folder, directory=True)
 
@@ -456,15 +466,15 @@ def _referenced(out: Path) -> set[Path] | None:
     return found
 
 
-def cleanup_outputs(out: Path) -> list[str]:
+def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     """Remove files of this output layer that no layer references: textures it owns
     (:func:`_owned_pattern`) that ``out`` does not name, and temp/staging files a killed or
-    failed bake left. Only names this tool writes, only inside the output folder; call with
-    the output lock held. returns the names removed."""
+    failed bake left (only those with ``staged_only``). Only names this tool writes, only
+    inside the output folder; call with the output lock held. returns the names removed."""
     removed = []
     folder = out.parent / LIGHTMAPS_DIR
     prefix = layer_prefix(out)
-    refs = _referenced(out)
+    refs = None if staged_only else _referenced(out)
     owned = _owned_pattern(out)
     layer_tmp = re.compile(
         r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
@@ -519,6 +529,28 @@ def output_lock(out: Path, opts: BakeOptions):
         yield
     finally:
         os.close(fd)
+
+
+#: Fault-injection points of a bake, in order (tests/test_faults.py kills a bake at each).
+FAULT_POINTS = (
+    "traced",
+    "textures_staged",
+    "first_texture_committed",
+    "textures_committed",
+    "layer_exported",
+    "layer_replaced",
+)
+
+
+def _fault(point: str) -> None:
+    """``USDAHD_FAULT=<point>`` sends this process ``USDAHD_FAULT_SIGNAL`` (default KILL) at
+    ``point``: how the fault tests stop a bake at exact places. No effect otherwise."""
+    if os.environ.get("USDAHD_FAULT") == point:
+        import signal
+
+        sig = getattr(signal, "SIG" + os.environ.get("USDAHD_FAULT_SIGNAL", "KILL"))
+        os.kill(os.getpid(), sig)
+        time.sleep(1.0)  # let a handled signal (SIGINT -> KeyboardInterrupt) arrive here
 
 
 def _warn(opts: BakeOptions, msg: str) -> None:
@@ -795,6 +827,8 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             job.previous = old
             continue
         job.report["status"] = "planned"
+        if old is not None and _files_exist(old):
+            job.fallback = old  # a prim that fails now (e.g. disk full) keeps its old record
         if opts.force:
             reason = "forced"
         elif old is None:
@@ -850,9 +884,16 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     for j in todo:
         if j.report["status"] == "failed":
             failed += 1
-    if any(j.results is not None or j.previous is not None for j in jobs):
+    _fault("textures_staged")
+    if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
         _commit_textures([j for j in todo if j.results is not None], out)
+        cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
+        _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs)
+        _fault("layer_replaced")
+    for j in todo:
+        if j.report["status"] == "failed" and j.fallback is not None:
+            j.report["previous_kept"] = True
     report["exit_code"] = 1 if failed else 0
     report["seconds"] = time.perf_counter() - t_start
     return report
@@ -1189,7 +1230,7 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
         UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
     old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
     for job in sorted(jobs, key=lambda j: j.path):
-        res = job.results or job.previous
+        res = job.results or job.previous or job.fallback
         if res is None:
             continue
         prim = ostage.GetPrimAtPath(job.path)
@@ -1222,7 +1263,11 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
             ok = layer.Export(tmp_name)
         except Exception as exc:  # pxr raises Tf.ErrorException (e.g. no space left)
             ok = False
-            why = str(exc).strip().splitlines()[-1][:200] if str(exc).strip() else ""
+            text = " ".join(str(exc).split())
+            if "No space left" in text:
+                why = "no space left on device"
+            else:
+                why = re.sub(r"^.*?line \d+ in file \S+ : ", "", text).strip("'")[:200]
         else:
             why = ""
         if not ok or tmp.stat().st_size == 0:
@@ -1235,6 +1280,7 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         _fsync(tmp)
+        _fault("layer_exported")
         new = tmp.read_bytes()
         if out.is_file() and out.read_bytes() == new:
             return False
@@ -1336,6 +1382,7 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
     jobs = [j for j in jobs if j not in refits]
     if jobs:  # no BVH when every job refits
         _trace_jobs(scene, jobs, opts)
+    _fault("traced")
     ok = [j for j in jobs if j.report.get("status") != "failed"]
     from usdahd.bake.texels import chart_ids
 
@@ -1371,10 +1418,25 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         try:
             _encode_and_write(job, out, opts)
         except UsdAhdError as exc:  # ImageError, BakeError, InputError: this prim only
-            job.report.update(
-                status="failed",
-                error=f"{job.path}: {exc}" if job.path not in str(exc) else str(exc),
+            job.report.update(status="failed", error=_write_failure(job.path, exc, out))
+
+
+def _write_failure(prim_path: str, exc: Exception, out: Path) -> str:
+    """The message of a prim whose encode/write failed; a full disk is named as such."""
+    import shutil
+
+    from usdahd.errors import ImageError
+
+    text = str(exc)
+    folder = out.parent / LIGHTMAPS_DIR
+    if isinstance(exc, ImageError) and folder.is_dir():
+        free = shutil.disk_usage(folder).free
+        if free < 4 * 2**20 or "No space" in text:
+            return (
+                f"{prim_path}: cannot write its lightmap textures in {folder}: the disk is full "
+                f"({free / 1024:.0f} KiB free); free some space and re-run"
             )
+    return f"{prim_path}: {text}" if prim_path not in text else text
 
 
 def _write_ktx2(job, lay, img, mask, path: Path, factors: dict) -> None:

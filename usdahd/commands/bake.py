@@ -127,7 +127,8 @@ def run(args) -> int:
     # Failures reach stderr even with --quiet or --json: CI logs must show why it exited 1.
     for p in report["prims"]:
         if p.get("status") == "failed":
-            print(f"usdahd bake: error: {p['error']}", file=sys.stderr)
+            kept = "; its previous bake is kept" if p.get("previous_kept") else ""
+            print(f"usdahd bake: error: {p['error']}{kept}", file=sys.stderr)
     return report["exit_code"]
 
 

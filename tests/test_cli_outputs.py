@@ -1,0 +1,116 @@
+"""Where a bake writes and what it trusts (issues 13 and 18): texture names unique per output
+layer and content-addressed, so two scenario layers share a folder; files of a layer no layer
+references are removed, other layers' files never; a previous layer's paths outside the output
+folder are never followed."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from usdahd import cli, images, pipeline
+from usdahd import sh as shmod
+from usdahd.usd import schema
+
+ROOT = Path(__file__).resolve().parents[1]
+PLANE = ROOT / "samples" / "open_plane.usda"
+FAST = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
+
+
+def _run(capsys, *argv) -> int:
+    code = cli.main(list(argv))
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.out + cap.err
+    return code
+
+
+def _scenario(tmp_path: Path, name: str, intensity: float) -> Path:
+    text = PLANE.read_text(encoding="utf-8")
+    old = "float inputs:intensity = 1\n"
+    assert text.count(old) == 1
+    path = tmp_path / f"{name}.usda"
+    path.write_text(text.replace(old, f"float inputs:intensity = {intensity}\n"), "utf-8")
+    return path
+
+
+def _iz(layer: Path) -> float:
+    """Mean baked I_z (luminance-free: channel R) over covered texels, from the SH sidecar."""
+    from pxr import Sdf, Usd
+
+    Sdf.Layer.FindOrOpen(str(layer)).Reload(force=True)
+    stage = Usd.Stage.Open(str(layer))
+    (prim,) = schema.prims_with_api(stage)
+    res = schema.read_results(prim)
+    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
+    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
+    covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
+    return float(shmod.iz(covered)[:, 0].mean())
+
+
+def test_day_and_night_layers_in_one_folder_keep_their_own_lighting(tmp_path, capsys):
+    day, night = _scenario(tmp_path, "day", 1.0), _scenario(tmp_path, "night", 0.25)
+    day_layer, night_layer = tmp_path / "day.lightmaps.usda", tmp_path / "night.lightmaps.usda"
+    assert _run(capsys, "bake", str(day), *FAST) == 0
+    assert _run(capsys, "bake", str(night), *FAST) == 0
+    # The open plane sees only the uniform sky: I_z = intensity exactly (docs: samples/README).
+    assert abs(_iz(day_layer) - 1.0) < 0.02
+    assert abs(_iz(night_layer) - 0.25) < 0.005
+    day_files = pipeline._referenced(day_layer)
+    night_files = pipeline._referenced(night_layer)
+    assert day_files and night_files and not day_files & night_files
+    night_bytes = {f: f.read_bytes() for f in night_files}
+    # Re-baking day (new resolution: new files, day's old ones cleaned up) leaves night alone.
+    assert _run(capsys, "bake", str(day), *FAST[:1], "12", *FAST[2:]) == 0
+    assert {f: f.read_bytes() for f in night_files} == night_bytes
+    assert _run(capsys, "validate", "--quiet", str(night_layer)) == 0
+    assert _run(capsys, "validate", "--quiet", str(day_layer)) == 0
+    assert abs(_iz(night_layer) - 0.25) < 0.005
+    left = {f.resolve() for f in (tmp_path / "lightmaps").iterdir()}
+    assert left == pipeline._referenced(day_layer) | night_files  # day's old files removed
+
+
+def test_texture_names_are_content_addressed_and_per_layer(tmp_path, capsys):
+    stage = _scenario(tmp_path, "a", 1.0)
+    assert _run(capsys, "bake", str(stage), *FAST) == 0
+    layer = tmp_path / "a.lightmaps.usda"
+    prefix = pipeline.layer_prefix(layer)
+    import hashlib
+
+    for f in pipeline._referenced(layer):
+        assert f.name.startswith(prefix + ".")
+        digest = f.name.split(".")[-2]
+        assert hashlib.sha256(f.read_bytes()).hexdigest().startswith(digest)
+    assert pipeline.layer_prefix(tmp_path / "a.b.usda") != pipeline.layer_prefix(
+        tmp_path / "a_b.usda"
+    )
+
+
+def test_previous_layer_paths_outside_the_output_folder_are_not_trusted(tmp_path, capsys):
+    stage = tmp_path / "scene" / "plane.usda"
+    stage.parent.mkdir()
+    shutil.copy2(PLANE, stage)
+    assert _run(capsys, "bake", str(stage), *FAST) == 0
+    layer = stage.parent / "plane.lightmaps.usda"
+    outside = tmp_path / "x"
+    outside.mkdir()
+    # Hand-edit: move one texture outside and point the layer at it (hash unchanged).
+    text = layer.read_text()
+    ref = sorted(f for f in pipeline._referenced(layer) if ".iz." in f.name)[0]
+    moved = outside / ref.name
+    shutil.copy2(ref, moved)
+    layer.write_text(text.replace(f"./lightmaps/{ref.name}", f"../x/{ref.name}"))
+    before = moved.read_bytes()
+    code = cli.main(["bake", str(stage), *FAST[:-1], "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    import json
+
+    report = json.loads(out)
+    assert report["prims"][0]["status"] == "baked"  # not skipped on the old record's word
+    assert any("outside" in w and "re-baked" in w for w in report["warnings"])
+    for f in pipeline._referenced(layer):
+        assert f.parent == (stage.parent / "lightmaps").resolve()
+    assert moved.read_bytes() == before  # never written, never removed
+    assert _run(capsys, "validate", "--quiet", str(layer)) == 0

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from usdahd import models
 from usdahd import sh as shmod
-from usdahd.errors import InputError
+from usdahd.errors import InputError, UsageError
 
 
 def add_parser(sub):
@@ -44,60 +46,227 @@ def add_parser(sub):
     return p
 
 
+#: Texels fitted per chunk: memory stays bounded whatever the file size (measured peak about
+#: 140 MB at 4096 texels for sh_l1, most of it the models' evaluation at 256 directions).
+CHUNK = 4096
+#: Largest array accepted (elements); a bigger one is refused before anything is read.
+MAX_ELEMENTS = 2**34
+
+
+def _read_header(fh):
+    """(shape, fortran_order, dtype) of an .npy stream, with numpy's public readers."""
+    fmt = np.lib.format
+    version = fmt.read_magic(fh)
+    if version == (1, 0):
+        return fmt.read_array_header_1_0(fh)
+    if version == (2, 0):
+        return fmt.read_array_header_2_0(fh)
+    raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
+
+
+class ShSource:
+    """(n, 3, 9) radiance SH read in chunks from a .npy (memory-mapped) or the 'sh' array of
+    an .npz (streamed from the zip member), never loaded whole.
+
+    shape : the file's full shape (..., 3, 9); n : texels; dtype : its numpy dtype.
+    ``chunks(size)`` yields (start, (k, 3, 9) float64) and checks every value is finite.
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        f = Path(path)
+        if f.is_dir():
+            raise InputError(f"{path}: is a directory; give a .npy or .npz file")
+        if not f.exists():
+            raise InputError(f"{path}: no such file")
+        if not f.is_file():
+            raise InputError(f"{path}: not a regular file; give a .npy or .npz file")
+        self._zip = None
+        try:
+            if zipfile.is_zipfile(f):
+                self._open_npz(f)
+            else:
+                self._open_npy(f)
+        except InputError:
+            raise
+        except ValueError as exc:
+            if "pickle" in str(exc).lower() or "object" in str(exc).lower():
+                raise self._pickle_error() from None
+            raise InputError(f"{path}: not a readable .npy/.npz file ({exc})") from None
+        except Exception as exc:  # numpy raises several types for corrupt files
+            raise InputError(f"{path}: not a readable .npy/.npz file ({exc})") from None
+        self._check()
+
+    def _pickle_error(self) -> InputError:
+        return InputError(
+            f"{self.path}: holds Python objects (a pickle); usdahd fit reads numeric arrays "
+            "only, never pickles: save the SH with np.save(path, np.asarray(sh, np.float32))"
+        )
+
+    def _open_npy(self, f: Path) -> None:
+        with open(f, "rb") as fh:
+            shape, fortran, dtype = _read_header(fh)
+        self.shape, self.dtype = tuple(shape), np.dtype(dtype)
+        self._check_dtype()
+        self._array = np.load(f, mmap_mode="r", allow_pickle=False)
+        self._fortran = fortran
+
+    def _open_npz(self, f: Path) -> None:
+        self._zip = zipfile.ZipFile(f)
+        names = self._zip.namelist()
+        if "sh.npy" not in names:
+            found = [n[:-4] if n.endswith(".npy") else n for n in names]
+            raise InputError(f"{self.path}: .npz has no array named 'sh' (has {found})")
+        with self._zip.open("sh.npy") as fh:
+            shape, fortran, dtype = _read_header(fh)
+            self._offset = fh.tell()
+        self.shape, self.dtype, self._fortran = tuple(shape), np.dtype(dtype), fortran
+        self._check_dtype()
+        self._array = None
+
+    def _check_dtype(self) -> None:
+        if self.dtype.hasobject:
+            raise self._pickle_error()
+        if self.dtype.kind == "c":
+            raise InputError(
+                f"{self.path}: complex values (dtype {self.dtype}); radiance SH are real: "
+                "save the real part"
+            )
+        if self.dtype.kind not in "fiu":
+            raise InputError(
+                f"{self.path}: dtype {self.dtype} is not numeric; save float32 or float64 SH"
+            )
+
+    def _check(self) -> None:
+        if len(self.shape) < 2 or self.shape[-2:] != (3, 9):
+            raise InputError(
+                f"{self.path}: expected shape (..., 3, 9) (RGB x 9 SH coefficients), got "
+                f"{self.shape}"
+            )
+        self.n = int(np.prod(self.shape[:-2], dtype=np.int64))
+        if self.n == 0:
+            raise InputError(
+                f"{self.path}: the array is empty (shape {self.shape}); nothing to fit"
+            )
+        if self.n * 27 > MAX_ELEMENTS:
+            raise InputError(
+                f"{self.path}: {self.n} texels is above the limit of {MAX_ELEMENTS // 27}; "
+                "split the file"
+            )
+        if self._fortran and self.n > 1 and len(self.shape) > 2:
+            raise InputError(
+                f"{self.path}: stored in Fortran order; save it with np.save(path, "
+                "np.ascontiguousarray(sh))"
+            )
+
+    def chunks(self, size: int | None = None):
+        """Yield (start, (k, 3, 9) float64) over the texels (``size`` each, default
+        :data:`CHUNK`); InputError on NaN/Inf."""
+        size = int(size or CHUNK)
+        row = 27 * self.dtype.itemsize
+        fh = None
+        if self._zip is not None:
+            fh = self._zip.open("sh.npy")
+            fh.read(self._offset)
+        flat = None if self._array is None else np.asarray(self._array).reshape(-1, 3, 9)
+        try:
+            for start in range(0, self.n, size):
+                k = min(size, self.n - start)
+                if flat is not None:
+                    block = np.asarray(flat[start : start + k], dtype=np.float64)
+                else:
+                    data = fh.read(k * row)
+                    if len(data) != k * row:
+                        raise InputError(f"{self.path}: the 'sh' array is truncated")
+                    block = np.frombuffer(data, self.dtype).reshape(k, 3, 9).astype(np.float64)
+                bad = ~np.isfinite(block)
+                if bad.any():
+                    first = start + int(np.argwhere(bad.any(axis=(1, 2)))[0, 0])
+                    raise InputError(
+                        f"{self.path}: {int(bad.sum())} non-finite SH values (NaN or Inf) in "
+                        f"texels {start}..{start + k - 1}, first at texel {first}; fix or drop "
+                        "those texels"
+                    )
+                yield start, block
+        finally:
+            if fh is not None:
+                fh.close()
+
+
 def load_sh(path: str) -> np.ndarray:
-    """Read (..., 3, 9) radiance SH from a .npy or .npz ('sh') file, with clear errors."""
-    f = Path(path)
-    if not f.is_file():
-        raise InputError(f"{path}: no such file")
-    try:
-        data = np.load(f, allow_pickle=False)
-    except Exception as exc:  # numpy raises several types for corrupt files
-        raise InputError(f"{path}: not a readable .npy/.npz file ({exc})") from None
-    if isinstance(data, np.lib.npyio.NpzFile):
-        if "sh" not in data.files:
-            raise InputError(f"{path}: .npz has no array named 'sh' (has {data.files})")
-        data = data["sh"]
-    if data.ndim < 2 or data.shape[-2:] != (3, 9):
-        raise InputError(f"{path}: expected shape (..., 3, 9), got {data.shape}")
-    return data
+    """Read (..., 3, 9) radiance SH from a .npy or .npz ('sh') file, with clear errors
+    (validated like :class:`ShSource`; loads the whole array, as float64)."""
+    src = ShSource(path)
+    out = np.empty((src.n, 3, 9), np.float64)
+    for start, block in src.chunks():
+        out[start : start + len(block)] = block
+    return out.reshape(src.shape)
 
 
 def hemispherical_rmse(sh: np.ndarray, fitted, n_dirs: int = 256) -> np.ndarray:
     """RMSE over the upper hemisphere of the fitted irradiance against the SH irradiance.
 
     sh : (n, 3, 9); returns (n,) relative to the mean target irradiance (luminance).
+    The target is a (n, d, 3) float64 product of the SH with a (9, d) irradiance basis
+    (irradiance is linear in the SH), so no (n, d, 3, 9) temporary is built.
     """
     dirs = shmod.fibonacci_sphere(n_dirs, hemisphere=True)
-    target = shmod.irradiance(sh[:, None], dirs[None])  # (n, d, 3)
+    basis = shmod.basis(dirs) * shmod.COSINE_FACTORS  # (d, 9)
+    target = np.einsum("nck,dk->ndc", sh, basis)  # (n, d, 3)
     got = fitted.evaluate(np.broadcast_to(dirs, (sh.shape[0],) + dirs.shape))
     err = np.sqrt(((got - target) ** 2).mean(axis=(1, 2)))
     scale = np.abs(target).mean(axis=(1, 2))
     return err / np.where(scale > 0, scale, 1.0)
 
 
+def _check_output(path: str | None) -> None:
+    if not path:
+        return
+    out = Path(path)
+    if out.is_dir():
+        raise UsageError(f"-o {path}: is a directory; give the .npz file to write")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise UsageError(f"-o {path}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise UsageError(f"-o {path}: the folder {parent} is not writable")
+
+
 def run(args) -> int:
-    data = load_sh(args.sh)
+    src = ShSource(args.sh)
+    _check_output(args.output)
     options = {"objective": args.objective} if args.objective else {}
-    flat = data.reshape(-1, 3, 9).astype(np.float64)
-    fitted = models.fit(flat, args.model, ratio=args.ratio, solver=args.solver, **options)
-    rel = hemispherical_rmse(flat, fitted)
+    params: dict[str, np.ndarray] = {}
+    rel_sum, rel_max, fitted = 0.0, 0.0, None
+    for start, block in src.chunks():
+        fitted = models.fit(block, args.model, ratio=args.ratio, solver=args.solver, **options)
+        rel = hemispherical_rmse(block, fitted)
+        rel_sum += float(rel.sum())
+        rel_max = max(rel_max, float(rel.max()))
+        if args.output:
+            for k, v in fitted.params.items():
+                if k not in params:
+                    params[k] = np.empty((src.n,) + v.shape[1:], v.dtype)
+                params[k][start : start + len(v)] = v
+    shapes = {k: (src.n,) + v.shape[1:] for k, v in fitted.params.items()}
     # Parameters keep the file's leading shape.
-    lead = data.shape[:-2]
-    fitted.params = {k: v.reshape(lead + v.shape[1:]) for k, v in fitted.params.items()}
+    lead = src.shape[:-2]
+    shapes = {k: lead + v[1:] for k, v in shapes.items()}
+    params = {k: v.reshape(shapes[k]) for k, v in params.items()}
     report = {
         "file": args.sh,
         "model": fitted.model,
         "ratio": fitted.ratio,
         "solver": fitted.solver,
-        "texels": int(flat.shape[0]),
-        "relative_rmse_mean": float(np.mean(rel)),
-        "relative_rmse_max": float(np.max(rel)),
-        "params": {k: list(v.shape) for k, v in fitted.params.items()},
+        "texels": int(src.n),
+        "relative_rmse_mean": rel_sum / src.n,
+        "relative_rmse_max": rel_max,
+        "params": {k: list(v) for k, v in shapes.items()},
     }
     if args.output:
         from usdahd.io_util import atomic_write_npz
 
-        atomic_write_npz(args.output, **fitted.params)
+        atomic_write_npz(args.output, **params)
         report["output"] = args.output
     if args.json:
         print(json.dumps(report, indent=2))
@@ -107,8 +276,8 @@ def run(args) -> int:
             f"solver={fitted.solver}  hemispherical relative RMSE mean "
             f"{report['relative_rmse_mean']:.4g} max {report['relative_rmse_max']:.4g}"
         )
-        for k, v in fitted.params.items():
-            print(f"  {k}: shape {v.shape}")
+        for k, v in shapes.items():
+            print(f"  {k}: shape {v}")
         if args.output:
             print(f"wrote {args.output}", file=sys.stderr)
     return 0

@@ -427,3 +427,59 @@ def test_validate_messages_name_the_absolute_allowance_and_another_model(baked_b
     enc = [ln for ln in out.splitlines() if "HighEncodingError" in ln or "EncodingError" in ln]
     fixes = [ln for ln in enc if "Fix" in ln]
     assert fixes and all("(sh_l2)" in ln and "(hhd or" not in ln for ln in fixes)
+
+
+# ------------------------------------------------- bad inputs that cannot be committed files
+
+
+def test_fifo_as_texture_does_not_hang(tmp_path):
+    """A FIFO as a material texture: refused as not a regular file (opening it would block)."""
+    shutil.copy2(ROOT / "tests" / "data" / "bad_stages" / "texture_is_directory.usda", tmp_path)
+    stage = tmp_path / "texture_is_directory.usda"
+    os.mkfifo(tmp_path / "pipe.png")
+    stage.write_text(stage.read_text().replace("@./@", "@./pipe.png@"))
+    assert "@./pipe.png@" in stage.read_text()
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(stage), *FAST, "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert any("pipe.png" in w and "not a regular file" in w for w in report["warnings"])
+
+
+def test_non_utf8_file_name_is_one_message(tmp_path, capsys):
+    name = os.fsdecode(b"caf\xe9.usda")
+    shutil.copy2(SAMPLES / "open_plane.usda", tmp_path / name)
+    code, out, err = _main(capsys, "bake", str(tmp_path / name), *FAST, "--json")
+    assert code == 2
+    line = _error_line(err, "bake")
+    assert "caf\\xe9.usda" in line and "not valid UTF-8" in line and "rename" in line
+    assert json.loads(out)["exit_code"] == 2
+
+
+def test_read_only_override_layer_is_refused_before_tracing(tmp_path, capsys, monkeypatch):
+    plane = _copy(tmp_path)
+    assert _main(capsys, "bake", str(plane), *FAST)[0] == 0
+    layer = tmp_path / "open_plane.lightmaps.usda"
+    layer.chmod(0o444)
+    before = layer.read_bytes()
+    traced = []
+    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    code, _, err = _main(capsys, "bake", str(plane), *FAST, "--force")
+    assert code == 2 and not traced
+    line = _error_line(err, "bake")
+    assert str(layer) in line and "read-only" in line and "chmod" in line
+    assert layer.read_bytes() == before
+
+
+def test_output_path_under_a_file_is_refused(tmp_path, capsys):
+    plane = _copy(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    code, _, err = _main(capsys, "bake", str(plane), "-o", str(tmp_path / "afile" / "x.usda"))
+    assert code == 2
+    assert "not a folder" in _error_line(err, "bake")

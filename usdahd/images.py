@@ -203,6 +203,8 @@ def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | Non
     path = os.fspath(path)
     if not os.path.exists(path):
         raise ImageError(f"{path}: no such image file")
+    if not os.path.isfile(path):  # a FIFO would block, a directory has no reader
+        raise ImageError(f"{path}: not a regular file (a directory, FIFO or device)")
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
     inp = oiio.ImageInput.open(path, config)

@@ -272,12 +272,28 @@ def _open_stage(path: Path):
         cached.Reload(force=True)
     try:
         stage = Usd.Stage.Open(str(path))
+    except UnicodeDecodeError:  # USD's message quotes the undecodable bytes
+        raise StageError(_utf8_problem(path)) from None
     except Exception as exc:  # pxr raises Tf.ErrorException
         first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
         raise StageError(f"{path}: not a readable USD stage ({first})") from None
     if stage is None:
         raise StageError(f"{path}: not a readable USD stage")
     return stage
+
+
+def _utf8_problem(path: Path) -> str:
+    """Where a text layer stops being UTF-8 (USD text layers must be UTF-8)."""
+    data = path.read_bytes()
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        return (
+            f"{path}: not valid UTF-8 at line {line} (byte 0x{data[exc.start]:02x}); USD text "
+            "layers must be UTF-8: re-save the file as UTF-8 (e.g. iconv -f latin1 -t utf-8)"
+        )
+    return f"{path}: not a readable USD stage (it names a layer or value that is not UTF-8)"
 
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
@@ -585,6 +601,15 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
     from usdahd.errors import OutputError
 
     src = Path(stage_path)
+    for what, path in (("stage", src), ("-o", Path(opts.output or "."))):
+        try:
+            os.fsencode(path.resolve()).decode("utf-8")
+        except UnicodeDecodeError:
+            shown = os.fsencode(path).decode("utf-8", errors="backslashreplace")
+            raise InputError(
+                f"{shown}: the {what} path is not valid UTF-8; USD needs UTF-8 file names: "
+                "rename the file or folder"
+            ) from None
     if src.is_dir():
         raise InputError(f"{stage_path}: is a directory; give a USD stage file (.usda/.usdc/.usd)")
     if not src.exists():
@@ -634,8 +659,11 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
     _probe_writable(existing, "output layer")
     if folder.is_dir():
         _probe_writable(folder, "lightmap textures")
-    if out.is_file() and not os.access(out, os.W_OK) and os.geteuid() != 0:
-        raise OutputError(f"{out}: the output layer is read-only; make it writable or use -o")
+    if out.is_file() and not out.stat().st_mode & 0o222:
+        raise OutputError(
+            f"{out}: the output layer is read-only (no write permission bits); make it "
+            "writable (chmod u+w) or choose another output with -o"
+        )
     return src, out
 
 
@@ -659,6 +687,18 @@ def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
                 f"--prim {p}: no such prim on {src.name}; list the meshes with "
                 "usdahd bake --dry-run, or check the spelling"
             )
+
+
+def _check_values(src: Path, stage, uv_name: str):
+    """Authored light/material/primvar values (:mod:`usdahd.usd.checks`); a stage-level error
+    raises StageError (the first one, with how many more)."""
+    from usdahd.usd import checks
+
+    found = checks.check_stage(stage, uv_name)
+    if found.errors:
+        more = len(found.errors) - 1
+        raise StageError(found.errors[0] + (f" (and {more} more problem(s))" if more else ""))
+    return found
 
 
 def _no_mesh_message(src: Path, stage, api_prims: dict) -> str:
@@ -732,15 +772,18 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     _check_options(opts)
     t_start = time.perf_counter()
     src, out = preflight(stage_path, opts)
-    stage = _open_stage(src)
-    _check_stage(src, stage, opts)
-    if opts.dry_run:
-        return _bake_locked(src, out, stage, opts, t_start)
-    with CompileNotice(quiet=bool(opts.quiet)), output_lock(out, opts):
-        try:
+    try:
+        stage = _open_stage(src)
+        _check_stage(src, stage, opts)
+        if opts.dry_run:
             return _bake_locked(src, out, stage, opts, t_start)
-        finally:
-            cleanup_outputs(out)
+        with CompileNotice(quiet=bool(opts.quiet)), output_lock(out, opts):
+            try:
+                return _bake_locked(src, out, stage, opts, t_start)
+            finally:
+                cleanup_outputs(out)
+    except UnicodeDecodeError:  # pxr hands Python a name or string that is not UTF-8
+        raise StageError(_utf8_problem(src)) from None
 
 
 def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float) -> dict:
@@ -750,7 +793,11 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # Meshes carrying the API select themselves (bake on); else every visible mesh.
     api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}
     uv_default = opts.uv or DEFAULTS["uv"]
+    checked = _check_values(src, stage, uv_default)
     scene = load_scene(stage, uv_name=uv_default, prims=opts.prims, time=opts.time)
+    for m in scene.meshes:
+        if m.path in checked.prim_errors:
+            m.bake = False
     if api_prims:
         for m in scene.meshes:
             if m.bake:
@@ -762,7 +809,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         "output": str(out),
         "time": scene.time_setting,
         "prims": [],
-        "warnings": list(scene.warnings) + untrusted,
+        "warnings": list(checked.warnings) + list(scene.warnings) + untrusted,
         "notes": [],
         "dry_run": bool(opts.dry_run),
         "written": False,
@@ -783,6 +830,12 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     failed = 0
     # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
     # the rest of the stage still bakes.
+    selected = set(opts.prims or [])
+    for path, msg in sorted(checked.prim_errors.items()):
+        if not selected or any(path == p or path.startswith(p + "/") for p in selected):
+            report["prims"].append({"path": path, "status": "failed", "error": msg})
+            report["prims"][-1]["warnings"] = []
+            failed += 1
     for path, msg in sorted(getattr(scene, "failed", {}).items()):
         report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
         failed += 1
@@ -1000,7 +1053,15 @@ def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
     from usdahd.bake.texels import resolution_for_density
 
     tpu = _texels_per_unit(settings, scene)
-    w, h = resolution_for_density(mesh, tpu, max_resolution=MAX_RESOLUTION)
+    try:
+        w, h = resolution_for_density(mesh, tpu, max_resolution=MAX_RESOLUTION)
+    except UsageError as exc:
+        mpu = float(scene.meters_per_unit or 1.0)
+        raise UsageError(
+            f"{exc}; the stage's metersPerUnit is {mpu:g}, so {settings['texel_density']:g} "
+            f"texels per metre are {tpu:.3g} per stage unit: check metersPerUnit, or pass "
+            "--resolution"
+        ) from None
     if max(w, h) > DENSITY_MAX_RESOLUTION:
         job.report.setdefault("warnings", []).append(
             f"texel density {settings['texel_density']:g}/m needs {w}x{h}; clamped to "

@@ -94,6 +94,7 @@ class Progress:
         self._last = now
         _draw(self.stream, self.tty, self._line(done, total, now))
         self._drawn = True
+        self._drawn_done = done
 
     def close(self) -> None:
         """Finish: a terminal line is erased; a log gets the final 100 % line."""
@@ -103,7 +104,7 @@ class Progress:
             if self._drawn:
                 clear_line()
             return
-        if self._drawn or self._done:
+        if (self._drawn or self._done) and getattr(self, "_drawn_done", None) != self._done:
             done = self._total or self._done
             line = self._line(done, done, time.perf_counter())
             line += f"  done in {format_seconds(self._elapsed(time.perf_counter()))}"

@@ -1826,7 +1826,13 @@ def read_image(path: str, colorspace: str = "auto", warn=None, file_colorspace: 
     import OpenImageIO as oiio
 
     from usdahd.usd import assets
+    from usdahd.usd.checks import asset_problem  # regular file, size limit (issue 18)
 
+    problem = asset_problem(path)
+    if problem:
+        if warn:
+            warn(f"cannot read texture {path}: it {problem}; fallback used")
+        return None
     try:
         with assets.local_file(path) as local:
             inp = oiio.ImageInput.open(local)

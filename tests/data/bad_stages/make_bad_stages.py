@@ -895,6 +895,197 @@ def _():
     return {"left_handed.usda": text(stage)}
 
 
+# ---- issue 18: more kinds of bad input ------------------------------------------------------
+
+
+def _area_light(stage, kind: str, **attrs):
+    cls = {"rect": UsdLux.RectLight, "disk": UsdLux.DiskLight, "sphere": UsdLux.SphereLight}[kind]
+    light = cls.Define(stage, "/World/Lights/Bad")
+    light.CreateIntensityAttr(5.0)
+    light.CreateExposureAttr(0.0)
+    light.CreateColorAttr(Gf.Vec3f(1, 1, 1))
+    light.CreateNormalizeAttr(False)
+    for name, value in attrs.items():
+        getattr(light, f"Create{name}Attr")(value)
+    UsdGeom.Xformable(light).AddTranslateOp().Set(Gf.Vec3d(0, 1.5, 0))
+    UsdGeom.Xformable(light).AddRotateXYZOp().Set(Gf.Vec3f(-90, 0, 0))
+    return light
+
+
+@case("nan_sphere_radius", "A SphereLight with inputs:radius = NaN.", 2, "radius",
+      prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("NaN sphere radius.")
+    _area_light(stage, "sphere", Radius=NAN)
+    return {"nan_sphere_radius.usda": text(stage)}
+
+
+@case("nan_rect_width", "A RectLight with inputs:width = NaN.", 2, "width",
+      prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("NaN rect width.")
+    _area_light(stage, "rect", Width=NAN, Height=0.5)
+    return {"nan_rect_width.usda": text(stage)}
+
+
+@case("inf_disk_radius", "A DiskLight with inputs:radius = +Inf.", 2, "radius",
+      prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("Inf disk radius.")
+    _area_light(stage, "disk", Radius=INF)
+    return {"inf_disk_radius.usda": text(stage)}
+
+
+@case("negative_rect_height", "A RectLight with inputs:height = -1.", 2, "height",
+      prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("Negative rect height.")
+    _area_light(stage, "rect", Width=0.5, Height=-1.0)
+    return {"negative_rect_height.usda": text(stage)}
+
+
+@case("exposure_minus_1000", "A SphereLight with inputs:exposure = -1000 (2^-1000 is 0 in "
+      "float32): it emits nothing; bake with a warning naming exposure.", 0, "exposure",
+      prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("Exposure -1000.")
+    sphere_light(stage, exposure=-1000.0)
+    return {"exposure_minus_1000.usda": text(stage)}
+
+
+@case("string_light_input", "A SphereLight whose inputs:intensity is authored as a string.",
+      2, "intensity", prim="/World/Lights/Bad")  # fmt: skip
+def _():
+    stage = base("String-typed light input.")
+    sphere_light(stage, intensity=5.0)
+    data = text(stage)
+    assert data.count(b"float inputs:intensity = 5") == 1
+    return {
+        "string_light_input.usda": data.replace(
+            b"float inputs:intensity = 5", b'string inputs:intensity = "bright"'
+        )
+    }
+
+
+@case("negative_emissive_scale", "The good plane's emissiveColor comes from a texture with "
+      "inputs:scale = (-1, -1, -1, 1): negative emission; refuse naming the shader.", 2,
+      "scale", prim="/World/Looks/Grey")  # fmt: skip
+def _():
+    stage = base("Negative emissive texture scale.")
+    shader = material(stage)
+    looks = "/World/Looks/Grey"
+    tex = UsdShade.Shader.Define(stage, f"{looks}/GlowTexture")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./glow.png"))
+    tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(-1, -1, -1, 1))
+    out = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(out)
+    return {"negative_emissive_scale.usda": text(stage), "glow.png": png_bytes()}
+
+
+@case("binding_missing_material", "/World/Bad's material:binding targets "
+      "/World/Looks/Nope, which does not exist: bake with the default material and a "
+      "warning.", 0, "material", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, mesh = with_bad_plane("Binding to a missing material.")
+    mesh.GetPrim().GetRelationship("material:binding").SetTargets(["/World/Looks/Nope"])
+    return {"binding_missing_material.usda": text(stage)}
+
+
+@case("binding_to_non_material", "/World/Bad's material:binding targets an Xform: bake with "
+      "the default material and a warning.", 0, "material", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, mesh = with_bad_plane("Binding to a prim that is not a Material.")
+    UsdGeom.Xform.Define(stage, "/World/Looks/NotAMaterial")
+    mesh.GetPrim().GetRelationship("material:binding").SetTargets(["/World/Looks/NotAMaterial"])
+    return {"binding_to_non_material.usda": text(stage)}
+
+
+@case("uv_element_size_2", "/World/Bad's st primvar has elementSize 2 (two UVs per corner).",
+      1, "elementSize", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, mesh = with_bad_plane("UV primvar with elementSize 2.")
+    UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").SetElementSize(2)
+    return {"uv_element_size_2.usda": text(stage)}
+
+
+@case("faces_with_holes", "/World/Bad authors holeIndices = [0]: the hole is not baked, with "
+      "a warning.", 0, "hole", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, mesh = with_bad_plane("Faces with holes.")
+    mesh.CreateHoleIndicesAttr(Vt.IntArray([0]))
+    return {"faces_with_holes.usda": text(stage)}
+
+
+@case("huge_meters_per_unit", "metersPerUnit = 1e15 and /World/Bad authors "
+      "ahdLightmap:texelDensity = 16 (per metre): its lightmap would have ~1e32 texels; the "
+      "message names metersPerUnit.", 1, "metersPerUnit", prim="/World/Bad")  # fmt: skip
+def _():
+    stage, mesh = with_bad_plane("Huge metersPerUnit.")
+    stage.SetMetadata("metersPerUnit", 1e15)
+    for path in ("/World/Good", "/World/Bad"):
+        stage.GetPrimAtPath(path).AddAppliedSchema("AhdLightmapAPI")
+    attr = mesh.GetPrim().CreateAttribute(
+        "ahdLightmap:texelDensity", Sdf.ValueTypeNames.Float, False, Sdf.VariabilityUniform
+    )
+    attr.Set(16.0)
+    return {"huge_meters_per_unit.usda": text(stage)}
+
+
+@case("api_on_xform", "AhdLightmapAPI applied (by hand) to the Xform /World and to no mesh.",
+      2, "not a Mesh", prim="/World")  # fmt: skip
+def _():
+    stage = base("AhdLightmapAPI on an Xform.")
+    stage.GetPrimAtPath("/World").AddAppliedSchema("AhdLightmapAPI")
+    return {"api_on_xform.usda": text(stage)}
+
+
+@case("output_layer_as_input", "An override layer written by usdahd bake passed as the stage "
+      "(x.lightmaps.usda): refuse instead of writing x.lightmaps.lightmaps.usda.", 2,
+      "output layer", file="output_layer_as_input.lightmaps.usda")  # fmt: skip
+def _():
+    data = edit_layer(
+        valid_text(),
+        lambda layer: setattr(
+            layer, "documentation",
+            "Directional lightmaps baked by usdahd 0.0 for x.usda; regenerate with usdahd bake.",
+        ),
+    )
+    return {"output_layer_as_input.lightmaps.usda": data}
+
+
+@case("non_utf8_string", "A string attribute and the layer doc hold bytes that are not "
+      "UTF-8 (Latin-1 'caf\\xe9'): USD cannot read it; one message naming the line.", 2,
+      "UTF-8", opens=False)  # fmt: skip
+def _():
+    stage = base("Non-UTF-8 string values: PLACEHOLDER.")
+    stage.GetPrimAtPath("/World/Good").CreateAttribute(
+        "userNote", Sdf.ValueTypeNames.String
+    ).Set("PLACEHOLDER")
+    return {"non_utf8_string.usda": text(stage).replace(b"PLACEHOLDER", b"caf\xe9")}
+
+
+@case("non_utf8_prim_name", "A prim name with a byte that is not UTF-8 (\\xff).", 2,
+      "UTF-8", opens=False)  # fmt: skip
+def _():
+    data = valid_text().replace(b'def Mesh "Good"', b'def Mesh "Go\xffod"', 1)
+    return {"non_utf8_prim_name.usda": data}
+
+
+@case("texture_is_directory", "The good plane's diffuseColor texture path names a directory: "
+      "use the fallback diffuseColor, with a warning.", 0, "not a regular file")  # fmt: skip
+def _():
+    stage = base("Material texture is a directory.")
+    shader = material(stage)
+    looks = "/World/Looks/Grey"
+    tex = UsdShade.Shader.Define(stage, f"{looks}/DiffuseTexture")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./"))
+    out = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    shader.GetInput("diffuseColor").ConnectToSource(out)
+    return {"texture_is_directory.usda": text(stage)}
+
+
 # --------------------------------------------------------------------------------------------
 # Aux data
 # --------------------------------------------------------------------------------------------

@@ -1047,7 +1047,8 @@ def _():
     data = edit_layer(
         valid_text(),
         lambda layer: setattr(
-            layer, "documentation",
+            layer,
+            "documentation",
             "Directional lightmaps baked by usdahd 0.0 for x.usda; regenerate with usdahd bake.",
         ),
     )
@@ -1059,9 +1060,9 @@ def _():
       "UTF-8", opens=False)  # fmt: skip
 def _():
     stage = base("Non-UTF-8 string values: PLACEHOLDER.")
-    stage.GetPrimAtPath("/World/Good").CreateAttribute(
-        "userNote", Sdf.ValueTypeNames.String
-    ).Set("PLACEHOLDER")
+    stage.GetPrimAtPath("/World/Good").CreateAttribute("userNote", Sdf.ValueTypeNames.String).Set(
+        "PLACEHOLDER"
+    )
     return {"non_utf8_string.usda": text(stage).replace(b"PLACEHOLDER", b"caf\xe9")}
 
 

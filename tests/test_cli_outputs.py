@@ -114,3 +114,32 @@ def test_previous_layer_paths_outside_the_output_folder_are_not_trusted(tmp_path
         assert f.parent == (stage.parent / "lightmaps").resolve()
     assert moved.read_bytes() == before  # never written, never removed
     assert _run(capsys, "validate", "--quiet", str(layer)) == 0
+
+
+def test_textures_of_an_older_usdahd_are_removed_unless_another_layer_uses_them(tmp_path, capsys):
+    """Older bakes named textures ``<prim stem>.<role>.<ext>`` (shared by every layer of the
+    folder). After a re-bake, those the previous layer referenced go, except ones another
+    usdahd layer in the folder still references."""
+    stage = _scenario(tmp_path, "a", 1.0)
+    assert _run(capsys, "bake", str(stage), *FAST) == 0
+    layer = tmp_path / "a.lightmaps.usda"
+    text = layer.read_text()
+    legacy = []
+    for f in sorted(pipeline._referenced(layer)):
+        _, stem, role, _, ext = f.name.split(".")
+        old = f.with_name(f"{stem}.{role}.{ext}")
+        f.rename(old)
+        text = text.replace(f"./lightmaps/{f.name}", f"./lightmaps/{old.name}")
+        legacy.append(old)
+    layer.write_text(text)
+    assert _run(capsys, "validate", "--quiet", str(layer)) == 0  # a valid old-style bake
+    shared = legacy[0]
+    other = tmp_path / "other.lightmaps.usda"
+    other.write_text(
+        '#usda 1.0\n(\n    doc = "baked by usdahd (test)"\n)\n\n'
+        f'over "X"\n{{\n    asset tex = @./lightmaps/{shared.name}@\n}}\n'
+    )
+    assert _run(capsys, "bake", str(stage), *FAST, "--force", "--seed", "3") == 0
+    assert shared.is_file()
+    assert not any(f.exists() for f in legacy[1:])
+    assert _run(capsys, "validate", "--quiet", str(layer)) == 0

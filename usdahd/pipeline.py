@@ -455,17 +455,22 @@ def _commit_textures(jobs: list, out: Path) -> None:
         _fsync(folder, directory=True)
 
 
-def _referenced(out: Path) -> set[Path] | None:
-    """Resolved paths of every asset the layer file ``out`` names (None if unreadable)."""
+def _referenced(out: Path, anonymous: bool = False) -> set[Path] | None:
+    """Resolved paths of every asset the layer file ``out`` names (None if unreadable).
+    ``anonymous``: read a private copy (leaves layers other stages use alone)."""
     from pxr import Sdf
 
     if not out.is_file():
         return set()
     try:
-        layer = Sdf.Layer.FindOrOpen(str(out))
+        if anonymous:
+            layer = Sdf.Layer.OpenAsAnonymous(str(out))
+        else:
+            layer = Sdf.Layer.FindOrOpen(str(out))
+            if layer is not None:
+                layer.Reload(force=True)
         if layer is None:
             return None
-        layer.Reload(force=True)
     except Exception:
         return None
     found: set[Path] = set()
@@ -514,6 +519,39 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     return removed
 
 
+def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
+    """Textures of an older usdahd (named ``<prim stem>.<role>.<ext>``, shared by every layer of
+    a folder) that the previous version of ``out`` referenced and no layer in the folder
+    references now: removed after the commit. returns the names removed."""
+    folder = (out.parent / LIGHTMAPS_DIR).resolve()
+    legacy = re.compile(r"[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.(exr|png|tif|tiff)")
+    candidates = {
+        f for f in old_refs if f.parent == folder and legacy.fullmatch(f.name) and f.is_file()
+    }
+    if not candidates:
+        return []
+    in_use: set[Path] = set()
+    for layer in out.parent.iterdir():
+        if layer.suffix not in (".usda", ".usdc", ".usd") or not layer.is_file():
+            continue
+        if layer.suffix == ".usda":
+            with open(layer, "rb") as f:
+                if b"usdahd" not in f.read(4096):
+                    continue  # not a layer usdahd wrote (its doc string names usdahd)
+        refs = _referenced(layer, anonymous=True)
+        if refs is None:
+            return []  # a layer we cannot read may use them: keep everything
+        in_use |= refs
+    removed = []
+    for f in sorted(candidates - in_use):
+        try:
+            f.unlink()
+            removed.append(f.name)
+        except OSError:
+            pass
+    return removed
+
+
 @contextlib.contextmanager
 def output_lock(out: Path, opts: BakeOptions):
     """Hold an exclusive lock on ``.<output name>.lock`` beside the output layer.
@@ -527,6 +565,7 @@ def output_lock(out: Path, opts: BakeOptions):
 
     path = out.parent / f".{out.name}.lock"
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     except OSError as exc:
         raise OutputError(f"{path}: cannot create the bake lock ({exc.strerror})") from None
@@ -938,12 +977,15 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         if j.report["status"] == "failed":
             failed += 1
     _fault("textures_staged")
+    old_refs = _referenced(out) or set()
     if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
         _commit_textures([j for j in todo if j.results is not None], out)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs)
         _fault("layer_replaced")
+        if report["written"]:
+            _remove_legacy(out, old_refs)
     for j in todo:
         if j.report["status"] == "failed" and j.fallback is not None:
             j.report["previous_kept"] = True

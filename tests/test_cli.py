@@ -483,3 +483,22 @@ def test_output_path_under_a_file_is_refused(tmp_path, capsys):
     code, _, err = _main(capsys, "bake", str(plane), "-o", str(tmp_path / "afile" / "x.usda"))
     assert code == 2
     assert "not a folder" in _error_line(err, "bake")
+
+
+def test_error_after_a_progress_line_starts_on_a_clean_line(capsys, monkeypatch):
+    """"interrupted" and errors are never printed onto a half-drawn progress bar."""
+    from usdahd import progress
+    from usdahd.commands import plugin_path
+
+    tty = _Tty()
+    bar = progress.Progress("[1/1] /World/A", stream=tty)
+
+    def interrupted(args):
+        bar.update(5, 10)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plugin_path, "run", interrupted)
+    assert cli.main(["plugin-path"]) == 130
+    assert tty.text.startswith("\r[1/1] /World/A")
+    assert tty.text.endswith("\r")  # erased before the message
+    assert progress._open_line["stream"] is None

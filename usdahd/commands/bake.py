@@ -19,7 +19,11 @@ def add_parser(sub):
             "layer, and author AhdLightmapAPI on each mesh in an override layer that sublayers "
             "the stage (the source layer is never modified). Meshes carrying the API with bake "
             "enabled are baked; if none carry it, every visible mesh is. Re-running skips prims "
-            "whose inputs did not change."
+            "whose inputs did not change. Everything that can fail is checked before tracing "
+            "(--dry-run runs the checks and reports the texel total). Textures get new "
+            "content-addressed names and the layer's atomic replace commits the bake, so a "
+            "killed or failed bake leaves the previous one valid; a second bake of the same "
+            "output waits for the first (lock file .LAYER.lock)."
         ),
     )
     a = p.add_argument

@@ -74,9 +74,54 @@ def _assert_textures_finite(report: dict) -> list[Path]:
     return paths
 
 
+def _setup(case: dict, stage: Path, cleanups: list) -> Path:
+    """Apply the case's ``setup`` (defects a committed file cannot hold); returns the stage."""
+    setup = case.get("setup")
+    folder = stage.parent
+    if setup == "lightmaps_file":
+        (folder / "lightmaps").write_text("not a folder")
+    elif setup == "lightmaps_dangling_symlink":
+        (folder / "lightmaps").symlink_to(folder / "gone")
+    elif setup == "readonly_lightmaps":
+        lm = folder / "lightmaps"
+        lm.mkdir()
+        if os.geteuid() == 0:
+            proc = subprocess.run(
+                ["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(lm)],
+                capture_output=True,
+            )
+            if proc.returncode:
+                pytest.skip("cannot mount a read-only tmpfs here")
+            cleanups.append(lambda: subprocess.run(["umount", str(lm)], capture_output=True))
+        else:
+            lm.chmod(0o555)
+            cleanups.append(lambda: lm.chmod(0o755))
+    elif setup == "output_is_directory":
+        (folder / f"{stage.stem}.lightmaps.usda").mkdir()
+    elif setup == "readonly_layer":
+        layer = folder / f"{stage.stem}.lightmaps.usda"
+        layer.write_text("#usda 1.0\n")
+        layer.chmod(0o444)
+    elif setup == "fifo_texture":
+        os.mkfifo(folder / "pipe.png")
+    elif setup == "non_utf8_name":
+        renamed = folder / os.fsdecode(b"caf\xe9_" + stage.name.encode())
+        stage.rename(renamed)
+        stage = renamed
+    elif setup is not None:
+        raise AssertionError(f"unknown setup {setup!r}")
+    return stage
+
+
 def _run_in_process(case: dict, tmp_path: Path, capsys) -> tuple[int, dict | None, str, str]:
     stage = _copy_case(case, tmp_path) if case["exists"] else tmp_path / case["file"]
-    rc = cli.main(["bake", str(stage), *case["args"], *TINY, "--json"])
+    cleanups: list = []
+    try:
+        stage = _setup(case, stage, cleanups)
+        rc = cli.main(["bake", str(stage), *case["args"], *TINY, "--json"])
+    finally:
+        for undo in cleanups:
+            undo()
     cap = capsys.readouterr()
     report = json.loads(cap.out) if cap.out.strip() else None
     if report is not None and "prims" not in report:

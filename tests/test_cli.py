@@ -486,7 +486,7 @@ def test_output_path_under_a_file_is_refused(tmp_path, capsys):
 
 
 def test_error_after_a_progress_line_starts_on_a_clean_line(capsys, monkeypatch):
-    """"interrupted" and errors are never printed onto a half-drawn progress bar."""
+    """ "interrupted" and errors are never printed onto a half-drawn progress bar."""
     from usdahd import progress
     from usdahd.commands import plugin_path
 

@@ -33,7 +33,14 @@ Manifest format (``cases.json``): ``{"format": 1, "matching": ..., "generator": 
   "distinct_texture_names" (every baked prim gets its own texture file, also on a
   case-insensitive file system), "texture_names_fit" (every file name <= 255 bytes),
   "inside_output_dir" (every written file lies under the output directory),
-  "no_warning" (valid input: must bake cleanly).
+  "no_warning" (valid input: must bake cleanly);
+- ``setup``: what the test does to the copied case before baking, for defects a committed
+  file cannot hold, or null: "lightmaps_file" (a file named ``lightmaps`` beside the stage),
+  "lightmaps_dangling_symlink", "readonly_lightmaps" (the lightmaps folder read-only, a
+  read-only tmpfs mount as root), "output_is_directory" (a folder where the output layer
+  goes), "readonly_layer" (an existing output layer without write permission), "fifo_texture"
+  (``pipe.png`` beside the stage is a FIFO), "non_utf8_name" (the stage copied to a file name
+  with a Latin-1 byte).
 
 The lead aligns the implementation with these codes and keywords; change them here (and
 regenerate) rather than in the JSON.
@@ -214,6 +221,7 @@ def case(
     exists: bool = True,
     args: list[str] | None = None,
     check: str | None = None,
+    setup: str | None = None,
     file: str | None = None,
 ):
     """Register a builder ``() -> {name: bytes}``; its first entry is the case file."""
@@ -235,6 +243,7 @@ def case(
                 "opens": opens,
                 "aux": [],
                 "check": check,
+                "setup": setup,
                 "_build": build,
             }
         )
@@ -1085,6 +1094,42 @@ def _():
     out = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
     shader.GetInput("diffuseColor").ConnectToSource(out)
     return {"texture_is_directory.usda": text(stage)}
+
+
+# ---- issue 18: defects of the surroundings (see ``setup``) -----------------------------------
+
+
+for _id, _setup, _code, _msg, _desc in [
+    ("lightmaps_is_file", "lightmaps_file", 2, "a file where the lightmaps folder goes",
+     "A regular file named lightmaps where the textures folder goes."),
+    ("lightmaps_dangling_symlink", "lightmaps_dangling_symlink", 2, "dangling",
+     "lightmaps is a symbolic link to a folder that does not exist."),
+    ("readonly_lightmaps", "readonly_lightmaps", 2, "writable",
+     "The lightmaps folder is read-only (a read-only mount)."),
+    ("output_is_directory", "output_is_directory", 2, "is a directory",
+     "A folder sits where the output layer goes."),
+    ("readonly_layer", "readonly_layer", 2, "read-only",
+     "The existing output layer has no write permission."),
+    ("non_utf8_name", "non_utf8_name", 2, "not valid UTF-8",
+     "The stage's file name holds a byte that is not UTF-8."),
+]:  # fmt: skip
+    case(_id, _desc + " Refused before tracing.", _code, _msg, setup=_setup)(
+        lambda _id=_id: {f"{_id}.usda": valid_text()}
+    )
+
+
+@case("fifo_texture", "The good plane's diffuseColor texture pipe.png is a FIFO (created by "
+      "the test): refused as not a regular file instead of blocking the bake.", 0,
+      "not a regular file", setup="fifo_texture")  # fmt: skip
+def _():
+    stage = base("Material texture is a FIFO.")
+    shader = material(stage)
+    tex = UsdShade.Shader.Define(stage, "/World/Looks/Grey/DiffuseTexture")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./pipe.png"))
+    out = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    shader.GetInput("diffuseColor").ConnectToSource(out)
+    return {"fifo_texture.usda": text(stage)}
 
 
 # --------------------------------------------------------------------------------------------

@@ -366,7 +366,7 @@ def run(args) -> int:
         if args.quiet and f.severity == "info":
             continue
         print(format_finding(f))
-    if usd_notes and int(args.quiet or 0) < 2:
+    if usd_notes and not args.quiet:
         print(
             f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
         )

@@ -1,5 +1,9 @@
 import sys
 
-from usdahd.cli import main
+try:
+    from usdahd.cli import main
+except KeyboardInterrupt:  # Ctrl-C while importing (pxr, numba): no traceback
+    print("usdahd: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(main())

@@ -616,8 +616,20 @@ CASE_KEYS = {
     "opens": bool,
     "aux": list,
     "check": (str, type(None)),
+    "setup": (str, type(None)),
 }
 CHECKS = {None, "distinct_texture_names", "texture_names_fit", "inside_output_dir", "no_warning"}
+#: Defects of the surroundings the corpus test creates (tests/test_bad_stages.py::_setup).
+SETUPS = {
+    None,
+    "lightmaps_file",
+    "lightmaps_dangling_symlink",
+    "readonly_lightmaps",
+    "output_is_directory",
+    "readonly_layer",
+    "fifo_texture",
+    "non_utf8_name",
+}
 
 
 @pytest.fixture(scope="module")
@@ -643,6 +655,7 @@ def test_manifest_is_well_formed(manifest):
         assert c["message"] is None or c["message"].strip(), c["id"]
         assert c["prim"] is None or Sdf.Path.IsValidPathString(c["prim"]), c["id"]
         assert c["check"] in CHECKS, c["id"]
+        assert c["setup"] in SETUPS, c["id"]
         assert c["description"].strip() and "\n" not in c["description"], c["id"]
     # Every exit code and every kind of defect is represented.
     assert {c["exit_code"] for c in cases} == {0, 1, 2}

@@ -18,9 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import usdahd
 from usdahd import cli, images
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The folder holding the usdahd these tests import (the checkout for an editable install,
+#: site-packages for a plain one): subprocesses run the same code, with the same numba cache.
+USDAHD_PATH = str(Path(usdahd.__file__).resolve().parents[1])
 BAD_DIR = ROOT / "tests" / "data" / "bad_stages"
 MANIFEST = json.loads((BAD_DIR / "cases.json").read_text(encoding="utf-8"))
 CASES = {c["id"]: c for c in MANIFEST["cases"]}
@@ -251,14 +255,14 @@ SUBPROCESS = {
 def test_case_subprocess(cid, tmp_path):
     case = CASES[cid]
     stage = _copy_case(case, tmp_path)
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=USDAHD_PATH + os.pathsep + os.environ.get("PYTHONPATH", ""))
     args = [*case["args"], "--resolution", "8", "--samples", "8", "--bounces", "0"]
     proc = subprocess.run(
         [sys.executable, "-m", "usdahd", "bake", str(stage), *args, *SUBPROCESS[cid]],
         capture_output=True,
         text=True,
         env=env,
-        timeout=120,
+        timeout=900,
     )
     both = proc.stdout + proc.stderr
     assert "Traceback" not in both

@@ -18,15 +18,19 @@ from pathlib import Path
 
 import pytest
 
+import usdahd
 from usdahd import cli, pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The folder holding the usdahd these tests import (the checkout for an editable install,
+#: site-packages for a plain one): subprocesses run the same code, with the same numba cache.
+USDAHD_PATH = str(Path(usdahd.__file__).resolve().parents[1])
 SAMPLE = ROOT / "samples" / "cornell_box.usda"
 TINY = ["--samples", "4", "--bounces", "0"]
 
 
 def _env(**extra) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=USDAHD_PATH + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env.pop("USDAHD_FAULT", None)
     env.update(extra)
     return env

@@ -18,7 +18,12 @@ from pathlib import Path
 
 import pytest
 
+import usdahd
+
 ROOT = Path(__file__).resolve().parents[1]
+#: The folder holding the usdahd these tests import (the checkout for an editable install,
+#: site-packages for a plain one): subprocesses run the same code, with the same numba cache.
+USDAHD_PATH = str(Path(usdahd.__file__).resolve().parents[1])
 README = ROOT / "README.md"
 
 
@@ -54,7 +59,7 @@ def _clone(tmp_path: Path) -> Path:
 
 
 def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return dict(os.environ, PYTHONPATH=USDAHD_PATH + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
 def _bake(clone: Path, *extra: str) -> subprocess.CompletedProcess:

@@ -394,7 +394,7 @@ def _owned_pattern(out: Path) -> re.Pattern:
         re.escape(layer_prefix(out))
         + r"\.[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.[0-9a-f]{"
         + str(DIGEST_CHARS)
-        + r"}\.(exr|png|tif|tiff)$"
+        + r"}\.(exr|png|tif|tiff|ktx2)$"
     )
 
 
@@ -445,6 +445,14 @@ def _commit_textures(jobs: list, out: Path) -> None:
             if not ok:
                 raise OutputError(f"{job.path}: the new {role} texture came back truncated")
             _fsync(staged)
+            # A KTX2 container written beside the texture (--container ktx2) follows its name.
+            ktx, ktx_final = staged.with_suffix(".ktx2"), final.with_suffix(".ktx2")
+            if ktx.is_file():
+                _fsync(ktx)
+                os.replace(ktx, ktx_final)
+                entry = job.report.get("ktx2", {}).get(role)
+                if entry is not None:
+                    entry["path"] = str(ktx_final)
             if final.is_file() and not final.is_symlink():
                 staged.unlink()  # same content already there
             else:
@@ -505,8 +513,14 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
         for f in folder.iterdir():
             name = f.name
             staged = name.lstrip(".") != name and name.lstrip(".").startswith(prefix + ".")
-            if staged or (refs is not None and owned.match(name) and f.resolve() not in refs):
+            if staged:
                 candidates.append(f)
+            elif refs is not None and owned.match(name) and f.resolve() not in refs:
+                # a .ktx2 is not in the layer: it stays while the texture it was made from does
+                if f.suffix != ".ktx2" or not any(
+                    r.parent == f.resolve().parent and r.stem == f.stem for r in refs
+                ):
+                    candidates.append(f)
     if out.parent.is_dir():
         candidates += [f for f in out.parent.iterdir() if layer_tmp.fullmatch(f.name)]
     for f in candidates:

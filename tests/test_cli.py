@@ -57,7 +57,9 @@ def _error_line(err: str, command: str) -> str:
 @pytest.mark.parametrize("command", sorted(cli.COMMANDS))
 def test_every_command_takes_json_and_quiet(command):
     parser = cli.build_parser()
-    positional = ["x"] if command in ("bake", "validate", "fit") else []
+    positional = ["x"] if command in ("bake", "validate", "fit", "preview") else []
+    if command == "preview":
+        positional += ["-o", "x.png"]
     args = parser.parse_args([command, "--json", "-qq", *positional])
     assert args.json is True and args.quiet == 2
 

@@ -62,7 +62,6 @@ def add_parser(sub):
     p.add_argument(
         "--exposure", type=float, default=0.0, help="stops added to the automatic exposure"
     )
-    p.add_argument("--json", action="store_true", help="print image statistics as JSON")
     p.set_defaults(func=run)
     return p
 
@@ -458,7 +457,7 @@ def run(args) -> int:
     }
     if args.json:
         print(json.dumps(report, indent=2))
-    else:
+    elif not args.quiet:
         lum = report.get("luminance", {})
         print(
             f"{out}: {w}x{h}, {len(items)} meshes, covered {report['covered_fraction']:.1%}, "

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import usdahd
 from usdahd import cli, images, models, shaders
 from usdahd.errors import UsageError
 
@@ -695,9 +696,14 @@ def test_every_model_has_shaders_in_every_language_and_the_wheel_ships_them():
             text = shaders.source(lang, model)
             assert f"usdahd_{model}_decode" in text and f"usdahd_{model}_evaluate" in text
         for name in {shaders.COMMON, *shaders.MODEL_FILES.values()}:
-            rel = shaders.path(lang, name).relative_to(ROOT / "usdahd").as_posix()
+            # relative to the package as imported (site-packages in a non-editable install)
+            rel = shaders.path(lang, name).relative_to(Path(usdahd.__file__).parent).as_posix()
             assert any(fnmatch.fnmatch(rel, g) for g in globs), f"{rel} is not package data"
-    on_disk = {p.relative_to(shaders.ROOT).as_posix() for p in shaders.ROOT.glob("*/*.*")}
+    on_disk = {
+        p.relative_to(shaders.ROOT).as_posix()
+        for lang in shaders.LANGUAGES
+        for p in (shaders.ROOT / lang).glob("*.*")
+    }
     expected = {
         f"{lang}/{name}.{lang}"
         for lang in shaders.LANGUAGES

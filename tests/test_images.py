@@ -158,3 +158,26 @@ def test_data_png_is_tagged_linear_and_rgba_round_trips_bit_exactly(tmp_path):
     inp.close()
     images.write(tmp_path / "s.png", px[..., :3], color_space="srgb_rec709_scene")
     assert b"sRGB" in (tmp_path / "s.png").read_bytes()  # colour PNGs keep their sRGB chunk
+
+
+@pytest.mark.parametrize("ext", [".exr", ".png", ".tif"])
+def test_same_pixels_give_the_same_bytes(tmp_path, monkeypatch, ext):
+    """Bakes are byte-reproducible: no write time is stamped (lightmap names are content hashes)."""
+    import time
+
+    import OpenImageIO as oiio
+
+    px = (
+        RNG.integers(0, 256, (8, 8, 3), dtype=np.uint8)
+        if ext != ".exr"
+        else random_pixels("half", (8, 8, 3))
+    )
+    a, b = tmp_path / f"a{ext}", tmp_path / f"b{ext}"
+    images.write(a, px, color_space="raw", channels=("R", "G", "B"))
+    time.sleep(1.1)  # DateTime has a resolution of one second
+    images.write(b, px, color_space="raw", channels=("R", "G", "B"))
+    assert a.read_bytes() == b.read_bytes()
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    images.write(a, px, color_space="raw", channels=("R", "G", "B"))
+    if ext == ".exr":
+        assert oiio.ImageInput.open(str(a)).spec().getattribute("DateTime") == "2023:11:14 22:13:20"

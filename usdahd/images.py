@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -162,6 +163,10 @@ def write(
     spec.attribute("ImageDescription", f"{_DESCRIPTION_PREFIX} {json.dumps(desc)}")
     spec.attribute("oiio:UnassociatedAlpha", 1)  # never premultiply data channels
     spec.attribute("Software", "usdahd")
+    # Byte-reproducible files (same pixels, same bytes, same content-addressed name): no write
+    # time unless SOURCE_DATE_EPOCH asks for one (the reproducible-builds convention). An empty
+    # DateTime stops OpenImageIO's EXR writer from stamping the current time.
+    spec.attribute("DateTime", _source_date())
     comp = compression if compression is not None else DEFAULT_COMPRESSION[ext]
     if comp:
         spec.attribute("compression", comp)
@@ -179,6 +184,13 @@ def write(
                 raise ImageError(f"{path}: write failed: {out.geterror()}")
         finally:
             out.close()
+
+
+def _source_date() -> str:
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if not epoch.isdigit():
+        return ""
+    return time.strftime("%Y:%m:%d %H:%M:%S", time.gmtime(int(epoch)))
 
 
 def _parse_description(text: str) -> dict:

@@ -110,7 +110,13 @@ def bake_once(stage: Path, *, resolution: int, samples: int, seed: int, out_dir=
 
 
 #: Sources a bake's numbers depend on: a change to any of them invalidates cached references.
-BAKE_SOURCES = ("usdahd/bake/*.py", "usdahd/usd/scene.py", "usdahd/pipeline.py", "usdahd/sh.py")
+BAKE_SOURCES = (
+    "usdahd/bake/*.py",
+    "usdahd/usd/*.py",
+    "usdahd/scene/*.py",
+    "usdahd/pipeline.py",
+    "usdahd/sh.py",
+)
 
 
 def _cache_key(stage: Path, resolution: int, samples: int, seeds) -> str:

@@ -43,7 +43,7 @@ from usdahd.sampling import (  # noqa: E402
     to_world,
     uniform_hemisphere,
 )
-from usdahd.usd.scene import load_scene  # noqa: E402
+from usdahd.usd.reader import load_scene  # noqa: E402
 
 CLASSROOM = os.path.join(
     os.path.dirname(__file__), "..", "..", "shared", "scenes", "classroom", "classroom.usdc"

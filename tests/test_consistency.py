@@ -23,7 +23,7 @@ from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 Z = 5.0
 N_TEX = 96

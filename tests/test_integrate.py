@@ -16,7 +16,7 @@ from usdahd import sh
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 Z = 5.0
 N_TEX = 48

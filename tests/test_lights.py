@@ -11,7 +11,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 from usdahd import sh
 from usdahd.bake import lights as L
 from usdahd.errors import StageError
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 FLOAT_TOL = 1e-9
 N = 100_000

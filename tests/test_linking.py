@@ -14,7 +14,7 @@ from usdahd import sh
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 FLOAT_TOL = 2e-5
 

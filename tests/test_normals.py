@@ -16,7 +16,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from usdahd import cli
 from usdahd.usd import normals as N
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--resolution", "64", "--samples", "16", "--bounces", "0", "--quiet"]

@@ -9,7 +9,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
 from usdahd.bake.trace import Tracer
 from usdahd.errors import StageError
-from usdahd.usd.scene import load_scene
+from usdahd.usd.reader import load_scene
 
 SCENES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "scenes")
 

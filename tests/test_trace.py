@@ -21,7 +21,8 @@ from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer, nb_texture, pack_textures
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
-from usdahd.usd.scene import Texture, load_scene
+from usdahd.scene.types import Texture
+from usdahd.usd.reader import load_scene
 
 Z = 5.0
 REL = 1e-9  # float64 scalar vs vectorized numpy: rounding-order differences only

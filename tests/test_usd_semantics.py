@@ -15,7 +15,9 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils
 from usdahd import cli
 from usdahd import sh as shmod
 from usdahd.bake import lights as L
-from usdahd.usd.scene import load_scene, read_image, resolve_time
+from usdahd.usd.materials import read_image
+from usdahd.usd.reader import load_scene
+from usdahd.usd.time import resolve_time
 
 FAST = ["--resolution", "8", "--samples", "32", "--bounces", "0", "--quiet"]
 

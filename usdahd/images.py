@@ -281,3 +281,48 @@ def read_float(path: str | os.PathLike, *, linearize: bool = True) -> np.ndarray
             rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4
         )
     return out
+
+
+def read_texels(path: str | os.PathLike) -> tuple[np.ndarray | None, str]:
+    """Pixels of a material or light texture as float32 (h, w, c), as OpenImageIO converts
+    them (8-bit -> [0, 1]; no colour conversion), and the file's pixel format name (``uint8``,
+    ``half``, ...). path : a local file (:func:`usdahd.usd.assets.local_file`).
+
+    Returns (None, format) when the pixels cannot be decoded. Raises ImageError with
+    OpenImageIO's message (first 200 characters) when the file cannot be opened; OSError
+    passes through.
+    """
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(os.fspath(path))
+    if inp is None:
+        raise ImageError(oiio.geterror()[:200])
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        fmt = str(spec.format)
+    finally:
+        inp.close()
+    if data is None:
+        return None, fmt
+    return np.asarray(data, np.float32).reshape(spec.height, spec.width, spec.nchannels), fmt
+
+
+def convert_color(data: np.ndarray, src: str, dst: str) -> np.ndarray:
+    """The colour channels of (h, w, c) float32 texels converted from colour space ``src`` to
+    ``dst`` with OpenImageIO's colour management (``ImageBufAlgo.colorconvert``, its built-in
+    OCIO config); alpha and the second channel of grey+alpha stay. Returns a new array.
+    Raises ImageError with OpenImageIO's message when it cannot convert (unknown name)."""
+    oiio = _oiio()
+    h, w, c = data.shape
+    rgb = data[..., :3] if c >= 3 else np.repeat(data[..., :1], 3, axis=2)
+    buf = oiio.ImageBuf(np.ascontiguousarray(rgb, np.float32))
+    out = oiio.ImageBufAlgo.colorconvert(buf, src, dst)
+    if out.has_error or not out.initialized:
+        raise ImageError(out.geterror())
+    conv = np.asarray(out.get_pixels(oiio.FLOAT), np.float32).reshape(h, w, 3)
+    data = data.copy()
+    if c >= 3:
+        data[..., :3] = conv
+    else:
+        data[..., 0] = conv[..., 0]
+    return data

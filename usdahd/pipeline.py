@@ -1,6 +1,6 @@
 """``usdahd bake`` end to end: stage -> scene -> texels -> SH -> fit -> textures -> schema.
 
-The only orchestration module: each step lives in its own module (``usd/scene.py``,
+The only orchestration module: each step lives in its own module (``usd/reader.py``,
 ``bake/texels.py``, ``bake/integrate.py``, ``bake/post.py``, ``models/``, ``images.py``,
 ``usd/schema.py``); this one decides what to bake, in what order, and what to skip.
 
@@ -80,7 +80,7 @@ class BakeOptions:
     force: bool = False
     dry_run: bool = False
     quiet: bool = False
-    time: float | str | None = None  # None: automatic (usd.scene.resolve_time); "default"
+    time: float | str | None = None  # None: automatic (usd.time.resolve_time); "default"
 
 
 @dataclass
@@ -103,7 +103,7 @@ class PrimJob:
     sh: object = None  # (n, 3, 9) float32 radiance SH
     stats: dict = field(default_factory=dict)
     charts: object = None  # (n,) int32 chart id per texel
-    normals: object = None  # usd.scene.ComputedNormals to author, None when authored
+    normals: object = None  # scene.types.ComputedNormals to author, None when authored
     refit_from: str | None = None  # SH sidecar of the previous bake to refit from (no tracing)
 
 
@@ -841,7 +841,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
 
 def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float) -> dict:
     from usdahd.usd import schema
-    from usdahd.usd.scene import load_scene
+    from usdahd.usd.reader import load_scene
 
     # Meshes carrying the API select themselves (bake on); else every visible mesh.
     api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}

@@ -1171,7 +1171,7 @@ class _SceneCache:
 
     def get(self, stage, uv_name: str, time=None):
         """Hash parts of the stage read at ``time`` (the bake's: a number or "default")."""
-        from usdahd.usd.scene import load_scene
+        from usdahd.usd.reader import load_scene
 
         key = self.key(stage, uv_name, time)
         if key is not None:
@@ -1190,8 +1190,8 @@ class _SceneCache:
         return parts
 
     def auto_time(self, stage):
-        """The time a bake would pick now (usd.scene.resolve_time): a number or "default"."""
-        from usdahd.usd.scene import resolve_time
+        """The time a bake would pick now (usd.time.resolve_time): a number or "default"."""
+        from usdahd.usd.time import resolve_time
 
         key = self.key(stage, "", "auto-time")
         if key is not None:

@@ -383,7 +383,7 @@ class _TracerCache:
     def get(self, stage, uv_name: str):
         from usdahd.bake.trace import Tracer
         from usdahd.pipeline import is_dark
-        from usdahd.usd.scene import load_scene
+        from usdahd.usd.reader import load_scene
 
         key = self.key(stage)
         entry = self._data.get(key) if key is not None else None

@@ -2,7 +2,7 @@
 
 Runs in the project environment (pxr, numpy, OpenImageIO); the Cycles side
 (``cycles_bake.py``) reads only numpy and json. Everything the reference needs is read here
-with pxr directly, **independently of ``usdahd/usd/scene.py``**, so the reference does not
+with pxr directly, **independently of the ``usdahd/usd/`` readers**, so the reference does not
 share the baker's interpretation of UsdLux and UsdPreviewSurface:
 
 - geometry: every visible, active ``UsdGeom.Mesh`` (render/default purpose, instance proxies

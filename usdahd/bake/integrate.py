@@ -180,7 +180,7 @@ def bake_texels(
 ):
     """Bake incident radiance SH for ``texels`` of one mesh.
 
-    scene : usdahd.usd.scene.Scene (lights used); tracer : usdahd.bake.trace.Tracer over it;
+    scene : usdahd.scene.types.Scene (lights used); tracer : usdahd.bake.trace.Tracer over it;
     texels : usdahd.bake.types.Texels.
     samples : hemisphere samples per texel (and as many light samples when the scene has area
         lights); bounces : cap on surface reflections along a path (0 = direct light only;

@@ -1,6 +1,6 @@
 """Light sources in UsdLux units, with the sampling routines the integrator needs (numpy only).
 
-Units (UsdLux "light units", applied in :mod:`usdahd.usd.scene` when a light is built):
+Units (UsdLux "light units", applied in :mod:`usdahd.usd.lights`, docs/lights.md):
 ``L = intensity * 2^exposure * color (* blackbody(colorTemperature)) * diffuse``;
 ``normalize`` divides L by the world-space emitting area of sphere/disk/rect/cylinder lights and
 makes a DistantLight's intensity its illuminance at normal incidence. Every class below stores

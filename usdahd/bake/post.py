@@ -21,8 +21,9 @@ import numpy as np
 
 from usdahd import sh as shmod
 from usdahd.bake.texels import uv_to_pixel
-from usdahd.bake.types import MeshData, Texels
+from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
+from usdahd.scene.types import MeshData
 
 # 8-neighbourhood offsets (dx, dy)
 _NEIGHBOURS = np.array(

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd.bake.types import MeshData, Texels
+from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
+from usdahd.scene.types import MeshData
 
 #: Largest lightmap side accepted by default: 8192^2 texels x 27 SH floats is already 7 GB.
 MAX_RESOLUTION = 8192

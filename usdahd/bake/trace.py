@@ -377,7 +377,7 @@ class Tracer:
 
 
 def pack_textures(textures):
-    """Concatenate :class:`usdahd.usd.scene.Texture` objects for :func:`nb_texture`.
+    """Concatenate :class:`usdahd.scene.types.Texture` objects for :func:`nb_texture`.
 
     returns (data (D,) f32, info (K,8) i64 = offset, h, w, c, wrap s, wrap t, channel count, 0;
     chan (K,4) i64 selected channels; sb (K,8) f64 scale then bias); wrap codes 0 repeat,
@@ -452,7 +452,7 @@ def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_texture(tb, k, s, t):
     """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
-    scale/bias, missing channels padded as :meth:`usdahd.usd.scene.Texture.sample`)."""
+    scale/bias, missing channels padded as :meth:`usdahd.scene.types.Texture.sample`)."""
     data, info, chan, sb = tb[7], tb[8], tb[9], tb[10]
     off, h, w, c = info[k, 0], info[k, 1], info[k, 2], info[k, 3]
     x = s * w - 0.5

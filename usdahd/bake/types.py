@@ -1,9 +1,9 @@
-"""Flat-array data passed between scene extraction, texel rasterisation and the integrator.
+"""Flat-array data passed between texel rasterisation and the integrator.
 
-These are the contracts between ``usdahd/usd/scene.py`` (stage -> MeshData),
-``usdahd/bake/texels.py`` (MeshData -> Texels) and ``usdahd/bake/integrate.py``
-(Texels + scene -> radiance SH). Everything is world space, right-handed, metres-agnostic
-(stage units), float32 unless noted.
+These are the contracts between ``usdahd/bake/texels.py`` (:class:`usdahd.scene.types.MeshData`
+-> :class:`Texels`) and ``usdahd/bake/integrate.py`` (Texels + scene -> radiance SH); the scene
+description itself (meshes, materials, lights) is :mod:`usdahd.scene`. Everything is world
+space, right-handed, metres-agnostic (stage units), float32 unless noted.
 
 Image convention: texel ``(x, y)`` covers UV ``[x/w, (x+1)/w] x [1-(y+1)/h, 1-y/h]``:
 row 0 is the *top* of the image (v = 1), as OpenImageIO writes scanlines, so UV (0, 0) is the
@@ -15,38 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
-
-@dataclass
-class MeshData:
-    """One UsdGeom.Mesh (or flattened instance) after triangulation, in world space.
-
-    path : prim path string (instance proxies get their proxy path).
-    points : (v, 3) float64 world positions.
-    triangles : (t, 3) int32 vertex indices, counter-clockwise seen from the front side
-        (``orientation = leftHanded`` and mirrored transforms already fixed).
-    normals : (t, 3, 3) float32 per-corner unit world normals (authored or smooth-computed).
-    uv : (t, 3, 2) float32 per-corner lightmap UVs, or None when the mesh has no such set.
-    uv_name : name of the lightmap UV primvar read (or to author), e.g. "st".
-    material : (t,) int32 index into the scene's material table.
-    face : (t,) int32 index of the source polygon of each triangle.
-    corner : (t, 3) int32 index of each triangle corner into the source mesh's
-        faceVertexIndices (so per-corner data such as an unwrapped UV set can be authored back
-        as a faceVarying primvar).
-    bake : whether this mesh receives a lightmap (False: occluder only).
-    """
-
-    path: str
-    points: np.ndarray
-    triangles: np.ndarray
-    normals: np.ndarray
-    uv: np.ndarray | None
-    uv_name: str
-    material: np.ndarray
-    face: np.ndarray
-    corner: np.ndarray
-    bake: bool = True
-    warnings: list[str] = field(default_factory=list)
 
 
 @dataclass

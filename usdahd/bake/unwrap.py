@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.bake.texels import MAX_RESOLUTION
-from usdahd.bake.types import MeshData
 from usdahd.errors import BakeError, InputError, UsageError
+from usdahd.scene.types import MeshData
 
 #: Attempts at shrinking texels_per_unit until the atlas fits a requested resolution.
 MAX_ATTEMPTS = 8

@@ -89,7 +89,7 @@ def run(args) -> int:
         )
     if args.texel_density is not None and not args.texel_density > 0:
         raise UsageError(f"--texel-density must be > 0, got {args.texel_density}")
-    from usdahd.usd.scene import parse_time
+    from usdahd.usd.time import parse_time
 
     try:
         time = parse_time(args.time)

@@ -115,17 +115,9 @@ def auto_camera(points: np.ndarray, up_axis: str, aspect: float) -> np.ndarray:
 def usd_camera(stage, path: str, aspect: float) -> np.ndarray:
     """View-projection (4, 4) of a UsdGeomCamera (its vertical aperture kept, the horizontal
     one fitted to the image aspect), WebGPU clip space."""
-    from pxr import Sdf, Usd, UsdGeom
+    from usdahd.usd.camera import read_camera
 
-    prim = stage.GetPrimAtPath(Sdf.Path(path)) if Sdf.Path.IsValidPathString(path) else None
-    if not prim or not prim.IsA(UsdGeom.Camera):
-        cams = [str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
-        have = ", ".join(cams) if cams else "none (omit --camera for an automatic framing)"
-        raise UsageError(f"--camera {path}: no UsdGeomCamera there; cameras on the stage: {have}")
-    cam = UsdGeom.Camera(prim).GetCamera(Usd.TimeCode.Default())
-    view = np.array(cam.transform.GetInverse(), dtype=np.float64).T  # Gf: row vectors
-    near, far = cam.clippingRange.min, cam.clippingRange.max
-    fov = 2.0 * math.degrees(math.atan(0.5 * cam.verticalAperture / cam.focalLength))
+    view, fov, near, far = read_camera(stage, path)
     return perspective(fov, aspect, near, far) @ view
 
 
@@ -135,17 +127,12 @@ def usd_camera(stage, path: str, aspect: float) -> np.ndarray:
 
 def baked_meshes(layer: str):
     """[(MeshData, BakeResults)] of every baked mesh, and the stage's up axis."""
-    from pxr import Sdf, Usd
-
     from usdahd.bake import texels
-    from usdahd.usd import scene, schema
+    from usdahd.usd import schema
+    from usdahd.usd.reader import load_scene
+    from usdahd.usd.stage import open_stage
 
-    held = Sdf.Layer.Find(layer)
-    if held is not None:  # opened before in this process: read what is on disk now
-        held.Reload()
-    stage = Usd.Stage.Open(layer)
-    if stage is None:
-        raise StageError(f"{layer}: cannot open the stage")
+    stage = open_stage(layer)  # re-read from disk when this process opened it before
     records = {}
     for prim in schema.prims_with_api(stage):
         res = schema.read_results(prim)
@@ -155,7 +142,7 @@ def baked_meshes(layer: str):
         raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
     out, up = [], "Y"
     for uv in sorted({r.uv_primvar for r in records.values()}):
-        sc = scene.load_scene(stage, uv_name=uv)
+        sc = load_scene(stage, uv_name=uv)
         up = sc.up_axis
         for mesh in sc.meshes:
             res = records.get(mesh.path)

@@ -2,7 +2,7 @@
 
 Every light, material and primvar value a bake depends on is checked for type and finiteness
 here, with one warning or error each naming the prim and the attribute: the scene reader
-(:mod:`usdahd.usd.scene`) can then assume well-typed, finite inputs. Called by
+(:mod:`usdahd.usd.reader`) can then assume well-typed, finite inputs. Called by
 ``usdahd.pipeline.bake`` (and its ``--dry-run``) right after the stage opens.
 
 :func:`check_stage` returns a :class:`StageFindings`: ``errors`` that make the whole stage

@@ -150,7 +150,7 @@ def bake(
 ) -> Path:
     """Write a synthetic, consistent bake into ``directory``; returns the override layer."""
     from usdahd import pipeline
-    from usdahd.usd.scene import load_scene
+    from usdahd.usd.reader import load_scene
     from usdahd.validate import texel_coverage
 
     directory.mkdir(parents=True, exist_ok=True)

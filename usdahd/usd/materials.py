@@ -1,0 +1,477 @@
+"""Materials: UsdShade binding, UsdPreviewSurface, UsdUVTexture, UsdTransform2d, colour spaces.
+
+:class:`MaterialReader` builds the material table of a stage (:class:`usdahd.scene.types.Material`,
+one per bound material, or one per displayColor for unbound prims): the ``full`` binding
+purpose, else all-purpose (prims and GeomSubsets: :meth:`MaterialReader.face_materials` gives
+the per-face material indices); UsdPreviewSurface ``diffuseColor`` (times ``1 - metallic``),
+``emissiveColor``, ``opacity`` / ``opacityThreshold``, each a constant or a UsdUVTexture
+(:class:`usdahd.scene.types.Texture`: scale, bias, channel, wrap; bilinear lookup in
+``Texture.sample``) reading a primvar, optionally through a UsdTransform2d (then a derived
+texcoord name whose values :mod:`usdahd.usd.geometry` computes per corner).
+
+Texture files are read through USD's asset resolver (:mod:`usdahd.usd.assets`: usdz
+packages) and OpenImageIO (:mod:`usdahd.images`, the only OpenImageIO user) by
+:func:`read_image`, which applies the colour space rule (:func:`source_color_space`:
+``sourceColorSpace``, the file's ``colorSpace`` metadata, else Hydra's 8-bit rule) to the
+working space :data:`LINEAR_SPACE`. docs/usd-semantics.md (Materials, Colour spaces) lists what
+is honoured and what is warned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pxr import UsdGeom, UsdShade
+
+from usdahd import images
+from usdahd.errors import ImageError, StageError
+from usdahd.scene.types import MAX_RADIANCE, Material, Texture
+from usdahd.usd import assets
+from usdahd.usd.checks import asset_problem  # regular file, size limit (issue 18)
+from usdahd.usd.stage import fmt_values, one_line
+
+__all__ = [
+    "DEFAULT_ALBEDO",
+    "LINEAR_SPACE",
+    "MaterialReader",
+    "SubsetError",
+    "read_image",
+    "source_color_space",
+]
+
+#: UsdPreviewSurface diffuseColor fallback.
+DEFAULT_ALBEDO = (0.18, 0.18, 0.18)
+
+
+class SubsetError(Exception):
+    """A GeomSubset of a mesh is invalid (internal; becomes a mesh failure)."""
+
+
+class MaterialReader:
+    """The material table of one stage read at ``ctx.time`` (see the module docstring).
+
+    ctx : usdahd.usd.reader.ReadContext. ``materials`` : [Material], indexed by
+    ``MeshData.material``; ``tc_transforms`` : derived texcoord name -> (primvar, A (2, 2),
+    b (2,)) float64, the UsdTransform2d ``out = A @ in + b`` of that name.
+    """
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.warn = ctx.warn
+        self.get = ctx.get
+        self.materials: list[Material] = []
+        self._mat_index: dict[str, int] = {}
+        self._textures: dict = {}
+        self.tc_transforms: dict = {}  # derived texcoord name -> (primvar, A (2,2), b (2,))
+        self.unhonoured: dict[str, list[str]] = {}  # UsdPreviewSurface input -> materials
+
+    def face_materials(self, prim, n_faces, path):
+        api = UsdShade.MaterialBindingAPI(prim)
+        # A baker renders final quality: the "full" binding, else the all-purpose one.
+        base = self.material_index(api.ComputeBoundMaterial(UsdShade.Tokens.full)[0], prim)
+        fm = np.full(n_faces, base, np.int32)
+        for subset in api.GetMaterialBindSubsets():
+            ind = self.get(subset.GetIndicesAttr())
+            if ind is None or len(ind) == 0:
+                continue
+            ind = np.asarray(ind, np.int64)
+            if ind.min() < 0 or ind.max() >= n_faces:
+                raise SubsetError(
+                    f"{path}: GeomSubset {subset.GetPath()} indices out of range [0, {n_faces}); "
+                    "fix the subset"
+                )
+            sub = UsdShade.MaterialBindingAPI(subset.GetPrim())
+            mat = sub.ComputeBoundMaterial(UsdShade.Tokens.full)[0]
+            fm[ind] = self.material_index(mat, prim)
+        return fm
+
+    def material_index(self, mat, prim):
+        if not mat:
+            color = DEFAULT_ALBEDO
+            dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+            if dc and dc.HasValue():
+                v = dc.ComputeFlattened(self.ctx.time)
+                if v is not None and len(v):
+                    color = tuple(np.asarray(v, np.float64).reshape(-1, 3).mean(axis=0))
+            key = f"<displayColor {np.round(color, 6).tolist()}>"
+            if key not in self._mat_index:
+                self._mat_index[key] = len(self.materials)
+                self.materials.append(
+                    Material(key, np.array(color, np.float32), np.zeros(3, np.float32))
+                )
+            return self._mat_index[key]
+        key = str(mat.GetPath())
+        if key not in self._mat_index:
+            self._mat_index[key] = len(self.materials)
+            self.materials.append(self._read_material(mat))
+        return self._mat_index[key]
+
+    def _read_material(self, mat):
+        name = str(mat.GetPath())
+        out = Material(name, np.array(DEFAULT_ALBEDO, np.float32), np.zeros(3, np.float32))
+        shader = mat.ComputeSurfaceSource()[0]
+        if not shader:
+            self.warn(f"{name}: no surface shader; albedo {DEFAULT_ALBEDO}")
+            return out
+        sid = shader.GetIdAttr().Get() if shader.GetIdAttr() else None
+        if sid != "UsdPreviewSurface":
+            self.warn(
+                f"{name}: surface shader {sid} is not UsdPreviewSurface; albedo {DEFAULT_ALBEDO}",
+                key=f"shader:{name}",
+            )
+            return out
+        tc_names = []
+        out.albedo, out.albedo_tex = self._input(
+            shader, "diffuseColor", DEFAULT_ALBEDO, name, tc_names
+        )
+        out.emission, out.emission_tex = self._input(
+            shader, "emissiveColor", (0, 0, 0), name, tc_names
+        )
+        op, out.opacity_tex = self._input(shader, "opacity", 1.0, name, tc_names)
+        out.opacity = float(np.ravel(op)[0])
+        thr = shader.GetInput("opacityThreshold")
+        out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
+        self._check_material(out)
+        self._metallic(shader, out)
+        self._unhonoured_inputs(shader, name)
+        if tc_names:
+            out.texcoord = tc_names[0]
+            if len(set(tc_names)) > 1:
+                self.warn(
+                    f"{name}: textures read different primvars or UsdTransform2d "
+                    f"{sorted(set(tc_names))}; using '{tc_names[0]}' for all"
+                )
+        return out
+
+    def _metallic(self, shader, out: Material) -> None:
+        """UsdPreviewSurface metallic workflow: a metal has no diffuse lobe, so the diffuse
+        albedo is diffuseColor x (1 - metallic) (constant metallic; a metallic texture is
+        warned and ignored). The specular workflow (useSpecularWorkflow = 1) ignores metallic."""
+        wf = shader.GetInput("useSpecularWorkflow")
+        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+            return
+        inp = shader.GetInput("metallic")
+        if not inp:
+            return
+        if inp.HasConnectedSource():
+            self.unhonoured.setdefault("metallic (connected)", []).append(out.name)
+            return
+        m = self.get(inp.GetAttr(), 0.0)
+        m = float(np.ravel(np.asarray(m, np.float64))[0]) if m is not None else 0.0
+        if not math.isfinite(m):
+            raise StageError(f"{out.name}: UsdPreviewSurface inputs:metallic is {m}: fix it")
+        if not 0.0 <= m <= 1.0:
+            self.warn(f"{out.name}: metallic {m:g} outside [0, 1]; clamped")
+            m = min(max(m, 0.0), 1.0)
+        if m == 0.0:
+            return
+        k = np.float32(1.0 - m)
+        out.albedo = (out.albedo * k).astype(np.float32)
+        if out.albedo_tex is not None:
+            tex = out.albedo_tex
+            tex.scale = tex.scale.copy()
+            tex.bias = tex.bias.copy()
+            tex.scale[:3] *= k
+            tex.bias[:3] *= k
+
+    def _unhonoured_inputs(self, shader, name) -> None:
+        """Record the UsdPreviewSurface inputs that change the diffuse response and that the
+        baker ignores (a Lambertian bake of the base layer); see material_warnings."""
+        neutral = {
+            "normal": (0.0, 0.0, 1.0),
+            "displacement": 0.0,
+            "occlusion": 1.0,
+            "clearcoat": 0.0,
+        }
+        for inp_name, value in neutral.items():
+            inp = shader.GetInput(inp_name)
+            if not inp:
+                continue
+            if inp.HasConnectedSource():
+                self.unhonoured.setdefault(f"{inp_name} (connected)", []).append(name)
+                continue
+            if not inp.GetAttr().HasAuthoredValue():
+                continue
+            v = self.get(inp.GetAttr())
+            if v is not None and not np.allclose(np.asarray(v, np.float64), value):
+                self.unhonoured.setdefault(f"{inp_name} = {fmt_values(v)}", []).append(name)
+
+    def material_warnings(self) -> None:
+        """One warning per stage and unhonoured UsdPreviewSurface input, naming materials."""
+        for what, mats in sorted(self.unhonoured.items()):
+            mats = sorted(set(mats))
+            more = f" and {len(mats) - 3} more" if len(mats) > 3 else ""
+            fix = (
+                " (the diffuse albedo is not reduced where the texture is metallic; author a "
+                "constant metallic)"
+                if what.startswith("metallic")
+                else " (the bake shades the flat diffuse base layer)"
+            )
+            self.warn(
+                f"UsdPreviewSurface {what} is not honoured by the bake in {len(mats)} "
+                f"materials ({', '.join(mats[:3])}{more}){fix}",
+                key=f"unhonoured:{what}",
+            )
+
+    def _check_material(self, out: Material) -> None:
+        """NaN/Inf or negative emission is a broken light source (StageError); non-physical
+        albedo and opacity are clamped to [0, 1] with a warning."""
+        name = out.name
+        values = {
+            "emissiveColor": out.emission,
+            "diffuseColor": out.albedo,
+            "opacity": np.array([out.opacity]),
+            "opacityThreshold": np.array([out.opacity_threshold]),
+        }
+        for key, v in values.items():
+            v = np.asarray(v, np.float64)
+            if not np.all(np.isfinite(v)):
+                kind = "NaN" if np.isnan(v).any() else "Inf"
+                raise StageError(
+                    f"{name}: UsdPreviewSurface inputs:{key} is {kind} ({fmt_values(v)}); it would "
+                    "spoil every prim that sees this material: fix the material"
+                )
+        em = np.asarray(out.emission, np.float64)
+        if np.any(em < 0) or em.max(initial=0.0) > MAX_RADIANCE:
+            raise StageError(
+                f"{name}: UsdPreviewSurface inputs:emissiveColor {fmt_values(em)} must be in "
+                f"[0, {MAX_RADIANCE:.0e}]: fix the material"
+            )
+        alb = np.asarray(out.albedo, np.float64)
+        if np.any(alb < 0) or np.any(alb > 1):
+            clamped = np.clip(alb, 0.0, 1.0)
+            self.warn(
+                f"{name}: inputs:diffuseColor {fmt_values(alb)} is non-physical (outside [0, 1]: "
+                f"energy would grow with every bounce); clamped to {fmt_values(clamped)}"
+            )
+            out.albedo = clamped.astype(np.float32)
+        for key in ("opacity", "opacity_threshold"):
+            v = float(getattr(out, key))
+            if not 0.0 <= v <= 1.0:
+                self.warn(f"{name}: {key} {v:g} outside [0, 1]; clamped")
+                setattr(out, key, min(max(v, 0.0), 1.0))
+
+    def _input(self, shader, inp_name, fallback, mat_name, tc_names):
+        inp = shader.GetInput(inp_name)
+        fb = np.array(fallback, np.float32)
+        if not inp:
+            return fb, None
+        src = inp.GetConnectedSources()[0] if inp.HasConnectedSource() else []
+        if not src:
+            v = self.get(inp.GetAttr())
+            return (fb if v is None else np.array(v, np.float32)), None
+        info = src[0]
+        tex_shader = UsdShade.Shader(info.source.GetPrim())
+        out_name = str(info.sourceName)
+        sid = tex_shader.GetIdAttr().Get() if tex_shader.GetIdAttr() else None
+        if sid != "UsdUVTexture":
+            self.warn(
+                f"{mat_name}: {inp_name} connected to {sid}; using its fallback",
+                key=f"conn:{mat_name}:{inp_name}",
+            )
+            return fb, None
+        tex = self._texture(tex_shader, out_name, mat_name)
+        if tex is None:
+            fbi = tex_shader.GetInput("fallback")
+            f4 = np.array(
+                self.get(fbi.GetAttr(), (0, 0, 0, 1)) if fbi else (0, 0, 0, 1), np.float32
+            )
+            ch = texture_channels(out_name)
+            return (f4[list(ch)] if len(ch) == fb.size else fb), None
+        tc_names.append(self._texcoord_name(tex_shader, mat_name))
+        return fb, tex
+
+    def _texcoord_name(self, tex_shader, mat_name) -> str:
+        """The texcoord a UsdUVTexture reads: the primvar of its UsdPrimvarReader_float2,
+        optionally through a UsdTransform2d (then a derived name ``<primvar>@<transform>``
+        whose values usdahd.usd.geometry computes: out = rotate(scale * in) + translation)."""
+        st = tex_shader.GetInput("st")
+        if not st or not st.HasConnectedSource():
+            return "st"
+        node = UsdShade.Shader(st.GetConnectedSources()[0][0].source.GetPrim())
+        nid = node.GetIdAttr().Get() if node.GetIdAttr() else None
+        xf = None
+        if nid == "UsdTransform2d":
+
+            def val(n, d):
+                i = node.GetInput(n)
+                v = self.get(i.GetAttr()) if i else None
+                return np.array(d if v is None else v, np.float64).reshape(-1)
+
+            scale, rot, trans = (
+                val("scale", (1, 1)),
+                val("rotation", 0.0),
+                val("translation", (0, 0)),
+            )
+            if not (np.all(np.isfinite(scale)) and np.all(np.isfinite(rot))):
+                raise StageError(f"{node.GetPath()}: UsdTransform2d inputs are NaN/Inf: fix it")
+            xf = (float(scale[0]), float(scale[1]), float(rot[0]), float(trans[0]), float(trans[1]))
+            inp = node.GetInput("in")
+            if not inp or not inp.HasConnectedSource():
+                self.warn(
+                    f"{mat_name}: {node.GetPath()} (UsdTransform2d) has no connected 'in'; "
+                    "the texture reads primvar 'st'"
+                )
+                reader = None
+            else:
+                reader = UsdShade.Shader(inp.GetConnectedSources()[0][0].source.GetPrim())
+        else:
+            reader = node
+        var = "st"
+        if reader:
+            vn = reader.GetInput("varname")
+            if vn:
+                var = str(self.get(vn.GetAttr(), "st"))
+        if xf is None or xf == (1.0, 1.0, 0.0, 0.0, 0.0):
+            return var
+        sx, sy, r, tx, ty = (f"{v:.9g}" for v in xf)
+        name = f"{var}@scale({sx},{sy})rotate({r})translate({tx},{ty})"
+        c, s_ = math.cos(math.radians(xf[2])), math.sin(math.radians(xf[2]))
+        a = np.array([[c, -s_], [s_, c]]) @ np.diag([xf[0], xf[1]])
+        self.tc_transforms[name] = (var, a, np.array([xf[3], xf[4]]))
+        return name
+
+    def _texture(self, tex_shader, out_name, mat_name):
+        fin = tex_shader.GetInput("file")
+        asset = self.get(fin.GetAttr()) if fin else None
+        if asset is None:
+            return None
+        path = asset.resolvedPath or asset.path
+        if "<UDIM>" in (asset.path or ""):
+            self.warn(f"{mat_name}: UDIM textures are not supported ({asset.path}); fallback used")
+            return None
+        cs = tex_shader.GetInput("sourceColorSpace")
+        cs = str(self.get(cs.GetAttr(), "auto")) if cs else "auto"
+        fattr = fin.GetAttr()
+        file_cs = str(fattr.GetColorSpace()) if fattr.HasColorSpace() else ""
+        data = self._read_image(path, cs, mat_name, file_cs)
+        if data is None:
+            return None
+
+        def vec4(n, d):
+            i = tex_shader.GetInput(n)
+            v = self.get(i.GetAttr()) if i else None
+            return np.array(d if v is None else v, np.float32)
+
+        wrap = []
+        for w in ("wrapS", "wrapT"):
+            i = tex_shader.GetInput(w)
+            v = str(self.get(i.GetAttr(), "useMetadata")) if i else "useMetadata"
+            wrap.append("repeat" if v == "useMetadata" else v)
+        return Texture(
+            path,
+            data,
+            vec4("scale", (1, 1, 1, 1)),
+            vec4("bias", (0, 0, 0, 0)),
+            texture_channels(out_name),
+            (wrap[0], wrap[1]),
+        )
+
+    def _read_image(self, path, colorspace, owner, file_colorspace=""):
+        key = (path, colorspace, file_colorspace)
+        if key in self._textures:
+            return self._textures[key]
+        data = read_image(
+            path, colorspace, lambda m: self.warn(f"{owner}: {m}"), file_colorspace=file_colorspace
+        )
+        if data is not None:
+            data = sanitize_image(data, f"{owner}: {path}", self.warn)
+        self._textures[key] = data
+        return data
+
+
+def sanitize_image(data, label, warn):
+    """Replace NaN/Inf and negative texels by 0 (with a warning); data : (h, w, c) float32."""
+    bad = ~np.isfinite(data)
+    neg = np.isfinite(data) & (data < 0)
+    if bad.any() or neg.any():
+        warn(
+            f"{label}: {int(bad.sum())} NaN/Inf and {int(neg.sum())} negative texel values "
+            "replaced by 0"
+        )
+        data = np.where(bad | neg, np.float32(0), data).astype(np.float32)
+    return data
+
+
+def texture_channels(out_name: str) -> tuple[int, ...]:
+    """Channel indices a UsdUVTexture output selects (``rgb`` -> (0, 1, 2), ``a`` -> (3,))."""
+    return {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(out_name, (0, 1, 2))
+
+
+def to_rgb(img):
+    """(h, w, c) -> (h, w, 3): the first three channels, or grey replicated."""
+    if img.shape[2] >= 3:
+        return img[..., :3]
+    return np.repeat(img[..., :1], 3, axis=2)
+
+
+#: The colour space the baker works in (Gf.ColorSpaceNames / OpenImageIO's built-in config).
+LINEAR_SPACE = "lin_rec709_scene"
+#: Source colour spaces that need no conversion (data, or already the working space).
+_NO_CONVERSION = ("raw", "data", "lin_rec709_scene", "lin_rec709", "linear", "lin_srgb")
+
+
+def source_color_space(colorspace: str, file_colorspace: str, fmt: str, nchannels: int):
+    """The colour space a texture's texels are in, or None for data (no conversion).
+
+    colorspace : UsdUVTexture ``inputs:sourceColorSpace`` (``raw``, ``sRGB`` or ``auto``);
+    file_colorspace : ``colorSpace`` metadata authored on ``inputs:file`` (or "");
+    fmt : OpenImageIO pixel format of the file; nchannels : its channel count.
+    ``raw`` and ``sRGB`` are explicit. ``auto`` takes the file's colorSpace metadata when
+    authored, else Hydra's rule (HioImage): an 8-bit image with 3 or 4 channels is sRGB,
+    anything else (1- or 2-channel masks, 16-bit, float) is linear.
+    """
+    if colorspace == "raw":
+        return None
+    if colorspace == "sRGB":
+        return "srgb_rec709_scene"
+    if file_colorspace:
+        return None if file_colorspace in _NO_CONVERSION else file_colorspace
+    if fmt == "uint8" and nchannels in (3, 4):
+        return "srgb_rec709_scene"
+    return None
+
+
+def read_image(path: str, colorspace: str = "auto", warn=None, file_colorspace: str = ""):
+    """Read an image as linear float32 (h, w, c), or None (with a warning).
+
+    path : a resolved asset path: a file, or an asset inside a usdz package / from a studio
+    resolver (read through USD's asset resolver, usdahd.usd.assets).
+    colorspace, file_colorspace : see :func:`source_color_space`; the conversion to
+    lin_rec709_scene is OpenImageIO's (``ImageBufAlgo.colorconvert``, usdahd.images).
+    """
+    problem = asset_problem(path)
+    if problem:
+        if warn:
+            warn(f"cannot read texture {path}: it {problem}; fallback used")
+        return None
+    try:
+        with assets.local_file(path) as local:
+            try:
+                data, fmt = images.read_texels(local)
+            except ImageError as exc:
+                if warn:
+                    warn(f"cannot read texture {path} ({exc}); fallback used")
+                return None
+    except OSError as exc:
+        if warn:
+            warn(f"cannot read texture {path} ({one_line(exc, 200)}); fallback used")
+        return None
+    if data is None:
+        if warn:
+            warn(f"cannot decode texture {path}; fallback used")
+        return None
+    if colorspace not in ("raw", "sRGB", "auto") and warn:
+        warn(f"texture {path}: unknown sourceColorSpace {colorspace!r}; treated as auto")
+    space = source_color_space(colorspace, file_colorspace, fmt, data.shape[2])
+    if space is not None:
+        try:
+            data = images.convert_color(data, space, LINEAR_SPACE)
+        except ImageError as exc:
+            if warn:
+                warn(
+                    f"texture {path}: OpenImageIO cannot convert colour space {space!r} to "
+                    f"{LINEAR_SPACE} ({one_line(exc, 150)}); texels read unconverted"
+                )
+    return data

@@ -89,17 +89,6 @@ def test_atomic_write_keeps_previous_file_on_failure(tmp_path):
     assert path.read_bytes() == before
 
 
-def test_read_float_linearizes_srgb(tmp_path):
-    px = np.array([[[0, 128, 255]]], dtype=np.uint8)
-    path = tmp_path / "s.png"
-    images.write(path, px, color_space="srgb_rec709_scene")
-    f = images.read_float(path)
-    c = px / 255.0
-    expect = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    np.testing.assert_allclose(f, expect, atol=1e-6)
-    np.testing.assert_allclose(images.read_float(path, linearize=False), c, atol=1e-7)
-
-
 def test_bad_inputs_raise_clear_errors(tmp_path):
     with pytest.raises(ImageError, match="no such image file"):
         images.read(tmp_path / "missing.exr")

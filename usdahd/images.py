@@ -24,6 +24,10 @@ attributes through TIFF/PNG); :func:`read` takes the first of these it finds. Na
 Gf.ColorSpaceNames tokens (``lin_rec709_scene``, ``srgb_rec709_scene``, ``raw``, ...).
 
 Writes are atomic (temp file + rename, :func:`usdahd.io_util.atomic_path`).
+
+Material and DomeLight textures are read by :func:`read_texels` (float32, as OpenImageIO
+converts them) and colour-converted by :func:`convert_color`; the USD rules (asset resolver,
+``sourceColorSpace``) around them are :func:`usdahd.usd.materials.read_image`.
 """
 
 from __future__ import annotations
@@ -258,29 +262,6 @@ def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | Non
         idx = [names.index(c) for c in channels]
         image = Image(pixels[..., idx], tuple(channels), color_space, fmt, attrs)
     return image
-
-
-def read_float(path: str | os.PathLike, *, linearize: bool = True) -> np.ndarray:
-    """Pixels (h, w, c) as float32 for sampling (material and dome textures).
-
-    8-bit images become [0, 1] (int8: [-1, 1]); with ``linearize`` an image whose colour space
-    is sRGB (OpenImageIO's guess for PNG/JPEG, or as tagged) is converted to linear Rec.709.
-    """
-    image = read(path)
-    px = image.pixels
-    if px.dtype == np.uint8:
-        out = px.astype(np.float32) / 255.0
-    elif px.dtype == np.int8:
-        out = np.maximum(px.astype(np.float32) / 127.0, -1.0)
-    else:
-        out = px.astype(np.float32)
-    cs = (image.color_space or "").lower()
-    if linearize and ("srgb" in cs and "lin" not in cs):
-        rgb = out[..., : min(3, out.shape[-1])]
-        out[..., : rgb.shape[-1]] = np.where(
-            rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4
-        )
-    return out
 
 
 def read_texels(path: str | os.PathLike) -> tuple[np.ndarray | None, str]:

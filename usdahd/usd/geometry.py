@@ -156,6 +156,8 @@ class GeometryReader:
 
     # --------------------------------------------------------------------- meshes
     def mesh(self, prim, xform, path, instanced, bake=True):
+        """Read a UsdGeom.Mesh at world transform ``xform`` (4, 4) (row vectors, Gf layout)
+        into ``meshes`` (or skip it with a warning). Raises MeshFailure."""
         mesh = UsdGeom.Mesh(prim)
         pts = self.get(mesh.GetPointsAttr())
         counts = self.get(mesh.GetFaceVertexCountsAttr())
@@ -364,15 +366,7 @@ class GeometryReader:
         if v.shape[1] != width:
             return bad(f"primvar {name} ({tname}) has {v.shape[1]} components, expected {width}")
         interp = pv.GetInterpolation()
-        n_corner = len(topo.idx)
-        if interp == UsdGeom.Tokens.faceVarying:
-            need, sel = n_corner, np.arange(n_corner)
-        elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-            need, sel = int(topo.idx.max()) + 1, topo.idx
-        elif interp == UsdGeom.Tokens.uniform:
-            need, sel = len(topo.counts), np.repeat(np.arange(len(topo.counts)), topo.counts)
-        else:  # constant
-            need, sel = 1, np.zeros(n_corner, np.int64)
+        need, sel = topo.selection(interp, fallback=UsdGeom.Tokens.constant)
         if len(v) < need:
             raise MeshFailure(
                 f"{path}: primvar {name} ({interp}) has {len(v)} values, needs {need}; "
@@ -410,15 +404,7 @@ class GeometryReader:
                 return None
             interp = UsdGeom.Mesh(prim).GetNormalsInterpolation()
             v = np.asarray(vals, dtype=np.float64).reshape(-1, 3)
-            n_corner = len(topo.idx)
-            if interp == UsdGeom.Tokens.faceVarying:
-                need, sel = n_corner, np.arange(n_corner)
-            elif interp == UsdGeom.Tokens.uniform:
-                need, sel = len(topo.counts), np.repeat(np.arange(len(topo.counts)), topo.counts)
-            elif interp == UsdGeom.Tokens.constant:
-                need, sel = 1, np.zeros(n_corner, np.int64)
-            else:
-                need, sel = int(topo.idx.max()) + 1, topo.idx
+            need, sel = topo.selection(interp, fallback=UsdGeom.Tokens.vertex)
             if len(v) < need:
                 self.warn(
                     f"{path}: {len(v)} normals for {interp} interpolation (needs {need}); "
@@ -444,6 +430,7 @@ class GeometryReader:
 
     # --------------------------------------------------------------------- implicit gprims
     def implicit_gprim(self, prim, xform, path, instanced):
+        """Tessellate an implicit gprim (:func:`tessellate`) into ``meshes`` as an occluder."""
         pts, tris = tessellate(prim, self.get)
         if pts is None:
             self.warn(
@@ -458,7 +445,12 @@ class GeometryReader:
 
 
 class Topology:
-    """Fan triangulation of a polygon mesh in faceVertex (corner) index space."""
+    """Fan triangulation of a polygon mesh in faceVertex (corner) index space.
+
+    counts : (f,) int64 faceVertexCounts; idx : (c,) int64 faceVertexIndices. After init:
+    ``face`` (t,) source polygon of each fan triangle, ``corners`` (t, 3) indices into idx
+    (polygon k's triangles are (s, s+j+1, s+j+2), s its first corner).
+    """
 
     def __init__(self, counts, idx):
         self.counts = counts
@@ -471,6 +463,22 @@ class Topology:
         s = start[face]
         self.face = face
         self.corners = np.stack([s, s + k + 1, s + k + 2], axis=1)
+
+    def selection(self, interp: str, fallback: str = "constant"):
+        """How a primvar of interpolation ``interp`` maps to corners: (need, sel), the number
+        of values it must have and (c,) int64 the value index of each corner (faceVarying:
+        the corner itself; vertex/varying: its point; uniform: its face; constant: 0).
+        An unknown token is read as ``fallback`` (primvars: constant; ``normals``: vertex)."""
+        kinds = ("faceVarying", "vertex", "varying", "uniform", "constant")
+        interp = interp if interp in kinds else fallback
+        n_corner = len(self.idx)
+        if interp == "faceVarying":
+            return n_corner, np.arange(n_corner)
+        if interp in ("vertex", "varying"):
+            return int(self.idx.max()) + 1, self.idx
+        if interp == "uniform":
+            return len(self.counts), np.repeat(np.arange(len(self.counts)), self.counts)
+        return 1, np.zeros(n_corner, np.int64)
 
 
 def check_transform(xform, path) -> None:

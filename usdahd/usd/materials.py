@@ -67,6 +67,8 @@ class MaterialReader:
         self.unhonoured: dict[str, list[str]] = {}  # UsdPreviewSurface input -> materials
 
     def face_materials(self, prim, n_faces, path):
+        """(n_faces,) int32 material index of each face of a gprim: its bound material, and
+        the GeomSubsets' bindings over it. Raises SubsetError for out-of-range indices."""
         api = UsdShade.MaterialBindingAPI(prim)
         # A baker renders final quality: the "full" binding, else the all-purpose one.
         base = self.material_index(api.ComputeBoundMaterial(UsdShade.Tokens.full)[0], prim)
@@ -87,6 +89,8 @@ class MaterialReader:
         return fm
 
     def material_index(self, mat, prim):
+        """Index of a UsdShade.Material in ``materials`` (read the first time it is bound);
+        no material: one material per distinct displayColor (mean), else DEFAULT_ALBEDO."""
         if not mat:
             color = DEFAULT_ALBEDO
             dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")

@@ -48,7 +48,8 @@ UV_TYPES = ("texCoord2f[]", "texCoord2d[]", "texCoord2h[]", "float2[]", "double2
 
 
 class MeshFailure(Exception):
-    """A mesh cannot be used; the message names the prim and what to do (internal)."""
+    """A mesh cannot be used; the message names the prim and what to do (raised and caught
+    inside the reader: the mesh goes to ``failed`` or becomes a warning)."""
 
 
 class GeometryReader:

@@ -34,8 +34,8 @@ from common import (
     timed,
 )
 
-from usdahd import sh as shm
 from usdahd._version import __version__
+from usdahd.numerics import sh as shm
 
 #: Seeds of the two reference bakes (sweep bakes use 1, 2, 3, ... so they never share streams).
 REFERENCE_SEEDS = (1001, 1002)
@@ -115,7 +115,7 @@ BAKE_SOURCES = (
     "usdahd/usd/*.py",
     "usdahd/scene/*.py",
     "usdahd/pipeline.py",
-    "usdahd/sh.py",
+    "usdahd/numerics/*.py",
 )
 
 

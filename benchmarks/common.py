@@ -28,7 +28,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from usdahd import models  # noqa: E402
-from usdahd import sh as shm  # noqa: E402
+from usdahd.numerics import sh as shm  # noqa: E402
 
 SAMPLES = REPO / "samples"
 CACHE = REPO / "benchmarks" / "cache"

@@ -33,7 +33,7 @@ sys.path[:0] = [str(REPO), str(REPO / "tests")]
 import ktx2_reader as KR  # noqa: E402
 
 from usdahd import cli, images, models  # noqa: E402
-from usdahd import sh as shm  # noqa: E402
+from usdahd.numerics import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
 BEGIN = "<!-- BEGIN ktx2: python benchmarks/ktx2_bench.py --update docs/benchmarks.md -->"

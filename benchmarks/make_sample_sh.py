@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from usdahd import sh  # noqa: E402
+from usdahd.numerics import sh  # noqa: E402
 
 QUAD_THETA = 24  # 24 x 48 hemisphere rule: smooth radiance is projected to ~1e-6
 

@@ -32,7 +32,7 @@ import numpy as np
 from common import log, md_table, variants
 
 from usdahd import models
-from usdahd import sh as shm
+from usdahd.numerics import sh as shm
 
 CATEGORIES = (
     "physical",

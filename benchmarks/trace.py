@@ -37,7 +37,7 @@ from usdahd.bake import embree_native  # noqa: E402
 from usdahd.bake.integrate import bake_texels  # noqa: E402
 from usdahd.bake.trace import Tracer  # noqa: E402
 from usdahd.bake.types import Texels  # noqa: E402
-from usdahd.sampling import (  # noqa: E402
+from usdahd.numerics.sampling import (  # noqa: E402
     cosine_hemisphere,
     orthonormal_basis,
     to_world,

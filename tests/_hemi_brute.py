@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import legendre
 
-from usdahd import sh
+from usdahd.numerics import sh
 
 #: Normalized clamped-cosine band factors A_l (radiance -> irradiance), l = 0..6.
 A_L = [1.0, 2.0 / 3.0, 1.0 / 4.0, 0.0, -1.0 / 24.0, 0.0, 1.0 / 64.0]

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from usdahd import cli, models
-from usdahd import sh as shmod
+from usdahd.numerics import sh as shmod
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"

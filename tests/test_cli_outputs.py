@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import cli, images, pipeline
-from usdahd import sh as shmod
+from usdahd.numerics import sh as shmod
 from usdahd.usd import schema
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
-from usdahd import sh
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
+from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
 Z = 5.0
@@ -87,7 +87,7 @@ def _texels(points, normal):
     p = np.asarray(points, np.float32)
     n = len(p)
     nrm = np.asarray(normal, np.float64)
-    from usdahd.sampling import orthonormal_basis
+    from usdahd.numerics.sampling import orthonormal_basis
 
     frame = orthonormal_basis(nrm[None])[0]
     return Texels(

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdahd import sh
 from usdahd.bake import denoise
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics import sh
 
 QUAD = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
 RGB = np.array([1.0, 0.6, 0.3])

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from pxr import Usd
 
-import usdahd  # noqa: F401
+import usdahd.usd  # noqa: F401
 from usdahd import models
-from usdahd import sh as shm
 from usdahd import validate as V
+from usdahd.numerics import sh as shm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))

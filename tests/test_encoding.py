@@ -1,10 +1,11 @@
-"""Quantizers of usdahd.encoding: hemi-octahedral directions, UNORM8/SNORM8, float16 scale."""
+"""Quantizers of usdahd.numerics.encoding: hemi-octahedral directions, UNORM8/SNORM8, float16
+scale."""
 
 import numpy as np
 import pytest
 
-from usdahd import encoding, sh
 from usdahd.errors import InputError
+from usdahd.numerics import encoding, sh
 
 
 def _all_codes():

@@ -1,4 +1,4 @@
-"""usdahd.hemi against brute-force (exact) quadrature."""
+"""usdahd.numerics.hemi against brute-force (exact) quadrature."""
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from _hemi_brute import (
     tangent_hlsh_matrix_reference,
 )
 
-from usdahd import hemi, sh
+from usdahd.numerics import hemi, sh
 
 TOL = 1e-10  # every reference is an exact quadrature (polynomial integrands): rounding only
 

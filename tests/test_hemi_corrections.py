@@ -12,7 +12,7 @@ from _hemi_brute import (
     tangent_hlsh_matrix_reference,
 )
 
-from usdahd import hemi, sh
+from usdahd.numerics import hemi, sh
 
 TOL = 1e-10  # exact quadratures: the remaining error is float64 rounding
 WRONG = 1e-3  # a printed value counts as wrong when it misses the reference by more than this

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
-from usdahd import sh
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
+from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
 Z = 5.0
@@ -59,7 +59,7 @@ def _texels(points, normal=(0, 0, 1)):
     nrm = np.asarray(normal, np.float64)
     frame = np.eye(3) if np.allclose(nrm, [0, 0, 1]) else None
     if frame is None:
-        from usdahd.sampling import orthonormal_basis
+        from usdahd.numerics.sampling import orthonormal_basis
 
         frame = orthonormal_basis(nrm[None])[0]
     return Texels(

@@ -3,13 +3,13 @@
 For each row: the printed value disagrees with brute-force quadrature, the corrected one (the
 one usdahd uses) agrees to 1e-10 or better. Quadrature: usdahd.sh.hemisphere_quadrature
 (Gauss-Legendre in z, uniform in phi), exact for the polynomials integrated here.
-App. B Eq 47 (Gram matrix) and Eq 35/37 belong to usdahd.hemi and are tested there.
+App. B Eq 47 (Gram matrix) and Eq 35/37 belong to usdahd.numerics.hemi and are tested there.
 """
 
 import numpy as np
 
-from usdahd import sh
 from usdahd.models import _irradz as iz
+from usdahd.numerics import sh
 
 QUAD = sh.hemisphere_quadrature(16)  # exact for polynomial degree < 32 on the hemisphere
 

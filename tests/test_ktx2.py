@@ -19,7 +19,7 @@ pytest.importorskip("etcpak")
 pytest.importorskip("texture2ddecoder")
 
 from usdahd import cli, images, ktx2, models  # noqa: E402
-from usdahd import sh as shm  # noqa: E402
+from usdahd.numerics import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
-from usdahd import sh
 from usdahd.bake import lights as L
 from usdahd.errors import StageError
+from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
 FLOAT_TOL = 1e-9

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
-from usdahd import sh
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
+from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
 FLOAT_TOL = 2e-5

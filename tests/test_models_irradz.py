@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usdahd import models, sh
+from usdahd import models
 from usdahd.errors import InputError, ModelError, UsageError
 from usdahd.models import _irradz as iz
 from usdahd.models.base import FORMATS, ROLES
+from usdahd.numerics import sh
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -471,7 +472,7 @@ def test_albedo_self_bounce_is_delegated(sky):
     f = models.fit(sky, "hhd")
     n = np.broadcast_to(Z, (len(sky), 3))
     try:
-        from usdahd.hemi import self_bounce  # noqa: F401
+        from usdahd.numerics.hemi import self_bounce  # noqa: F401
     except ImportError:
         with pytest.raises(NotImplementedError, match="self_bounce"):
             f.evaluate(n, albedo=np.full((len(sky), 3), 0.5))

@@ -7,10 +7,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.polynomial import legendre
 
-from usdahd import hemi, models, sh
+from usdahd import models
 from usdahd.errors import InputError, ModelError
 from usdahd.models import ambient_cube, hl2, sh_l1, sh_l2
 from usdahd.models.base import FORMATS, ROLES
+from usdahd.numerics import hemi, sh
 
 TOL = 1e-9  # fits are fixed linear maps built from exact (or ~1e-11 converged) quadrature
 LINEAR = ["hemisphere", "sh_l1", "sh_l2", "ambient_cube", "hl2"]

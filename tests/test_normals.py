@@ -372,7 +372,7 @@ def test_pillar_without_normals_bakes_like_the_authored_flat_normals(tmp_path, c
     """The pillar of samples/pillar_room.usda with its normals removed bakes the same Iz as
     with its authored (flat) normals: same seed, so the difference is the normals alone."""
     from usdahd import images
-    from usdahd import sh as shmod
+    from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
 
     args = ["--prim", "/World/Geometry/Pillar", "--resolution", "32", "--samples", "64"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdahd import sh
 from usdahd.bake import post
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics import sh
 
 RNG = np.random.default_rng(5)
 QUAD_PTS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)

@@ -21,7 +21,7 @@ import pytest
 pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt  # noqa: E402
 
-import usdahd  # noqa: E402, F401  (registers the schema plugin before any stage is made)
+import usdahd.usd  # noqa: E402, F401  (registers the schema plugin before any stage is made)
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import usdahd  # noqa: F401  (registers the plugins first)
+import usdahd.usd  # noqa: F401  (registers the plugins first)
 from usdahd import cli
 from usdahd import validate as V
 from usdahd import validate_retrace as RT
@@ -59,7 +59,7 @@ def _scaled_copy(layer: Path, name: str, factor: float, sidecar: bool = True) ->
     the rescaled (float16-rounded) textures decode to, so IzCheck still passes.
     """
     from usdahd import images, models
-    from usdahd import sh as shm
+    from usdahd.numerics import sh as shm
     from usdahd.usd import schema
 
     dst = layer.parent.parent / name

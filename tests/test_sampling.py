@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from usdahd import sampling as S
-from usdahd import sh
+from usdahd.numerics import sampling as S
+from usdahd.numerics import sh
 
 N = 200_000  # MC checks: tolerance 5 SE of the estimator, computed below
 

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import usdahd  # noqa: F401  (registers the plugin before any stage exists)
-from usdahd import sh as sh_mod
+import usdahd.usd  # noqa: F401  (registers the plugin before any stage exists)
 from usdahd.errors import SchemaError
 from usdahd.models import REGISTRY
 from usdahd.models.base import ROLES
+from usdahd.numerics import sh as sh_mod
 from usdahd.usd import schema as S
 
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom  # isort: skip

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from usdahd import sh
+from usdahd.numerics import sh
 
 
 def test_basis_orthonormal_on_sphere():

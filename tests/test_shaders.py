@@ -605,12 +605,12 @@ def _mirrored_sphere():
 
 @pytest.mark.parametrize("language", LANGUAGES)
 def test_common_functions_match_the_baker(device, language, tmp_path):
-    """Every hemi-octahedral code pair (1..255)^2 decodes as usdahd.encoding does; the tangent
-    frame rebuilt from interpolated normal + tangent + sign equals the frame the baker traced
-    each texel of a mirrored sphere with (usdahd.bake.texels.rasterize); normal-map application
-    and the change into the frame follow docs/schema.md."""
-    from usdahd import encoding
+    """Every hemi-octahedral code pair (1..255)^2 decodes as usdahd.numerics.encoding does;
+    the tangent frame rebuilt from interpolated normal + tangent + sign equals the frame the baker
+    traced each texel of a mirrored sphere with (usdahd.bake.texels.rasterize); normal-map
+    application and the change into the frame follow docs/schema.md."""
     from usdahd.bake import texels as tx
+    from usdahd.numerics import encoding
 
     lang = language.split("-")[0]
     src = _COMMON_KERNEL[lang].format(

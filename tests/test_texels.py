@@ -7,6 +7,7 @@ import pytest
 
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics import raster
 
 QUAD_PTS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
 QUAD_TRI = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32)
@@ -178,10 +179,10 @@ def test_conservative_texels_lie_on_triangle_and_coverage_is_complete(backend):
         # brute force: every texel with a 16x16 subsample inside the triangle is covered
         sub = (np.arange(16) + 0.5) / 16
         X, Y = np.meshgrid(np.arange(w), np.arange(h))
-        px = tx.uv_to_pixel(uvt, res)
+        px = raster.uv_to_pixel(uvt, res)
         sx = (X[..., None, None] + sub[None, None, :, None]).reshape(h, w, -1)
         sy = (Y[..., None, None] + sub[None, None, None, :]).reshape(h, w, -1)
-        a2 = tx._cross2(px[1] - px[0], px[2] - px[0])
+        a2 = raster.cross2(px[1] - px[0], px[2] - px[0])
         inside = np.ones_like(sx, dtype=bool)
         for i in range(3):
             a, b = px[(i + 1) % 3], px[(i + 2) % 3]

@@ -14,13 +14,13 @@ import pytest
 from numba import njit
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
-from usdahd import sh
 from usdahd.bake import embree_native
 from usdahd.bake import lights as L
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer, nb_texture, pack_textures
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
+from usdahd.numerics import sh
 from usdahd.scene.types import Texture
 from usdahd.usd.reader import load_scene
 
@@ -77,7 +77,7 @@ def _box(st, path, lo, hi, material=None):
 
 
 def _texels(points, normal=(0.0, 0.0, 1.0)):
-    from usdahd.sampling import orthonormal_basis
+    from usdahd.numerics.sampling import orthonormal_basis
 
     p = np.asarray(points, np.float32).reshape(-1, 3)
     n = len(p)

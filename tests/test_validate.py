@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 from pxr import Gf, Usd, UsdValidation  # noqa: I001
 
-import usdahd  # noqa: F401  (registers the plugins first)
-from usdahd import cli, encoding
+import usdahd.usd  # noqa: F401  (registers the plugins first)
+from usdahd import cli
 from usdahd import validate as V
+from usdahd.numerics import encoding
 from usdahd.usd import plugin
 
 ROOT = Path(__file__).resolve().parents[1]

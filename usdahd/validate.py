@@ -38,8 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402,I001
 
-from usdahd import encoding, models
-from usdahd import sh as shm
+from usdahd import models
+from usdahd.numerics import encoding
+from usdahd.numerics import sh as shm
 from usdahd.usd import schema
 
 # ------------------------------------------------------------------------------------ rules

@@ -422,7 +422,7 @@ def _finding(prim, severity, code, message, fix="", **data):
 
 def _baked_iz(bake, rows: np.ndarray) -> np.ndarray:
     """(m, 3) float64 baked I_z of bake rows: sidecar SH when present, else decoded at z."""
-    from usdahd import sh as shm
+    from usdahd.numerics import sh as shm
 
     if bake.sh is not None:
         return shm.iz(np.asarray(bake.sh[rows], np.float64))
@@ -440,11 +440,11 @@ def check_retrace(prim, options: RetraceOptions | None = None) -> list:
 
 
 def _check(prim, opt: RetraceOptions) -> list:
-    from usdahd import sh as shm
     from usdahd import validate as V
     from usdahd.bake import integrate
     from usdahd.bake.texels import chart_ids, rasterize
     from usdahd.errors import UsdAhdError
+    from usdahd.numerics import sh as shm
 
     def skipped(why):
         return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]

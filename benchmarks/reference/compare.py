@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-import usdahd  # noqa: F401  (registers the AhdLightmapAPI plugin before pxr builds its registry)
+import usdahd.usd  # noqa: F401  (registers the AhdLightmapAPI plugin before pxr builds its registry)
 from benchmarks.reference import export, runner
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -119,7 +119,7 @@ def usdahd_results(layer: Path) -> dict:
 def usdahd_iz(sidecar: str) -> tuple[np.ndarray, np.ndarray]:
     """I_z (h, w, 3) float64 and coverage (h, w) bool from a bake's float32 SH sidecar."""
     from usdahd import images
-    from usdahd import sh as shm
+    from usdahd.numerics import sh as shm
     from usdahd.usd import schema
 
     img = images.read(sidecar, channels=schema.SH_SIDECAR_CHANNELS)

@@ -65,7 +65,6 @@ import time
 import numpy as np
 from numba import njit
 
-from usdahd import sh as shmod
 from usdahd.bake import embree_native
 from usdahd.bake.lights import (
     KIND_DISTANT,
@@ -93,7 +92,8 @@ from usdahd.bake.trace import (
     nb_shading_normal,
     nb_trace_rays,
 )
-from usdahd.sampling import (
+from usdahd.numerics import sh as shmod
+from usdahd.numerics.sampling import (
     cosine_hemisphere,
     orthonormal_basis,
     r2_sequence,

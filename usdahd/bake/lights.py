@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usdahd.bake import embree_native  # noqa: F401  (numba cache locators for the kernels)
-from usdahd.sampling import (
+from usdahd.numerics.sampling import (
     SPHERICAL_RECT_MAX_SR,
     SPHERICAL_RECT_MIN_SR,
     concentric_disk,
@@ -38,7 +38,7 @@ from usdahd.sampling import (
     spherical_rectangle,
     to_world,
 )
-from usdahd.sh import LUMINANCE
+from usdahd.numerics.sh import LUMINANCE
 
 TWO_PI = 2.0 * np.pi
 

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usdahd import sh as shmod
-from usdahd.bake.texels import uv_to_pixel
 from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics import sh as shmod
+from usdahd.numerics.raster import uv_to_pixel
 from usdahd.scene.types import MeshData
 
 # 8-neighbourhood offsets (dx, dy)

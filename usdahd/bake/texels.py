@@ -1,12 +1,13 @@
-"""Lightmap texels of one mesh: conservative UV rasterisation, sample points and tangent frames.
+"""Lightmap texels of one mesh: sample points, tangent frames, charts, density.
 
 numpy only (no pxr, OpenImageIO or Embree). See ``docs/texels.md`` for the conventions an
-engine importer needs (texel/UV convention, tangent-frame construction).
+engine importer needs (texel/UV convention, tangent-frame construction). The UV rasterisation
+itself (coverage, winning triangle, barycentrics, UV -> pixel mapping) is
+:mod:`usdahd.numerics.raster`, shared with the validator; this module adds the baker's
+policy (resolution limits, input checks) and the 3-D side (positions, normals, frames).
 
 Texel ``(x, y)`` covers UV ``[x/w, (x+1)/w] x [1-(y+1)/h, 1-y/h]`` (row 0 = top, v = 1), as
-pinned in :mod:`usdahd.bake.types`. Internally UVs are mapped to *pixel coordinates*
-``px = u * w``, ``py = (1 - v) * h`` in which texel ``(x, y)`` is the unit square
-``[x, x+1] x [y, y+1]`` and its centre is ``(x + 0.5, y + 0.5)``.
+pinned in :mod:`usdahd.bake.types` and :mod:`usdahd.numerics.raster`.
 
 Public functions
 ----------------
@@ -16,7 +17,6 @@ chart_ids(mesh) -> (t,) int32                               UV-connected charts
 resolution_for_density(mesh, texels_per_unit, *, max_resolution=8192) -> (w, h)
 mesh_from_arrays(points, triangles, *, uv=None, normals=None, path="/mesh") -> MeshData
 texel_density(mesh, resolution) -> float                    texels per world unit achieved
-uv_to_pixel(uv, resolution) -> (..., 2) float64             UV -> pixel coordinates
 """
 
 from __future__ import annotations
@@ -25,25 +25,14 @@ import numpy as np
 
 from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics.raster import rasterize_uv, signed_area2
 from usdahd.scene.types import MeshData
 
 #: Largest lightmap side accepted by default: 8192^2 texels x 27 SH floats is already 7 GB.
 MAX_RESOLUTION = 8192
 
-# Tolerances (pixel units = texels), one place, each with its reason.
-#: A texel square must overlap a triangle by more than this to count as covered, so texels that
-#: only touch a triangle along a texel boundary (charts aligned with the grid) are not covered.
-COVER_EPS = 1e-6
-#: A texel centre counts as "strictly inside" a triangle (for the UV-overlap statistic) when it
-#: is farther than this from every edge; centres on a shared edge of adjacent triangles are not
-#: overlap.
-OVERLAP_EPS = 1e-4
-#: |2 x signed UV area| in texels^2 below this -> degenerate UV triangle (no barycentrics).
-DEGENERATE_UV_AREA2 = 1e-10
 #: Squared length below which a vector is treated as zero (tangent/normal fallbacks).
 TINY2 = 1e-24
-#: Candidate texels per vectorized chunk: bounds peak memory (~100 bytes per candidate).
-CHUNK = 1 << 20
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,13 +71,6 @@ def _check_mesh(mesh: MeshData) -> np.ndarray:
     if not np.isfinite(mesh.points).all():
         raise InputError(f"{mesh.path}: points contain NaN or infinity")
     return uv
-
-
-def uv_to_pixel(uv: np.ndarray, resolution) -> np.ndarray:
-    """UV (..., 2) -> pixel coordinates (..., 2) float64: ``(u * w, (1 - v) * h)``."""
-    w, h = resolution
-    uv = np.asarray(uv, dtype=np.float64)
-    return np.stack([uv[..., 0] * w, (1.0 - uv[..., 1]) * h], axis=-1)
 
 
 def mesh_from_arrays(
@@ -154,17 +136,8 @@ def _any_perpendicular(n: np.ndarray) -> np.ndarray:
     return np.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], axis=-1)
 
 
-def _cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-
-
 # --------------------------------------------------------------------------------------------
 # tangent frames
-
-
-def _uv_signed_area2(uv: np.ndarray) -> np.ndarray:
-    """Twice the signed UV-space area (t,) of each triangle (> 0: counter-clockwise, v up)."""
-    return _cross2(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0])
 
 
 def tangent_frames(mesh: MeshData) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +164,7 @@ def tangent_frames(mesh: MeshData) -> tuple[np.ndarray, np.ndarray]:
     p = pts[tri]  # (t, 3, 3)
     t = len(tri)
 
-    area2 = _uv_signed_area2(uv)
+    area2 = signed_area2(uv)
     scale2 = np.max(np.sum((uv - uv[:, [1, 2, 0]]) ** 2, axis=-1), axis=1)
     degenerate = np.abs(area2) <= 1e-12 * scale2 + 1e-30
     sign = np.where(area2 < 0.0, -1.0, 1.0)
@@ -306,7 +279,7 @@ def _areas(mesh: MeshData) -> tuple[float, float]:
     uv = _check_mesh(mesh)
     p = np.asarray(mesh.points, dtype=np.float64)[np.asarray(mesh.triangles, dtype=np.int64)]
     world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
-    uv_area = 0.5 * np.abs(_uv_signed_area2(uv)).sum()
+    uv_area = 0.5 * np.abs(signed_area2(uv)).sum()
     return float(world), float(uv_area)
 
 
@@ -346,213 +319,6 @@ def resolution_for_density(
 # rasterisation
 
 
-def _candidates(px: np.ndarray, w: int, h: int):
-    """Per-triangle texel bounding boxes (clipped): x0, y0, width, height (int64, >= 0)."""
-    lo = px.min(axis=1)
-    hi = px.max(axis=1)
-    x0 = np.clip(np.floor(lo[:, 0] + COVER_EPS), 0, w).astype(np.int64)
-    y0 = np.clip(np.floor(lo[:, 1] + COVER_EPS), 0, h).astype(np.int64)
-    x1 = np.clip(np.ceil(hi[:, 0] - COVER_EPS) - 1, -1, w - 1).astype(np.int64)
-    y1 = np.clip(np.ceil(hi[:, 1] - COVER_EPS) - 1, -1, h - 1).astype(np.int64)
-    bw = np.maximum(x1 - x0 + 1, 0)
-    bh = np.maximum(y1 - y0 + 1, 0)
-    return x0, y0, bw, bh
-
-
-def _closest_on_segment(c, a, b):
-    ab = b - a
-    l2 = np.einsum("ni,ni->n", ab, ab)
-    s = np.clip(np.einsum("ni,ni->n", c - a, ab) / np.where(l2 > 0, l2, 1.0), 0.0, 1.0)
-    q = a + s[:, None] * ab
-    d2 = np.einsum("ni,ni->n", c - q, c - q)
-    return q, d2
-
-
-def _closest_point(c: np.ndarray, P: np.ndarray):
-    """Closest point q (m, 2) of triangles P (m, 3, 2) to points c (m, 2) lying outside them,
-    and the squared distance (m,)."""
-    best_q, best_d2 = _closest_on_segment(c, P[:, 0], P[:, 1])
-    for i in (1, 2):
-        qi, di = _closest_on_segment(c, P[:, i], P[:, (i + 1) % 3])
-        better = di < best_d2
-        best_q = np.where(better[:, None], qi, best_q)
-        best_d2 = np.where(better, di, best_d2)
-    return best_q, best_d2
-
-
-def _edge_distances(c: np.ndarray, P: np.ndarray, area2: np.ndarray):
-    """Signed distances (m, 3) of points c (m, 2) to the edge lines of triangles P (m, 3, 2),
-    positive inside; edge i is opposite corner i. Also the unit-normal box half-widths (m, 3)
-    of a texel square along each edge normal."""
-    a = P[:, [1, 2, 0]]
-    e = P[:, [2, 0, 1]] - a
-    elen = np.sqrt(np.einsum("mei,mei->me", e, e))
-    elen = np.where(elen > 0, elen, 1.0)
-    dist = _cross2(e, c[:, None, :] - a) * np.sign(area2)[:, None] / elen
-    half = 0.5 * (np.abs(e[..., 0]) + np.abs(e[..., 1])) / elen
-    return dist, half
-
-
-# -- numpy reference path ------------------------------------------------------------------
-
-
-def _raster_numpy(px, area2, live, w, h, conservative):
-    """Winner triangle per covered texel. Returns (ids (n,) int64 sorted texel ids y * w + x,
-    tri (n,) int64, number of texels whose centre is strictly inside two or more triangles)."""
-    x0, y0, bw, bh = _candidates(px[live], w, h)
-    counts = bw * bh
-    has = counts > 0
-    live, x0, y0, bw = live[has], x0[has], y0[has], bw[has]
-    starts = np.concatenate([[0], np.cumsum(counts[has])])
-    total = int(starts[-1])
-    ids_l, tri_l, score_l, strict_l = [], [], [], []
-    for k0 in range(0, total, CHUNK):
-        k = np.arange(k0, min(total, k0 + CHUNK), dtype=np.int64)
-        j = np.searchsorted(starts, k, side="right") - 1
-        local = k - starts[j]
-        x = x0[j] + local % bw[j]
-        y = y0[j] + local // bw[j]
-        c = np.stack([x + 0.5, y + 0.5], axis=1)
-        t = live[j]
-        dist, half = _edge_distances(c, px[t], area2[t])
-        inside = (dist >= 0.0).all(axis=1)
-        keep = ((dist + half) > COVER_EPS).all(axis=1) if conservative else inside
-        strict_l.append((y * w + x)[(dist > OVERLAP_EPS).all(axis=1)])
-        idx = np.nonzero(keep)[0]
-        score = -dist[idx].min(axis=1)
-        out = np.nonzero(~inside[idx])[0]
-        if len(out):
-            _, d2 = _closest_point(c[idx[out]], px[t[idx[out]]])
-            score[out] = d2
-        ids_l.append((y * w + x)[idx])
-        tri_l.append(t[idx])
-        score_l.append(score)
-    if not ids_l:
-        z = np.zeros(0, np.int64)
-        return z, z, 0
-    ids, tri, score = (np.concatenate(v) for v in (ids_l, tri_l, score_l))
-    # candidates are in triangle order; stable sorts keep the lower triangle on ties
-    o1 = np.argsort(score, kind="stable")
-    o2 = np.argsort(ids[o1], kind="stable")
-    order = o1[o2]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = ids[order][1:] != ids[order][:-1]
-    win = order[first]
-    _, strict_counts = np.unique(np.concatenate(strict_l), return_counts=True)
-    return ids[win], tri[win], int((strict_counts >= 2).sum())
-
-
-# -- numba path ----------------------------------------------------------------------------
-
-_raster_kernel = None
-
-
-def _get_kernel():
-    """Compile (once, cached on disk) the numba rasterisation kernel."""
-    global _raster_kernel
-    if _raster_kernel is not None:
-        return _raster_kernel
-    from numba import njit
-
-    @njit(cache=True, fastmath=False)
-    def kernel(px, area2, live, w, h, conservative, cover_eps, strict_eps, score, best, strict):
-        for t in live:
-            sgn = 1.0 if area2[t] > 0 else -1.0
-            lox = min(px[t, 0, 0], px[t, 1, 0], px[t, 2, 0])
-            hix = max(px[t, 0, 0], px[t, 1, 0], px[t, 2, 0])
-            loy = min(px[t, 0, 1], px[t, 1, 1], px[t, 2, 1])
-            hiy = max(px[t, 0, 1], px[t, 1, 1], px[t, 2, 1])
-            x0 = max(int(np.floor(lox + cover_eps)), 0)
-            y0 = max(int(np.floor(loy + cover_eps)), 0)
-            x1 = min(int(np.ceil(hix - cover_eps)) - 1, w - 1)
-            y1 = min(int(np.ceil(hiy - cover_eps)) - 1, h - 1)
-            ax = np.empty(3)
-            ay = np.empty(3)
-            ex = np.empty(3)
-            ey = np.empty(3)
-            el = np.empty(3)
-            half = np.empty(3)
-            for i in range(3):
-                i1 = (i + 1) % 3
-                i2 = (i + 2) % 3
-                ax[i] = px[t, i1, 0]
-                ay[i] = px[t, i1, 1]
-                ex[i] = px[t, i2, 0] - ax[i]
-                ey[i] = px[t, i2, 1] - ay[i]
-                ln = np.sqrt(ex[i] * ex[i] + ey[i] * ey[i])
-                el[i] = ln if ln > 0 else 1.0
-                half[i] = 0.5 * (abs(ex[i]) + abs(ey[i])) / el[i]
-            for y in range(y0, y1 + 1):
-                cy = y + 0.5
-                for x in range(x0, x1 + 1):
-                    cx = x + 0.5
-                    inside = True
-                    strict_in = True
-                    keep = True
-                    mind = np.inf
-                    for i in range(3):
-                        d = (ex[i] * (cy - ay[i]) - ey[i] * (cx - ax[i])) * sgn / el[i]
-                        mind = min(mind, d)
-                        if d < 0.0:
-                            inside = False
-                        if not d > strict_eps:
-                            strict_in = False
-                        if not d + half[i] > cover_eps:
-                            keep = False
-                    if not conservative:
-                        keep = inside
-                    k = y * w + x
-                    if strict_in and strict[k] < 255:
-                        strict[k] += 1
-                    if not keep:
-                        continue
-                    if inside:
-                        s = -mind
-                    else:
-                        s = np.inf
-                        for i in range(3):
-                            # closest point on segment from corner i to corner i+1
-                            bx = px[t, i, 0]
-                            by = px[t, i, 1]
-                            sx = px[t, (i + 1) % 3, 0] - bx
-                            sy = px[t, (i + 1) % 3, 1] - by
-                            l2 = sx * sx + sy * sy
-                            u = ((cx - bx) * sx + (cy - by) * sy) / l2 if l2 > 0 else 0.0
-                            u = min(max(u, 0.0), 1.0)
-                            dx = cx - (bx + u * sx)
-                            dy = cy - (by + u * sy)
-                            s = min(s, dx * dx + dy * dy)
-                    if s < score[k]:
-                        score[k] = s
-                        best[k] = t
-
-    _raster_kernel = kernel
-    return kernel
-
-
-def _raster_numba(px, area2, live, w, h, conservative):
-    """Same result as :func:`_raster_numpy` with dense per-texel buffers (9 bytes/texel)."""
-    kernel = _get_kernel()
-    score = np.full(w * h, np.inf)
-    best = np.full(w * h, -1, dtype=np.int64)
-    strict = np.zeros(w * h, dtype=np.uint8)
-    kernel(
-        np.ascontiguousarray(px),
-        area2,
-        live.astype(np.int64),
-        w,
-        h,
-        conservative,
-        COVER_EPS,
-        OVERLAP_EPS,
-        score,
-        best,
-        strict,
-    )
-    ids = np.nonzero(best >= 0)[0]
-    return ids, best[ids], int((strict >= 2).sum())
-
-
 def rasterize(
     mesh: MeshData,
     resolution,
@@ -563,11 +329,12 @@ def rasterize(
 ) -> Texels:
     """Rasterise the lightmap UVs of ``mesh`` at ``resolution`` (w, h) into covered texels.
 
-    A texel is covered when its centre lies in a triangle, or (``conservative``) when its square
-    overlaps a triangle by a positive area; then the sample point is the point of the triangle
-    closest (in UV) to the texel centre and ``center_inside`` is False. Each texel takes one
-    triangle: one containing its centre if any (the deepest), else the nearest; ties go to the
-    lower triangle index. ``backend`` "numba" (default) or "numpy" (reference; same result).
+    Coverage, the triangle each texel takes and its sample point are
+    :func:`usdahd.numerics.raster.rasterize_uv` (``conservative``, ``backend`` passed on): a
+    texel is covered when its centre lies in a triangle, or (``conservative``) when its square
+    overlaps one; then the sample point is the closest point of the triangle and
+    ``center_inside`` is False. This adds the checks (resolution at most ``max_resolution``,
+    finite UVs of shape (t, 3, 2)) and the 3-D side.
 
     Returns :class:`~usdahd.bake.types.Texels` sorted by ``y * w + x`` (row-major) with
 
@@ -582,34 +349,15 @@ def rasterize(
     """
     w, h = _check_resolution(resolution, max_resolution)
     uv = _check_mesh(mesh)
-    if backend not in ("numba", "numpy"):
-        raise UsageError(f"unknown rasterize backend {backend!r}; use 'numba' or 'numpy'")
     tri = np.asarray(mesh.triangles, dtype=np.int64)
     pts = np.asarray(mesh.points, dtype=np.float64)
     t = len(tri)
-    px = uv_to_pixel(uv, (w, h))
-    # pixel space has y down, so area2 here is minus the UV-space one
-    area2 = _cross2(px[:, 1] - px[:, 0], px[:, 2] - px[:, 0])
-    degenerate_uv = np.abs(area2) <= DEGENERATE_UV_AREA2
-    live = np.nonzero(~degenerate_uv)[0]
-
-    run = _raster_numba if backend == "numba" else _raster_numpy
-    ids, tri_idx, overlap = run(px, area2, live, w, h, conservative)
-
-    # sample point of each winner: the centre if inside, else the closest point
+    r = rasterize_uv(uv, (w, h), conservative=conservative, backend=backend)
+    ids, tri_idx, inside, lam = r.ids, r.triangle, r.center_inside, r.barycentrics
+    degenerate_uv = r.degenerate
+    overlap = len(r.overlap_ids)
     x = ids % w
     y = ids // w
-    c = np.stack([x + 0.5, y + 0.5], axis=1).astype(np.float64)
-    P = px[tri_idx]
-    dist, _ = _edge_distances(c, P, area2[tri_idx])
-    inside = (dist >= 0.0).all(axis=1)
-    q = c.copy()
-    out = np.nonzero(~inside)[0]
-    if len(out):
-        q[out], _ = _closest_point(c[out], P[out])
-    lam = _cross2(P[:, [2, 0, 1]] - P[:, [1, 2, 0]], q[:, None, :] - P[:, [1, 2, 0]])
-    lam = np.clip(lam / area2[tri_idx][:, None], 0.0, None)
-    lam /= np.where(lam.sum(axis=1) > 0, lam.sum(axis=1), 1.0)[:, None]
     n = len(tri_idx)
 
     p = pts[tri[tri_idx]]  # (n, 3, 3)

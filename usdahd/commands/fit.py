@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import models
-from usdahd import sh as shmod
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics import sh as shmod
 
 
 def add_parser(sub):

@@ -42,10 +42,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from usdahd import encoding
-from usdahd import sh as shm
 from usdahd.errors import InputError, UsageError
 from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
+from usdahd.numerics import encoding
+from usdahd.numerics import sh as shm
 
 # ---------------------------------------------------------------------------------------------
 # Tolerances, in one place, with the reason for each.
@@ -946,7 +946,7 @@ def evaluate(kind: str, params: dict, normals, *, albedo=None) -> np.ndarray:
 
     params : IrradZ params with leading shape P; normals : (..., 3) with leading shape P or
     P + extra axes (several normals per texel), or anything numpy-broadcastable.
-    albedo : (..., 3) adds the 2024 App. A self-bounce via usdahd.hemi.self_bounce.
+    albedo : (..., 3) adds the 2024 App. A self-bounce via usdahd.numerics.hemi.self_bounce.
     """
     n = np.asarray(normals, dtype=np.float64)
     ca, cd, d = colors(params)
@@ -966,11 +966,11 @@ def evaluate(kind: str, params: dict, normals, *, albedo=None) -> np.ndarray:
 
 def _self_bounce(iz, normals, albedo):
     try:
-        from usdahd.hemi import self_bounce
+        from usdahd.numerics.hemi import self_bounce
     except ImportError:
         raise NotImplementedError(
-            "self-bounce (2024 App. A) needs usdahd.hemi.self_bounce, which is not available "
-            "yet; evaluate without albedo"
+            "self-bounce (2024 App. A) needs usdahd.numerics.hemi.self_bounce, which is not "
+            "available yet; evaluate without albedo"
         ) from None
     return self_bounce(iz, normals, albedo)
 

@@ -13,17 +13,17 @@ Conventions shared by these models (see docs/models-linear.md):
 - params ``invalid`` : (..., 1) float32, 1.0 where the input texel held NaN/Inf (its colours are
   then 0: black output, never propagated);
 - ``evaluate`` returns float32 (..., 3); with ``albedo`` it adds the self-bounce of 2024 App. A
-  (:func:`usdahd.hemi.self_bounce`) with I_z = the model's own irradiance in z.
+  (:func:`usdahd.numerics.hemi.self_bounce`) with I_z = the model's own irradiance in z.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from usdahd import encoding, hemi
-from usdahd import sh as shm
 from usdahd.errors import InputError, ModelError
 from usdahd.models.base import MAX_COEFFICIENT_TEXTURES, TextureLayout, rgb_layout
+from usdahd.numerics import encoding, hemi
+from usdahd.numerics import sh as shm
 
 #: Largest float32: fitted values are clipped to it (inputs near 1e200 would overflow).
 F32_MAX = float(np.finfo(np.float32).max)

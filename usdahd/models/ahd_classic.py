@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd import encoding
 from usdahd.errors import InputError
 from usdahd.models import _irradz
 from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
+from usdahd.numerics import encoding
 
 NAME = "ahd_classic"
 RATIOS = ("none",)

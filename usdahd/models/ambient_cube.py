@@ -22,8 +22,8 @@ from math import gamma
 
 import numpy as np
 
-from usdahd import sh as shm
 from usdahd.models import _linear
+from usdahd.numerics import sh as shm
 
 NAME = "ambient_cube"
 RATIOS = ("none",)

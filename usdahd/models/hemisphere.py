@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd import encoding
-from usdahd import sh as shm
 from usdahd.errors import InputError
 from usdahd.models import _linear
 from usdahd.models.base import rgb_layout
+from usdahd.numerics import encoding
+from usdahd.numerics import sh as shm
 
 NAME = "hemisphere"
 RATIOS = ("none",)

@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import legendre
 
-from usdahd import sh as shm
 from usdahd.models import _linear
+from usdahd.numerics import sh as shm
 
 NAME = "hl2"
 RATIOS = ("none",)

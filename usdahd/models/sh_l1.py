@@ -38,9 +38,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd import sh as shm
 from usdahd.models import _linear
 from usdahd.models.base import TextureLayout
+from usdahd.numerics import sh as shm
 
 NAME = "sh_l1"
 RATIOS = ("linear", "nonlinear", "8bit")

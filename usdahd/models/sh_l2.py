@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd import sh as shm
 from usdahd.models import _linear
+from usdahd.numerics import sh as shm
 
 NAME = "sh_l2"
 RATIOS = ("none",)

@@ -27,9 +27,9 @@ if str(ROOT) not in sys.path:
 
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt  # noqa: E402,I001
 
-import usdahd  # noqa: E402,F401  (registers the plugins before any stage exists)
+import usdahd.usd  # noqa: E402,F401  (registers the plugins before any stage exists)
 from usdahd import images, models  # noqa: E402
-from usdahd import sh as shm  # noqa: E402
+from usdahd.numerics import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
 RESOLUTION = (16, 16)

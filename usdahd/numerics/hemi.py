@@ -16,9 +16,10 @@ issue 2 applied (each pinned by ``tests/test_hemi_corrections.py``):
 - Eq 20: the I_z term integrates over the upper hemisphere Omega+ (printed Omega), giving
   ``HLSH_B_Z = [pi/3, 0, 0]`` as used in Eq 22.
 
-Conventions are those of :mod:`usdahd.sh`: SH order ``[Y00, Y1-1, Y10, Y11, Y2-2, ..., Y22]``,
-colour SH ``(..., C, 9)``, irradiance normalized (uniform sky radiance 1 -> 1). In SH slot order
-a linear-band vector is ``[-y, z, -x]`` times ``sqrt(3/(4 pi))``; ``n_sh = [-n_y, n_z, -n_x]``.
+Conventions are those of :mod:`usdahd.numerics.sh`: SH order
+``[Y00, Y1-1, Y10, Y11, Y2-2, ..., Y22]``, colour SH ``(..., C, 9)``, irradiance normalized
+(uniform sky radiance 1 -> 1). In SH slot order a linear-band vector is ``[-y, z, -x]`` times
+``sqrt(3/(4 pi))``; ``n_sh = [-n_y, n_z, -n_x]``.
 
 **Do not hemisphere-multiply data that is already hemispherical in tangent space** (the
 tangent-space radiance SH every fitter receives): on SH truncated to band 2 the multiply is not
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd import sh as _sh
+from usdahd.numerics import sh as _sh
 
 _PI = np.pi
 _SQRT_PI = np.sqrt(np.pi)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-import usdahd  # registers the plugins
+import usdahd.usd  # registers the plugins
 from usdahd import cli
 from usdahd.commands import plugin_path as cmd
 from usdahd.errors import SchemaError
@@ -108,13 +108,16 @@ def test_relative_pxr_pluginpath_name_is_silently_ignored(tmp_path):
 
 
 def test_late_import_fails_loudly(tmp_path):
-    """A stage created before `import usdahd` freezes the schema registry: SchemaError."""
+    """A stage created before `import usdahd.usd` freezes the schema registry: SchemaError.
+
+    `import usdahd` alone registers nothing (it needs no pxr), so it is fine at any time."""
     proc = _run(
         """
         from pxr import Usd, UsdGeom
         UsdGeom.Mesh.Define(Usd.Stage.CreateInMemory(), "/M")
+        import usdahd
         try:
-            import usdahd
+            import usdahd.usd
         except Exception as exc:
             print(type(exc).__name__, exc)
         else:
@@ -125,7 +128,7 @@ def test_late_import_fails_loudly(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("SchemaError")
-    assert "Import usdahd before creating any Usd.Stage" in proc.stdout
+    assert "Import usdahd.usd before creating any Usd.Stage" in proc.stdout
     assert "PXR_PLUGINPATH_NAME=/" in proc.stdout
 
 

@@ -4,18 +4,15 @@ Public API (kept small; see README and docs/):
 
 - :func:`usdahd.fit` — fit a lighting model to tangent-space radiance SH.
 - :func:`usdahd.models.get` — the model registry.
+- :mod:`usdahd.sh` — the SH basis and constants (an alias of :mod:`usdahd.numerics.sh`).
 
-Importing the package registers the USD plugins (schema and validators) before any stage is
-created; numerics (``usdahd.sh``, ``usdahd.models``) do not need pxr.
+``import usdahd`` needs only numpy and numba: pxr and OpenImageIO are imported by the modules
+that use them. The USD plugins (schema and validators) are registered when :mod:`usdahd.usd` is
+first imported — by the baker, the validator and the CLI before they open a stage; Python code
+that creates stages with the AhdLightmapAPI schema itself imports ``usdahd.usd`` first.
 """
 
 from usdahd._version import __version__
-from usdahd.usd import plugin as _plugin
-
-# Before anything else can create a stage: USD reads schema plugins once, when its schema
-# registry is first built. Raises usdahd.errors.SchemaError if the schema ends up unusable.
-_plugin.register()
-
-from usdahd.models import fit  # noqa: E402
+from usdahd.models import fit
 
 __all__ = ["__version__", "fit"]

@@ -138,7 +138,7 @@ def context(retrace: bool = False):
     if missing:
         raise StageError(
             f"the usdahd validators are not registered ({', '.join(missing)}): USD's validation "
-            "registry was created before usdahd registered its plugins; import usdahd first or "
+            "registry was created before usdahd registered its plugins; import usdahd.usd first or "
             "set PXR_PLUGINPATH_NAME to the output of 'usdahd plugin-path'"
         )
     for name in v.BUILTIN_VALIDATORS:

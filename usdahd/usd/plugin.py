@@ -1,6 +1,6 @@
 """Register usdahd's USD plugins (the AhdLightmapAPI schema, the validators) with Plug.
 
-``import usdahd`` calls :func:`register` before anything creates a stage: USD reads schema
+``import usdahd.usd`` calls :func:`register` before anything creates a stage: USD reads schema
 plugins when its schema registry is first built (by the first ``Usd.Stage`` or
 ``Usd.SchemaRegistry()``), and a plugin registered later has a TfType of kind Invalid, so
 ``ApplyAPI`` fails with "Cannot find a valid schema". :func:`register` checks that the schema
@@ -74,7 +74,7 @@ def register() -> Path:
     Registers :func:`plugin_dir` unless a plugin named ``usdAhd`` is already known (e.g. from
     ``PXR_PLUGINPATH_NAME``), and ``plugins/usdAhdValidators`` if it exists and is not yet
     registered. Returns the plugin directory. Raises SchemaError when the schema is unknown or
-    invalid afterwards, typically because a stage was created before usdahd was imported.
+    invalid afterwards, typically because a stage was created before usdahd.usd was imported.
     """
     from pxr import Plug
 
@@ -95,7 +95,7 @@ def check() -> None:
 
     if Plug.Registry().GetPluginWithName(PLUGIN_NAME) is None:
         raise SchemaError(
-            f"USD plugin {PLUGIN_NAME!r} is not registered; import usdahd first or set "
+            f"USD plugin {PLUGIN_NAME!r} is not registered; import usdahd.usd first or set "
             f"PXR_PLUGINPATH_NAME={plugin_path()}"
         )
     info = Usd.SchemaRegistry.FindSchemaInfo(API_NAME)
@@ -103,7 +103,7 @@ def check() -> None:
         raise SchemaError(
             f"USD schema {API_NAME} is registered but not usable (kind "
             f"{getattr(info, 'kind', 'unknown')}): USD built its schema registry before usdahd "
-            "registered its plugin. Import usdahd before creating any Usd.Stage or "
+            "registered its plugin. Import usdahd.usd before creating any Usd.Stage or "
             f"Usd.SchemaRegistry, or set PXR_PLUGINPATH_NAME={plugin_path()} before starting "
             "Python"
         )

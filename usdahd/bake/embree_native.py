@@ -196,8 +196,8 @@ KERNEL_SOURCES = tuple(
         ("bake", "trace.py"),
         ("bake", "lights.py"),
         ("bake", "integrate.py"),
-        ("sampling.py",),
-        ("sh.py",),
+        ("numerics", "sampling.py"),
+        ("numerics", "sh.py"),
     )
 )
 

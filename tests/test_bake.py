@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -13,21 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ROOT, SAMPLES, copy_sample, sample_stages
 
 from usdahd import cli, models
 from usdahd.numerics import sh as shmod
 
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT / "samples"
 FAST = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
-
-
-def _copy_sample(tmp_path, name):
-    dst = tmp_path / name
-    shutil.copy(SAMPLES / name, dst)
-    if (SAMPLES / "textures").is_dir():
-        shutil.copytree(SAMPLES / "textures", tmp_path / "textures", dirs_exist_ok=True)
-    return dst
 
 
 def _bake(argv, capsys=None):
@@ -65,7 +55,7 @@ def _sidecar_channels():
 
 
 def test_open_plane_bakes_iz_one_and_leaves_source_untouched(tmp_path, capsys):
-    stage = _copy_sample(tmp_path, "open_plane.usda")
+    stage = copy_sample(tmp_path, "open_plane.usda")
     before = stage.read_bytes()
     code, out = _bake([str(stage), "--json", *FAST[:-1], "--samples", "64"], capsys)
     assert code == 0, out.err
@@ -90,7 +80,7 @@ def test_open_plane_bakes_iz_one_and_leaves_source_untouched(tmp_path, capsys):
 
 
 def test_second_run_skips_everything_and_rewrites_nothing(tmp_path, capsys):
-    stage = _copy_sample(tmp_path, "cornell_box.usda")
+    stage = copy_sample(tmp_path, "cornell_box.usda")
     code, _ = _bake([str(stage), *FAST], capsys)
     assert code == 0
     layer = tmp_path / "cornell_box.lightmaps.usda"
@@ -106,7 +96,7 @@ def test_second_run_skips_everything_and_rewrites_nothing(tmp_path, capsys):
 
 
 def test_changed_setting_rebakes_only_that_prim(tmp_path, capsys):
-    stage = _copy_sample(tmp_path, "cornell_box.usda")
+    stage = copy_sample(tmp_path, "cornell_box.usda")
     assert _bake([str(stage), *FAST], capsys)[0] == 0
     first = _results(tmp_path / "cornell_box.lightmaps.usda")
     target = sorted(first)[0]
@@ -124,7 +114,7 @@ def test_changed_setting_rebakes_only_that_prim(tmp_path, capsys):
 
 
 def test_dry_run_writes_nothing(tmp_path, capsys):
-    stage = _copy_sample(tmp_path, "open_plane.usda")
+    stage = copy_sample(tmp_path, "open_plane.usda")
     code, out = _bake([str(stage), "--dry-run", "--json", *FAST], capsys)
     assert code == 0
     assert json.loads(out.out)["prims"][0]["status"] == "planned"
@@ -144,7 +134,7 @@ def test_dry_run_writes_nothing(tmp_path, capsys):
     ],
 )
 def test_bad_usage_exits_2_with_a_clear_message(tmp_path, capsys, argv, needle):
-    stage = _copy_sample(tmp_path, "open_plane.usda")
+    stage = copy_sample(tmp_path, "open_plane.usda")
     argv = [a.format(stage=stage) for a in argv]
     if argv[0] == "missing.usda":
         argv[0] = str(tmp_path / "missing.usda")
@@ -161,7 +151,7 @@ def test_bad_usage_exits_2_with_a_clear_message(tmp_path, capsys, argv, needle):
 def test_no_uvs_with_unwrap_off_fails_that_prim(tmp_path, capsys):
     from pxr import Usd, UsdGeom
 
-    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage_path = copy_sample(tmp_path, "open_plane.usda")
     stage = Usd.Stage.Open(str(stage_path))
     UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Plane")).RemovePrimvar("st")
     stage.GetRootLayer().Save()
@@ -192,7 +182,7 @@ def _run(args, **kw):
 
 
 def test_bake_as_subprocess_json(tmp_path):
-    stage = _copy_sample(tmp_path, "open_plane.usda")
+    stage = copy_sample(tmp_path, "open_plane.usda")
     proc = _run(["bake", str(stage), "--json", *FAST])
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
@@ -201,7 +191,7 @@ def test_bake_as_subprocess_json(tmp_path):
 
 
 def test_killed_bake_leaves_previous_output_valid(tmp_path):
-    stage = _copy_sample(tmp_path, "cornell_box.usda")
+    stage = copy_sample(tmp_path, "cornell_box.usda")
     assert _run(["bake", str(stage), *FAST]).returncode == 0
     layer = tmp_path / "cornell_box.lightmaps.usda"
     before = layer.read_bytes()
@@ -237,13 +227,9 @@ def test_killed_bake_leaves_previous_output_valid(tmp_path):
     assert _run(["bake", str(stage), *FAST]).returncode == 0  # and it re-runs cleanly
 
 
-@pytest.mark.parametrize(
-    "name",
-    # Override layers (README command 1 writes samples/cornell_box.lightmaps.usda) are outputs.
-    sorted(p.name for p in SAMPLES.glob("*.usda") if not p.name.endswith(".lightmaps.usda")),
-)
+@pytest.mark.parametrize("name", sample_stages())
 def test_fresh_bake_of_every_sample_validates_clean(tmp_path, capsys, name):
-    stage = _copy_sample(tmp_path, name)
+    stage = copy_sample(tmp_path, name)
     code, out = _bake(
         [str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1", "--quiet"], capsys
     )
@@ -256,7 +242,7 @@ def test_fresh_bake_of_every_sample_validates_clean(tmp_path, capsys, name):
 
 def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
     pytest.importorskip("pyoidn")
-    stage = _copy_sample(tmp_path, "open_plane.usda")
+    stage = copy_sample(tmp_path, "open_plane.usda")
     code, out = _bake(
         [str(stage), "--denoise", "--resolution", "16", "--samples", "8", "--quiet"], capsys
     )
@@ -271,7 +257,7 @@ def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
 def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
     from pxr import Sdf, Usd, UsdGeom
 
-    stage_path = _copy_sample(tmp_path, "cornell_box.usda")
+    stage_path = copy_sample(tmp_path, "cornell_box.usda")
     stage = Usd.Stage.Open(str(stage_path))
     UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Floor")).RemovePrimvar("st")
     stage.GetRootLayer().Save()
@@ -292,7 +278,7 @@ def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
 def test_stage_without_light_sources_traces_nothing_and_says_so(tmp_path, capsys):
     from pxr import Usd
 
-    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage_path = copy_sample(tmp_path, "open_plane.usda")
     stage = Usd.Stage.Open(str(stage_path))
     stage.RemovePrim("/World/Lights")
     stage.GetRootLayer().Save()
@@ -310,7 +296,7 @@ def test_stage_without_light_sources_traces_nothing_and_says_so(tmp_path, capsys
 def test_partly_degenerate_uv_set_is_unwrapped_into_a_new_primvar(tmp_path, capsys):
     from pxr import Usd, UsdGeom
 
-    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage_path = copy_sample(tmp_path, "open_plane.usda")
     stage = Usd.Stage.Open(str(stage_path))
     pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Plane")).GetPrimvar("st")
     st = np.array(pv.Get())
@@ -342,7 +328,7 @@ def test_rerun_reuses_the_previous_unwrap_instead_of_calling_xatlas(tmp_path, ca
 
     from usdahd.bake import unwrap as unwrap_mod
 
-    stage_path = _copy_sample(tmp_path, "open_plane.usda")
+    stage_path = copy_sample(tmp_path, "open_plane.usda")
     stage = Usd.Stage.Open(str(stage_path))
     UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Plane")).RemovePrimvar("st")
     stage.GetRootLayer().Save()

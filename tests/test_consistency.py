@@ -7,16 +7,17 @@ MIS weight, a pdf that disagrees with its sampler, a light counted twice or miss
 strategy, or an estimator bias all show up as a disagreement.
 
 Tolerance: two estimators bake the same N_TEX texels with independent random streams; they
-agree when the mean per-texel difference is below Z = 5 standard errors of that mean (from the
-sample variance of the differences, so spatial variation cancels), plus 1e-6 relative float
-slack. A false failure is a < 1e-6 event per comparison. Power: halving the light pdf in the
-BSDF-side MIS weight (a 10 % bias of the floor's Iz here) fails the floor case at 5.6 sigma; the
-lights are large and close so that MIS weights are far from 0 and 1.
+agree when the mean per-texel difference is below SIGMAS = 5 standard errors of that mean (from
+the sample variance of the differences, so spatial variation cancels; ``stats.assert_mean``),
+plus 1e-6 relative float slack. A false failure is a < 1e-6 event per comparison. Power:
+halving the light pdf in the BSDF-side MIS weight (a 10 % bias of the floor's Iz here) fails the
+floor case at 5.6 sigma; the lights are large and close so that MIS weights are far from 0 and 1.
 """
 
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from stats import assert_mean
 
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
@@ -25,7 +26,6 @@ from usdahd.errors import UsageError
 from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
-Z = 5.0
 N_TEX = 96
 
 
@@ -103,10 +103,9 @@ def _texels(points, normal):
 
 def _agree(a, b, what):
     """Paired comparison at the same texels (independent streams): the mean per-texel
-    difference is zero within Z standard errors of that mean (spatial variation cancels)."""
+    difference is zero within SIGMAS standard errors of that mean (spatial variation cancels)."""
     d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    se = d.std(ddof=1) / np.sqrt(len(d))
-    assert abs(d.mean()) < Z * se + 1e-6 * abs(np.mean(b)) + 1e-12, (what, d.mean(), se)
+    assert_mean(d, 0.0, atol=1e-6 * abs(np.mean(b)) + 1e-12, what=what)  # atol: float32 sums
 
 
 @pytest.fixture(scope="module")

@@ -2,15 +2,16 @@
 
 Tolerances: Monte Carlo cases use the plain ``mc`` estimator (unbiased), bake ``N_TEX``
 independent texels (each with its own Cranley-Patterson rotation and random streams) and
-require |mean - exact| < Z * SE + float32 slack, where SE is the sample standard deviation of
-the per-texel estimates over sqrt(N_TEX) — the estimator's own variance, measured in the test.
-Z = 5 makes a false failure a < 1e-6 event. Cases without randomness (delta lights, uniform dome
-with the regression estimator) are checked to FLOAT_TOL.
+require |mean - exact| < SIGMAS * SE + float32 slack, where SE is the sample standard deviation
+of the per-texel estimates over sqrt(N_TEX) — the estimator's own variance, measured in the test
+(``stats.assert_mean``). SIGMAS = 5 makes a false failure a < 1e-6 event. Cases without
+randomness (delta lights, uniform dome with the regression estimator) are checked to FLOAT_TOL.
 """
 
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from stats import assert_mean
 
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
@@ -18,7 +19,6 @@ from usdahd.bake.types import Texels
 from usdahd.numerics import sh
 from usdahd.usd.reader import load_scene
 
-Z = 5.0
 N_TEX = 48
 FLOAT_TOL = 2e-5  # float32 positions/directions and SH accumulation
 
@@ -95,11 +95,7 @@ def _bake(st, tex, **kw):
 
 
 def _check_mc(values, exact, rel_slack=FLOAT_TOL):
-    v = np.asarray(values, np.float64)
-    mean = v.mean()
-    se = v.std(ddof=1) / np.sqrt(len(v))
-    tol = Z * se + rel_slack * abs(exact) + 1e-9
-    assert abs(mean - exact) < tol, (mean, exact, se)
+    assert_mean(values, exact, rel=rel_slack, atol=1e-9)
 
 
 def _same_point(p, n=N_TEX):

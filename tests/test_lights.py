@@ -1,12 +1,13 @@
 """Light sampling consistency and the UsdLux unit rules as extracted from stages.
 
-MC checks use tolerance 5 SE (the estimator's sample standard error); analytic unit rules are
-exact to FLOAT_TOL.
+MC checks use tolerance stats.SIGMAS = 5 SE (the estimator's sample standard error); analytic
+unit rules are exact to FLOAT_TOL.
 """
 
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from stats import assert_mean
 
 from usdahd.bake import lights as L
 from usdahd.errors import StageError
@@ -18,8 +19,7 @@ N = 100_000
 
 
 def _mc_ok(vals, exact):
-    se = vals.std(ddof=1) / np.sqrt(len(vals))
-    assert abs(vals.mean() - exact) < 5 * se + 1e-9 * abs(exact), (vals.mean(), exact, se)
+    assert_mean(vals, exact, rel=1e-9)  # rel: float64 rounding when the estimator is constant
 
 
 def _lights():
@@ -110,9 +110,8 @@ def test_light_sampling_unbiased_against_quadrature(light):
         q, w = sh.sphere_quadrature(600)  # light solid angles are small: fine rule, ~7e5 dirs
         hit, _, rad = light.intersect(np.zeros((len(q), 3)), q)
         exact = float((rad[:, 0] * np.clip(q[:, 2], 0, None) * hit) @ w)
-    se = est.std() / np.sqrt(N)
     # the quadrature of an indicator has its own error, ~ boundary cells: allow 1 %
-    assert abs(est.mean() - exact) < 5 * se + 0.01 * exact, (est.mean(), exact)
+    assert_mean(est, exact, rel=0.01)
 
 
 def test_dome_importance_sampling_pdf():

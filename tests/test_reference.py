@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stats import SIGMAS
 
 pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt  # noqa: E402
@@ -268,7 +269,7 @@ def test_interior_mask_and_error_stats():
     rng = np.random.default_rng(0)
     noise = 1 + 0.1 * rng.standard_normal((20000, 1))
     s = compare.error_stats(t.repeat(200, 0) * noise, t.repeat(200, 0))
-    assert abs(s["bias"]) < 5 * 0.1 / math.sqrt(20000)  # 5 sigma of the mean
+    assert abs(s["bias"]) < SIGMAS * 0.1 / math.sqrt(20000)  # SIGMAS standard errors of the mean
     assert s["rel_rmse"] == pytest.approx(0.1, rel=0.03)
 
 
@@ -421,13 +422,13 @@ def test_smoke_oversampled_bake_keeps_texel_centres(tmp_path, bpy_python):
 
 def test_smoke_calibration_sphere_case(bpy_python):
     """One analytic case through the whole harness (USD -> export -> Cycles), 64 spp: the mean
-    ratio to the closed form within 5 of its standard errors plus the 0.1 % calibration
+    ratio to the closed form within SIGMAS of its standard errors plus the 0.1 % calibration
     allowance (texel jitter)."""
     rows = calibrate.run(64, bpy_python, names=["sphere normalize"], quiet=True)
     assert len(rows) == 1
     r = rows[0]
     assert r["texels"] == calibrate.RES**2
-    assert abs(r["ratio_m1"]) < 5 * r["stderr"] + 1e-3
+    assert abs(r["ratio_m1"]) < SIGMAS * r["stderr"] + 1e-3
 
 
 @pytest.mark.slow

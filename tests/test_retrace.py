@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ROOT, SAMPLES, copy_sample, sample_stages
 
 import usdahd.usd  # noqa: F401  (registers the plugins first)
 from usdahd import cli
@@ -26,8 +27,6 @@ from usdahd import validate as V
 from usdahd import validate_retrace as RT
 from usdahd.errors import UsageError
 
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT / "samples"
 BAKE = ["--resolution", "16", "--quiet"]  # default samples (256) and bounces
 RETRACE = ["--retrace", "48"]  # 4096 samples per texel (the default)
 
@@ -36,8 +35,7 @@ def _bake(tmp: Path, sample: str, name: str, *flags) -> Path:
     """Bake samples/<sample> into tmp/<name>/x.lightmaps.usda (the source copied to tmp)."""
     src = tmp / sample
     if not src.exists():
-        shutil.copy(SAMPLES / sample, src)
-        shutil.copytree(SAMPLES / "textures", tmp / "textures", dirs_exist_ok=True)
+        copy_sample(tmp, sample)
     out = tmp / name / "x.lightmaps.usda"
     assert cli.main(["bake", str(src), "-o", str(out), *BAKE, *flags]) == 0
     return out
@@ -293,12 +291,7 @@ def test_interior_mask_and_texel_choice():
 # --------------------------------------------------------------------------- real retraces
 
 
-def _sample_names() -> list[str]:
-    """Sample stages, not bake outputs a user wrote into samples/ (README command 1)."""
-    return sorted(p.name for p in SAMPLES.glob("*.usda") if ".lightmaps." not in p.name)
-
-
-@pytest.mark.parametrize("sample", _sample_names())
+@pytest.mark.parametrize("sample", sample_stages())
 def test_default_bake_of_every_sample_passes(tmp_path, capsys, sample):
     layer = _bake(tmp_path, sample, "default")
     code, found = _validate(layer, capsys, *RETRACE)
@@ -550,11 +543,8 @@ def test_thorough_false_alarms_and_power_at_32(tmp_path, capsys):
     """Every sample at 32 x 32, 128 texels, 8 seeds: no finding on default bakes; a 1.1 scale
     of the Cornell box's textures and sidecar is caught on every prim."""
     findings = 0
-    for sample in _sample_names():
-        src = tmp_path / sample.replace(".usda", "") / sample
-        src.parent.mkdir()
-        shutil.copy(SAMPLES / sample, src)
-        shutil.copytree(SAMPLES / "textures", src.parent / "textures")
+    for sample in sample_stages():
+        src = copy_sample(tmp_path / sample.replace(".usda", ""), sample)
         out = src.parent / "bake" / "x.lightmaps.usda"
         assert cli.main(["bake", str(src), "-o", str(out), "--resolution", "32", "--quiet"]) == 0
         for seed in range(8):

@@ -1,17 +1,20 @@
 """Samplers: pdfs integrate to one and match the sample density; LD set properties."""
 
+import math
+
 import numpy as np
 import pytest
+import stats
+from stats import assert_mean, chi2_directions
 
 from usdahd.numerics import sampling as S
 from usdahd.numerics import sh
 
-N = 200_000  # MC checks: tolerance 5 SE of the estimator, computed below
+N = 200_000  # MC checks: tolerance stats.SIGMAS standard errors of the estimator
 
 
 def _mc_ok(vals, exact):
-    se = vals.std(ddof=1) / np.sqrt(len(vals))
-    assert abs(vals.mean() - exact) < 5 * se + 1e-12, (vals.mean(), exact, se)
+    assert_mean(vals, exact, atol=1e-12)  # atol: exact zero-variance estimators (1/p constant)
 
 
 @pytest.mark.parametrize(
@@ -31,6 +34,49 @@ def test_direction_samplers_unit_and_unbiased(fn, solid):
     f = lambda x: sh.basis(x)[:, 6] + 1.0
     q, w = sh.hemisphere_quadrature(16) if solid < 7 else sh.sphere_quadrature(16)
     _mc_ok(f(d) / pdf, float(f(q) @ w))
+
+
+CM = np.cos(0.3)
+#: (sampler, its solid-angle pdf, cos theta range of its support) for the chi-square tests.
+CHI2_CASES = {
+    "uniform_hemisphere": (
+        S.uniform_hemisphere,
+        lambda d: np.full(len(d), 1 / (2 * np.pi)),
+        (0, 1),
+    ),
+    "cosine_hemisphere": (S.cosine_hemisphere, lambda d: np.clip(d[:, 2], 0, None) / np.pi, (0, 1)),
+    "texel_hemisphere": (S.texel_hemisphere, lambda d: S.texel_hemisphere_pdf(d[:, 2]), (0, 1)),
+    "uniform_sphere": (S.uniform_sphere, lambda d: np.full(len(d), 1 / (4 * np.pi)), (-1, 1)),
+    "uniform_cone": (
+        lambda u: S.uniform_cone(u, CM),
+        lambda d: np.full(len(d), float(S.cone_pdf(CM))),
+        (CM, 1),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CHI2_CASES))
+def test_samplers_draw_the_density_their_pdf_claims(name):
+    sample, pdf, cos_range = CHI2_CASES[name]
+    chi2_directions(sample, pdf, cos_range=cos_range, tests=len(CHI2_CASES))
+
+
+def test_chi2_rejects_a_wrong_pdf_and_matches_the_chi2_distribution():
+    # cosine-distributed samples claimed uniform: a clear failure
+    with pytest.raises(AssertionError, match="does not draw the density"):
+        chi2_directions(
+            S.cosine_hemisphere, lambda d: np.full(len(d), 1 / (2 * np.pi)), cos_range=(0, 1)
+        )
+    # the survival function against closed forms: dof 1 -> erfc(sqrt(x/2)); even dof 2k ->
+    # exp(-x/2) sum_{i<k} (x/2)^i / i! (both branches: series below x/2 = k + 1, else fraction)
+    for x in (0.1, 1.0, 7.5, 40.0, 150.0, 260.0):
+        assert stats.chi2_sf(x, 1) == pytest.approx(math.erfc(math.sqrt(x / 2)), rel=1e-9)
+        for k in (1, 3, 100):
+            h = x / 2
+            exact = math.exp(-h) * sum(
+                math.exp(i * math.log(h) - math.lgamma(i + 1)) for i in range(k)
+            )
+            assert stats.chi2_sf(x, 2 * k) == pytest.approx(exact, rel=1e-9, abs=1e-300)
 
 
 def test_cone_sampler_pdf_and_support():

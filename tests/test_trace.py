@@ -6,13 +6,15 @@
   (float64 arithmetic in a different order; texture values are rounded to float32 by both).
 - Bakes: the two backends use different random streams, so their per-texel estimates are
   independent; the difference of the means over N texels must be below
-  Z * sqrt(se_a^2 + se_b^2) with se the measured standard errors (Z = 5: false failure < 1e-6).
+  SIGMAS * sqrt(se_a^2 + se_b^2) with se the measured standard errors (``stats.SIGMAS`` = 5:
+  false failure < 1e-6; ``stats.assert_same_mean``).
 """
 
 import numpy as np
 import pytest
 from numba import njit
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from stats import assert_same_mean
 
 from usdahd.bake import embree_native
 from usdahd.bake import lights as L
@@ -24,7 +26,6 @@ from usdahd.numerics import sh
 from usdahd.scene.types import Texture
 from usdahd.usd.reader import load_scene
 
-Z = 5.0
 REL = 1e-9  # float64 scalar vs vectorized numpy: rounding-order differences only
 
 pytestmark = pytest.mark.skipif(
@@ -305,14 +306,8 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
 
 
 def _agree(a, b):
-    """Means of two independent per-texel estimate sets agree within Z combined SEs."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    se = np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
-    assert abs(a.mean() - b.mean()) < Z * se + 1e-6 * abs(b.mean()) + 1e-9, (
-        a.mean(),
-        b.mean(),
-        se,
-    )
+    """Means of two independent per-texel estimate sets agree within SIGMAS combined SEs."""
+    assert_same_mean(a, b, rel=1e-6, atol=1e-9)  # slack: float32 accumulation
 
 
 def _bake_both(scene, tex, **kw):

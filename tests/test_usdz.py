@@ -15,13 +15,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SAMPLES, sample_stages
 from pxr import Sdf, Usd, UsdUtils, UsdValidation
 
 from usdahd import cli, images, models
 from usdahd.usd import schema
 
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT / "samples"
 VARIANTS = [(m, r) for m in models.names() for r in models.get(m).RATIOS]
 USDZ_VALIDATORS = (
     "usdUtilsValidators:UsdzPackageValidator",
@@ -91,14 +90,9 @@ def _check_variant(layer: Path, model: str, ratio: str, capsys, tmp: Path) -> No
     assert code == 0 and not bad and len(report["prims"]) == len(prims), (model, ratio, bad)
 
 
-def _sample_stages():
-    """The sample stages, not bake outputs a user wrote there (README command 1)."""
-    return [p for p in SAMPLES.glob("*.usda") if not p.name.endswith(".lightmaps.usda")]
-
-
 def _sweep(stage_name: str, variants, tmp_path, capsys) -> None:
-    for f in _sample_stages():
-        shutil.copy(f, tmp_path / f.name)
+    for name in sample_stages():
+        shutil.copy(SAMPLES / name, tmp_path / name)
     for d in ("textures", "sh"):
         if (SAMPLES / d).is_dir():
             shutil.copytree(SAMPLES / d, tmp_path / d, dirs_exist_ok=True)
@@ -122,6 +116,6 @@ def test_every_variant_on_cornell_box_is_clean_engine_ready_and_usdz_legal(tmp_p
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(p.name for p in _sample_stages()))
+@pytest.mark.parametrize("name", sample_stages())
 def test_every_variant_on_every_sample(tmp_path, capsys, name):
     _sweep(name, VARIANTS, tmp_path, capsys)

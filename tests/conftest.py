@@ -1,0 +1,50 @@
+"""Shared fixtures and sample paths of the test suite (helpers: tests/stats.py for Monte Carlo
+tolerances, tests/_hemi_brute.py for brute-force hemisphere integrals).
+
+Importing :mod:`usdahd.usd` here registers usdahd's USD plugins before any test builds a stage
+with pxr directly: USD reads schema plugins once, when its schema registry is first built, and
+``import usdahd`` alone does not register them (it needs no pxr).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+import usdahd.usd  # noqa: F401  (registers the plugins before any stage exists)
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "samples"
+
+
+def sample_stages() -> list[str]:
+    """File names of the sample stages in samples/, sorted. Bake outputs a user wrote there
+    (README command 1 writes samples/cornell_box.lightmaps.usda) are not samples."""
+    return sorted(p.name for p in SAMPLES.glob("*.usda") if ".lightmaps." not in p.name)
+
+
+def copy_sample(folder: Path, name: str) -> Path:
+    """Copy samples/<name> and samples/textures/ (which some samples reference) into
+    ``folder``; returns the copied stage. A bake then writes next to the copy, never into
+    samples/."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    dst = folder / name
+    shutil.copy(SAMPLES / name, dst)
+    if (SAMPLES / "textures").is_dir():
+        shutil.copytree(SAMPLES / "textures", folder / "textures", dirs_exist_ok=True)
+    return dst
+
+
+@pytest.fixture
+def samples_dir() -> Path:
+    """The repository's samples/ folder (read only: copy before baking)."""
+    return SAMPLES
+
+
+@pytest.fixture
+def sample_copy(tmp_path):
+    """``sample_copy(name)``: samples/<name> (and its textures) copied into tmp_path."""
+    return lambda name: copy_sample(tmp_path, name)

@@ -146,10 +146,7 @@ RULES = (
 #: (pipeline.py -> pipeline/) keeps its entries. Never add an entry except for a violation
 #: another part is removing; delete entries as they go.
 ALLOWLIST: dict[tuple[str, str, str], str] = {
-    ("oiio", "usdahd.usd", "OpenImageIO"): "usdread: image reads go through usdahd.images",
-    ("usd", "usdahd.usd", "usdahd.bake.types"): "usdread: scene description types move to scene/",
     ("usd", "usdahd.usd", "usdahd.bake.lights"): "kernels: numpy light classes move to scene/",
-    ("pxr", "usdahd.commands.preview", "pxr"): "usdread: preview's stage reads move under usd/",
     ("pxr", "usdahd.commands.validate", "pxr"): "validate: commands/validate.py becomes thin",
     ("pxr", "usdahd.pipeline", "pxr"): "pipeline: USD authoring moves to usd/author.py",
     ("pxr", "usdahd.validate", "pxr"): "validate: the validator reads stages through usd/",

@@ -63,7 +63,9 @@ def test_pluginfo_declares_every_rule_with_its_description():
     assert plug["Type"] == "python" and plug["Name"] == V.PLUGIN_NAME
     declared = plug["Info"]["Validators"]
     # + the opt-in Retrace rule (own keyword; checked in tests/test_retrace.py)
-    assert list(declared) == [*V.RULE_NAMES, "Retrace"]
+    assert list(declared) == [*V.RULE_NAMES, V.STAGE_RULE.name, "Retrace"]
+    stage_rule = declared[V.STAGE_RULE.name]  # a stage validator: no schema type
+    assert stage_rule == {"doc": V.STAGE_RULE.description, "keywords": [V.KEYWORD]}
     schema_types = json.loads(
         (ROOT / "plugins/usdAhd/resources/plugInfo.json").read_text().split("\n", 3)[3]
     )["Plugins"][0]["Info"]["Types"]
@@ -80,7 +82,8 @@ def test_pluginfo_declares_every_rule_with_its_description():
 def test_validators_registered_under_the_keyword():
     reg = UsdValidation.ValidationRegistry()
     names = {m.name for m in reg.GetValidatorMetadataForKeyword(V.KEYWORD)}
-    assert names == {V.validator_name(r) for r in V.RULE_NAMES}
+    assert names == {V.validator_name(r) for r in [*V.RULE_NAMES, V.STAGE_RULE.name]}
+    assert reg.GetOrLoadValidatorByName(V.validator_name(V.STAGE_RULE.name)) is not None
     for r in V.RULE_NAMES:
         assert reg.GetOrLoadValidatorByName(V.validator_name(r)) is not None
     assert V.register() == []  # idempotent
@@ -357,6 +360,37 @@ def test_plain_usd_validation_gives_the_same_findings(assets):
             prims = [] if f.prim.startswith("@") else [f.prim]
             ours.append([name, f.code, sev[f.severity], prims, f.message])
         assert sorted(ours) == [list(x) for x in plain[p]], p
+
+
+def test_plain_usd_validation_fails_a_stage_without_lightmaps(tmp_path):
+    """The stage rule Lightmapped runs in any UsdValidation pipeline (usdahd not imported by the
+    caller): a CI job pointed at the unbaked source stage gets an error, not a green run."""
+    src = tmp_path / "source.usda"
+    src.write_text('#usda 1.0\ndef Mesh "Plane" {}\n')
+    proc = subprocess.run(
+        [sys.executable, "-c", _PLAIN, ",".join(V.BUILTIN_VALIDATORS), str(src)],
+        env=_plain_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=str(ROOT),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    found = json.loads(proc.stdout.strip().splitlines()[-1])[str(src)]
+    ours = [f for f in found if f[0] == V.validator_name(V.STAGE_RULE.name)]
+    assert [(f[1], f[2], f[3]) for f in ours] == [("NoAhdLightmapAPI", "Error", ["/"])]
+    assert "no prim of" in ours[0][4] and "NAME.lightmaps.usda" in ours[0][4]
+
+
+def test_no_lightmaps_also_with_prim_selection(tmp_path, capsys):
+    """Stage validators do not run on a --prim subtree: the CLI adds the same finding once."""
+    src = tmp_path / "source.usda"
+    src.write_text('#usda 1.0\ndef Mesh "Plane" {}\n')
+    for extra in ([], ["--prim", "/Plane"]):
+        assert cli.main(["validate", "--json", *extra, str(src)]) == 1
+        report = json.loads(capsys.readouterr().out)
+        codes = [(f["rule"], f["code"], f["prim"]) for f in report["findings"]]
+        assert codes.count((V.STAGE_RULE.name, "NoAhdLightmapAPI", "/")) == 1, codes
 
 
 def test_module_entry_point_subprocess(assets):

@@ -103,6 +103,13 @@ RULES = (
 )
 RULE_NAMES = tuple(r.name for r in RULES)
 
+#: The one stage-level rule (a UsdValidation stage validator: no schema type, runs once per stage).
+STAGE_RULE = Rule(
+    "Lightmapped",
+    "At least one prim of the stage has AhdLightmapAPI applied, so a CI job pointed at the "
+    "source stage instead of its baked override layer fails.",
+)
+
 
 def validator_name(rule: str) -> str:
     """UsdValidation name of a rule: ``usdahd.validate:IzCheck``."""
@@ -1666,7 +1673,46 @@ def register() -> list[str]:
             continue
         reg.RegisterPluginPrimValidator(name, _task(rule))
         done.append(name)
+    name = validator_name(STAGE_RULE.name)
+    if not reg.HasValidator(name) and reg.GetValidatorMetadata(name) is not None:
+        reg.RegisterPluginStageValidator(name, _stage_task)
+        done.append(name)
     return done
+
+
+def check_lightmapped(stage) -> list[Finding]:
+    """Rule Lightmapped on a whole stage: one ``NoAhdLightmapAPI`` error on ``/`` when no prim
+    has the API (nothing else would be validated, and a CI job must not stay green)."""
+    if any(True for _ in schema.prims_with_api(stage)):
+        return []
+    layer = stage.GetRootLayer()
+    where = layer.realPath or layer.identifier
+    return [
+        Finding(
+            STAGE_RULE.name,
+            "error",
+            "/",
+            "NoAhdLightmapAPI",
+            f"no prim of {where} has {schema.API_NAME} applied, so there is no lightmap to "
+            "validate. Fix: validate the baked override layer (usually NAME.lightmaps.usda), or "
+            "bake the stage with usdahd bake",
+        )
+    ]
+
+
+def _stage_task(stage, time_range=None):
+    try:
+        return [f.to_usd(stage) for f in check_lightmapped(stage)]
+    except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
+        site = UsdValidation.ValidationErrorSite(stage, Sdf.Path.absoluteRootPath)
+        return [
+            UsdValidation.ValidationError(
+                "InternalError",
+                UsdValidation.ValidationErrorType.Error,
+                [site],
+                f"rule {STAGE_RULE.name} could not run: {exc}",
+            )
+        ]
 
 
 def finding_from_usd(error) -> Finding:

@@ -96,6 +96,7 @@ def list_rules(out=None) -> None:
     width = max(len(r.name) for r in v.RULES)
     for r in v.RULES:
         print(f"{r.name:<{width}}  {r.description}", file=out)
+    print(f"{v.STAGE_RULE.name:<{width}}  {v.STAGE_RULE.description} (per stage)", file=out)
     from usdahd import validate_retrace as rt
 
     print(f"{rt.RULE:<{width}}  {rt.DESCRIPTION} (--retrace N)", file=out)
@@ -134,7 +135,8 @@ def context(retrace: bool = False):
     reg = UsdValidation.ValidationRegistry()
     metas = list(reg.GetValidatorMetadataForKeyword(v.KEYWORD))
     ours = {m.name for m in metas}
-    missing = [v.validator_name(r) for r in v.RULE_NAMES if v.validator_name(r) not in ours]
+    names = [*v.RULE_NAMES, v.STAGE_RULE.name]
+    missing = [v.validator_name(r) for r in names if v.validator_name(r) not in ours]
     if missing:
         raise StageError(
             f"the usdahd validators are not registered ({', '.join(missing)}): USD's validation "
@@ -184,21 +186,6 @@ def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False)
     findings = [v.finding_from_usd(e) for e in errors]
     findings.sort(key=lambda f: (f.prim, SEVERITY_ORDER.get(f.severity, 3), f.rule, f.code))
     return findings
-
-
-def no_lightmaps_finding(path: str):
-    """The error for a stage on which no prim has AhdLightmapAPI (nothing was validated)."""
-    from usdahd import validate as v
-
-    return v.Finding(
-        "SchemaValues",
-        "error",
-        "/",
-        "NoAhdLightmapAPI",
-        f"no prim of {path} has {v.schema.API_NAME} applied, so there is no lightmap to "
-        "validate. Fix: validate the baked override layer (usually NAME.lightmaps.usda), or "
-        "bake the stage with usdahd bake",
-    )
 
 
 @contextlib.contextmanager
@@ -332,9 +319,10 @@ def run(args) -> int:
             if retrace is not None:
                 rt.OPTIONS = retrace
             findings = validate_stage(stage, args.prim, retrace=retrace is not None)
-            if not baked:
-                # A CI job pointed at the source stage (or the wrong file) must not stay green.
-                findings.insert(0, no_lightmaps_finding(args.stage))
+            if not baked and not any(f.code == "NoAhdLightmapAPI" for f in findings):
+                # The stage rule Lightmapped runs on a whole stage only, not on --prim subtrees;
+                # a CI job pointed at the wrong file must not stay green either way.
+                findings = v.check_lightmapped(stage) + findings
     finally:
         v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning = old
         rt.OPTIONS = old_rt

@@ -266,11 +266,6 @@ def test_texel_coverage_matches_brute_force_and_counts_shared_edges_once():
     assert (cov == 1).all()
 
 
-def test_fan_triangulation():
-    tri = V._fan(np.array([3, 4, 5]))
-    assert tri.tolist() == [[0, 1, 2], [3, 4, 5], [3, 5, 6], [7, 8, 9], [7, 9, 10], [7, 10, 11]]
-
-
 # --------------------------------------------------------------------------------- the CLI
 
 

@@ -1,0 +1,230 @@
+"""Reading a bake: lightmap textures through Ar + OpenImageIO (:func:`read_image`) and the decoded
+record (:func:`load_bake`).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from usdahd import models
+from usdahd.usd import schema
+from usdahd.validate.findings import _Skip
+from usdahd.validate.options import DZ_FLOOR, FORMAT_DTYPES
+
+# ------------------------------------------------------------------------------ image reading
+
+
+@dataclass
+class Image:
+    """A texture read through OpenImageIO. data : (h, w, c) in the file's native dtype."""
+
+    path: str
+    data: np.ndarray
+    format: str  # OIIO format name (half, float, uint8, int8, ...)
+    channel_names: tuple[str, ...]
+    color_space: str
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    def channels(self, names) -> np.ndarray:
+        """(h, w, len(names)) channels looked up by name (EXR stores them sorted)."""
+        idx = []
+        for n in names:
+            if n not in self.channel_names:
+                raise KeyError(n)
+            idx.append(self.channel_names.index(n))
+        return self.data[..., idx]
+
+
+_IMAGE_CACHE: OrderedDict = OrderedDict()
+_IMAGE_CACHE_SIZE = 16
+_LOCK = threading.Lock()
+
+
+def read_image(path: str) -> Image:
+    """Read a whole image in its native format (cached by path, size and mtime).
+
+    Raises OSError with OpenImageIO's message when the file cannot be opened.
+    """
+    from usdahd.usd import assets
+
+    key = assets.stamp(path)
+    if key is None:
+        if not assets.exists(path):
+            raise FileNotFoundError(f"{path} does not exist")
+    with _LOCK:
+        if key is not None and key in _IMAGE_CACHE:
+            _IMAGE_CACHE.move_to_end(key)
+            return _IMAGE_CACHE[key]
+    with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
+        img = _read_local(local, path)
+    if key is not None:
+        with _LOCK:
+            _IMAGE_CACHE[key] = img
+            while len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE:
+                _IMAGE_CACHE.popitem(last=False)
+    return img
+
+
+def _read_local(local: str, path: str) -> Image:
+    import OpenImageIO as oiio
+
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # PNG alpha is data: never premultiply
+    inp = oiio.ImageInput.open(local, config)
+    if inp is None:
+        raise OSError(oiio.geterror() or f"OpenImageIO cannot open {path}")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
+        if data is None:
+            raise OSError(inp.geterror() or f"OpenImageIO cannot read the pixels of {path}")
+        data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+        img = Image(
+            path=path,
+            data=data,
+            format=str(spec.format),
+            channel_names=tuple(spec.channelnames),
+            color_space=spec.get_string_attribute("oiio:ColorSpace", ""),
+        )
+    finally:
+        inp.close()
+    return img
+
+
+# ---------------------------------------------------------------------------- bake loading
+
+
+@dataclass
+class Bake:
+    """A prim's bake, decoded once for the texel rules.
+
+    results : the schema record; mod : model module; layout : role -> TextureLayout;
+    xy : (n, 2) int32 texel column/row of the texels considered (covered ones, or every texel
+    without a sidecar); channels : role -> (n, c) stored values in the layout's dtype;
+    params : decoded model parameters for those texels; sh : (n, 3, 9) float64 sidecar SH or
+    None; valid : (n,) bool texels whose decoded values pass TexelValues.
+    """
+
+    results: schema.BakeResults
+    mod: object
+    layout: dict
+    resolution: tuple[int, int]
+    xy: np.ndarray
+    channels: dict
+    params: dict
+    sh: np.ndarray | None
+    factors: dict
+    valid: np.ndarray
+
+
+def decode_factors(results: schema.BakeResults) -> dict:
+    """Factors for a model's ``decode``: every schema factor (authored value or fallback)."""
+    return {name: results.factor(name) for name in schema.FACTORS}
+
+
+_BAKE_CACHE: OrderedDict = OrderedDict()
+
+
+def _bake_key(prim, results) -> tuple:
+    stamps = []
+    from usdahd.usd import assets
+
+    for role, path in sorted(results.textures.items()):
+        stamps.append((role, path, assets.stamp(path)))
+    rec = (results.model, results.ratio, results.resolution, tuple(sorted(results.factors.items())))
+    return (str(prim.GetPath()), rec, tuple(stamps))
+
+
+def load_bake(prim) -> Bake:
+    """Read and decode a prim's textures; raises _Skip when another rule reports the cause."""
+    try:
+        results = schema.read_results(prim, validate=False)
+    except Exception as exc:
+        raise _Skip(f"bake record unreadable ({exc}); see SchemaValues") from None
+    if results is None:
+        raise _Skip("the prim is not baked; see SchemaValues")
+    if schema.result_problems(results):
+        raise _Skip("invalid bake record; see SchemaValues")
+    key = _bake_key(prim, results)
+    with _LOCK:
+        if key in _BAKE_CACHE:
+            _BAKE_CACHE.move_to_end(key)
+            return _BAKE_CACHE[key]
+    bake = _load_bake(results)
+    with _LOCK:
+        _BAKE_CACHE[key] = bake
+        while len(_BAKE_CACHE) > 4:
+            _BAKE_CACHE.popitem(last=False)
+    return bake
+
+
+def _load_bake(results) -> Bake:
+    try:
+        mod = models.get(results.model)
+        layout = {t.role: t for t in mod.layout(results.ratio)}
+    except Exception as exc:
+        raise _Skip(f"model settings unusable ({exc}); see SchemaValues") from None
+    w, h = results.resolution
+    images = {}
+    for role, lay in layout.items():
+        path = results.textures.get(role)
+        if path is None or "<UDIM>" in results.asset_paths.get(role, ""):
+            raise _Skip(f"texture {role!r} missing or a UDIM set; see Textures")
+        try:
+            img = read_image(path)
+        except OSError:
+            raise _Skip(f"texture {role!r} unreadable; see Textures") from None
+        if (img.width, img.height) != (w, h) or set(img.channel_names) != set(lay.channels):
+            raise _Skip(f"texture {role!r} has the wrong shape or channels; see Textures")
+        images[role] = img
+    sh = cov = None
+    sc = results.textures.get(schema.SIDECAR_ROLE)
+    if sc is not None:
+        try:
+            img = read_image(sc)
+            if (img.width, img.height) == (w, h):
+                data = img.channels(schema.SH_SIDECAR_CHANNELS).astype(np.float64)
+                sh = data[..., :27].reshape(h, w, 3, 9)
+                cov = data[..., 27] > 0.5
+        except (OSError, KeyError):
+            sh = cov = None  # Textures reports it
+    if cov is None:
+        ys, xs = np.mgrid[0:h, 0:w]
+        xy = np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.int32)
+    else:
+        ys, xs = np.nonzero(cov)
+        xy = np.stack([xs, ys], axis=-1).astype(np.int32)
+    # Channels by name, in the layout's order (EXR stores them sorted, so never by position).
+    channels = {
+        role: images[role]
+        .channels(lay.channels)[xy[:, 1], xy[:, 0]]
+        .astype(FORMAT_DTYPES[lay.format])
+        for role, lay in layout.items()
+    }
+    factors = decode_factors(results)
+    try:
+        with np.errstate(all="ignore"):
+            params = mod.decode(channels, ratio=results.ratio, factors=factors)
+    except Exception as exc:
+        raise _Skip(f"the textures do not decode ({exc}); see Textures") from None
+    params = {k: np.asarray(v) for k, v in params.items()}
+    valid = np.ones(len(xy), bool)
+    for k, v in params.items():
+        if k != "invalid" and v.dtype.kind == "f":
+            valid &= np.isfinite(v.reshape(len(xy), -1)).all(axis=1)
+    if "direction" in params:
+        valid &= params["direction"][:, 2] >= DZ_FLOOR
+    if sh is not None:
+        sh = sh[xy[:, 1], xy[:, 0]]
+    return Bake(results, mod, layout, (w, h), xy, channels, params, sh, factors, valid)

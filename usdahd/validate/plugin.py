@@ -1,0 +1,136 @@
+"""Registration of the rules with UsdValidation (prim validators + the stage rule ``Lightmapped``)
+and the plain-function path :func:`run_rule`.
+"""
+
+from __future__ import annotations
+
+from pxr import Sdf, UsdValidation
+
+from usdahd.usd import schema
+from usdahd.validate.findings import FINDING_DATA, Finding
+from usdahd.validate.irradiance import check_encoding_error, check_iz
+from usdahd.validate.loading import _LOCK
+from usdahd.validate.registry import RULE_NAMES, STAGE_RULE, validator_name
+from usdahd.validate.schema_values import check_schema_values
+from usdahd.validate.staleness import check_staleness
+from usdahd.validate.texel_values import check_texel_values
+from usdahd.validate.textures import check_textures
+from usdahd.validate.uvset import check_uv_set
+
+# ------------------------------------------------------------------------------ registration
+
+CHECKS = {
+    "SchemaValues": check_schema_values,
+    "Textures": check_textures,
+    "TexelValues": check_texel_values,
+    "IzCheck": check_iz,
+    "EncodingError": check_encoding_error,
+    "Staleness": check_staleness,
+    "UVSet": check_uv_set,
+}
+assert tuple(CHECKS) == RULE_NAMES
+
+
+def run_rule(rule: str, prim) -> list[Finding]:
+    """Run one rule on one prim; an exception becomes an ``InternalError`` error finding.
+
+    (An exception escaping a Python validator would abort the whole UsdValidation run.)
+    """
+    if not schema.has_api(prim):
+        return []
+    try:
+        return CHECKS[rule](prim)
+    except Exception as exc:  # noqa: BLE001 - reported, never raised (see above)
+        msg = f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:300] if str(exc) else ''}"
+        return [
+            Finding(
+                rule,
+                "error",
+                str(prim.GetPath()),
+                "InternalError",
+                f"rule {rule} could not run: {msg}. Fix: report this as a usdahd bug "
+                "(with the stage) and check the prim by hand.",
+            )
+        ]
+
+
+def _task(rule: str):
+    def task(prim, time_range=None):
+        try:
+            stage = prim.GetStage()
+            found = run_rule(rule, prim)
+            with _LOCK:
+                for f in found:
+                    FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
+                while len(FINDING_DATA) > 10000:
+                    FINDING_DATA.pop(next(iter(FINDING_DATA)))
+            return [f.to_usd(stage) for f in found]
+        except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
+            site = UsdValidation.ValidationErrorSite(prim.GetStage(), prim.GetPath())
+            return [
+                UsdValidation.ValidationError(
+                    "InternalError",
+                    UsdValidation.ValidationErrorType.Error,
+                    [site],
+                    f"rule {rule} could not run: {exc}",
+                )
+            ]
+
+    task.__name__ = f"usdahd_{rule}"
+    return task
+
+
+def register() -> list[str]:
+    """Register every rule's implementation with UsdValidation (idempotent).
+
+    Only rules whose metadata the plugInfo declared are registered (USD refuses the others);
+    returns the names registered by this call.
+    """
+    reg = UsdValidation.ValidationRegistry()
+    done = []
+    for rule in RULE_NAMES:
+        name = validator_name(rule)
+        if reg.HasValidator(name) or reg.GetValidatorMetadata(name) is None:
+            continue
+        reg.RegisterPluginPrimValidator(name, _task(rule))
+        done.append(name)
+    name = validator_name(STAGE_RULE.name)
+    if not reg.HasValidator(name) and reg.GetValidatorMetadata(name) is not None:
+        reg.RegisterPluginStageValidator(name, _stage_task)
+        done.append(name)
+    return done
+
+
+def check_lightmapped(stage) -> list[Finding]:
+    """Rule Lightmapped on a whole stage: one ``NoAhdLightmapAPI`` error on ``/`` when no prim
+    has the API (nothing else would be validated, and a CI job must not stay green)."""
+    if any(True for _ in schema.prims_with_api(stage)):
+        return []
+    layer = stage.GetRootLayer()
+    where = layer.realPath or layer.identifier
+    return [
+        Finding(
+            STAGE_RULE.name,
+            "error",
+            "/",
+            "NoAhdLightmapAPI",
+            f"no prim of {where} has {schema.API_NAME} applied, so there is no lightmap to "
+            "validate. Fix: validate the baked override layer (usually NAME.lightmaps.usda), or "
+            "bake the stage with usdahd bake",
+        )
+    ]
+
+
+def _stage_task(stage, time_range=None):
+    try:
+        return [f.to_usd(stage) for f in check_lightmapped(stage)]
+    except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
+        site = UsdValidation.ValidationErrorSite(stage, Sdf.Path.absoluteRootPath)
+        return [
+            UsdValidation.ValidationError(
+                "InternalError",
+                UsdValidation.ValidationErrorType.Error,
+                [site],
+                f"rule {STAGE_RULE.name} could not run: {exc}",
+            )
+        ]

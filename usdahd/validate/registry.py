@@ -1,0 +1,77 @@
+"""Rule names, descriptions (the plugInfo ``doc`` strings) and UsdValidation names."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# ------------------------------------------------------------------------------------ rules
+
+#: Plug plugin name (= this module, see the module doc) and validator keyword.
+PLUGIN_NAME = "usdahd.validate"
+KEYWORD = "UsdAhdValidators"
+#: Built-in validators that matter for a baked stage, run by ``usdahd validate`` too.
+BUILTIN_VALIDATORS = (
+    "usdUtilsValidators:MissingReferenceValidator",
+    "usdValidation:AttributeTypeMismatch",
+    "usdValidation:CompositionErrorTest",
+)
+
+
+@dataclass(frozen=True)
+class Rule:
+    """name : validator suffix; description : one sentence (also the plugInfo ``doc``)."""
+
+    name: str
+    description: str
+
+
+RULES = (
+    Rule(
+        "SchemaValues",
+        "AhdLightmapAPI values are valid: tokens within allowedTokens, required results "
+        "authored, a known format version, positive resolutions, and settings the model supports.",
+    ),
+    Rule(
+        "Textures",
+        "Every lightmap texture resolves, opens with OpenImageIO, and has the resolution, "
+        "channel count, data format and colour space the schema declares (UDIM sets complete).",
+    ),
+    Rule(
+        "TexelValues",
+        "Decoded texels hold no NaN/Inf, I_z >= 0, unit upper-hemisphere directions with "
+        "d_z >= 1/127, and w_a, C_a, C_d within the model's range.",
+    ),
+    Rule(
+        "IzCheck",
+        "At every covered texel the I_z an engine decodes (quantization included) matches the "
+        "irradiance in local z of the baked SH sidecar within the storage format's tolerance.",
+    ),
+    Rule(
+        "EncodingError",
+        "Reports the hemispherical RMSE of the decoded model against the baked SH irradiance "
+        "per prim, warning when the textures add more than a threshold to the model's own fit.",
+    ),
+    Rule(
+        "Staleness",
+        "The bake's stored content hash still matches the current stage (geometry, UVs, "
+        "lights, materials and settings unchanged since the bake).",
+    ),
+    Rule(
+        "UVSet",
+        "The lightmap UV primvar exists, lies in [0, 1], has no overlapping texels beyond a "
+        "tolerance, and a sane texel density.",
+    ),
+)
+RULE_NAMES = tuple(r.name for r in RULES)
+
+#: The one stage-level rule (a UsdValidation stage validator: no schema type, runs once per stage).
+STAGE_RULE = Rule(
+    "Lightmapped",
+    "At least one prim of the stage has AhdLightmapAPI applied, so a CI job pointed at the "
+    "source stage instead of its baked override layer fails.",
+)
+
+
+def validator_name(rule: str) -> str:
+    """UsdValidation name of a rule: ``usdahd.validate:IzCheck``."""
+    return f"{PLUGIN_NAME}:{rule}"

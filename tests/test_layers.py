@@ -130,7 +130,7 @@ RULES = (
     Rule(
         "validate",
         "the validator reads scene/ and numerics/, never the orchestrator",
-        scope=("usdahd.validate", "usdahd.validate_retrace"),
+        scope=("usdahd.validate",),
         forbid=frozenset({"usdahd.pipeline"}),
     ),
     Rule(
@@ -150,10 +150,8 @@ ALLOWLIST: dict[tuple[str, str, str], str] = {
     ("pxr", "usdahd.commands.validate", "pxr"): "validate: commands/validate.py becomes thin",
     ("pxr", "usdahd.pipeline", "pxr"): "pipeline: USD authoring moves to usd/author.py",
     ("pxr", "usdahd.validate", "pxr"): "validate: the validator reads stages through usd/",
-    ("pxr", "usdahd.validate_retrace", "pxr"): "validate: the validator reads stages through usd/",
     ("oiio", "usdahd.validate", "OpenImageIO"): "validate: texture checks use usdahd.images",
     ("validate", "usdahd.validate", "usdahd.pipeline"): "validate: hashing from scene/",
-    ("validate", "usdahd.validate_retrace", "usdahd.pipeline"): "validate: hashing from scene/",
     ("private", "usdahd.validate", "usdahd.models._irradz"): "validate: public model API",
 }
 

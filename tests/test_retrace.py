@@ -24,8 +24,8 @@ from conftest import ROOT, SAMPLES, copy_sample, sample_stages
 import usdahd.usd  # noqa: F401  (registers the plugins first)
 from usdahd import cli
 from usdahd import validate as V
-from usdahd import validate_retrace as RT
 from usdahd.errors import UsageError
+from usdahd.validate import retrace as RT
 
 BAKE = ["--resolution", "16", "--quiet"]  # default samples (256) and bounces
 RETRACE = ["--retrace", "48"]  # 4096 samples per texel (the default)
@@ -505,7 +505,7 @@ _PLAIN = textwrap.dedent(
     from pxr import Usd, UsdValidation
     assert not [m for m in sys.modules if m.split(".")[0] == "usdahd"]  # nothing imported yet
     ctx = UsdValidation.ValidationContext(keywords=["UsdAhdRetrace"])  # Plug imports usdahd
-    assert "usdahd.validate_retrace" in sys.modules
+    assert "usdahd.validate.retrace" in sys.modules
     stage = Usd.Stage.Open(sys.argv[1])
     out = sorted([e.GetValidator().GetMetadata().name, str(e.GetName()),
                   str(e.GetType().displayName)] for e in ctx.Validate(stage))

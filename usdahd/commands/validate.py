@@ -97,7 +97,7 @@ def list_rules(out=None) -> None:
     for r in v.RULES:
         print(f"{r.name:<{width}}  {r.description}", file=out)
     print(f"{v.STAGE_RULE.name:<{width}}  {v.STAGE_RULE.description} (per stage)", file=out)
-    from usdahd import validate_retrace as rt
+    from usdahd.validate import retrace as rt
 
     print(f"{rt.RULE:<{width}}  {rt.DESCRIPTION} (--retrace N)", file=out)
     print(
@@ -148,7 +148,7 @@ def context(retrace: bool = False):
         if m is not None:
             metas.append(m)
     if retrace:
-        from usdahd import validate_retrace as rt
+        from usdahd.validate import retrace as rt
 
         m = reg.GetValidatorMetadata(rt.validator_name())
         if m is None or not reg.HasValidator(rt.validator_name()):
@@ -163,7 +163,7 @@ def context(retrace: bool = False):
 def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False) -> list:
     """Run the validation context on a stage (or some prims); returns usdahd.validate.Finding.
 
-    retrace : also run the opt-in Retrace rule (settings in usdahd.validate_retrace.OPTIONS).
+    retrace : also run the opt-in Retrace rule (settings in usdahd.validate.retrace.OPTIONS).
     """
     from pxr import Sdf, Usd
 
@@ -297,7 +297,7 @@ def run(args) -> int:
     if not args.stage:
         raise UsageError("give a STAGE to validate (or --list-rules)")
     from usdahd import validate as v
-    from usdahd import validate_retrace as rt
+    from usdahd.validate import retrace as rt
 
     retrace = _retrace_options(args, rt)
     old = (v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning)

@@ -16,7 +16,7 @@ Layout (one module per rule domain): ``registry`` (rule names and docs), ``optio
 (tolerances), ``findings`` (Finding, UsdValidation/JSON conversion), ``loading`` (textures and
 the decoded bake), ``schema_values``, ``textures``, ``texel_values``, ``irradiance`` (IzCheck,
 EncodingError), ``staleness``, ``uvset``, ``plugin`` (registration, :func:`run_rule`); the
-opt-in Retrace rule is :mod:`usdahd.validate_retrace`.
+opt-in Retrace rule is :mod:`usdahd.validate.retrace`.
 
 Rules (see docs/validate.md for what each checks and how to fix it):
 
@@ -136,6 +136,6 @@ from usdahd.validate.uvset import (  # noqa: F401
 register()
 
 # Opt-in rules declared in the same plugInfo under their own keyword (not UsdAhdValidators).
-from usdahd import validate_retrace as _retrace  # noqa: E402
+from usdahd.validate import retrace as _retrace  # noqa: E402
 
 _retrace.register()

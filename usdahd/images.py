@@ -264,6 +264,40 @@ def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | Non
     return image
 
 
+def read_native(path: str | os.PathLike, label: str | None = None):
+    """Read a whole image exactly as an engine's loader sees it (the validator's view).
+
+    Unlike :func:`read`, nothing is reinterpreted: pixels in the file's own format (OpenImageIO
+    ``UNKNOWN``), the file's channel names and OpenImageIO's colour-space tag, not the ones our
+    writer records in the description. PNG alpha stays unassociated (it is data).
+    path : a local file; label : the name used in messages (e.g. the asset path).
+    returns : (data (h, w, c) native dtype, format name as OpenImageIO spells it (half, float,
+    uint8, int8, ...), channel names tuple, colour space str ("" if untagged)).
+    Raises OSError with OpenImageIO's message when the file cannot be opened or decoded.
+    """
+    oiio = _oiio()
+    label = label or os.fspath(path)
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # PNG alpha is data: never premultiply
+    inp = oiio.ImageInput.open(os.fspath(path), config)
+    if inp is None:
+        raise OSError(oiio.geterror() or f"OpenImageIO cannot open {label}")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
+        if data is None:
+            raise OSError(inp.geterror() or f"OpenImageIO cannot read the pixels of {label}")
+        data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+        return (
+            data,
+            str(spec.format),
+            tuple(spec.channelnames),
+            spec.get_string_attribute("oiio:ColorSpace", ""),
+        )
+    finally:
+        inp.close()
+
+
 def read_texels(path: str | os.PathLike) -> tuple[np.ndarray | None, str]:
     """Pixels of a material or light texture as float32 (h, w, c), as OpenImageIO converts
     them (8-bit -> [0, 1]; no colour conversion), and the file's pixel format name (``uint8``,

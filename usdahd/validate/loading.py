@@ -77,29 +77,10 @@ def read_image(path: str) -> Image:
 
 
 def _read_local(local: str, path: str) -> Image:
-    import OpenImageIO as oiio
+    from usdahd import images
 
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)  # PNG alpha is data: never premultiply
-    inp = oiio.ImageInput.open(local, config)
-    if inp is None:
-        raise OSError(oiio.geterror() or f"OpenImageIO cannot open {path}")
-    try:
-        spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
-        if data is None:
-            raise OSError(inp.geterror() or f"OpenImageIO cannot read the pixels of {path}")
-        data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
-        img = Image(
-            path=path,
-            data=data,
-            format=str(spec.format),
-            channel_names=tuple(spec.channelnames),
-            color_space=spec.get_string_attribute("oiio:ColorSpace", ""),
-        )
-    finally:
-        inp.close()
-    return img
+    data, fmt, names, color_space = images.read_native(local, path)
+    return Image(path=path, data=data, format=fmt, channel_names=names, color_space=color_space)
 
 
 # ---------------------------------------------------------------------------- bake loading

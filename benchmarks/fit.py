@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import make_sample_sh as envs  # noqa: E402
 
 from usdahd import models  # noqa: E402
-from usdahd.models import _irradz  # noqa: E402
+from usdahd.models import irradz as _irradz  # noqa: E402
 from usdahd.numerics import sh as shm  # noqa: E402
 
 CASES = [

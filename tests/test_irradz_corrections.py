@@ -8,7 +8,7 @@ App. B Eq 47 (Gram matrix) and Eq 35/37 belong to usdahd.numerics.hemi and are t
 
 import numpy as np
 
-from usdahd.models import _irradz as iz
+from usdahd.models import irradz as iz
 from usdahd.numerics import sh
 
 QUAD = sh.hemisphere_quadrature(16)  # exact for polynomial degree < 32 on the hemisphere

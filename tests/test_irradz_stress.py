@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from usdahd import models
-from usdahd.models import _irradz as iz
+from usdahd.models import irradz as iz
 
 CASES = [(k, s, None) for k in ("ahd", "hhd", "hlsh") for s in iz.SOLVERS[k] if s != "golden_phi"]
 CASES += [("ahd", "golden", "rgb"), ("hhd", "golden", "rgb"), ("hhd", "direct", "rgb")]

@@ -151,7 +151,6 @@ ALLOWLIST: dict[tuple[str, str, str], str] = {
     ("pxr", "usdahd.pipeline", "pxr"): "pipeline: USD authoring moves to usd/author.py",
     ("pxr", "usdahd.validate", "pxr"): "validate: the validator reads stages through usd/",
     ("validate", "usdahd.validate", "usdahd.pipeline"): "validate: hashing from scene/",
-    ("private", "usdahd.validate", "usdahd.models._irradz"): "validate: public model API",
 }
 
 

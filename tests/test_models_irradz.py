@@ -9,7 +9,7 @@ import pytest
 
 from usdahd import models
 from usdahd.errors import InputError, ModelError, UsageError
-from usdahd.models import _irradz as iz
+from usdahd.models import irradz as iz
 from usdahd.models.base import FORMATS, ROLES
 from usdahd.numerics import sh
 

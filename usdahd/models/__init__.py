@@ -1,6 +1,7 @@
 """Lighting-model registry: one module per encoding, looked up by name.
 
-``get(name)`` returns the model module (see ``usdahd.models.base`` for what it defines);
+``get(name)`` returns the model (a module, or a ``"module:attribute"`` object such as the
+IrradZ rows) (see ``usdahd.models.base`` for what it defines);
 ``names()`` lists them; ``fit(sh, model=...)`` is the public entry point.
 """
 
@@ -13,11 +14,12 @@ import numpy as np
 from usdahd.errors import InputError, ModelError
 from usdahd.models.base import Fit, TextureLayout  # noqa: F401  (re-exported)
 
-#: name -> module path. Add a model by adding a line here.
+#: name -> module path, or "module:attribute" for a model object in a module. Add a model by
+#: adding a line here.
 REGISTRY = {
-    "ahd": "usdahd.models.ahd",
-    "hhd": "usdahd.models.hhd",
-    "hlsh": "usdahd.models.hlsh",
+    "ahd": "usdahd.models.irradz:AHD",
+    "hhd": "usdahd.models.irradz:HHD",
+    "hlsh": "usdahd.models.irradz:HLSH",
     "ahd_classic": "usdahd.models.ahd_classic",
     "hemisphere": "usdahd.models.hemisphere",
     "sh_l1": "usdahd.models.sh_l1",
@@ -40,17 +42,24 @@ def names() -> list[str]:
 
 
 def get(name: str):
-    """The model module registered as ``name``; ModelError if unknown."""
+    """The model registered as ``name`` (module or ``module:attribute``); ModelError if unknown."""
     try:
         path = REGISTRY[name]
     except KeyError:
         raise ModelError(f"unknown model {name!r}; choose one of: {', '.join(REGISTRY)}") from None
+    path, _, attr = path.partition(":")
     try:
-        return importlib.import_module(path)
+        mod = importlib.import_module(path)
     except ModuleNotFoundError as exc:
         if exc.name == path:
             raise ModelError(f"model {name!r} is registered but not implemented yet") from None
         raise
+    if not attr:
+        return mod
+    try:
+        return getattr(mod, attr)
+    except AttributeError:
+        raise ModelError(f"model {name!r} is registered but not implemented yet") from None
 
 
 def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None = None, **options):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.errors import InputError
-from usdahd.models import _irradz
+from usdahd.models import irradz as _irradz
 from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
 from usdahd.numerics import encoding
 
@@ -24,7 +24,6 @@ NAME = "ahd_classic"
 RATIOS = ("none",)
 SOLVERS = _irradz.SOLVERS["ahd"]
 DEFAULT_SOLVER = "golden"
-PARAMS = ("ambient", "direction", "directional", "invalid")
 
 
 def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):

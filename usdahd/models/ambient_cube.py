@@ -29,7 +29,6 @@ NAME = "ambient_cube"
 RATIOS = ("none",)
 SOLVERS = ("hemisphere",)
 DEFAULT_SOLVER = "hemisphere"
-PARAMS = ("coefficients", "invalid")
 BASIS = ("posX", "negX", "posY", "negY", "posZ", "negZ")
 
 # SH basis functions as polynomials {(a, b, c): coefficient of x^a y^b z^c} on the sphere.

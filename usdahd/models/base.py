@@ -9,7 +9,7 @@ A model is a plain module in ``usdahd/models/`` registered by name in
 ``SOLVERS``         tuple of solver names; ``DEFAULT_SOLVER`` one of them.
 ``fit(sh, *, ratio, solver, **options) -> dict[str, ndarray]``
                     sh : (..., 3, 9) tangent-space radiance SH (float32 or float64).
-                    returns model parameters, each (..., k) float32 (named as in PARAMS).
+                    returns model parameters, each (..., k) float32 (the names its docstring lists).
 ``evaluate(params, normals, *, albedo=None) -> ndarray``
                     normalized irradiance (..., 3) in tangent-space normals (..., 3); with
                     ``albedo`` (..., 3) the self-bounce term of 2024 App. A is included.

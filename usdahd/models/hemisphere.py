@@ -28,7 +28,6 @@ NAME = "hemisphere"
 RATIOS = ("none",)
 SOLVERS = ("iz", "hemisphere")
 DEFAULT_SOLVER = "iz"
-PARAMS = ("ambient", "invalid")
 
 #: The basis function h = (1 + z)/2 as SH: sqrt(pi) Y00 + sqrt(pi/3) Y10.
 H_SH = np.array([np.sqrt(np.pi), 0, np.sqrt(np.pi / 3), 0, 0, 0, 0, 0, 0])

@@ -31,7 +31,6 @@ NAME = "hl2"
 RATIOS = ("none",)
 SOLVERS = ("hemisphere",)
 DEFAULT_SOLVER = "hemisphere"
-PARAMS = ("coefficients", "invalid")
 BASIS = ("B0", "B1", "B2")
 
 _R23 = np.sqrt(2.0 / 3.0)

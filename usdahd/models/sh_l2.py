@@ -28,7 +28,6 @@ NAME = "sh_l2"
 RATIOS = ("none",)
 SOLVERS = ("project",)
 DEFAULT_SOLVER = "project"
-PARAMS = ("coefficients", "invalid")
 BASIS = ("Y00", "Y1m1", "Y10", "Y11", "Y2m2", "Y2m1", "Y20", "Y21", "Y22")
 
 _A1 = 2.0 / 3.0

@@ -169,3 +169,10 @@ def hemispherical_gram(n_theta: int = 8) -> np.ndarray:
     d, w = hemisphere_quadrature(n_theta)
     y = basis(d)
     return np.einsum("nk,nl,n->kl", y, y, w)
+
+
+#: The hemispherical Gram matrix (9, 9) float64, read-only: :func:`hemispherical_gram` at its
+#: default (exact) rule. The one copy the fits and the integrator use (usdahd.numerics.hemi
+#: HEMISPHERE_GRAM is its closed form, equal to rounding, tested in tests/test_hemi.py).
+HEMISPHERICAL_GRAM = hemispherical_gram()
+HEMISPHERICAL_GRAM.flags.writeable = False

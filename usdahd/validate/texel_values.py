@@ -77,12 +77,9 @@ def check_texel_values(prim) -> list[Finding]:
         if "ambient_ratio" in p:
             wa = p["ambient_ratio"]
             fin = np.isfinite(wa).all(axis=1)
-            if model == "hlsh":
-                from usdahd.models._irradz import HLSH_RATIO_SCALE_MAX
+            from usdahd.models.irradz import RATIO_RANGE
 
-                lo, hi = -HLSH_RATIO_SCALE_MAX, HLSH_RATIO_SCALE_MAX
-            else:
-                lo, hi = 0.0, 1.0
+            lo, hi = RATIO_RANGE.get(model, (0.0, 1.0))
             report(
                 "RatioRange",
                 fin & ((wa < lo) | (wa > hi)).any(axis=1),
@@ -90,7 +87,7 @@ def check_texel_values(prim) -> list[Finding]:
             )
         if model in NONNEGATIVE_COLOURS:
             if model in IRRADZ:
-                from usdahd.models._irradz import colors
+                from usdahd.models.irradz import colors
 
                 ca, cd, _ = colors(p)
                 cols = {"C_a": ca, "C_d": cd}

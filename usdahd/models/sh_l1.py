@@ -46,7 +46,6 @@ NAME = "sh_l1"
 RATIOS = ("linear", "nonlinear", "8bit")
 SOLVERS = ("auto", "hemisphere", "project")
 DEFAULT_SOLVER = "auto"
-PARAMS = ("coefficients", "invalid", "nonlinear")
 BASIS = ("Y00", "Y1m1", "Y10", "Y11")
 
 #: Hemispherical least-squares fit matrix (4, 9): L1 irradiance SH = FIT @ irradiance SH.
@@ -56,7 +55,7 @@ U8_CENTER = 127.0
 #: log2 slack when picking the power-of-two l0Scale (float32 rounding is ~1e-7 relative).
 L0_SCALE_SLACK = 1e-6
 _L0_FROM_SH = 1.0 / (2.0 * np.sqrt(np.pi))
-_L1_FROM_SH = 1.0 / (2.0 * np.sqrt(3.0 * np.pi))
+_L1_FROM_SH = shm.IZ_FROM_L10 / 4.0  # 1 / (2 sqrt(3 pi)), exactly
 
 
 def fit(sh, *, ratio="linear", solver=DEFAULT_SOLVER, **options):

@@ -4,7 +4,7 @@ The naive baseline whose interpolation artifact the 2018 IrradZ paper fixes: tex
 interpolates C_a, d and C_d independently, so between texels with different directions the
 irradiance in z overshoots (2018 Fig. 2). At texel centres it is the same function as the
 IrradZ AHD fit with ``ratio="rgb"`` (C_a = I_z w_a, C_d = I_z (1 - w_a) / d_z per channel),
-which is how it is fitted here: same solvers as :mod:`usdahd.models.ahd`. It has no ambient
+which is how it is fitted here: same solvers as ``usdahd.models.irradz.AHD``. It has no ambient
 ratio, so ``RATIOS = ("none",)``; it stores two HDR colours instead of one.
 
 Params: ``ambient`` (..., 3), ``direction`` (..., 3) unit with d_z >= 1/127, ``directional``

@@ -150,7 +150,6 @@ ALLOWLIST: dict[tuple[str, str, str], str] = {
     ("pxr", "usdahd.commands.validate", "pxr"): "validate: commands/validate.py becomes thin",
     ("pxr", "usdahd.pipeline", "pxr"): "pipeline: USD authoring moves to usd/author.py",
     ("pxr", "usdahd.validate", "pxr"): "validate: the validator reads stages through usd/",
-    ("validate", "usdahd.validate", "usdahd.pipeline"): "validate: hashing from scene/",
 }
 
 

@@ -330,12 +330,14 @@ def test_authored_source_normals_are_not_overridden(tmp_path, capsys):
 
 
 def test_normals_rule_change_changes_the_content_hash(monkeypatch):
-    from usdahd import pipeline
+    from usdahd.scene.hashing import content_hash
+    from usdahd.usd import normals
+    from usdahd.usd.author import generator_id
 
     parts = {"/m": "a", "shape:/m": "b", "lights": "", "materials": ""}
-    h1, _ = pipeline.content_hash(parts, "/m", {})
-    monkeypatch.setattr(pipeline, "NORMALS_RULE_VERSION", "normals-99")
-    h2, named = pipeline.content_hash(parts, "/m", {})
+    h1, _ = content_hash(parts, "/m", {}, generator_id())
+    monkeypatch.setattr(normals, "RULE_VERSION", "normals-99")
+    h2, named = content_hash(parts, "/m", {}, generator_id())
     assert h1 != h2 and "generator" in named
 
 

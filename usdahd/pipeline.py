@@ -27,7 +27,15 @@ import numpy as np
 from usdahd import models
 from usdahd._version import __version__
 from usdahd.errors import BakeError, InputError, StageError, UsageError, UsdAhdError
-from usdahd.usd.normals import RULE_VERSION as NORMALS_RULE_VERSION
+from usdahd.scene.hashing import (
+    changed_parts,
+    content_hash,
+    is_dark,
+    scene_hash_parts,
+    shape_digest,
+)
+from usdahd.usd.author import generator_id
+from usdahd.usd.stage import open_stage, utf8_problem
 
 #: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
 DEFAULTS = {
@@ -196,104 +204,7 @@ def record_time(settings: dict, scene) -> None:
     settings["time_auto"] = bool(scene.time_auto)
 
 
-def _shape_digest(m):
-    """sha256 object over a mesh's geometry without its lightmap UVs."""
-    shape = hashlib.sha256()
-    for a in (m.points, m.triangles, m.normals, m.material):
-        shape.update(np.ascontiguousarray(a).tobytes())
-    return shape
-
-
-def scene_hash_parts(scene) -> dict:
-    """Content hashes a bake depends on, from a Scene (the baker and the validator share this).
-
-    Keys: ``<prim path>`` -> the mesh's geometry *with* its lightmap UVs (what its own textures
-    depend on); ``shape:<prim path>`` -> geometry without UVs (what other prims' lighting
-    depends on: another mesh's lightmap UVs never change this one's bake); ``lights``,
-    ``materials`` (from ``Scene.hash_parts``).
-    """
-    out = {}
-    for m in scene.meshes:
-        shape = _shape_digest(m)
-        out[f"shape:{m.path}"] = shape.hexdigest()
-        full = shape.copy()
-        full.update(b"-" if m.uv is None else np.ascontiguousarray(m.uv, np.float32).tobytes())
-        out[m.path] = full.hexdigest()
-    base = scene.hash_parts()
-    for key in ("lights", "materials"):
-        out[key] = base.get(key, "")
-    return out
-
-
-def content_hash(parts: dict, prim_path: str, settings: dict) -> tuple[str, dict]:
-    """The hash a prim's bake depends on, and its named parts (stored for staleness checks).
-
-    parts : :func:`scene_hash_parts`; the prim's own geometry, every other mesh (shadows and
-    bounces), lights, materials, the prim's settings and the generator version.
-    returns : ("sha256:<hex>", {part name: hex}).
-    """
-    others = hashlib.sha256()
-    for k in sorted(parts):
-        if k.startswith("shape:") and k != f"shape:{prim_path}":
-            others.update(k.encode() + parts[k].encode())
-    named = {
-        "geometry": parts.get(prim_path, ""),
-        "shape": parts.get(f"shape:{prim_path}", ""),
-        "scene_geometry": others.hexdigest(),
-        "lights": parts.get("lights", ""),
-        "materials": parts.get("materials", ""),
-        "settings": hashlib.sha256(
-            json.dumps(settings, sort_keys=True, default=str).encode()
-        ).hexdigest(),
-        # The normals rule is part of the generator: a rule change re-bakes every prim.
-        "generator": hashlib.sha256(
-            f"usdahd {__version__}; {NORMALS_RULE_VERSION}".encode()
-        ).hexdigest(),
-    }
-    total = hashlib.sha256(json.dumps(named, sort_keys=True).encode()).hexdigest()
-    return f"sha256:{total}", named
-
-
-def changed_parts(old: dict, new: dict) -> list[str]:
-    """Names of hash parts that differ (what changed since the bake)."""
-    return sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
-
-
 # ------------------------------------------------------------------------------------ bake
-
-
-def _open_stage(path: Path):
-    from pxr import Sdf, Usd
-
-    # The layer registry keeps layers this process opened before; re-read them from disk so a
-    # second in-process bake sees files changed since (tests, long-lived pipeline tools).
-    cached = Sdf.Layer.Find(str(path))
-    if cached is not None:
-        cached.Reload(force=True)
-    try:
-        stage = Usd.Stage.Open(str(path))
-    except UnicodeDecodeError:  # USD's message quotes the undecodable bytes
-        raise StageError(_utf8_problem(path)) from None
-    except Exception as exc:  # pxr raises Tf.ErrorException
-        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise StageError(f"{path}: not a readable USD stage ({first})") from None
-    if stage is None:
-        raise StageError(f"{path}: not a readable USD stage")
-    return stage
-
-
-def _utf8_problem(path: Path) -> str:
-    """Where a text layer stops being UTF-8 (USD text layers must be UTF-8)."""
-    data = path.read_bytes()
-    try:
-        data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        return (
-            f"{path}: not valid UTF-8 at line {line} (byte 0x{data[exc.start]:02x}); USD text "
-            "layers must be UTF-8: re-save the file as UTF-8 (e.g. iconv -f latin1 -t utf-8)"
-        )
-    return f"{path}: not a readable USD stage (it names a layer or value that is not UTF-8)"
 
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
@@ -309,7 +220,7 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
     from usdahd.usd import schema
 
     try:
-        stage = _open_stage(out)
+        stage = open_stage(out)
     except StageError:
         return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
     prev, warnings = {}, []
@@ -826,7 +737,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     t_start = time.perf_counter()
     src, out = preflight(stage_path, opts)
     try:
-        stage = _open_stage(src)
+        stage = open_stage(src)
         _check_stage(src, stage, opts)
         if opts.dry_run:
             return _bake_locked(src, out, stage, opts, t_start)
@@ -836,7 +747,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             finally:
                 cleanup_outputs(out)
     except UnicodeDecodeError:  # pxr hands Python a name or string that is not UTF-8
-        raise StageError(_utf8_problem(src)) from None
+        raise StageError(utf8_problem(src)) from None
 
 
 def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float) -> dict:
@@ -925,7 +836,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # (the validator recomputes these from the output stage).
     parts = scene_hash_parts(scene)
     for job in jobs:
-        job.content_hash, job.parts = content_hash(parts, job.path, job.settings)
+        job.content_hash, job.parts = content_hash(parts, job.path, job.settings, generator_id())
         old = prev.get(job.path)
         unchanged = old is not None and old.content_hash == job.content_hash
         if unchanged and not opts.force and _files_exist(old):
@@ -1163,7 +1074,7 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
         return None
     prev = old.settings or {}
     same = (
-        old.part_hashes.get("shape") == _shape_digest(mesh).hexdigest()
+        old.part_hashes.get("shape") == shape_digest(mesh).hexdigest()
         and prev.get("texel_density") == settings["texel_density"]
         and prev.get("meters_per_unit") == settings["meters_per_unit"]
         and (not settings["resolution"] or list(old.resolution) == [settings["resolution"]] * 2)
@@ -1261,138 +1172,24 @@ def _plan(
     return job
 
 
-def _relative(path: Path, start: Path) -> str:
-    rel = os.path.relpath(path.resolve(), start.resolve()).replace(os.sep, "/")
-    return rel if rel.startswith("../") else f"./{rel}"
-
-
-def _author_uvs(stage, job) -> str | None:
-    """Author an unwrapped UV set as a faceVarying primvar; returns a warning or None."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    prim = stage.GetPrimAtPath(job.path)
-    mesh = UsdGeom.Mesh(prim)
-    n_fv = len(mesh.GetFaceVertexIndicesAttr().Get() or [])
-    corner = np.asarray(job.mesh.corner).reshape(-1)
-    uv = np.asarray(job.uv_primvar_values, dtype=np.float32).reshape(-1, 2)
-    values = np.zeros((n_fv, 2), dtype=np.float32)
-    values[corner] = uv
-    # A polygon's fan triangles share corners; xatlas may cut a polygon into two charts.
-    mismatch = int((np.abs(values[corner] - uv).max(axis=1) > 1e-6).sum())
-    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(
-        job.settings["uv"], Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying
-    )
-    pv.Set(Vt.Vec2fArray.FromNumpy(values))
-    if mismatch:
-        return (
-            f"{job.path}: {mismatch} unwrapped UV corners of split polygons could not be "
-            "represented in the faceVarying primvar; author a lightmap UV set for this mesh"
-        )
-    return None
-
-
-def _author_normals(stage, job) -> str:
-    """Author the normals the scene computed for a mesh (faceVarying, object space, float32:
-    exactly the values the bake traced with), so renderers shade with them; returns the rule
-    token for ``ahdLightmap:baked:normals`` ("authored" when the mesh had its own)."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    comp = job.normals
-    if comp is None:
-        return "authored"
-    prim = stage.GetPrimAtPath(job.path)
-    values = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(comp.values, dtype=np.float32))
-    if comp.attr == "primvars:normals":
-        pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(
-            "normals", Sdf.ValueTypeNames.Normal3fArray, UsdGeom.Tokens.faceVarying
-        )
-        pv.Set(values)
-        pv.BlockIndices()
-    else:
-        mesh = UsdGeom.Mesh(prim)
-        mesh.CreateNormalsAttr().Set(values)
-        mesh.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
-    return comp.rule
-
-
 def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bool:
     """Write the override layer; its atomic replace is the bake's single commit point.
 
-    The layer is built in memory (sublayering the source by absolute path while authoring,
-    by relative path in the file), exported to a fresh temp file beside ``out`` (created by
-    mkstemp and kept, so no other process can take its name), fsynced, then renamed over
-    ``out``. returns False when the content is unchanged (nothing replaced). Raises
-    OutputError when the layer cannot be written (disk full, read-only); ``out`` is then
-    untouched.
+    The layer is built in memory by :func:`usdahd.usd.author.build_layer`, exported to a fresh
+    temp file beside ``out`` (created by mkstemp and kept, so no other process can take its
+    name), fsynced, then renamed over ``out``. returns False when the content is unchanged
+    (nothing replaced). Raises OutputError when the layer cannot be written (disk full,
+    read-only); ``out`` is then untouched.
     """
-    from pxr import Sdf, Usd, UsdGeom
-
-    from usdahd.errors import OutputError
-    from usdahd.usd import schema
+    from usdahd.usd import author
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    layer = Sdf.Layer.CreateAnonymous(out.suffix if out.suffix != ".usd" else ".usdc")
-    src_root = source_stage.GetRootLayer()
-    layer.subLayerPaths.append(str(src.resolve()))
-    layer.documentation = (
-        f"Directional lightmaps baked by usdahd {__version__} for {src.name}; "
-        "regenerate with usdahd bake, do not edit by hand."
-    )
-    for key in ("defaultPrim", "upAxis", "metersPerUnit"):
-        if src_root.pseudoRoot.HasInfo(key):
-            layer.pseudoRoot.SetInfo(key, src_root.pseudoRoot.GetInfo(key))
-    ostage = Usd.Stage.Open(layer)
-    ostage.SetEditTarget(layer)
-    if not src_root.pseudoRoot.HasInfo("upAxis"):
-        UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
-    old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
-    for job in sorted(jobs, key=lambda j: j.path):
-        res = job.results or job.previous or job.fallback
-        if res is None:
-            continue
-        prim = ostage.GetPrimAtPath(job.path)
-        if job.mesh is None and old_layer is not None:
-            # A kept prim (not selected this time): carry over a UV set an earlier run
-            # unwrapped and authored here, or its kept textures would lose their UVs.
-            # Same for the normals it computed (baked:normals says which rule).
-            names = [f"primvars:{res.uv_primvar}"]
-            if res.normals != "authored":
-                names += ["normals", "primvars:normals"]
-            for name in names:
-                spec_path = Sdf.Path(job.path).AppendProperty(name)
-                if old_layer.GetAttributeAtPath(spec_path) is not None:
-                    Sdf.CreatePrimInLayer(layer, Sdf.Path(job.path))
-                    Sdf.CopySpec(old_layer, spec_path, layer, spec_path)
-        if job.uv_primvar_values is not None:
-            warning = _author_uvs(ostage, job)
-            if warning and warning not in job.report.setdefault("warnings", []):
-                job.report["warnings"].append(warning)
-        if job.mesh is not None:
-            res.normals = _author_normals(ostage, job)
-        schema.write_results(prim, res, layer_dir=out.parent)
-    del ostage
-    layer.subLayerPaths[0] = _relative(src, out.parent)
+    layer = author.build_layer(src, out, source_stage, jobs)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        try:
-            ok = layer.Export(tmp_name)
-        except Exception as exc:  # pxr raises Tf.ErrorException (e.g. no space left)
-            ok = False
-            text = " ".join(str(exc).split())
-            if "No space left" in text:
-                why = "no space left on device"
-            else:
-                why = re.sub(r"^.*?line \d+ in file \S+ : ", "", text).strip("'")[:200]
-        else:
-            why = ""
-        if not ok or tmp.stat().st_size == 0:
-            raise OutputError(
-                f"{out}: cannot write the output layer{f' ({why})' if why else ''}; is the "
-                "disk full or the folder read-only? Free space and re-run (the previous bake "
-                "is intact)"
-            )
+        author.export_layer(layer, tmp_name, out)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
@@ -1412,11 +1209,6 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
 def _job_seed(seed: int, path: str) -> int:
     """Independent, reproducible random stream per prim (does not depend on bake order)."""
     return int.from_bytes(hashlib.sha256(f"{seed}:{path}".encode()).digest()[:4], "little")
-
-
-def is_dark(scene) -> bool:
-    """True when nothing in the scene emits light (no lights, no emissive material)."""
-    return not scene.lights and not any(m.emissive for m in scene.materials)
 
 
 def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:

@@ -382,7 +382,7 @@ class _TracerCache:
 
     def get(self, stage, uv_name: str):
         from usdahd.bake.trace import Tracer
-        from usdahd.pipeline import is_dark
+        from usdahd.scene.hashing import is_dark
         from usdahd.usd.reader import load_scene
 
         key = self.key(stage)

@@ -57,7 +57,7 @@ class _SceneCache:
                 if key in self._data:
                     self._data.move_to_end(key)
                     return self._data[key]
-        from usdahd.pipeline import scene_hash_parts
+        from usdahd.scene.hashing import scene_hash_parts
 
         parts = scene_hash_parts(load_scene(stage, uv_name=uv_name, time=time))
         if key is not None:
@@ -157,7 +157,8 @@ def check_staleness(prim) -> list[Finding]:
             "re-bake the prim",
         )
         return r.out
-    from usdahd import pipeline
+    from usdahd.scene.hashing import changed_parts, content_hash
+    from usdahd.usd.author import generator_id
 
     uv_name = str(results.settings.get("uv") or results.uv_primvar or "st")
     from usdahd.errors import StageError
@@ -181,7 +182,7 @@ def check_staleness(prim) -> list[Finding]:
             "re-bake the stage or remove the stale results",
         )
         return r.out
-    current, named = pipeline.content_hash(parts, path, results.settings)
+    current, named = content_hash(parts, path, results.settings, generator_id())
     drift = settings_drift(prim, results.settings)
     if results.settings.get("time_auto"):
         # A time chosen from the stage: a re-bake would read the stage's time now.
@@ -190,7 +191,7 @@ def check_staleness(prim) -> list[Finding]:
             drift.append(f"bake time ({time!r} -> {now!r}: the stage's startTimeCode or animation)")
     if current == results.content_hash and not drift:
         return r.out
-    changed = pipeline.changed_parts(results.part_hashes, named) if results.part_hashes else []
+    changed = changed_parts(results.part_hashes, named) if results.part_hashes else []
     if drift:
         changed = sorted(set(changed) - {"settings"})
     what = ", ".join(changed) if changed else ""

@@ -5,7 +5,7 @@ light, random but plausible hemispherical radiance SH at every covered texel (a 
 few cosine-power lobes, projected exactly over the upper hemisphere), fitted with
 ``usdahd.fit``, encoded with the model's ``encode``, written as the textures and SH sidecar the
 schema declares, and recorded with ``usdahd.usd.schema.write_results`` in an override layer
-that sublayers the source, with the content hash of ``usdahd.pipeline.content_hash``.
+that sublayers the source, with the content hash of ``usdahd.scene.hashing.content_hash``.
 
 Nothing binary is committed: ``python tests/data/validate/make_assets.py OUT_DIR`` writes
 ``OUT_DIR/clean/`` and ``OUT_DIR/bad/<defect>/`` for inspection; the tests build the same
@@ -150,6 +150,8 @@ def bake(
 ) -> Path:
     """Write a synthetic, consistent bake into ``directory``; returns the override layer."""
     from usdahd import pipeline
+    from usdahd.scene.hashing import content_hash, scene_hash_parts
+    from usdahd.usd.author import generator_id
     from usdahd.usd.reader import load_scene
     from usdahd.validate import texel_coverage
 
@@ -197,8 +199,8 @@ def bake(
     settings = pipeline.resolve_settings(pipeline.BakeOptions(model=model, ratio=ratio), {})
     settings["resolution"] = [w, h]
     settings = json.loads(json.dumps(settings, sort_keys=True, default=str))
-    parts = pipeline.scene_hash_parts(load_scene(stage, uv_name=settings["uv"]))
-    digest, named = pipeline.content_hash(parts, PRIM, settings)
+    parts = scene_hash_parts(load_scene(stage, uv_name=settings["uv"]))
+    digest, named = content_hash(parts, PRIM, settings, generator_id())
     results = schema.BakeResults(
         model=model,
         ratio=ratio,

@@ -114,7 +114,7 @@ BAKE_SOURCES = (
     "usdahd/bake/*.py",
     "usdahd/usd/*.py",
     "usdahd/scene/*.py",
-    "usdahd/pipeline.py",
+    "usdahd/pipeline/*.py",
     "usdahd/numerics/*.py",
 )
 

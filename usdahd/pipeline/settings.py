@@ -1,0 +1,153 @@
+"""Bake settings: built-in defaults, the command-line options, and how a prim's settings are
+resolved (built-in defaults < CLI flags < per-prim schema inputs), with the usage checks that
+hold for every prim.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from usdahd import models
+from usdahd.errors import UsageError
+
+#: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
+DEFAULTS = {
+    "model": "hhd",
+    "ratio": None,  # the model's first ratio type (luminance for IrradZ models)
+    "solver": None,  # the model's default solver
+    "uv": "st",
+    "resolution": None,  # None: from texel_density
+    "texel_density": 16.0,  # texels per metre (the schema fallback)
+    "samples": 256,
+    "bounces": 64,  # a safety cap: paths end by Russian roulette (integrate.DEFAULT_BOUNCES)
+    "padding": 4,
+    "container": "files",  # "ktx2": also write KTX2 engine containers (usdahd.ktx2)
+}
+#: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).
+MAX_RESOLUTION = 8192
+#: Largest side a *texel density* may ask for without an explicit --resolution: a 221 m ground
+#: quad at 16 texels/m would otherwise take most of the bake; clamped with a warning.
+DENSITY_MAX_RESOLUTION = 1024
+#: A UV set is unusable as a lightmap (and gets unwrapped into a new primvar) when more than
+#: this fraction of its covered texels overlap, or of its UVs lie outside [0, 1].
+UV_OVERLAP_LIMIT = 0.01
+UV_OUTSIDE_LIMIT = 0.001
+#: ... or when zero-area UV triangles cover more than this fraction of the mesh's surface.
+UV_DEGENERATE_LIMIT = 0.01
+#: A density-derived lightmap smaller than this on its longer side gets a warning (wrong units?).
+TINY_RESOLUTION = 8
+
+
+@dataclass
+class BakeOptions:
+    """Command-line level options; ``None`` means "not given" (fall back to defaults)."""
+
+    output: str | None = None
+    prims: list[str] | None = None
+    model: str | None = None
+    ratio: str | None = None
+    solver: str | None = None
+    uv: str | None = None
+    resolution: int | None = None
+    texel_density: float | None = None
+    samples: int | None = None
+    bounces: int | None = None
+    seed: int = 0
+    padding: int | None = None
+    adaptive: bool = False
+    denoise: bool = False
+    container: str | None = None
+    unwrap: bool = True
+    force: bool = False
+    dry_run: bool = False
+    quiet: bool = False
+    time: float | str | None = None  # None: automatic (usd.time.resolve_time); "default"
+
+
+def _authored_inputs(prim) -> dict:
+    """Bake inputs authored on ``prim`` (per-prim overrides), as BakeOptions field names."""
+    from usdahd.usd import schema
+
+    if not prim or not schema.has_api(prim):
+        return {}
+    rename = {"uv_primvar": "uv"}
+    out = {}
+    inputs = schema.read_inputs(prim)  # validates every value; SchemaError names the prim
+    for field_name, key in schema.INPUT_KEYS.items():
+        attr = prim.GetAttribute(schema.property_name(key))
+        if attr and attr.HasAuthoredValue():
+            out[rename.get(field_name, field_name)] = getattr(inputs, field_name)
+    if out.get("resolution") == 0:
+        del out["resolution"]  # 0 means "from texel density"
+    return out
+
+
+def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float = 1.0) -> dict:
+    """Built-in defaults < CLI flags < per-prim authored schema inputs."""
+    s = dict(DEFAULTS)
+    for k in DEFAULTS:
+        v = getattr(opts, k, None)
+        if v is not None:
+            s[k] = v
+    if opts.texel_density is not None:
+        s["resolution"] = None
+    if opts.resolution is not None:
+        s["texel_density"] = None
+    for k, v in authored.items():
+        if k == "bake":
+            continue
+        s[k] = v
+        if k == "texel_density" and "resolution" not in authored:
+            s["resolution"] = None
+        if k == "resolution":
+            s["texel_density"] = None
+    mod = models.get(s["model"])
+    if s["ratio"] not in mod.RATIOS:
+        if opts.ratio is not None and "ratio" not in authored:
+            raise UsageError(
+                f"model {s['model']!r} supports --ratio {', '.join(mod.RATIOS)}, not {s['ratio']!r}"
+            )
+        s["ratio"] = mod.RATIOS[0]  # e.g. the schema fallback "luminance" on an SH model
+    if s["solver"] in (None, ""):
+        s["solver"] = mod.DEFAULT_SOLVER
+    if s["solver"] not in mod.SOLVERS:
+        raise UsageError(
+            f"model {s['model']!r} has solvers {', '.join(mod.SOLVERS)}, not {s['solver']!r}"
+        )
+    s["seed"] = opts.seed
+    s["meters_per_unit"] = meters_per_unit
+    s["adaptive"] = bool(opts.adaptive)
+    s["denoise"] = bool(opts.denoise)
+    return s
+
+
+def record_time(settings: dict, scene) -> None:
+    """The bake time in ``baked:settings`` (so in the content hash): ``time`` is the time code
+    or "default"; ``time_auto`` whether it was chosen from the stage (startTimeCode), so the
+    validator can tell when a re-bake would read another time."""
+    settings["time"] = scene.time_setting
+    settings["time_auto"] = bool(scene.time_auto)
+
+
+def _check_options(opts: BakeOptions) -> None:
+    """Flag combinations that are wrong for every prim: usage errors (exit 2) up front."""
+    mod = models.get(opts.model or DEFAULTS["model"])
+    if opts.ratio is not None and opts.ratio not in mod.RATIOS:
+        raise UsageError(
+            f"model {mod.NAME!r} supports --ratio {', '.join(mod.RATIOS)}, not {opts.ratio!r}"
+        )
+    if opts.solver is not None and opts.solver not in mod.SOLVERS:
+        raise UsageError(
+            f"model {mod.NAME!r} has --solver {', '.join(mod.SOLVERS)}, not {opts.solver!r}"
+        )
+    if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
+        raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
+    if opts.container not in (None, "files", "ktx2"):
+        raise UsageError(f"--container must be files or ktx2, got {opts.container!r}")
+    if opts.container == "ktx2":
+        try:
+            import etcpak  # noqa: F401
+        except ImportError:
+            raise UsageError(
+                "--container ktx2 needs etcpak (the BC7 encoder): pip install 'usdahd[ktx2]'"
+            ) from None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import usdahd.usd  # noqa: F401  (registers the plugins first)
@@ -118,7 +119,10 @@ def test_override_layer_composes_the_scenario_and_records_it(stage, tmp_path):
     from pxr import Sdf, Usd
 
     night = S.resolve(stage, "lighting=night")
-    out = S.default_output(Path(stage.GetRootLayer().realPath), night)
+    out = S.default_output(Path(stage.GetRootLayer().realPath), night.name)
+    assert [S.name_of(t) for t in ("night", "lighting=night", "/World{lighting=night}")] == [
+        "night"
+    ] * 3
     assert out.name == "scene.night.lightmaps.usda"
     assert S.default_output(Path("a/scene.usda"), None) == Path("a/scene.lightmaps.usda")
     layer = Sdf.Layer.CreateNew(str(out))
@@ -133,3 +137,122 @@ def test_override_layer_composes_the_scenario_and_records_it(stage, tmp_path):
     (tmp_path / "other.lightmaps.usda").write_text("#usda 1.0\n")
     (tmp_path / "broken.lightmaps.usda").write_text("not usd")
     assert S.list_layers(tmp_path) == {"night": out}
+
+
+# ------------------------------------------------------------------- bake --scenario end to end
+
+FAST = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
+
+
+def _lights(intensity: float) -> str:
+    return (
+        '            def Xform "Lights"\n            {\n'
+        '                def DomeLight "UniformSky"\n                {\n'
+        f"                    float inputs:intensity = {intensity}\n"
+        "                    bool inputs:normalize = 0\n                }\n            }\n"
+    )
+
+
+def _scenario_stage(tmp_path: Path) -> Path:
+    """samples/open_plane.usda (I_z = 1 under its uniform dome) with the dome moved into a
+    ``lighting`` variant set on /World: day = intensity 1, night = 0.25."""
+    text = (Path(__file__).resolve().parents[1] / "samples" / "open_plane.usda").read_text()
+    start = text.index('    def Xform "Lights"')
+    end = text.index('    def Scope "Looks"')
+    base = tmp_path / "base.usda"
+    base.write_text(text[:start] + text[end:])
+    stage = tmp_path / "level.usda"
+    stage.write_text(
+        '#usda 1.0\n(\n    defaultPrim = "World"\n    metersPerUnit = 1\n    upAxis = "Y"\n'
+        '    subLayers = [@./base.usda@]\n)\n\nover "World" (\n'
+        '    variants = {\n        string lighting = "day"\n    }\n'
+        '    prepend variantSets = "lighting"\n)\n{\n    variantSet "lighting" = {\n'
+        '        "day" {\n' + _lights(1.0) + "        }\n"
+        '        "night" {\n' + _lights(0.25) + "        }\n    }\n}\n"
+    )
+    return stage
+
+
+def _iz(layer: Path) -> float:
+    from pxr import Sdf, Usd
+
+    from usdahd import images
+    from usdahd.numerics import sh as shmod
+    from usdahd.usd import schema
+
+    Sdf.Layer.FindOrOpen(str(layer)).Reload(force=True)
+    st = Usd.Stage.Open(str(layer))
+    (prim,) = schema.prims_with_api(st)
+    res = schema.read_results(prim)
+    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
+    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
+    covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
+    return float(shmod.iz(covered)[:, 0].mean())
+
+
+def test_bake_two_scenarios_into_one_folder(tmp_path, capsys):
+    import json
+
+    from pxr import Usd
+
+    from usdahd import cli
+    from usdahd.usd import schema
+
+    stage = _scenario_stage(tmp_path)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "level.usda", tmp_path / "base.usda")}
+    assert cli.main(["bake", str(stage), "--scenario", "day", *FAST]) == 0
+    capsys.readouterr()
+    assert cli.main(["bake", str(stage), "--scenario", "lighting=night", "--json", *FAST]) == 0
+    report = json.loads(capsys.readouterr().out)
+    day, night = tmp_path / "level.day.lightmaps.usda", tmp_path / "level.night.lightmaps.usda"
+    assert report["output"] == str(night) and report["scenario"] == "/World{lighting=night}"
+    assert {p.name: p.read_bytes() for p in (tmp_path / "level.usda", tmp_path / "base.usda")} == (
+        before
+    )
+    # each layer keeps its own lighting (I_z = dome radiance: 1 and 0.25, no bounce)
+    assert abs(_iz(day) - 1.0) < 0.02 and abs(_iz(night) - 0.25) < 0.005
+    # each layer composes the lighting it was baked with, and records it
+    st = Usd.Stage.Open(str(night))
+    light = st.GetPrimAtPath("/World/Lights/UniformSky")
+    assert light.GetAttribute("inputs:intensity").Get() == 0.25
+    assert S.of_layer(st.GetRootLayer()) == S.Scenario("/World", "lighting", "night")
+    (prim,) = schema.prims_with_api(st)
+    assert schema.read_results(prim).settings["scenario"] == "/World{lighting=night}"
+    assert S.list_layers(tmp_path) == {"day": day, "night": night}
+    # both validate clean (Staleness recomputes each scenario's own scene hash)
+    for layer in (day, night):
+        assert cli.main(["validate", "--quiet", "--strict", str(layer)]) == 0, layer
+    # switching the variant in the night layer makes it stale: the lights differ from the bake
+    st.GetRootLayer().GetPrimAtPath("/World").variantSelections["lighting"] = "day"
+    st.GetRootLayer().Save()
+    assert cli.main(["validate", "--quiet", str(night)]) == 1
+    assert "Staleness" in capsys.readouterr().out
+
+
+def test_bad_scenario_fails_before_tracing(tmp_path, capsys):
+    stage = _scenario_stage(tmp_path)
+    from usdahd import cli
+
+    for text, expect in [
+        ("dusk", "no variant 'dusk'; the stage's variants: /World{lighting=day}"),
+        ("../up", "a scenario is a variant name"),
+    ]:
+        assert cli.main(["bake", str(stage), "--scenario", text, *FAST]) == 2
+        err = capsys.readouterr().err
+        assert expect in err and "Traceback" not in err
+    assert not list(tmp_path.glob("*.lightmaps.usda")) and not (tmp_path / "lightmaps").exists()
+
+
+def test_scenario_bake_as_a_subprocess(tmp_path):
+    import subprocess
+    import sys
+
+    stage = _scenario_stage(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(stage), "--scenario", "night", *FAST],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "level.night.lightmaps.usda").is_file()

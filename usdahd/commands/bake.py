@@ -52,6 +52,13 @@ def add_parser(sub):
         help="time code every attribute is read at, or 'default' (default: the stage's "
         "startTimeCode when anything the bake reads is animated, else the default time)",
     )
+    a(
+        "--scenario",
+        metavar="NAME",
+        help="bake the lighting scenario selected by a variant of the stage: NAME, SET=NAME or "
+        "/Prim{SET=NAME}; writes STAGE.NAME.lightmaps.usda, which selects the same variant "
+        "(docs/schema.md, 'Lighting scenarios')",
+    )
     a("--padding", type=int, metavar="N", help="gutter dilation in texels (default 4)")
     a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")
     a("--denoise", action="store_true", help="denoise the SH with Intel Open Image Denoise")
@@ -97,6 +104,7 @@ def run(args) -> int:
         raise UsageError(str(exc)) from None
     opts = BakeOptions(
         time=time,
+        scenario=args.scenario,
         output=args.output,
         prims=args.prim,
         model=args.model,

@@ -11,6 +11,7 @@ Nothing is written until a prim's bake succeeded; every file is written atomical
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import importlib.util
 import json
@@ -76,9 +77,12 @@ class PrimJob:
     refit_from: str | None = None  # SH sidecar of the previous bake to refit from (no tracing)
 
 
-def default_output(stage_path: Path) -> Path:
-    """``dir/name.usda`` -> ``dir/name.lightmaps.usda``."""
-    return stage_path.with_name(stage_path.stem + ".lightmaps.usda")
+def default_output(stage_path: Path, scenario: str | None = None) -> Path:
+    """``dir/name.usda`` -> ``dir/name.lightmaps.usda`` (``dir/name.NAME.lightmaps.usda`` for
+    ``--scenario NAME``, ``SET=NAME`` or ``/Prim{SET=NAME}``)."""
+    from usdahd.usd import scenarios
+
+    return scenarios.default_output(stage_path, scenarios.name_of(scenario) if scenario else None)
 
 
 def sanitize(prim_path: str) -> str:
@@ -478,7 +482,7 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
             f.read(1)
     except OSError as exc:
         raise InputError(f"{stage_path}: cannot read the stage ({exc.strerror})") from None
-    out = Path(opts.output) if opts.output else default_output(src)
+    out = Path(opts.output) if opts.output else default_output(src, opts.scenario)
     if out.suffix not in (".usda", ".usdc", ".usd"):
         raise UsageError(f"-o {out}: the output layer must end in .usda, .usdc or .usd")
     if out.is_dir():
@@ -607,6 +611,12 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     src, out = preflight(stage_path, opts)
     try:
         stage = open_stage(src)
+        if opts.scenario:  # before any check or read: the variant decides what the stage holds
+            from usdahd.usd import scenarios
+
+            chosen = scenarios.resolve(stage, opts.scenario)
+            scenarios.select(stage, chosen)
+            opts = dataclasses.replace(opts, scenario=chosen.spec())
         _check_stage(src, stage, opts)
         if opts.dry_run:
             return _bake_locked(src, out, stage, opts, t_start)
@@ -641,6 +651,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         "stage": str(src),
         "output": str(out),
         "time": scene.time_setting,
+        **({"scenario": opts.scenario} if opts.scenario else {}),
         "prims": [],
         "warnings": list(checked.warnings) + list(scene.warnings) + untrusted,
         "notes": [],
@@ -776,7 +787,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         _commit_textures([j for j in todo if j.results is not None], out)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
-        report["written"] = _author_layer(src, out, stage, jobs)
+        report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
         _fault("layer_replaced")
         if report["written"]:
             _remove_legacy(out, old_refs)
@@ -1041,7 +1052,9 @@ def _plan(
     return job
 
 
-def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bool:
+def _author_layer(
+    src: Path, out: Path, source_stage, jobs: list[PrimJob], scenario: str | None = None
+) -> bool:
     """Write the override layer; its atomic replace is the bake's single commit point.
 
     The layer is built in memory by :func:`usdahd.usd.author.build_layer`, exported to a fresh
@@ -1053,7 +1066,7 @@ def _author_layer(src: Path, out: Path, source_stage, jobs: list[PrimJob]) -> bo
     from usdahd.usd import author
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    layer = author.build_layer(src, out, source_stage, jobs)
+    layer = author.build_layer(src, out, source_stage, jobs, scenario)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
     os.close(fd)
     tmp = Path(tmp_name)

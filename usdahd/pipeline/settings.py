@@ -62,6 +62,8 @@ class BakeOptions:
     dry_run: bool = False
     quiet: bool = False
     time: float | str | None = None  # None: automatic (usd.time.resolve_time); "default"
+    #: A lighting scenario (usdahd.usd.scenarios): as given, then the canonical /Prim{set=v}.
+    scenario: str | None = None
 
 
 def _authored_inputs(prim) -> dict:
@@ -118,6 +120,8 @@ def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float =
     s["meters_per_unit"] = meters_per_unit
     s["adaptive"] = bool(opts.adaptive)
     s["denoise"] = bool(opts.denoise)
+    if opts.scenario:  # only then: plain bakes keep their settings (and hashes) unchanged
+        s["scenario"] = opts.scenario
     return s
 
 

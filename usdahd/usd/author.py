@@ -77,7 +77,9 @@ def author_normals(stage, job) -> str:
     return comp.rule
 
 
-def build_layer(src: Path, out: Path, source_stage, jobs: list) -> Sdf.Layer:
+def build_layer(
+    src: Path, out: Path, source_stage, jobs: list, scenario: str | None = None
+) -> Sdf.Layer:
     """The override layer for ``out``, in memory (anonymous): sublayers ``src`` (by absolute
     path while authoring, by relative path in the returned layer), carries the source's
     defaultPrim / upAxis / metersPerUnit, and for every job with results (``results``,
@@ -88,6 +90,9 @@ def build_layer(src: Path, out: Path, source_stage, jobs: list) -> Sdf.Layer:
     jobs : pipeline ``PrimJob`` objects (``path``, ``mesh``, ``settings``, ``normals``,
         ``uv_primvar_values`` (F, 2) float32 or None, ``results``/``previous``/``fallback``,
         ``report``).
+    scenario : canonical ``/Prim{set=variant}`` of ``--scenario``: the layer selects that
+        variant itself (before anything is authored, so prims inside the variant exist) and
+        records it (:func:`usdahd.usd.scenarios.author`).
     """
     layer = Sdf.Layer.CreateAnonymous(out.suffix if out.suffix != ".usd" else ".usdc")
     src_root = source_stage.GetRootLayer()
@@ -99,6 +104,10 @@ def build_layer(src: Path, out: Path, source_stage, jobs: list) -> Sdf.Layer:
     for key in ("defaultPrim", "upAxis", "metersPerUnit"):
         if src_root.pseudoRoot.HasInfo(key):
             layer.pseudoRoot.SetInfo(key, src_root.pseudoRoot.GetInfo(key))
+    if scenario:
+        from usdahd.usd import scenarios
+
+        scenarios.author(layer, scenarios.resolve(source_stage, scenario))
     ostage = Usd.Stage.Open(layer)
     ostage.SetEditTarget(layer)
     if not src_root.pseudoRoot.HasInfo("upAxis"):

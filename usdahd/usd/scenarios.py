@@ -92,11 +92,7 @@ def resolve(stage: Usd.Stage, text: str) -> Scenario:
         set_name, _, variant = (s.strip() for s in text.partition("="))
     else:
         prim_path, set_name, variant = None, None, text
-    if not variant or not _NAME.match(variant):
-        raise UsageError(
-            f"{flag}: a scenario is a variant name of letters, digits, '_', '.', '-' (it becomes "
-            "part of the output file name); give NAME, SET=NAME or /Prim{SET=NAME}"
-        )
+    _check_name(text, variant)
     choices = _choices(stage)
     found = [
         c
@@ -149,10 +145,31 @@ def of_layer(layer: Sdf.Layer) -> Scenario | None:
     return Scenario(str(d["prim"]), str(d["variantSet"]), str(d["variant"]))
 
 
-def default_output(stage_path: Path, scenario: Scenario | None) -> Path:
-    """``STAGE.lightmaps.usda``, or ``STAGE.NAME.lightmaps.usda`` for a scenario."""
+def name_of(text: str) -> str:
+    """The scenario name (variant) a ``--scenario`` text gives, before any stage is open (the
+    output path is checked before the stage is read); :func:`resolve` checks it on the stage."""
+    given = text
+    text = (text or "").strip()
+    if text.endswith("}") and "{" in text:
+        text = text[text.rindex("{") + 1 : -1]
+    name = text.rpartition("=")[2].strip()
+    _check_name(given, name)
+    return name
+
+
+def _check_name(text: str, name: str) -> None:
+    if not name or not _NAME.match(name):
+        raise UsageError(
+            f"--scenario {text!r}: a scenario is a variant name of letters, digits, '_', '.', "
+            "'-' (it becomes part of the output file name); give NAME, SET=NAME or "
+            "/Prim{SET=NAME}"
+        )
+
+
+def default_output(stage_path: Path, name: str | None) -> Path:
+    """``STAGE.lightmaps.usda``, or ``STAGE.NAME.lightmaps.usda`` for scenario ``name``."""
     stage_path = Path(stage_path)
-    middle = f".{scenario.name}" if scenario is not None else ""
+    middle = f".{name}" if name else ""
     return stage_path.with_name(f"{stage_path.stem}{middle}.lightmaps.usda")
 
 

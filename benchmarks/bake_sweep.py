@@ -112,6 +112,7 @@ def bake_once(stage: Path, *, resolution: int, samples: int, seed: int, out_dir=
 #: Sources a bake's numbers depend on: a change to any of them invalidates cached references.
 BAKE_SOURCES = (
     "usdahd/bake/*.py",
+    "usdahd/bake/kernels/*.py",
     "usdahd/usd/*.py",
     "usdahd/scene/*.py",
     "usdahd/pipeline/*.py",

@@ -9,9 +9,9 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 from stats import assert_mean
 
-from usdahd.bake import lights as L
 from usdahd.errors import StageError
 from usdahd.numerics import sh
+from usdahd.scene import lights as L
 from usdahd.usd.reader import load_scene
 
 FLOAT_TOL = 1e-9

@@ -17,12 +17,13 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from stats import assert_same_mean
 
 from usdahd.bake import embree_native
-from usdahd.bake import lights as L
 from usdahd.bake.integrate import bake_texels
+from usdahd.bake.kernels import lights as K
 from usdahd.bake.trace import Tracer, nb_texture, pack_textures
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
 from usdahd.numerics import sh
+from usdahd.scene import lights as L
 from usdahd.scene.types import Texture
 from usdahd.usd.reader import load_scene
 
@@ -204,14 +205,14 @@ def _nb_lights(kind, par, img, pmf, cdf, p, u, d, t, do_sample):
     pdf = np.zeros(m)
     for i in range(m):
         if do_sample:
-            smp[i] = L.light_sample(
+            smp[i] = K.light_sample(
                 kind, par, img, pmf, cdf, p[i, 0], p[i, 1], p[i, 2], u[i, 0], u[i, 1]
             )
-        h, tt, r, g, b = L.light_intersect(
+        h, tt, r, g, b = K.light_intersect(
             kind, par, img, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2]
         )
         isc[i] = (1.0 if h else 0.0, tt, r, g, b)
-        pdf[i] = L.light_pdf(
+        pdf[i] = K.light_pdf(
             kind, par, pmf, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2], t[i]
         )
     return smp, isc, pdf  # fmt: skip
@@ -249,7 +250,7 @@ def test_numba_lights_equal_numpy(light):
     m = 3000
     p = rng.uniform(-1, 1, (m, 3)) * [1, 1, 0.3]
     u = rng.random((m, 2))
-    tab = L.pack_lights([light])
+    tab = K.pack_lights([light])
     if light.sampled:
         d_s, dist, val, pdf = light.sample(p, u)
     else:  # a uniform dome is never sampled (hemisphere sampling covers it)
@@ -409,10 +410,11 @@ def test_kernel_cache_tracks_every_inlined_source():
     """numba only re-validates a cached function against its own file; the fused kernel
     inlines code from several modules, so its cache stamp must cover all of them."""
     from usdahd.bake import integrate
+    from usdahd.bake.kernels import cache
 
-    if not embree_native.CACHE_TRACKS_ALL_SOURCES:
+    if not cache.CACHE_TRACKS_ALL_SOURCES:
         pytest.skip("numba caching internals changed")
     loc = integrate._native_pass._cache._impl.locator
-    assert isinstance(loc, embree_native._KernelStampMixin)
+    assert isinstance(loc, cache._KernelStampMixin)
     names = {s[0] for s in loc.get_source_stamp()}
     assert {"trace.py", "lights.py", "integrate.py", "embree_native.py"} <= names

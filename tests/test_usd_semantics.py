@@ -13,8 +13,8 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils
 
 from usdahd import cli
-from usdahd.bake import lights as L
 from usdahd.numerics import sh as shmod
+from usdahd.scene import lights as L
 from usdahd.usd.materials import read_image
 from usdahd.usd.reader import load_scene
 from usdahd.usd.time import resolve_time

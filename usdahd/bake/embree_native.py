@@ -179,61 +179,10 @@ class NativeScene:
 
 # ---------------------------------------------------------------------- numba side
 from numba import njit, types  # noqa: E402
-from numba.core import caching as _caching  # noqa: E402
 from numba.core import cgutils  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
-#: Modules whose numba functions are compiled into one another (the bake kernel: numba links
-#: every callee's code into its caller's library, where LLVM inlines the small ones).
-#: numba's on-disk cache only checks the source file of the cached function itself, so an
-#: edit to a callee in another module would leave a stale kernel in the cache; the
-#: locators below stamp every cached function of these modules with all of their sources.
-_PKG = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-KERNEL_SOURCES = tuple(
-    os.path.join(_PKG, *parts)
-    for parts in (
-        ("bake", "embree_native.py"),
-        ("bake", "trace.py"),
-        ("bake", "lights.py"),
-        ("bake", "integrate.py"),
-        ("numerics", "sampling.py"),
-        ("numerics", "sh.py"),
-    )
-)
-
-
-class _KernelStampMixin:
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        if os.path.abspath(py_file) not in KERNEL_SOURCES:
-            return None
-        return super().from_function(py_func, py_file)
-
-    def get_source_stamp(self):
-        stamps = []
-        for path in KERNEL_SOURCES:
-            st = os.stat(path)
-            stamps.append((os.path.basename(path), st.st_mtime, st.st_size))
-        return tuple(stamps)
-
-
-def _register_cache_locators():
-    extra = []
-    for name in ("UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator"):
-        base = getattr(_caching, name, None) or getattr(_caching, "_" + name, None)
-        if base is not None:
-            extra.append(type("Kernel" + name, (_KernelStampMixin, base), {}))
-    impl = getattr(_caching, "CacheImpl", None) or getattr(_caching, "_CacheImpl", None)
-    classes = getattr(impl, "_locator_classes", None)
-    if classes is None or not extra:  # pragma: no cover - numba internals moved
-        return False
-    if not any(issubclass(c, _KernelStampMixin) for c in classes):
-        impl._locator_classes = extra + list(classes)
-    return True
-
-
-#: False when numba's caching internals changed: cached kernels then only track their own file.
-CACHE_TRACKS_ALL_SOURCES = _register_cache_locators()
+from usdahd.bake.kernels import cache  # noqa: E402, F401  (numba cache locators, before any @njit)
 
 
 def _extern_call(name):

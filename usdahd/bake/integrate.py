@@ -66,7 +66,7 @@ import numpy as np
 from numba import njit
 
 from usdahd.bake import embree_native
-from usdahd.bake.lights import (
+from usdahd.bake.kernels.lights import (
     KIND_DISTANT,
     KIND_DOME,
     KIND_EMISSIVE,
@@ -74,7 +74,6 @@ from usdahd.bake.lights import (
     PAR_EM_PDF_AREA,
     PAR_EM_TABLE,
     PAR_EM_TRI,
-    EmissiveTriangles,
     light_intersect,
     light_pdf,
     light_sample,
@@ -102,6 +101,7 @@ from usdahd.numerics.sampling import (
     to_local,
     to_world,
 )
+from usdahd.scene.lights import EmissiveTriangles
 
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
 CHUNK_RAYS = 1 << 16

@@ -6,4 +6,6 @@ imports numpy (and ``usdahd.numerics``) only.
 
 - :mod:`usdahd.scene.types`: meshes (:class:`~usdahd.scene.types.MeshData`), materials and
   textures, computed normals, and the :class:`~usdahd.scene.types.Scene` that holds them.
+- :mod:`usdahd.scene.lights`: the light sources in UsdLux units with their numpy sampling
+  (the numba twins are in ``usdahd.bake.kernels.lights``).
 """

@@ -7,7 +7,7 @@
 - :class:`Material` : a Lambertian UsdPreviewSurface (constants and optional textures).
 - :class:`ComputedNormals` : normals computed for a mesh that authors none
   (:mod:`usdahd.usd.normals`), to author into the output layer.
-- :class:`Scene` : all of the above plus the lights (:mod:`usdahd.bake.lights` objects in
+- :class:`Scene` : all of the above plus the lights (:mod:`usdahd.scene.lights` objects in
   UsdLux units, docs/lights.md), the warnings and failed prims of the read, the stage's
   metersPerUnit, upAxis and the bake time.
 
@@ -175,7 +175,7 @@ class Scene:
         purpose UsdGeom.Mesh prims (narrowed by ``prims``); instances and implicit gprims are
         occluders.
     materials : the material table ``MeshData.material`` indexes.
-    lights : :mod:`usdahd.bake.lights` objects in UsdLux units (docs/lights.md).
+    lights : :mod:`usdahd.scene.lights` objects in UsdLux units (docs/lights.md).
     warnings : one string per unsupported feature met; never silent.
     meters_per_unit, up_axis : stage metadata (up_axis "Y" or "Z").
     texcoords : per mesh, ``{varname: (t, 3, 2) float32}`` texture coordinates the materials

@@ -1,7 +1,7 @@
 """UsdLux lights -> light objects in physical units: the one home of the light-unit rules.
 
 docs/lights.md is the user's page for these rules (what is honoured, what is warned); this
-module implements them, and :mod:`usdahd.bake.lights` holds the light classes it builds (each
+module implements them, and :mod:`usdahd.scene.lights` holds the light classes it builds (each
 stores its final world-space ``radiance`` (3,) float64, so the integrator never sees a UsdLux
 attribute).
 
@@ -46,8 +46,8 @@ import math
 import numpy as np
 from pxr import Sdf, UsdLux
 
-from usdahd.bake import lights as L
 from usdahd.errors import StageError
+from usdahd.scene import lights as L
 from usdahd.scene.types import MAX_RADIANCE
 from usdahd.usd.geometry import SINGULAR_DET_REL
 from usdahd.usd.materials import read_image, sanitize_image, to_rgb
@@ -59,7 +59,7 @@ __all__ = ["LightReader"]
 class LightReader:
     """The lights of one stage read at ``ctx.time`` (see the module docstring).
 
-    ctx : usdahd.usd.reader.ReadContext. ``lights`` : usdahd.bake.lights objects, in the
+    ctx : usdahd.usd.reader.ReadContext. ``lights`` : usdahd.scene.lights objects, in the
     traversal's order.
     """
 

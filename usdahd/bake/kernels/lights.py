@@ -1,0 +1,507 @@
+"""Numba light sampling: the lights of :mod:`usdahd.scene.lights` packed into flat tables.
+
+:func:`pack_lights` flattens the numpy light objects into a :class:`LightTable`; the scalar
+``@njit`` routines below (:func:`light_sample`, :func:`light_intersect`, :func:`light_pdf`)
+mirror the numpy ``sample``/``intersect``/``pdf`` methods of :mod:`usdahd.scene.lights` line by
+line (parity: tests/test_lights.py, tests/test_kernel_parity.py). The parameter rows are named
+in :mod:`usdahd.bake.kernels.layout`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from usdahd.bake.kernels import cache  # noqa: F401  (numba cache locators, before any @njit)
+from usdahd.numerics.sampling import SPHERICAL_RECT_MAX_SR, SPHERICAL_RECT_MIN_SR
+from usdahd.scene.lights import (
+    CylinderLight,
+    DistantLight,
+    DomeLight,
+    EmissiveTriangles,
+    PointLight,
+    RectLight,
+    SphereLight,
+    _PlanarLight,
+)
+
+# ----------------------------------------------------------------------------- native tables
+# The same lights as flat arrays for the numba integrator (usdahd.bake.integrate), one scalar
+# routine per operation below mirroring the numpy methods above line by line.
+
+KIND_SPHERE, KIND_POINT, KIND_RECT, KIND_DISK, KIND_CYLINDER, KIND_DISTANT, KIND_DOME = range(7)
+KIND_EMISSIVE = 7
+#: Parameters per light (float64). Common: [0:3] radiance. Per kind:
+#: sphere/point: [3:6] centre, [15] radius.  rect/disk: [3:6] centre, [6:9] ex, [9:12] ey,
+#: [12:15] normal, [16] area, [17:21] inverse Gram (row major), [21:24] plane normal;
+#: rect only: [24] 1 when its edges are orthogonal (solid-angle sampling allowed).
+#: cylinder: [3:6] centre, [6:9] axis, [15] radius, [16] area, [18] half length, [21:24] e1,
+#: [24:27] e2.  distant: [6:9] direction, [19] 1 - cos(half angle), [20] cos(half angle).
+#: dome: [25] textured (0/1), [26] pmf offset, [27] pixel offset, [28:37] rotation,
+#: [37:46] inverse rotation, [46] height, [47] width.
+#: emissive triangles: the PAR_EM_* slots below (blocks of ``pmf``/``cdf``, sampled by
+#: ``integrate._nee_sample``, which also has the triangle tables).
+N_PAR = 48
+#: emissive triangles: offset of the per-emitter pmf/cdf block (E entries), offset of the
+#: global-triangle ``pdf_area`` block (T entries, in ``pmf``), offset of the global triangle ids
+#: (E entries, float64 in ``pmf``), E.
+PAR_EM_TABLE, PAR_EM_PDF_AREA, PAR_EM_TRI, PAR_EM_COUNT = 26, 27, 28, 29
+PAR_RECT_ORTHO = 24
+
+
+@dataclass
+class LightTable:
+    """Lights packed for numba: ``kind`` (L,) int64, ``par`` (L, N_PAR) float64, flags
+    ``delta``/``infinite``/``sampled`` (L,) bool, dome images ``img`` (P, 3) float64 and their
+    sampling tables ``pmf``/``cdf`` (P,) float64 (concatenated; offsets in ``par``)."""
+
+    kind: np.ndarray
+    par: np.ndarray
+    delta: np.ndarray
+    infinite: np.ndarray
+    sampled: np.ndarray
+    img: np.ndarray
+    pmf: np.ndarray
+    cdf: np.ndarray
+
+
+def pack_lights(lights) -> LightTable:
+    """Flatten Light objects into a :class:`LightTable` (order preserved)."""
+    n = len(lights)
+    kind = np.zeros(n, np.int64)
+    par = np.zeros((max(n, 1), N_PAR))
+    imgs, pmfs, cdfs = [np.zeros((1, 3))], [np.zeros(1)], [np.ones(1)]
+    pix = 1
+    for i, lt in enumerate(lights):
+        p = par[i]
+        p[0:3] = lt.radiance
+        if isinstance(lt, PointLight):
+            kind[i] = KIND_POINT
+            p[3:6] = lt.center
+        elif isinstance(lt, SphereLight):
+            kind[i] = KIND_SPHERE
+            p[3:6] = lt.center
+            p[15] = lt.radius
+        elif isinstance(lt, _PlanarLight):
+            kind[i] = KIND_RECT if isinstance(lt, RectLight) else KIND_DISK
+            p[3:6], p[6:9], p[9:12], p[12:15] = lt.center, lt.ex, lt.ey, lt.normal
+            p[16] = lt.area
+            p[17:21] = lt._ginv.reshape(-1)
+            p[21:24] = lt._pn
+            if isinstance(lt, RectLight):
+                p[PAR_RECT_ORTHO] = 1.0 if lt.orthogonal else 0.0
+        elif isinstance(lt, CylinderLight):
+            kind[i] = KIND_CYLINDER
+            p[3:6], p[6:9] = lt.center, lt.axis
+            p[15], p[16], p[18] = lt.radius, lt.area, lt.half_length
+            p[21:24], p[24:27] = lt._e1, lt._e2
+        elif isinstance(lt, DistantLight):
+            kind[i] = KIND_DISTANT
+            p[6:9] = lt.direction
+            p[19], p[20] = lt._omc, lt._cos_max
+        elif isinstance(lt, DomeLight):
+            kind[i] = KIND_DOME
+            p[28:37] = np.asarray(lt.rotation, np.float64).reshape(-1)
+            if lt.image is not None:
+                h, w = lt._img.shape[:2]
+                p[25] = 1.0
+                p[26] = p[27] = pix
+                p[37:46] = lt._inv_rot.reshape(-1)
+                p[46], p[47] = h, w
+                imgs.append(lt._img[..., :3].reshape(-1, 3))
+                pmfs.append(lt._pmf)
+                cdfs.append(lt._cdf)
+                pix += h * w
+        elif isinstance(lt, EmissiveTriangles):
+            kind[i] = KIND_EMISSIVE
+            ne, nt = len(lt.tri), len(lt.pdf_area)
+            p[PAR_EM_TABLE], p[PAR_EM_COUNT] = pix, ne
+            pmfs.append(lt.pmf)
+            cdfs.append(lt.cdf)
+            p[PAR_EM_PDF_AREA] = pix + ne
+            pmfs.append(lt.pdf_area)
+            cdfs.append(np.zeros(nt))
+            p[PAR_EM_TRI] = pix + ne + nt
+            pmfs.append(lt.tri.astype(np.float64))
+            cdfs.append(np.zeros(ne))
+            imgs.append(np.zeros((2 * ne + nt, 3)))  # keeps the blocks' offsets aligned
+            pix += 2 * ne + nt
+        else:  # pragma: no cover - every light type is listed above
+            raise TypeError(f"no native form for {type(lt).__name__}")
+    return LightTable(
+        kind,
+        par,
+        np.array([bool(lt.delta) for lt in lights], bool),
+        np.array([bool(lt.infinite) for lt in lights], bool),
+        np.array([bool(lt.sampled) for lt in lights], bool),
+        np.ascontiguousarray(np.concatenate(imgs), np.float64),
+        np.concatenate(pmfs).astype(np.float64),
+        np.concatenate(cdfs).astype(np.float64),
+    )
+
+
+TWO_PI = 2.0 * np.pi
+_INF = np.inf
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_basis_apply(nx, ny, nz, lx, ly, lz):
+    """local (lx,ly,lz) in the Duff et al. frame around unit n -> world direction."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    tx, ty, tz = 1.0 + sign * nx * nx * a, sign * b, -sign * nx
+    bx, by, bz = b, sign + ny * ny * a, -ny
+    return (
+        lx * tx + ly * bx + lz * nx,
+        lx * ty + ly * by + lz * ny,
+        lx * tz + ly * bz + lz * nz,
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _cone(ax, ay, az, omc, u0, u1):
+    z = 1.0 - u0 * omc
+    phi = TWO_PI * u1
+    s = np.sqrt(max(u0 * omc * (1.0 + z), 0.0))
+    return nb_basis_apply(ax, ay, az, s * np.cos(phi), s * np.sin(phi), z)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
+    cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
+    b = cx * dx + cy * dy + cz * dz
+    c = cx * cx + cy * cy + cz * cz - p[15] * p[15]
+    disc = b * b - c
+    if disc >= 0.0 and c > 0.0:
+        t = -b - np.sqrt(disc)
+        if t > 0.0:
+            return t
+    return _INF
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _sphere_omc(p, x, y, z):
+    wx, wy, wz = p[3] - x, p[4] - y, p[5] - z
+    d2 = wx * wx + wy * wy + wz * wz
+    r2 = p[15] * p[15]
+    outside = d2 > r2
+    sin2 = r2 / d2 if outside else 1.0
+    cos_max = np.sqrt(max(1.0 - sin2, 0.0))
+    return wx, wy, wz, d2, outside, sin2 / (1.0 + cos_max)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
+    ax, ay, az = p[6], p[7], p[8]
+    cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
+    oa = cx * ax + cy * ay + cz * az
+    da = dx * ax + dy * ay + dz * az
+    opx, opy, opz = cx - oa * ax, cy - oa * ay, cz - oa * az
+    dpx, dpy, dpz = dx - da * ax, dy - da * ay, dz - da * az
+    a = dpx * dpx + dpy * dpy + dpz * dpz
+    b = opx * dpx + opy * dpy + opz * dpz
+    c = opx * opx + opy * opy + opz * opz - p[15] * p[15]
+    disc = b * b - a * c
+    if not (a > 1e-18 and disc >= 0.0 and c > 0.0):
+        return False, _INF, 0.0, 0.0, 0.0
+    t = (-b - np.sqrt(disc)) / a
+    hx, hy, hz = cx + t * dx, cy + t * dy, cz + t * dz
+    x = hx * ax + hy * ay + hz * az
+    if not (t > 0.0 and abs(x) <= p[18]):
+        return False, _INF, 0.0, 0.0, 0.0
+    return True, t, hx - x * ax, hy - x * ay, hz - x * az
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
+    den = dx * p[21] + dy * p[22] + dz * p[23]
+    if abs(den) <= 1e-12:
+        return False, _INF
+    t = ((p[3] - ox) * p[21] + (p[4] - oy) * p[22] + (p[5] - oz) * p[23]) / den
+    qx, qy, qz = ox + t * dx - p[3], oy + t * dy - p[4], oz + t * dz - p[5]
+    r0 = qx * p[6] + qy * p[7] + qz * p[8]
+    r1 = qx * p[9] + qy * p[10] + qz * p[11]
+    a = p[17] * r0 + p[18] * r1
+    b = p[19] * r0 + p[20] * r1
+    front = -(dx * p[12] + dy * p[13] + dz * p[14]) > 0.0
+    if kind == KIND_RECT:
+        inside = abs(a) <= 1.0 and abs(b) <= 1.0
+    else:
+        inside = a * a + b * b <= 1.0
+    if t > 0.0 and front and inside:
+        return True, t
+    return False, _INF
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _angle(ax, ay, az, bx, by, bz):
+    """Angle between unit vectors (``sampling._angle_between``)."""
+    if ax * bx + ay * by + az * bz < 0.0:
+        sx, sy, sz = ax + bx, ay + by, az + bz
+        return np.pi - 2.0 * np.arcsin(min(np.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
+    sx, sy, sz = bx - ax, by - ay, bz - az
+    return 2.0 * np.arcsin(min(np.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _unit3(x, y, z):
+    n = max(np.sqrt(x * x + y * y + z * z), 1e-300)
+    return x / n, y / n, z / n
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _sph_rect(p, ox, oy, oz, sample, u0, u1):
+    """``sampling.spherical_rectangle`` for one point and a rect light's parameters ``p``.
+
+    returns (solid angle, qx, qy, qz): the sampled point on the rectangle when ``sample``."""
+    exl = 2.0 * np.sqrt(p[6] * p[6] + p[7] * p[7] + p[8] * p[8])
+    eyl = 2.0 * np.sqrt(p[9] * p[9] + p[10] * p[10] + p[11] * p[11])
+    xx, xy, xz = 2.0 * p[6] / exl, 2.0 * p[7] / exl, 2.0 * p[8] / exl
+    yx, yy, yz = 2.0 * p[9] / eyl, 2.0 * p[10] / eyl, 2.0 * p[11] / eyl
+    zx, zy, zz = xy * yz - xz * yy, xz * yx - xx * yz, xx * yy - xy * yx
+    cx = p[3] - p[6] - p[9] - ox
+    cy = p[4] - p[7] - p[10] - oy
+    cz = p[5] - p[8] - p[11] - oz
+    x0 = cx * xx + cy * xy + cz * xz
+    y0 = cx * yx + cy * yy + cz * yz
+    z0 = cx * zx + cy * zy + cz * zz
+    zs = 1.0
+    if z0 > 0.0:
+        z0, zs = -z0, -1.0
+    x1, y1 = x0 + exl, y0 + eyl
+    n0x, n0y, n0z = _unit3(0.0, z0, -y0)
+    n1x, n1y, n1z = _unit3(-z0, 0.0, x1)
+    n2x, n2y, n2z = _unit3(0.0, -z0, y1)
+    n3x, n3y, n3z = _unit3(z0, 0.0, -x0)
+    g0 = _angle(-n0x, -n0y, -n0z, n1x, n1y, n1z)
+    g1 = _angle(-n1x, -n1y, -n1z, n2x, n2y, n2z)
+    g2 = _angle(-n2x, -n2y, -n2z, n3x, n3y, n3z)
+    g3 = _angle(-n3x, -n3y, -n3z, n0x, n0y, n0z)
+    solid = max(g0 + g1 + g2 + g3 - TWO_PI, 0.0)
+    if not sample:
+        return solid, 0.0, 0.0, 0.0
+    b0, b1 = n0z, n2z
+    au = u0 * solid - g2 - g3
+    sin_au = np.sin(au)
+    fu = (np.cos(au) * b0 - b1) / (sin_au if sin_au != 0.0 else 1e-300)
+    cu = 1.0 / np.sqrt(fu * fu + b0 * b0)
+    if fu < 0.0:
+        cu = -cu
+    cu = min(max(cu, -1.0 + 1e-12), 1.0 - 1e-12)
+    xu = min(max(-(cu * z0) / np.sqrt(max(1.0 - cu * cu, 0.0)), x0), x1)
+    dd = np.sqrt(xu * xu + z0 * z0)
+    h0 = y0 / np.sqrt(dd * dd + y0 * y0)
+    h1 = y1 / np.sqrt(dd * dd + y1 * y1)
+    hv = h0 + u1 * (h1 - h0)
+    hv2 = hv * hv
+    yv = hv * dd / np.sqrt(max(1.0 - hv2, 1e-300)) if hv2 < 1.0 - 1e-12 else y1
+    zw = z0 * zs
+    return (
+        solid,
+        ox + xu * xx + yv * yx + zw * zx,
+        oy + xu * xy + yv * yy + zw * zy,
+        oz + xu * xz + yv * yz + zw * zz,
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _rect_candidate(p, ox, oy, oz):
+    """``RectLight._solid``'s first test: the solid angle estimated from the centre is large."""
+    if p[PAR_RECT_ORTHO] == 0.0:
+        return False
+    wx, wy, wz = ox - p[3], oy - p[4], oz - p[5]
+    d2 = wx * wx + wy * wy + wz * wz
+    cos_l = (wx * p[12] + wy * p[13] + wz * p[14]) / np.sqrt(max(d2, 1e-300))
+    return p[16] * max(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _rect_solid(p, ox, oy, oz):
+    """Solid angle of a rect light when its solid-angle sampler applies at o, else 0."""
+    if not _rect_candidate(p, ox, oy, oz):
+        return 0.0
+    sr, _, _, _ = _sph_rect(p, ox, oy, oz, False, 0.0, 0.0)
+    if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
+        return sr
+    return 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _dome_lookup(p, dx, dy, dz):
+    lx = p[37] * dx + p[38] * dy + p[39] * dz
+    ly = p[40] * dx + p[41] * dy + p[42] * dz
+    lz = p[43] * dx + p[44] * dy + p[45] * dz
+    ln = max(np.sqrt(lx * lx + ly * ly + lz * lz), 1e-300)
+    lx, ly, lz = lx / ln, ly / ln, lz / ln
+    h, w = int(p[46]), int(p[47])
+    lat = np.arcsin(min(max(ly, -1.0), 1.0))
+    lon = np.arctan2(lx, lz)
+    x = min(max(int((np.pi - lon) / TWO_PI * w), 0), w - 1)
+    y = min(max(int((0.5 * np.pi - lat) / np.pi * h), 0), h - 1)
+    return x, y, ly
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
+    """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
+    if kind == KIND_POINT:
+        wx, wy, wz = p[3] - x, p[4] - y, p[5] - z
+        dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+        inv = 1.0 / max(dist, 1e-300)
+        s = 1.0 / max(dist * dist, 1e-300)
+        return wx * inv, wy * inv, wz * inv, dist, p[0] * s, p[1] * s, p[2] * s, 1.0
+    if kind == KIND_SPHERE:
+        wx, wy, wz, d2, outside, omc = _sphere_omc(p, x, y, z)
+        inv = 1.0 / np.sqrt(max(d2, 1e-300))
+        dx, dy, dz = _cone(wx * inv, wy * inv, wz * inv, omc, u0, u1)
+        t = _sphere_hit_t(p, x, y, z, dx, dy, dz)
+        if not np.isfinite(t):
+            t = np.sqrt(d2)
+        if outside:
+            return dx, dy, dz, t, p[0], p[1], p[2], 1.0 / (TWO_PI * max(omc, 1e-300))
+        return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_RECT and _rect_candidate(p, x, y, z):
+        sr, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)  # one set-up: test, then sample
+        if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
+            wx, wy, wz = qx - x, qy - y, qz - z
+            dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+            inv = 1.0 / max(dist, 1e-300)
+            dx, dy, dz = wx * inv, wy * inv, wz * inv
+            if -(dx * p[12] + dy * p[13] + dz * p[14]) > 0.0:
+                return dx, dy, dz, dist, p[0], p[1], p[2], 1.0 / sr
+            return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_RECT or kind == KIND_DISK:
+        if kind == KIND_RECT:
+            a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
+        else:
+            a0, b0 = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
+            if abs(a0) > abs(b0):
+                r = a0
+                th = (np.pi / 4) * (b0 / (1.0 if a0 == 0 else a0))
+            else:
+                r = b0
+                th = (np.pi / 2) - (np.pi / 4) * (a0 / (1.0 if b0 == 0 else b0))
+            a, b = r * np.cos(th), r * np.sin(th)
+        wx = p[3] + a * p[6] + b * p[9] - x
+        wy = p[4] + a * p[7] + b * p[10] - y
+        wz = p[5] + a * p[8] + b * p[11] - z
+        dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+        inv = 1.0 / max(dist, 1e-300)
+        dx, dy, dz = wx * inv, wy * inv, wz * inv
+        cos_l = -(dx * p[12] + dy * p[13] + dz * p[14])
+        if cos_l > 0.0:
+            return dx, dy, dz, dist, p[0], p[1], p[2], dist * dist / (p[16] * cos_l)
+        return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_CYLINDER:
+        xx = (2.0 * u0 - 1.0) * p[18]
+        phi = TWO_PI * u1
+        c, s = np.cos(phi), np.sin(phi)
+        rx, ry, rz = c * p[21] + s * p[24], c * p[22] + s * p[25], c * p[23] + s * p[26]
+        wx = p[3] + xx * p[6] + p[15] * rx - x
+        wy = p[4] + xx * p[7] + p[15] * ry - y
+        wz = p[5] + xx * p[8] + p[15] * rz - z
+        dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+        inv = 1.0 / max(dist, 1e-300)
+        dx, dy, dz = wx * inv, wy * inv, wz * inv
+        cos_l = -(dx * rx + dy * ry + dz * rz)
+        if cos_l > 0.0:
+            return dx, dy, dz, dist, p[0], p[1], p[2], dist * dist / (p[16] * cos_l)
+        return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_DISTANT:
+        if p[19] <= 0.0:
+            return p[6], p[7], p[8], _INF, p[0], p[1], p[2], 1.0
+        dx, dy, dz = _cone(p[6], p[7], p[8], p[19], u0, u1)
+        return dx, dy, dz, _INF, p[0], p[1], p[2], 1.0 / (TWO_PI * p[19])
+    # textured dome (uniform domes are never sampled)
+    h, w = int(p[46]), int(p[47])
+    base = int(p[26])
+    lo_i, hi_i = 0, h * w
+    while lo_i < hi_i:  # searchsorted(cdf, u0, side="right")
+        mid = (lo_i + hi_i) // 2
+        if cdf[base + mid] <= u0:
+            lo_i = mid + 1
+        else:
+            hi_i = mid
+    idx = min(lo_i, h * w - 1)
+    lo = cdf[base + idx - 1] if idx > 0 else 0.0
+    frac = min(max((u0 - lo) / max(pmf[base + idx], 1e-300), 0.0), 1.0 - 1e-12)
+    yy, xx = idx // w, idx % w
+    theta = np.pi * (yy + frac) / h
+    lon = np.pi - TWO_PI * (xx + u1) / w
+    lat = 0.5 * np.pi - theta
+    lx, ly, lz = np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)
+    dx = p[28] * lx + p[29] * ly + p[30] * lz
+    dy = p[31] * lx + p[32] * ly + p[33] * lz
+    dz = p[34] * lx + p[35] * ly + p[36] * lz
+    ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+    dx, dy, dz = dx / ln, dy / ln, dz / ln
+    pdf = pmf[base + idx] * (h * w) / (2.0 * np.pi * np.pi * max(np.sin(theta), 1e-12))
+    q = int(p[27]) + idx
+    return dx, dy, dz, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2], pdf
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
+    """Scalar ``Light.intersect``: returns (hit, t, r, g, b)."""
+    if kind == KIND_SPHERE:
+        t = _sphere_hit_t(p, ox, oy, oz, dx, dy, dz)
+        if np.isfinite(t):
+            return True, t, p[0], p[1], p[2]
+        return False, _INF, 0.0, 0.0, 0.0
+    if kind == KIND_RECT or kind == KIND_DISK:
+        hit, t = _planar_hit(kind, p, ox, oy, oz, dx, dy, dz)
+        if hit:
+            return True, t, p[0], p[1], p[2]
+        return False, _INF, 0.0, 0.0, 0.0
+    if kind == KIND_CYLINDER:
+        hit, t, _, _, _ = _cyl_hit(p, ox, oy, oz, dx, dy, dz)
+        if hit:
+            return True, t, p[0], p[1], p[2]
+        return False, _INF, 0.0, 0.0, 0.0
+    if kind == KIND_DISTANT:
+        if p[19] > 0.0 and dx * p[6] + dy * p[7] + dz * p[8] >= p[20]:
+            return True, _INF, p[0], p[1], p[2]
+        return False, _INF, 0.0, 0.0, 0.0
+    if kind == KIND_DOME:
+        if p[25] == 0.0:
+            return True, _INF, p[0], p[1], p[2]
+        x, y, _ = _dome_lookup(p, dx, dy, dz)
+        q = int(p[27]) + y * int(p[47]) + x
+        return True, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2]
+    return False, _INF, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
+    """Scalar ``Light.pdf`` (solid angle) of a direction that hit the light at ``t``."""
+    if kind == KIND_SPHERE:
+        _, _, _, _, outside, omc = _sphere_omc(p, ox, oy, oz)
+        return 1.0 / (TWO_PI * max(omc, 1e-300)) if outside else 0.0
+    if kind == KIND_RECT or kind == KIND_DISK:
+        cos_l = -(dx * p[12] + dy * p[13] + dz * p[14])
+        if cos_l > 0.0 and np.isfinite(t):
+            if kind == KIND_RECT:
+                sr = _rect_solid(p, ox, oy, oz)
+                if sr > 0.0:
+                    return 1.0 / sr
+            return t * t / (p[16] * cos_l)
+        return 0.0
+    if kind == KIND_CYLINDER:
+        hit, t2, rx, ry, rz = _cyl_hit(p, ox, oy, oz, dx, dy, dz)
+        cos_l = -(dx * rx + dy * ry + dz * rz) / p[15]
+        if hit and cos_l > 0.0:
+            return t2 * t2 / (p[16] * cos_l)
+        return 0.0
+    if kind == KIND_DISTANT:
+        if p[19] > 0.0 and dx * p[6] + dy * p[7] + dz * p[8] >= p[20]:
+            return 1.0 / (TWO_PI * p[19])
+        return 0.0
+    if kind == KIND_DOME and p[25] != 0.0:
+        x, y, ly = _dome_lookup(p, dx, dy, dz)
+        h, w = int(p[46]), int(p[47])
+        sin_t = np.sqrt(min(max(1.0 - ly * ly, 0.0), 1.0))
+        return pmf[int(p[26]) + y * w + x] * (h * w) / (2.0 * np.pi * np.pi * max(sin_t, 1e-12))
+    return 0.0

@@ -19,6 +19,7 @@ from stats import assert_same_mean
 from usdahd.bake import embree_native
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.kernels import lights as K
+from usdahd.bake.kernels.layout import NativeTables
 from usdahd.bake.trace import Tracer, nb_texture, pack_textures
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
@@ -298,7 +299,7 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
         (wrap, wrap),
     )
     uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = (None,) * 7 + pack_textures([tex])
+    tb = NativeTables(*(None,) * 7, *pack_textures([tex]))
     got = _nb_tex(tb, 0, uv)[:, : len(channels)]
     np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
 

@@ -66,14 +66,51 @@ import numpy as np
 from numba import njit
 
 from usdahd.bake import embree_native
-from usdahd.bake.kernels.lights import (
+from usdahd.bake.kernels.layout import (
+    CFG_BOUNCES,
+    CFG_EMISSION,
+    CFG_EMISSIVE_LIGHT,
+    CFG_EPS,
+    CFG_LEN,
+    CFG_REGRESSION,
+    CFG_STRATEGY,
+    CFG_TRANSMISSION,
+    HIT_NG,
+    HIT_T,
+    HIT_TRI,
+    HIT_U,
+    HIT_V,
     KIND_DISTANT,
     KIND_DOME,
     KIND_EMISSIVE,
+    MAT_ALBEDO,
+    MAT_EMISSION,
+    MODE_BSDF,
+    MODE_MIS,
+    MODE_NEE,
+    PAR_COS_MAX,
+    PAR_DIRECTION,
+    PAR_DOME_TEXTURED,
     PAR_EM_COUNT,
     PAR_EM_PDF_AREA,
     PAR_EM_TABLE,
     PAR_EM_TRI,
+    PAR_OMC,
+    PAR_RADIANCE,
+    PATH_BETA,
+    PATH_COLS,
+    PATH_D,
+    PATH_DEPTH,
+    PATH_O,
+    PATH_PDF,
+    PATH_SAMPLE,
+    PATH_SEL,
+    TEX_ALBEDO,
+    TEX_EMISSION,
+    LightArrays,
+    LightLists,
+)
+from usdahd.bake.kernels.lights import (
     light_intersect,
     light_pdf,
     light_sample,
@@ -134,9 +171,6 @@ LIGHT_SHIFT = 0.6180339887498949
 #: default), "bsdf" (hemisphere/cosine rays only), "nee" (light samples only). The three are
 #: unbiased estimators of the same integral; the consistency tests compare them.
 STRATEGIES = ("mis", "bsdf", "nee")
-#: Slots of the native kernel's ``cfg`` (float64) row.
-CFG_BOUNCES, CFG_EPS, CFG_TRANSMISSION, CFG_EMISSION, CFG_REGRESSION = 0, 1, 2, 3, 4
-CFG_EMISSIVE_LIGHT, CFG_STRATEGY, CFG_LEN = 5, 6, 7
 
 _G_HEMI = shmod.hemispherical_gram()
 
@@ -636,20 +670,24 @@ class _NativeCtx:
         lights = _Lights(scene.lights, tracer)
         order = {id(lt): i for i, lt in enumerate(lights.all)}
         tab = pack_lights(lights.all)
-        self.lt = (tab.kind, tab.par, tab.img, tab.pmf, tab.cdf, tab.delta, tab.infinite,
-                   tab.sampled)  # fmt: skip
+        self.lt = LightArrays(tab.kind, tab.par, tab.img, tab.pmf, tab.cdf, tab.delta,
+                              tab.infinite, tab.sampled)  # fmt: skip
 
         def ids(group):
             return np.array([order[id(lt)] for lt in group], np.int64)
 
-        self.lists = (ids(lights.nee), ids(lights.visible), ids(lights.delta), ids(lights.area))
+        self.lists = LightLists(
+            ids(lights.nee), ids(lights.visible), ids(lights.delta), ids(lights.area)
+        )
         em = order[id(lights.emissive)] if lights.emissive is not None else -1
-        self.cfg = np.array(
-            [bounces, tracer.offset_eps, tracer.has_transmission, tracer.has_emission,
-             estimator == "regression", em, STRATEGIES.index(strategy)],
-            np.float64,
-        )  # fmt: skip
-        assert len(self.cfg) == CFG_LEN
+        self.cfg = np.zeros(CFG_LEN, np.float64)
+        self.cfg[CFG_BOUNCES] = bounces
+        self.cfg[CFG_EPS] = tracer.offset_eps
+        self.cfg[CFG_TRANSMISSION] = tracer.has_transmission
+        self.cfg[CFG_EMISSION] = tracer.has_emission
+        self.cfg[CFG_REGRESSION] = estimator == "regression"
+        self.cfg[CFG_EMISSIVE_LIGHT] = em
+        self.cfg[CFG_STRATEGY] = STRATEGIES.index(strategy)
         self.tb = tracer.native_tables()
         self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces
 
@@ -680,7 +718,7 @@ class _NativeCtx:
         n = len(acc.count)
         out = np.empty((n, 3, 9), np.float32)
         bf = np.empty(n, np.float32)
-        reg = bool(self.cfg[4])
+        reg = bool(self.cfg[CFG_REGRESSION])
 
         def run(ids):
             _native_result(ids, acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
@@ -767,10 +805,6 @@ _4PI = 4.0 * np.pi
 _INV_4PI = 1.0 / (4.0 * np.pi)
 #: Register-fed Gram sums of the native pass (see :func:`_gram_unpack`).
 GRAM_SUMS = 45
-#: Columns of the per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin
-#: (0:3), direction (3:6), throughput (6:9), pdf of the direction, selection probability of the
-#: NEE light it is paired with, reflections so far, sample index.
-PATH_COLS = 13
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -813,14 +847,15 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
     dist = np.sqrt(wx * wx + wy * wy + wz * wz)
     inv = 1.0 / max(dist, 1e-300)
     dx, dy, dz = wx * inv, wy * inv, wz * inv
-    g = tb[1]
+    g = tb.geom_normal
     cos_l = -(dx * g[tri, 0] + dy * g[tri, 1] + dz * g[tri, 2])
     if not cos_l > 0.0:
         return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     pdf = pmf[int(p[PAR_EM_PDF_AREA]) + tri] * dist * dist / cos_l
-    mq = tb[3][tri]
-    if tb[6][mq, 1] < 0:
-        r, gg, b = tb[5][mq, 3], tb[5][mq, 4], tb[5][mq, 5]
+    mq = tb.tri_material[tri]
+    if tb.mat_tex[mq, TEX_EMISSION] < 0:
+        mc = tb.mat_const
+        r, gg, b = mc[mq, MAT_EMISSION], mc[mq, MAT_EMISSION + 1], mc[mq, MAT_EMISSION + 2]
     else:
         r, gg, b = nb_emission(tb, tri, bu, bv)
     return dx, dy, dz, dist, r, gg, b, pdf
@@ -829,17 +864,17 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _wl(mode, pl, pb):
     """``_w_light`` (mode: index in STRATEGIES)."""
-    if mode == 0:
+    if mode == MODE_MIS:
         return _pw(pl, pb)
-    return 1.0 if mode == 2 else 0.0
+    return 1.0 if mode == MODE_NEE else 0.0
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _wb(mode, pb, pl):
     """``_w_bsdf`` (mode: index in STRATEGIES)."""
-    if mode == 0:
+    if mode == MODE_MIS:
         return _pw(pb, pl)
-    return 1.0 if mode == 1 else 0.0
+    return 1.0 if mode == MODE_BSDF else 0.0
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -881,9 +916,10 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     Hit points are o + t d (no vertex fetch; error ~1e-7 t, far below the ray offset).
     returns : rays traced."""
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
-    nee_idx, visible_idx = lists[0], lists[1]
-    tri_mat, mat_const, mat_tex = tb[3], tb[5], tb[6]
-    bounces, eps, transmission, has_em = int(cfg[0]), cfg[1], cfg[2] != 0.0, cfg[3] != 0.0
+    nee_idx, visible_idx = lists.nee, lists.visible
+    tri_mat, mat_const, mat_tex = tb.tri_material, tb.mat_const, tb.mat_tex
+    bounces, eps = int(cfg[CFG_BOUNCES]), cfg[CFG_EPS]
+    transmission, has_em = cfg[CFG_TRANSMISSION] != 0.0, cfg[CFG_EMISSION] != 0.0
     em_q = int(cfg[CFG_EMISSIVE_LIGHT])  # the emissive-triangles light (-1: none)
     mode = int(cfg[CFG_STRATEGY])
     em_pdf = int(par[em_q, PAR_EM_PDF_AREA]) if em_q >= 0 else 0
@@ -895,14 +931,14 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
         nn = np.int64(0)  # live paths kept (nn <= j: row j is read before row nn is written)
         ns = np.int64(0)  # shadow rays (np.int64: no Literal[int](0) specializations)
         for j in range(n):
-            ox, oy, oz = ps[j, 0], ps[j, 1], ps[j, 2]
-            dx, dy, dz = ps[j, 3], ps[j, 4], ps[j, 5]
-            br, bg, bb = ps[j, 6], ps[j, 7], ps[j, 8]
-            pdf_dir, sel = ps[j, 9], ps[j, 10]
-            depth = int(ps[j, 11])
-            k = int(ps[j, 12])
-            t, tri, u, v = hits[j, 0], int(hits[j, 1]), hits[j, 2], hits[j, 3]
-            gx, gy, gz = hits[j, 4], hits[j, 5], hits[j, 6]
+            ox, oy, oz = ps[j, PATH_O], ps[j, PATH_O + 1], ps[j, PATH_O + 2]
+            dx, dy, dz = ps[j, PATH_D], ps[j, PATH_D + 1], ps[j, PATH_D + 2]
+            br, bg, bb = ps[j, PATH_BETA], ps[j, PATH_BETA + 1], ps[j, PATH_BETA + 2]
+            pdf_dir, sel = ps[j, PATH_PDF], ps[j, PATH_SEL]
+            depth = int(ps[j, PATH_DEPTH])
+            k = int(ps[j, PATH_SAMPLE])
+            t, tri, u, v = hits[j, HIT_T], int(hits[j, HIT_TRI]), hits[j, HIT_U], hits[j, HIT_V]
+            gx, gy, gz = hits[j, HIT_NG], hits[j, HIT_NG + 1], hits[j, HIT_NG + 2]
             miss = tri < 0
             Lr = Lg = Lb = 0.0
             for jj in range(n_vis):
@@ -910,13 +946,25 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 kq = kind[q]
                 # distant lights and uniform domes inline (the common sky); others called
                 if kq == KIND_DISTANT:
+                    pd = PAR_DIRECTION
                     hit = (
-                        par[q, 19] > 0.0
-                        and dx * par[q, 6] + dy * par[q, 7] + dz * par[q, 8] >= par[q, 20]
+                        par[q, PAR_OMC] > 0.0
+                        and dx * par[q, pd] + dy * par[q, pd + 1] + dz * par[q, pd + 2]
+                        >= par[q, PAR_COS_MAX]
                     )
-                    tl, r, g, b = np.inf, par[q, 0], par[q, 1], par[q, 2]
-                elif kq == KIND_DOME and par[q, 25] == 0.0:
-                    hit, tl, r, g, b = True, np.inf, par[q, 0], par[q, 1], par[q, 2]
+                    tl = np.inf
+                    r, g, b = (
+                        par[q, PAR_RADIANCE],
+                        par[q, PAR_RADIANCE + 1],
+                        par[q, PAR_RADIANCE + 2],
+                    )
+                elif kq == KIND_DOME and par[q, PAR_DOME_TEXTURED] == 0.0:
+                    hit, tl = True, np.inf
+                    r, g, b = (
+                        par[q, PAR_RADIANCE],
+                        par[q, PAR_RADIANCE + 1],
+                        par[q, PAR_RADIANCE + 2],
+                    )
                 else:
                     hit, tl, r, g, b = light_intersect(kq, par[q], img, ox, oy, oz, dx, dy, dz)
                 if not hit:
@@ -935,8 +983,10 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 cos_in = dx * gx + dy * gy + dz * gz
                 mq = tri_mat[tri]  # constant materials inline, textured ones called
                 if has_em and cos_in < 0.0:
-                    if mat_tex[mq, 1] < 0:
-                        er, eg, eb = mat_const[mq, 3], mat_const[mq, 4], mat_const[mq, 5]
+                    if mat_tex[mq, TEX_EMISSION] < 0:
+                        er = mat_const[mq, MAT_EMISSION]
+                        eg = mat_const[mq, MAT_EMISSION + 1]
+                        eb = mat_const[mq, MAT_EMISSION + 2]
                     else:
                         er, eg, eb = nb_emission(tb, tri, u, v)
                     w = 1.0
@@ -948,10 +998,10 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     Lb += bb * eb * w
                 if depth + 1 > bounces:
                     break
-                if mat_tex[mq, 0] < 0:
-                    ar = min(max(mat_const[mq, 0], 0.0), 1.0)
-                    ag = min(max(mat_const[mq, 1], 0.0), 1.0)
-                    ab = min(max(mat_const[mq, 2], 0.0), 1.0)
+                if mat_tex[mq, TEX_ALBEDO] < 0:
+                    ar = min(max(mat_const[mq, MAT_ALBEDO], 0.0), 1.0)
+                    ag = min(max(mat_const[mq, MAT_ALBEDO + 1], 0.0), 1.0)
+                    ab = min(max(mat_const[mq, MAT_ALBEDO + 2], 0.0), 1.0)
                 else:
                     ar, ag, ab = nb_albedo(tb, tri, u, v)
                 if not (ar > 0.0 or ag > 0.0 or ab > 0.0):
@@ -1015,12 +1065,12 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)
                 _set_row(rays, nn, ox, oy, oz, dx, dy, dz, np.inf)
                 _set_row(ps, nn, ox, oy, oz, dx, dy, dz, br)
-                ps[nn, 7] = bg
-                ps[nn, 8] = bb
-                ps[nn, 9] = cz / np.pi
-                ps[nn, 10] = sel_next
-                ps[nn, 11] = depth
-                ps[nn, 12] = k
+                ps[nn, PATH_BETA + 1] = bg
+                ps[nn, PATH_BETA + 2] = bb
+                ps[nn, PATH_PDF] = cz / np.pi
+                ps[nn, PATH_SEL] = sel_next
+                ps[nn, PATH_DEPTH] = depth
+                ps[nn, PATH_SAMPLE] = k
                 nn += 1
             R[k, 0] += Lr
             R[k, 1] += Lg
@@ -1042,8 +1092,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
     """Exact delta-light terms of texel ``i`` (one shadow ray per light). returns rays."""
-    kind, par, img, pmf, cdf = lt[0], lt[1], lt[2], lt[3], lt[4]
-    eps, transmission = cfg[1], cfg[2] != 0.0
+    kind, par, img, pmf, cdf = lt.kind, lt.par, lt.img, lt.pmf, lt.cdf
+    eps, transmission = cfg[CFG_EPS], cfg[CFG_TRANSMISSION] != 0.0
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
     ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
     f = F[i]
@@ -1109,9 +1159,10 @@ def _native_pass(
     returns : rays traced.
     """
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
-    delta_idx, area_idx = lists[2], lists[3]
+    delta_idx, area_idx = lists.delta, lists.area
     gram, hemi, nee, delta, count, back, y_sum, y_sq = acc
-    eps, transmission, regression = cfg[1], cfg[2] != 0.0, cfg[4] != 0.0
+    eps, transmission = cfg[CFG_EPS], cfg[CFG_TRANSMISSION] != 0.0
+    regression = cfg[CFG_REGRESSION] != 0.0
     mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
     every = n_area <= ALL_LIGHTS_MAX  # every light gets every texel light sample
@@ -1149,18 +1200,23 @@ def _native_pass(
             if dx * ngx + dy * ngy + dz * ngz > 0.0:
                 _set_row(rays, m, qx, qy, qz, dx, dy, dz, np.inf)
                 _set_row(ps, m, qx, qy, qz, dx, dy, dz, 1.0)
-                ps[m, 7] = ps[m, 8] = 1.0
-                ps[m, 9] = (1.0 + 2.0 * lz) * _INV_4PI
-                ps[m, 10] = sel_area
-                ps[m, 11] = 0.0
-                ps[m, 12] = k
+                ps[m, PATH_BETA + 1] = ps[m, PATH_BETA + 2] = 1.0
+                ps[m, PATH_PDF] = (1.0 + 2.0 * lz) * _INV_4PI
+                ps[m, PATH_SEL] = sel_area
+                ps[m, PATH_DEPTH] = 0.0
+                ps[m, PATH_SAMPLE] = k
                 m += 1
         n_back = 0
         if m:
             traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, m, hits)
             for j in range(m):
-                if hits[j, 1] >= 0.0:
-                    if ps[j, 3] * hits[j, 4] + ps[j, 4] * hits[j, 5] + ps[j, 5] * hits[j, 6] > 0:
+                if hits[j, HIT_TRI] >= 0.0:
+                    if (
+                        ps[j, PATH_D] * hits[j, HIT_NG]
+                        + ps[j, PATH_D + 1] * hits[j, HIT_NG + 1]
+                        + ps[j, PATH_D + 2] * hits[j, HIT_NG + 2]
+                        > 0
+                    ):
                         n_back += 1
             traced += _paths(
                 scene, pk, rec, tb, lt, lists, cfg, st, m, ps, rays, hits, srays, sval, sidx,

@@ -34,6 +34,15 @@ from embreex.mesh_construction import TriangleMesh
 from numba import njit
 
 from usdahd.bake import embree_native
+from usdahd.bake.kernels.layout import (
+    MAT_ALBEDO,
+    MAT_OPACITY,
+    MAT_THRESHOLD,
+    TEX_ALBEDO,
+    TEX_EMISSION,
+    TEX_OPACITY,
+    NativeTables,
+)
 
 #: Re-traces through cut-out/transmissive surfaces before a ray is considered blocked.
 MAX_TRANSMIT = 8
@@ -330,13 +339,8 @@ class Tracer:
     def native_tables(self):
         """Per-triangle, material and texture tables for the numba kernels (cached).
 
-        returns a tuple (read by :func:`nb_albedo`, :func:`nb_trace` and friends):
-        ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f32,
-        ``tri_material`` (T,) i32 (narrow: read once per hit, where cache misses dominate),
-        ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64 (albedo rgb, emission rgb,
-        opacity, threshold), ``mat_tex`` (M,3) i64 texture index of
-        albedo/emission/opacity (-1: constant), ``tex_data`` (D,) f32 texels, ``tex_info``
-        (K,8) i64, ``tex_chan`` (K,4) i64, ``tex_sb`` (K,8) f64 (see :func:`pack_textures`).
+        returns a :class:`usdahd.bake.kernels.layout.NativeTables` (read by :func:`nb_albedo`,
+        :func:`nb_trace` and friends; fields and shapes there).
         """
         if self._tables is not None:
             return self._tables
@@ -354,7 +358,7 @@ class Tracer:
                 if tex is not None:
                     mat_tex[i, j] = len(textures)
                     textures.append(tex)
-        self._tables = (
+        self._tables = NativeTables(
             np.ascontiguousarray(self.verts, np.float64),
             self.geom_normal.astype(np.float64),
             np.ascontiguousarray(self.corner_normal, np.float32),
@@ -362,7 +366,8 @@ class Tracer:
             self.tri_texcoord.astype(np.float64),
             mat_const,
             mat_tex,
-        ) + pack_textures(textures)
+            *pack_textures(textures),
+        )
         return self._tables
 
     @property
@@ -405,7 +410,7 @@ def pack_textures(textures):
 
 # ----------------------------------------------------------------------------- numba side
 # Scalar per-ray versions of the methods above for the fused integrator kernel; ``tb`` is the
-# tuple returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.
+# NativeTables returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.
 
 _U64 = np.uint64
 
@@ -453,7 +458,7 @@ def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
 def nb_texture(tb, k, s, t):
     """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
     scale/bias, missing channels padded as :meth:`usdahd.scene.types.Texture.sample`)."""
-    data, info, chan, sb = tb[7], tb[8], tb[9], tb[10]
+    data, info, chan, sb = tb.tex_data, tb.tex_info, tb.tex_chan, tb.tex_sb
     off, h, w, c = info[k, 0], info[k, 1], info[k, 2], info[k, 3]
     x = s * w - 0.5
     y = (1.0 - t) * h - 0.5
@@ -486,7 +491,7 @@ def nb_texture(tb, k, s, t):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _uv(tb, tri, u, v):
-    tc = tb[4]
+    tc = tb.tri_texcoord
     w0 = 1.0 - u - v
     return (
         w0 * tc[tri, 0, 0] + u * tc[tri, 1, 0] + v * tc[tri, 2, 0],
@@ -496,11 +501,13 @@ def _uv(tb, tri, u, v):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _material_rgb(tb, tri, u, v, which):
-    m = tb[3][tri]
-    k = tb[6][m, which]
-    mc = tb[5]
+    # which: TEX_ALBEDO or TEX_EMISSION; its constant rgb starts at column 3 * which
+    m = tb.tri_material[tri]
+    k = tb.mat_tex[m, which]
+    mc = tb.mat_const
     if k < 0:
-        return mc[m, 3 * which], mc[m, 3 * which + 1], mc[m, 3 * which + 2]
+        c0 = MAT_ALBEDO + 3 * which
+        return mc[m, c0], mc[m, c0 + 1], mc[m, c0 + 2]
     s, t = _uv(tb, tri, u, v)
     val, nch = nb_texture(tb, k, s, t)
     if nch == 1:
@@ -511,29 +518,29 @@ def _material_rgb(tb, tri, u, v, which):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
-    r, g, b = _material_rgb(tb, tri, u, v, np.int64(0))
+    r, g, b = _material_rgb(tb, tri, u, v, np.int64(TEX_ALBEDO))
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
-    return _material_rgb(tb, tri, u, v, np.int64(1))
+    return _material_rgb(tb, tri, u, v, np.int64(TEX_EMISSION))
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_transmits(tb, tri, u, v, st):
     """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
-    m = tb[3][tri]
-    mc = tb[5]
-    k = tb[6][m, 2]
-    op = mc[m, 6]
+    m = tb.tri_material[tri]
+    mc = tb.mat_const
+    k = tb.mat_tex[m, TEX_OPACITY]
+    op = mc[m, MAT_OPACITY]
     if k >= 0:
         s, t = _uv(tb, tri, u, v)
         op = nb_texture(tb, k, s, t)[0][0]
     elif op >= 1.0:
         return False
-    th = np.float32(mc[m, 7])
+    th = np.float32(mc[m, MAT_THRESHOLD])
     op = np.float32(op)
     if th > 0:
         return op < th
@@ -544,7 +551,7 @@ def nb_transmits(tb, tri, u, v, st):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_hit_point(tb, tri, u, v):
-    w = tb[0]
+    w = tb.verts
     w0 = 1.0 - u - v
     return (
         w0 * w[tri, 0, 0] + u * w[tri, 1, 0] + v * w[tri, 2, 0],
@@ -555,7 +562,7 @@ def nb_hit_point(tb, tri, u, v):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_shading_normal(tb, tri, u, v):
-    cn = tb[2]
+    cn = tb.corner_normal
     w0 = 1.0 - u - v
     nx = w0 * cn[tri, 0, 0] + u * cn[tri, 1, 0] + v * cn[tri, 2, 0]
     ny = w0 * cn[tri, 0, 1] + u * cn[tri, 1, 1] + v * cn[tri, 2, 1]
@@ -563,7 +570,7 @@ def nb_shading_normal(tb, tri, u, v):
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)
     if ln > 1e-12:
         return nx / ln, ny / ln, nz / ln
-    g = tb[1]
+    g = tb.geom_normal
     return g[tri, 0], g[tri, 1], g[tri, 2]
 
 
@@ -587,7 +594,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
         if tri < 0 or not nb_transmits(tb, tri, u, v, st):
             break
         px, py, pz = nb_hit_point(tb, tri, np.float32(u), np.float32(v))
-        g = tb[1]
+        g = tb.geom_normal
         qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
         done = travelled + t
         t2, tri, u2, v2 = embree_native.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)

@@ -25,6 +25,7 @@ KERNEL_SOURCES = tuple(
         ("bake", "embree_native.py"),
         ("bake", "trace.py"),
         ("bake", "kernels", "cache.py"),
+        ("bake", "kernels", "layout.py"),
         ("bake", "kernels", "lights.py"),
         ("bake", "integrate.py"),
         ("numerics", "sampling.py"),

@@ -15,6 +15,45 @@ import numpy as np
 from numba import njit
 
 from usdahd.bake.kernels import cache  # noqa: F401  (numba cache locators, before any @njit)
+from usdahd.bake.kernels.layout import (
+    KIND_CYLINDER,
+    KIND_DISK,
+    KIND_DISTANT,
+    KIND_DOME,
+    KIND_EMISSIVE,
+    KIND_POINT,
+    KIND_RECT,
+    KIND_SPHERE,
+    N_PAR,
+    PAR_AREA,
+    PAR_AXIS,
+    PAR_CENTER,
+    PAR_COS_MAX,
+    PAR_CYL_E1,
+    PAR_CYL_E2,
+    PAR_DIRECTION,
+    PAR_DOME_H,
+    PAR_DOME_INV_ROT,
+    PAR_DOME_PIX,
+    PAR_DOME_PMF,
+    PAR_DOME_ROT,
+    PAR_DOME_TEXTURED,
+    PAR_DOME_W,
+    PAR_EM_COUNT,
+    PAR_EM_PDF_AREA,
+    PAR_EM_TABLE,
+    PAR_EM_TRI,
+    PAR_EX,
+    PAR_EY,
+    PAR_GINV,
+    PAR_HALF_LENGTH,
+    PAR_NORMAL,
+    PAR_OMC,
+    PAR_PLANE_N,
+    PAR_RADIANCE,
+    PAR_RADIUS,
+    PAR_RECT_ORTHO,
+)
 from usdahd.numerics.sampling import SPHERICAL_RECT_MAX_SR, SPHERICAL_RECT_MIN_SR
 from usdahd.scene.lights import (
     CylinderLight,
@@ -29,26 +68,8 @@ from usdahd.scene.lights import (
 
 # ----------------------------------------------------------------------------- native tables
 # The same lights as flat arrays for the numba integrator (usdahd.bake.integrate), one scalar
-# routine per operation below mirroring the numpy methods above line by line.
-
-KIND_SPHERE, KIND_POINT, KIND_RECT, KIND_DISK, KIND_CYLINDER, KIND_DISTANT, KIND_DOME = range(7)
-KIND_EMISSIVE = 7
-#: Parameters per light (float64). Common: [0:3] radiance. Per kind:
-#: sphere/point: [3:6] centre, [15] radius.  rect/disk: [3:6] centre, [6:9] ex, [9:12] ey,
-#: [12:15] normal, [16] area, [17:21] inverse Gram (row major), [21:24] plane normal;
-#: rect only: [24] 1 when its edges are orthogonal (solid-angle sampling allowed).
-#: cylinder: [3:6] centre, [6:9] axis, [15] radius, [16] area, [18] half length, [21:24] e1,
-#: [24:27] e2.  distant: [6:9] direction, [19] 1 - cos(half angle), [20] cos(half angle).
-#: dome: [25] textured (0/1), [26] pmf offset, [27] pixel offset, [28:37] rotation,
-#: [37:46] inverse rotation, [46] height, [47] width.
-#: emissive triangles: the PAR_EM_* slots below (blocks of ``pmf``/``cdf``, sampled by
-#: ``integrate._nee_sample``, which also has the triangle tables).
-N_PAR = 48
-#: emissive triangles: offset of the per-emitter pmf/cdf block (E entries), offset of the
-#: global-triangle ``pdf_area`` block (T entries, in ``pmf``), offset of the global triangle ids
-#: (E entries, float64 in ``pmf``), E.
-PAR_EM_TABLE, PAR_EM_PDF_AREA, PAR_EM_TRI, PAR_EM_COUNT = 26, 27, 28, 29
-PAR_RECT_ORTHO = 24
+# routine per operation below mirroring the numpy methods of usdahd.scene.lights line by line.
+# The slots of ``par`` are named in usdahd.bake.kernels.layout (PAR_*).
 
 
 @dataclass
@@ -76,40 +97,45 @@ def pack_lights(lights) -> LightTable:
     pix = 1
     for i, lt in enumerate(lights):
         p = par[i]
-        p[0:3] = lt.radiance
+        p[PAR_RADIANCE : PAR_RADIANCE + 3] = lt.radiance
         if isinstance(lt, PointLight):
             kind[i] = KIND_POINT
-            p[3:6] = lt.center
+            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
         elif isinstance(lt, SphereLight):
             kind[i] = KIND_SPHERE
-            p[3:6] = lt.center
-            p[15] = lt.radius
+            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
+            p[PAR_RADIUS] = lt.radius
         elif isinstance(lt, _PlanarLight):
             kind[i] = KIND_RECT if isinstance(lt, RectLight) else KIND_DISK
-            p[3:6], p[6:9], p[9:12], p[12:15] = lt.center, lt.ex, lt.ey, lt.normal
-            p[16] = lt.area
-            p[17:21] = lt._ginv.reshape(-1)
-            p[21:24] = lt._pn
+            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
+            p[PAR_EX : PAR_EX + 3] = lt.ex
+            p[PAR_EY : PAR_EY + 3] = lt.ey
+            p[PAR_NORMAL : PAR_NORMAL + 3] = lt.normal
+            p[PAR_AREA] = lt.area
+            p[PAR_GINV : PAR_GINV + 4] = lt._ginv.reshape(-1)
+            p[PAR_PLANE_N : PAR_PLANE_N + 3] = lt._pn
             if isinstance(lt, RectLight):
                 p[PAR_RECT_ORTHO] = 1.0 if lt.orthogonal else 0.0
         elif isinstance(lt, CylinderLight):
             kind[i] = KIND_CYLINDER
-            p[3:6], p[6:9] = lt.center, lt.axis
-            p[15], p[16], p[18] = lt.radius, lt.area, lt.half_length
-            p[21:24], p[24:27] = lt._e1, lt._e2
+            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
+            p[PAR_AXIS : PAR_AXIS + 3] = lt.axis
+            p[PAR_RADIUS], p[PAR_AREA], p[PAR_HALF_LENGTH] = lt.radius, lt.area, lt.half_length
+            p[PAR_CYL_E1 : PAR_CYL_E1 + 3] = lt._e1
+            p[PAR_CYL_E2 : PAR_CYL_E2 + 3] = lt._e2
         elif isinstance(lt, DistantLight):
             kind[i] = KIND_DISTANT
-            p[6:9] = lt.direction
-            p[19], p[20] = lt._omc, lt._cos_max
+            p[PAR_DIRECTION : PAR_DIRECTION + 3] = lt.direction
+            p[PAR_OMC], p[PAR_COS_MAX] = lt._omc, lt._cos_max
         elif isinstance(lt, DomeLight):
             kind[i] = KIND_DOME
-            p[28:37] = np.asarray(lt.rotation, np.float64).reshape(-1)
+            p[PAR_DOME_ROT : PAR_DOME_ROT + 9] = np.asarray(lt.rotation, np.float64).reshape(-1)
             if lt.image is not None:
                 h, w = lt._img.shape[:2]
-                p[25] = 1.0
-                p[26] = p[27] = pix
-                p[37:46] = lt._inv_rot.reshape(-1)
-                p[46], p[47] = h, w
+                p[PAR_DOME_TEXTURED] = 1.0
+                p[PAR_DOME_PMF] = p[PAR_DOME_PIX] = pix
+                p[PAR_DOME_INV_ROT : PAR_DOME_INV_ROT + 9] = lt._inv_rot.reshape(-1)
+                p[PAR_DOME_H], p[PAR_DOME_W] = h, w
                 imgs.append(lt._img[..., :3].reshape(-1, 3))
                 pmfs.append(lt._pmf)
                 cdfs.append(lt._cdf)
@@ -171,9 +197,9 @@ def _cone(ax, ay, az, omc, u0, u1):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
-    cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
+    cx, cy, cz = ox - p[PAR_CENTER], oy - p[PAR_CENTER + 1], oz - p[PAR_CENTER + 2]
     b = cx * dx + cy * dy + cz * dz
-    c = cx * cx + cy * cy + cz * cz - p[15] * p[15]
+    c = cx * cx + cy * cy + cz * cz - p[PAR_RADIUS] * p[PAR_RADIUS]
     disc = b * b - c
     if disc >= 0.0 and c > 0.0:
         t = -b - np.sqrt(disc)
@@ -184,9 +210,9 @@ def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _sphere_omc(p, x, y, z):
-    wx, wy, wz = p[3] - x, p[4] - y, p[5] - z
+    wx, wy, wz = p[PAR_CENTER] - x, p[PAR_CENTER + 1] - y, p[PAR_CENTER + 2] - z
     d2 = wx * wx + wy * wy + wz * wz
-    r2 = p[15] * p[15]
+    r2 = p[PAR_RADIUS] * p[PAR_RADIUS]
     outside = d2 > r2
     sin2 = r2 / d2 if outside else 1.0
     cos_max = np.sqrt(max(1.0 - sin2, 0.0))
@@ -195,38 +221,46 @@ def _sphere_omc(p, x, y, z):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
-    ax, ay, az = p[6], p[7], p[8]
-    cx, cy, cz = ox - p[3], oy - p[4], oz - p[5]
+    ax, ay, az = p[PAR_AXIS], p[PAR_AXIS + 1], p[PAR_AXIS + 2]
+    cx, cy, cz = ox - p[PAR_CENTER], oy - p[PAR_CENTER + 1], oz - p[PAR_CENTER + 2]
     oa = cx * ax + cy * ay + cz * az
     da = dx * ax + dy * ay + dz * az
     opx, opy, opz = cx - oa * ax, cy - oa * ay, cz - oa * az
     dpx, dpy, dpz = dx - da * ax, dy - da * ay, dz - da * az
     a = dpx * dpx + dpy * dpy + dpz * dpz
     b = opx * dpx + opy * dpy + opz * dpz
-    c = opx * opx + opy * opy + opz * opz - p[15] * p[15]
+    c = opx * opx + opy * opy + opz * opz - p[PAR_RADIUS] * p[PAR_RADIUS]
     disc = b * b - a * c
     if not (a > 1e-18 and disc >= 0.0 and c > 0.0):
         return False, _INF, 0.0, 0.0, 0.0
     t = (-b - np.sqrt(disc)) / a
     hx, hy, hz = cx + t * dx, cy + t * dy, cz + t * dz
     x = hx * ax + hy * ay + hz * az
-    if not (t > 0.0 and abs(x) <= p[18]):
+    if not (t > 0.0 and abs(x) <= p[PAR_HALF_LENGTH]):
         return False, _INF, 0.0, 0.0, 0.0
     return True, t, hx - x * ax, hy - x * ay, hz - x * az
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
-    den = dx * p[21] + dy * p[22] + dz * p[23]
+    den = dx * p[PAR_PLANE_N] + dy * p[PAR_PLANE_N + 1] + dz * p[PAR_PLANE_N + 2]
     if abs(den) <= 1e-12:
         return False, _INF
-    t = ((p[3] - ox) * p[21] + (p[4] - oy) * p[22] + (p[5] - oz) * p[23]) / den
-    qx, qy, qz = ox + t * dx - p[3], oy + t * dy - p[4], oz + t * dz - p[5]
-    r0 = qx * p[6] + qy * p[7] + qz * p[8]
-    r1 = qx * p[9] + qy * p[10] + qz * p[11]
-    a = p[17] * r0 + p[18] * r1
-    b = p[19] * r0 + p[20] * r1
-    front = -(dx * p[12] + dy * p[13] + dz * p[14]) > 0.0
+    t = (
+        (p[PAR_CENTER] - ox) * p[PAR_PLANE_N]
+        + (p[PAR_CENTER + 1] - oy) * p[PAR_PLANE_N + 1]
+        + (p[PAR_CENTER + 2] - oz) * p[PAR_PLANE_N + 2]
+    ) / den
+    qx, qy, qz = (
+        ox + t * dx - p[PAR_CENTER],
+        oy + t * dy - p[PAR_CENTER + 1],
+        oz + t * dz - p[PAR_CENTER + 2],
+    )
+    r0 = qx * p[PAR_EX] + qy * p[PAR_EX + 1] + qz * p[PAR_EX + 2]
+    r1 = qx * p[PAR_EY] + qy * p[PAR_EY + 1] + qz * p[PAR_EY + 2]
+    a = p[PAR_GINV] * r0 + p[PAR_GINV + 1] * r1
+    b = p[PAR_GINV + 2] * r0 + p[PAR_GINV + 3] * r1
+    front = -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2]) > 0.0
     if kind == KIND_RECT:
         inside = abs(a) <= 1.0 and abs(b) <= 1.0
     else:
@@ -257,14 +291,18 @@ def _sph_rect(p, ox, oy, oz, sample, u0, u1):
     """``sampling.spherical_rectangle`` for one point and a rect light's parameters ``p``.
 
     returns (solid angle, qx, qy, qz): the sampled point on the rectangle when ``sample``."""
-    exl = 2.0 * np.sqrt(p[6] * p[6] + p[7] * p[7] + p[8] * p[8])
-    eyl = 2.0 * np.sqrt(p[9] * p[9] + p[10] * p[10] + p[11] * p[11])
-    xx, xy, xz = 2.0 * p[6] / exl, 2.0 * p[7] / exl, 2.0 * p[8] / exl
-    yx, yy, yz = 2.0 * p[9] / eyl, 2.0 * p[10] / eyl, 2.0 * p[11] / eyl
+    exl = 2.0 * np.sqrt(
+        p[PAR_EX] * p[PAR_EX] + p[PAR_EX + 1] * p[PAR_EX + 1] + p[PAR_EX + 2] * p[PAR_EX + 2]
+    )
+    eyl = 2.0 * np.sqrt(
+        p[PAR_EY] * p[PAR_EY] + p[PAR_EY + 1] * p[PAR_EY + 1] + p[PAR_EY + 2] * p[PAR_EY + 2]
+    )
+    xx, xy, xz = 2.0 * p[PAR_EX] / exl, 2.0 * p[PAR_EX + 1] / exl, 2.0 * p[PAR_EX + 2] / exl
+    yx, yy, yz = 2.0 * p[PAR_EY] / eyl, 2.0 * p[PAR_EY + 1] / eyl, 2.0 * p[PAR_EY + 2] / eyl
     zx, zy, zz = xy * yz - xz * yy, xz * yx - xx * yz, xx * yy - xy * yx
-    cx = p[3] - p[6] - p[9] - ox
-    cy = p[4] - p[7] - p[10] - oy
-    cz = p[5] - p[8] - p[11] - oz
+    cx = p[PAR_CENTER] - p[PAR_EX] - p[PAR_EY] - ox
+    cy = p[PAR_CENTER + 1] - p[PAR_EX + 1] - p[PAR_EY + 1] - oy
+    cz = p[PAR_CENTER + 2] - p[PAR_EX + 2] - p[PAR_EY + 2] - oz
     x0 = cx * xx + cy * xy + cz * xz
     y0 = cx * yx + cy * yy + cz * yz
     z0 = cx * zx + cy * zy + cz * zz
@@ -312,10 +350,12 @@ def _rect_candidate(p, ox, oy, oz):
     """``RectLight._solid``'s first test: the solid angle estimated from the centre is large."""
     if p[PAR_RECT_ORTHO] == 0.0:
         return False
-    wx, wy, wz = ox - p[3], oy - p[4], oz - p[5]
+    wx, wy, wz = ox - p[PAR_CENTER], oy - p[PAR_CENTER + 1], oz - p[PAR_CENTER + 2]
     d2 = wx * wx + wy * wy + wz * wz
-    cos_l = (wx * p[12] + wy * p[13] + wz * p[14]) / np.sqrt(max(d2, 1e-300))
-    return p[16] * max(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2
+    cos_l = (wx * p[PAR_NORMAL] + wy * p[PAR_NORMAL + 1] + wz * p[PAR_NORMAL + 2]) / np.sqrt(
+        max(d2, 1e-300)
+    )
+    return p[PAR_AREA] * max(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -331,12 +371,12 @@ def _rect_solid(p, ox, oy, oz):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _dome_lookup(p, dx, dy, dz):
-    lx = p[37] * dx + p[38] * dy + p[39] * dz
-    ly = p[40] * dx + p[41] * dy + p[42] * dz
-    lz = p[43] * dx + p[44] * dy + p[45] * dz
+    lx = p[PAR_DOME_INV_ROT] * dx + p[PAR_DOME_INV_ROT + 1] * dy + p[PAR_DOME_INV_ROT + 2] * dz
+    ly = p[PAR_DOME_INV_ROT + 3] * dx + p[PAR_DOME_INV_ROT + 4] * dy + p[PAR_DOME_INV_ROT + 5] * dz
+    lz = p[PAR_DOME_INV_ROT + 6] * dx + p[PAR_DOME_INV_ROT + 7] * dy + p[PAR_DOME_INV_ROT + 8] * dz
     ln = max(np.sqrt(lx * lx + ly * ly + lz * lz), 1e-300)
     lx, ly, lz = lx / ln, ly / ln, lz / ln
-    h, w = int(p[46]), int(p[47])
+    h, w = int(p[PAR_DOME_H]), int(p[PAR_DOME_W])
     lat = np.arcsin(min(max(ly, -1.0), 1.0))
     lon = np.arctan2(lx, lz)
     x = min(max(int((np.pi - lon) / TWO_PI * w), 0), w - 1)
@@ -348,11 +388,20 @@ def _dome_lookup(p, dx, dy, dz):
 def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
     if kind == KIND_POINT:
-        wx, wy, wz = p[3] - x, p[4] - y, p[5] - z
+        wx, wy, wz = p[PAR_CENTER] - x, p[PAR_CENTER + 1] - y, p[PAR_CENTER + 2] - z
         dist = np.sqrt(wx * wx + wy * wy + wz * wz)
         inv = 1.0 / max(dist, 1e-300)
         s = 1.0 / max(dist * dist, 1e-300)
-        return wx * inv, wy * inv, wz * inv, dist, p[0] * s, p[1] * s, p[2] * s, 1.0
+        return (
+            wx * inv,
+            wy * inv,
+            wz * inv,
+            dist,
+            p[PAR_RADIANCE] * s,
+            p[PAR_RADIANCE + 1] * s,
+            p[PAR_RADIANCE + 2] * s,
+            1.0,
+        )
     if kind == KIND_SPHERE:
         wx, wy, wz, d2, outside, omc = _sphere_omc(p, x, y, z)
         inv = 1.0 / np.sqrt(max(d2, 1e-300))
@@ -361,7 +410,16 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         if not np.isfinite(t):
             t = np.sqrt(d2)
         if outside:
-            return dx, dy, dz, t, p[0], p[1], p[2], 1.0 / (TWO_PI * max(omc, 1e-300))
+            return (
+                dx,
+                dy,
+                dz,
+                t,
+                p[PAR_RADIANCE],
+                p[PAR_RADIANCE + 1],
+                p[PAR_RADIANCE + 2],
+                1.0 / (TWO_PI * max(omc, 1e-300)),
+            )
         return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_RECT and _rect_candidate(p, x, y, z):
         sr, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)  # one set-up: test, then sample
@@ -370,8 +428,17 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
             dist = np.sqrt(wx * wx + wy * wy + wz * wz)
             inv = 1.0 / max(dist, 1e-300)
             dx, dy, dz = wx * inv, wy * inv, wz * inv
-            if -(dx * p[12] + dy * p[13] + dz * p[14]) > 0.0:
-                return dx, dy, dz, dist, p[0], p[1], p[2], 1.0 / sr
+            if -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2]) > 0.0:
+                return (
+                    dx,
+                    dy,
+                    dz,
+                    dist,
+                    p[PAR_RADIANCE],
+                    p[PAR_RADIANCE + 1],
+                    p[PAR_RADIANCE + 2],
+                    1.0 / sr,
+                )
             return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_RECT or kind == KIND_DISK:
         if kind == KIND_RECT:
@@ -385,39 +452,81 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
                 r = b0
                 th = (np.pi / 2) - (np.pi / 4) * (a0 / (1.0 if b0 == 0 else b0))
             a, b = r * np.cos(th), r * np.sin(th)
-        wx = p[3] + a * p[6] + b * p[9] - x
-        wy = p[4] + a * p[7] + b * p[10] - y
-        wz = p[5] + a * p[8] + b * p[11] - z
+        wx = p[PAR_CENTER] + a * p[PAR_EX] + b * p[PAR_EY] - x
+        wy = p[PAR_CENTER + 1] + a * p[PAR_EX + 1] + b * p[PAR_EY + 1] - y
+        wz = p[PAR_CENTER + 2] + a * p[PAR_EX + 2] + b * p[PAR_EY + 2] - z
         dist = np.sqrt(wx * wx + wy * wy + wz * wz)
         inv = 1.0 / max(dist, 1e-300)
         dx, dy, dz = wx * inv, wy * inv, wz * inv
-        cos_l = -(dx * p[12] + dy * p[13] + dz * p[14])
+        cos_l = -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2])
         if cos_l > 0.0:
-            return dx, dy, dz, dist, p[0], p[1], p[2], dist * dist / (p[16] * cos_l)
+            return (
+                dx,
+                dy,
+                dz,
+                dist,
+                p[PAR_RADIANCE],
+                p[PAR_RADIANCE + 1],
+                p[PAR_RADIANCE + 2],
+                dist * dist / (p[PAR_AREA] * cos_l),
+            )
         return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_CYLINDER:
-        xx = (2.0 * u0 - 1.0) * p[18]
+        xx = (2.0 * u0 - 1.0) * p[PAR_HALF_LENGTH]
         phi = TWO_PI * u1
         c, s = np.cos(phi), np.sin(phi)
-        rx, ry, rz = c * p[21] + s * p[24], c * p[22] + s * p[25], c * p[23] + s * p[26]
-        wx = p[3] + xx * p[6] + p[15] * rx - x
-        wy = p[4] + xx * p[7] + p[15] * ry - y
-        wz = p[5] + xx * p[8] + p[15] * rz - z
+        rx, ry, rz = (
+            c * p[PAR_CYL_E1] + s * p[PAR_CYL_E2],
+            c * p[PAR_CYL_E1 + 1] + s * p[PAR_CYL_E2 + 1],
+            c * p[PAR_CYL_E1 + 2] + s * p[PAR_CYL_E2 + 2],
+        )
+        wx = p[PAR_CENTER] + xx * p[PAR_AXIS] + p[PAR_RADIUS] * rx - x
+        wy = p[PAR_CENTER + 1] + xx * p[PAR_AXIS + 1] + p[PAR_RADIUS] * ry - y
+        wz = p[PAR_CENTER + 2] + xx * p[PAR_AXIS + 2] + p[PAR_RADIUS] * rz - z
         dist = np.sqrt(wx * wx + wy * wy + wz * wz)
         inv = 1.0 / max(dist, 1e-300)
         dx, dy, dz = wx * inv, wy * inv, wz * inv
         cos_l = -(dx * rx + dy * ry + dz * rz)
         if cos_l > 0.0:
-            return dx, dy, dz, dist, p[0], p[1], p[2], dist * dist / (p[16] * cos_l)
+            return (
+                dx,
+                dy,
+                dz,
+                dist,
+                p[PAR_RADIANCE],
+                p[PAR_RADIANCE + 1],
+                p[PAR_RADIANCE + 2],
+                dist * dist / (p[PAR_AREA] * cos_l),
+            )
         return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_DISTANT:
-        if p[19] <= 0.0:
-            return p[6], p[7], p[8], _INF, p[0], p[1], p[2], 1.0
-        dx, dy, dz = _cone(p[6], p[7], p[8], p[19], u0, u1)
-        return dx, dy, dz, _INF, p[0], p[1], p[2], 1.0 / (TWO_PI * p[19])
+        if p[PAR_OMC] <= 0.0:
+            return (
+                p[PAR_DIRECTION],
+                p[PAR_DIRECTION + 1],
+                p[PAR_DIRECTION + 2],
+                _INF,
+                p[PAR_RADIANCE],
+                p[PAR_RADIANCE + 1],
+                p[PAR_RADIANCE + 2],
+                1.0,
+            )
+        dx, dy, dz = _cone(
+            p[PAR_DIRECTION], p[PAR_DIRECTION + 1], p[PAR_DIRECTION + 2], p[PAR_OMC], u0, u1
+        )
+        return (
+            dx,
+            dy,
+            dz,
+            _INF,
+            p[PAR_RADIANCE],
+            p[PAR_RADIANCE + 1],
+            p[PAR_RADIANCE + 2],
+            1.0 / (TWO_PI * p[PAR_OMC]),
+        )
     # textured dome (uniform domes are never sampled)
-    h, w = int(p[46]), int(p[47])
-    base = int(p[26])
+    h, w = int(p[PAR_DOME_H]), int(p[PAR_DOME_W])
+    base = int(p[PAR_DOME_PMF])
     lo_i, hi_i = 0, h * w
     while lo_i < hi_i:  # searchsorted(cdf, u0, side="right")
         mid = (lo_i + hi_i) // 2
@@ -433,14 +542,23 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     lon = np.pi - TWO_PI * (xx + u1) / w
     lat = 0.5 * np.pi - theta
     lx, ly, lz = np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)
-    dx = p[28] * lx + p[29] * ly + p[30] * lz
-    dy = p[31] * lx + p[32] * ly + p[33] * lz
-    dz = p[34] * lx + p[35] * ly + p[36] * lz
+    dx = p[PAR_DOME_ROT] * lx + p[PAR_DOME_ROT + 1] * ly + p[PAR_DOME_ROT + 2] * lz
+    dy = p[PAR_DOME_ROT + 3] * lx + p[PAR_DOME_ROT + 4] * ly + p[PAR_DOME_ROT + 5] * lz
+    dz = p[PAR_DOME_ROT + 6] * lx + p[PAR_DOME_ROT + 7] * ly + p[PAR_DOME_ROT + 8] * lz
     ln = np.sqrt(dx * dx + dy * dy + dz * dz)
     dx, dy, dz = dx / ln, dy / ln, dz / ln
     pdf = pmf[base + idx] * (h * w) / (2.0 * np.pi * np.pi * max(np.sin(theta), 1e-12))
-    q = int(p[27]) + idx
-    return dx, dy, dz, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2], pdf
+    q = int(p[PAR_DOME_PIX]) + idx
+    return (
+        dx,
+        dy,
+        dz,
+        _INF,
+        img[q, 0] * p[PAR_RADIANCE],
+        img[q, 1] * p[PAR_RADIANCE + 1],
+        img[q, 2] * p[PAR_RADIANCE + 2],
+        pdf,
+    )
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -449,28 +567,38 @@ def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     if kind == KIND_SPHERE:
         t = _sphere_hit_t(p, ox, oy, oz, dx, dy, dz)
         if np.isfinite(t):
-            return True, t, p[0], p[1], p[2]
+            return True, t, p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
         return False, _INF, 0.0, 0.0, 0.0
     if kind == KIND_RECT or kind == KIND_DISK:
         hit, t = _planar_hit(kind, p, ox, oy, oz, dx, dy, dz)
         if hit:
-            return True, t, p[0], p[1], p[2]
+            return True, t, p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
         return False, _INF, 0.0, 0.0, 0.0
     if kind == KIND_CYLINDER:
         hit, t, _, _, _ = _cyl_hit(p, ox, oy, oz, dx, dy, dz)
         if hit:
-            return True, t, p[0], p[1], p[2]
+            return True, t, p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
         return False, _INF, 0.0, 0.0, 0.0
     if kind == KIND_DISTANT:
-        if p[19] > 0.0 and dx * p[6] + dy * p[7] + dz * p[8] >= p[20]:
-            return True, _INF, p[0], p[1], p[2]
+        if (
+            p[PAR_OMC] > 0.0
+            and dx * p[PAR_DIRECTION] + dy * p[PAR_DIRECTION + 1] + dz * p[PAR_DIRECTION + 2]
+            >= p[PAR_COS_MAX]
+        ):
+            return True, _INF, p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
         return False, _INF, 0.0, 0.0, 0.0
     if kind == KIND_DOME:
-        if p[25] == 0.0:
-            return True, _INF, p[0], p[1], p[2]
+        if p[PAR_DOME_TEXTURED] == 0.0:
+            return True, _INF, p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
         x, y, _ = _dome_lookup(p, dx, dy, dz)
-        q = int(p[27]) + y * int(p[47]) + x
-        return True, _INF, img[q, 0] * p[0], img[q, 1] * p[1], img[q, 2] * p[2]
+        q = int(p[PAR_DOME_PIX]) + y * int(p[PAR_DOME_W]) + x
+        return (
+            True,
+            _INF,
+            img[q, 0] * p[PAR_RADIANCE],
+            img[q, 1] * p[PAR_RADIANCE + 1],
+            img[q, 2] * p[PAR_RADIANCE + 2],
+        )
     return False, _INF, 0.0, 0.0, 0.0
 
 
@@ -481,27 +609,35 @@ def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
         _, _, _, _, outside, omc = _sphere_omc(p, ox, oy, oz)
         return 1.0 / (TWO_PI * max(omc, 1e-300)) if outside else 0.0
     if kind == KIND_RECT or kind == KIND_DISK:
-        cos_l = -(dx * p[12] + dy * p[13] + dz * p[14])
+        cos_l = -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2])
         if cos_l > 0.0 and np.isfinite(t):
             if kind == KIND_RECT:
                 sr = _rect_solid(p, ox, oy, oz)
                 if sr > 0.0:
                     return 1.0 / sr
-            return t * t / (p[16] * cos_l)
+            return t * t / (p[PAR_AREA] * cos_l)
         return 0.0
     if kind == KIND_CYLINDER:
         hit, t2, rx, ry, rz = _cyl_hit(p, ox, oy, oz, dx, dy, dz)
-        cos_l = -(dx * rx + dy * ry + dz * rz) / p[15]
+        cos_l = -(dx * rx + dy * ry + dz * rz) / p[PAR_RADIUS]
         if hit and cos_l > 0.0:
-            return t2 * t2 / (p[16] * cos_l)
+            return t2 * t2 / (p[PAR_AREA] * cos_l)
         return 0.0
     if kind == KIND_DISTANT:
-        if p[19] > 0.0 and dx * p[6] + dy * p[7] + dz * p[8] >= p[20]:
-            return 1.0 / (TWO_PI * p[19])
+        if (
+            p[PAR_OMC] > 0.0
+            and dx * p[PAR_DIRECTION] + dy * p[PAR_DIRECTION + 1] + dz * p[PAR_DIRECTION + 2]
+            >= p[PAR_COS_MAX]
+        ):
+            return 1.0 / (TWO_PI * p[PAR_OMC])
         return 0.0
-    if kind == KIND_DOME and p[25] != 0.0:
+    if kind == KIND_DOME and p[PAR_DOME_TEXTURED] != 0.0:
         x, y, ly = _dome_lookup(p, dx, dy, dz)
-        h, w = int(p[46]), int(p[47])
+        h, w = int(p[PAR_DOME_H]), int(p[PAR_DOME_W])
         sin_t = np.sqrt(min(max(1.0 - ly * ly, 0.0), 1.0))
-        return pmf[int(p[26]) + y * w + x] * (h * w) / (2.0 * np.pi * np.pi * max(sin_t, 1e-12))
+        return (
+            pmf[int(p[PAR_DOME_PMF]) + y * w + x]
+            * (h * w)
+            / (2.0 * np.pi * np.pi * max(sin_t, 1e-12))
+        )
     return 0.0

@@ -385,12 +385,13 @@ def test_native_bake_deterministic_and_thread_independent():
 
 @pytest.mark.parametrize("regression", [False, True])
 def test_native_result_equals_numpy_result(regression):
-    """The per-texel 9x9 solve on the threads equals ``_Accum.result`` (float32 output)."""
-    from usdahd.bake.integrate import _Accum, _native_result
+    """The per-texel 9x9 solve on the threads equals ``Accum.result`` (float32 output)."""
+    from usdahd.bake.kernels.integrate import native_result
+    from usdahd.bake.reference import Accum
 
     rng = np.random.default_rng(4)
     n = 50
-    acc = _Accum(n)
+    acc = Accum(n)
     y = rng.normal(size=(n, 40, 9))
     acc.gram[:] = np.matmul(y.transpose(0, 2, 1), y)
     acc.hemi[:] = rng.normal(size=(n, 3, 9))
@@ -401,7 +402,7 @@ def test_native_result_equals_numpy_result(regression):
     ref, bf_ref = acc.result("regression" if regression else "mc")
     out = np.empty((n, 3, 9), np.float32)
     bf = np.empty(n, np.float32)
-    _native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
+    native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
                    regression, out, bf)  # fmt: skip
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
     np.testing.assert_array_equal(bf, bf_ref)
@@ -410,12 +411,12 @@ def test_native_result_equals_numpy_result(regression):
 def test_kernel_cache_tracks_every_inlined_source():
     """numba only re-validates a cached function against its own file; the fused kernel
     inlines code from several modules, so its cache stamp must cover all of them."""
-    from usdahd.bake import integrate
-    from usdahd.bake.kernels import cache
+    from usdahd.bake.kernels import cache, integrate
 
     if not cache.CACHE_TRACKS_ALL_SOURCES:
         pytest.skip("numba caching internals changed")
-    loc = integrate._native_pass._cache._impl.locator
+    loc = integrate.native_pass._cache._impl.locator
     assert isinstance(loc, cache._KernelStampMixin)
     names = {s[0] for s in loc.get_source_stamp()}
-    assert {"trace.py", "lights.py", "integrate.py", "embree_native.py"} <= names
+    assert {"trace.py", "lights.py", "integrate.py", "embree_native.py", "reference.py"} <= names
+    assert {"layout.py", "sampling.py", "sh.py"} <= names

@@ -27,7 +27,8 @@ KERNEL_SOURCES = tuple(
         ("bake", "kernels", "cache.py"),
         ("bake", "kernels", "layout.py"),
         ("bake", "kernels", "lights.py"),
-        ("bake", "integrate.py"),
+        ("bake", "kernels", "integrate.py"),
+        ("bake", "reference.py"),
         ("numerics", "sampling.py"),
         ("numerics", "sh.py"),
     )

@@ -142,5 +142,5 @@ PATH_O, PATH_D, PATH_BETA, PATH_PDF, PATH_SEL, PATH_DEPTH, PATH_SAMPLE = 0, 3, 6
 PATH_COLS = 13
 #: Columns of the hit rows ``hits`` (s, 7) f64 of :func:`usdahd.bake.embree_native
 #: .intersect_rays`: t, triangle (-1: miss), u, v, geometric normal (3). (Ray rows are origin,
-#: direction, tfar, written positionally by ``integrate._set_row``.)
+#: direction, tfar, written positionally by ``kernels.integrate._set_row``.)
 HIT_T, HIT_TRI, HIT_U, HIT_V, HIT_NG = 0, 1, 2, 3, 4

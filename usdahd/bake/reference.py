@@ -1,0 +1,421 @@
+"""The numpy reference path tracer (backend "embreex") and what it shares with the numba kernel.
+
+:class:`ReferenceCtx` is the estimator of :mod:`usdahd.bake.integrate` written with numpy
+wavefronts over batched tracer queries (``Tracer.intersect``/``occluded``), including UsdLux
+light linking; :mod:`usdahd.bake.kernels.integrate` is its numba port (per-texel, Embree called
+from numba). :class:`Accum` holds the per-texel sums both fill, and ``Accum.result`` is the
+numpy twin of ``kernels.integrate.native_result`` (tests/test_trace.py). The MIS weights
+(:func:`_w_light`/:func:`_w_bsdf`), :func:`_shadow` and the constants below have numba twins in
+the kernel (tests/test_kernel_parity.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from usdahd.numerics import sh as shmod
+from usdahd.numerics.sampling import (
+    cosine_hemisphere,
+    orthonormal_basis,
+    r2_sequence,
+    texel_hemisphere,
+    texel_hemisphere_pdf,
+    to_local,
+    to_world,
+)
+from usdahd.scene.lights import EmissiveTriangles
+
+#: Reflections before Russian roulette starts (bounces <= RR_DEPTH are never terminated).
+RR_DEPTH = 3
+#: Adaptive: floor of the convergence test, relative to the chunk's largest Iz.
+ADAPTIVE_FLOOR = 1e-3
+#: Shadow rays stop short of the light sample by this fraction (avoids hitting the emitter's
+#: own supporting geometry, e.g. a RectLight on an emissive quad).
+SHADOW_SHORTEN = 1e-4
+#: Surfaces a shadow ray of a shadow-linked light passes through (meshes its shadowLink
+#: collection excludes) at most; a ray still going after that counts as unoccluded.
+LINK_MAX_CROSSINGS = 32
+#: Up to this many sampled lights, every light gets every texel light sample (selection noise
+#: removed at m shadow rays per sample); beyond, each sample picks one light uniformly.
+ALL_LIGHTS_MAX = 8
+#: Offset of light j's copy of the texel's light-sample points (golden ratio conjugate, both
+#: coordinates), so the lights do not share one point pattern.
+LIGHT_SHIFT = 0.6180339887498949
+G_HEMI = shmod.hemispherical_gram()
+
+
+class LightGroups:
+    """Light lists split by how the integrator uses them. With a ``tracer`` whose scene has
+    emissive materials, its emissive triangles join as one more sampled light
+    (:class:`EmissiveTriangles`); rays reach them as geometry, not through ``visible``."""
+
+    def __init__(self, lights, tracer=None):
+        self.all = list(lights)
+        self.emissive = None
+        if tracer is not None and tracer.has_emission:
+            self.emissive = EmissiveTriangles.from_tracer(tracer)
+            if self.emissive is not None:
+                self.all.append(self.emissive)
+        self.delta = [lt for lt in self.all if lt.delta]
+        self.area = [lt for lt in self.all if not lt.delta and lt.sampled]  # MIS partners
+        self.hit_only = [lt for lt in self.all if not lt.delta and not lt.sampled]
+        self.nee = self.delta + self.area  # sampled at secondary vertices
+        # can be hit by BSDF rays (emitters are hit as geometry)
+        self.visible = [lt for lt in self.area + self.hit_only if lt is not self.emissive]
+
+
+class Accum:
+    """Per-texel running sums (so passes and estimators combine)."""
+
+    def __init__(self, n):
+        self.gram = np.zeros((n, 9, 9))  # sum Y Y^T / p over hemisphere samples
+        self.hemi = np.zeros((n, 3, 9))  # sum L Y / p over hemisphere samples
+        self.nee = np.zeros((n, 3, 9))  # sum of light-sample contributions
+        self.delta = np.zeros((n, 3, 9))  # exact delta-light terms (not divided by S)
+        self.count = np.zeros(n, np.int32)
+        self.back = np.zeros(n, np.int64)
+        self.y_sum = np.zeros(n)  # per-sample luminance Iz estimates (for adaptivity)
+        self.y_sq = np.zeros(n)
+
+    def converged(self, active, tol):
+        c = self.count[active].astype(np.float64)
+        mean = self.y_sum[active] / c
+        var = np.maximum(self.y_sq[active] / c - mean * mean, 0.0)
+        se = np.sqrt(var / c)
+        base = self.delta[active][:, :, 2] @ shmod.LUMINANCE * shmod.IZ_FROM_L10
+        level = np.abs(mean + base)
+        floor = ADAPTIVE_FLOOR * (level.max() if len(level) else 0.0)
+        return se <= tol * np.maximum(level, floor)
+
+    def result(self, estimator):
+        c = np.maximum(self.count, 1).astype(np.float64)
+        b = self.hemi / c[:, None, None]
+        if estimator == "regression":
+            g = self.gram / c[:, None, None]
+            ok = self.count >= 16
+            if np.any(ok):
+                x = np.linalg.solve(g[ok] + 1e-9 * np.eye(9), b[ok].transpose(0, 2, 1))
+                b[ok] = np.matmul(G_HEMI, x).transpose(0, 2, 1)
+        res = b + self.nee / c[:, None, None] + self.delta
+        return res.astype(np.float32), (self.back / c).astype(np.float32)
+
+
+class ReferenceCtx:
+    def __init__(self, scene, tracer, bounces, estimator, strategy="mis", mesh=None):
+        self.strategy = strategy
+        self.scene = scene
+        self.tr = tracer
+        self.bounces = bounces
+        self.lights = LightGroups(scene.lights, tracer)
+        # light linking (UsdLux collection:lightLink / shadowLink): per light, a bool mask over
+        # scene meshes of the receivers it lights and of the meshes that cast its shadows
+        # (None: every mesh); the texels' own mesh index receives as ``mesh``
+        nm = len(scene.meshes)
+        self.recv = {id(lt): _mesh_mask(getattr(lt, "lit_meshes", None), nm) for lt in scene.lights}
+        self.cast = {
+            id(lt): _mesh_mask(getattr(lt, "shadow_meshes", None), nm) for lt in scene.lights
+        }
+        self.texel_mesh = -1 if mesh is None else int(mesh)
+        self.texel_sel = _texel_selection(len(self.lights.area))
+        self.estimator = estimator
+        # rays per hemisphere sample, for the rays_saved estimate
+        self.rays_per_sample = 1 + (1 if self.lights.area else 0) + 3 * bounces
+
+    # ------------------------------------------------------------------ texel level
+    def direct_delta(self, P, NG, F, acc):
+        """Exact contribution of delta lights: one shadow ray per texel and light."""
+        for lt in self.lights.delta:
+            d, dist, val, _ = lt.sample(P, np.zeros((len(P), 2)))
+            loc = to_local(d, F)
+            ok = (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NG) > 0)
+            ok &= self._lit(lt, np.full(len(P), self.texel_mesh))
+            if not np.any(ok):
+                continue
+            idx = np.nonzero(ok)[0]
+            o = self.tr.offset(P[idx], NG[idx], d[idx])
+            occ = self._occluded(lt, o, *_shadow(o, P[idx], d[idx], dist[idx]))
+            idx = idx[~occ]
+            acc.delta[idx] += np.einsum("nc,nk->nck", val[idx], shmod.basis(loc[idx]))
+
+    def hemisphere_pass(self, P, NG, F, s, offset, rng, acc, active):
+        n = len(P)
+        u = np.mod(r2_sequence(s, offset)[None] + rng.random((n, 1, 2)), 1.0)  # (n,s,2)
+        loc, pdf_h = texel_hemisphere(u)  # (n,s,3), (n,s)
+        d = to_world(loc, F[:, None]).reshape(-1, 3)
+        loc = loc.reshape(-1, 3)
+        Pf = np.repeat(P, s, axis=0)
+        NGf = np.repeat(NG, s, axis=0)
+        above = np.einsum("ij,ij->i", d, NGf) > 0
+        radiance = np.zeros((n * s, 3))
+        back = np.zeros(n * s, bool)
+        idx = np.nonzero(above)[0]
+        if len(idx):
+            o = self.tr.offset(Pf[idx], NGf[idx], d[idx])
+            hits = self.tr.intersect(o, d[idx], rng=rng)
+            tri = hits["tri"]
+            hit = tri >= 0
+            gn = self.tr.geom_normal[np.where(hit, tri, 0)]
+            back[idx] = hit & (np.einsum("ij,ij->i", d[idx], gn) > 0)
+            src = np.full(len(idx), self.texel_mesh)
+            radiance[idx] = self.incoming(
+                o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng, src
+            )
+        Y = shmod.basis(loc).reshape(n, s, 9)
+        R = radiance.reshape(n, s, 3)
+        Ywt = (Y / pdf_h[..., None]).transpose(0, 2, 1)  # Y / p
+        acc.hemi[active] += np.matmul(Ywt, R).transpose(0, 2, 1)
+        if self.estimator == "regression":
+            acc.gram[active] += np.matmul(Ywt, Y)
+        acc.back[active] += back.reshape(n, s).sum(axis=1)
+        acc.count[active] += s
+        ylum = shmod.IZ_FROM_L10 * (R @ shmod.LUMINANCE) * Y[..., 2] / pdf_h
+        if self.lights.area:
+            nee_c, nee_y = self.texel_nee(P, NG, F, s, offset, rng)
+            acc.nee[active] += nee_c
+            ylum = ylum + nee_y
+        acc.y_sum[active] += ylum.sum(axis=1)
+        acc.y_sq[active] += (ylum * ylum).sum(axis=1)
+
+    def texel_nee(self, P, NG, F, s, offset, rng):
+        """Light samples at the texel (MIS with the texel hemisphere); returns sums
+        (c (n,3,9), per-sample luminance Iz (n,s)). With at most ALL_LIGHTS_MAX sampled lights
+        every light gets every sample (no light-selection noise; ``texel_sel`` = 1), else each
+        sample picks one light uniformly (``texel_sel`` = 1/m)."""
+        n = len(P)
+        m = len(self.lights.area)
+        u = np.mod(r2_sequence(s, offset + 7919)[None] + rng.random((n, 1, 2)), 1.0)
+        u = u.reshape(-1, 2)
+        every = m <= ALL_LIGHTS_MAX
+        if not every:
+            pick = (rng.random(n * s) * m).astype(np.int64)
+        Pf = np.repeat(P, s, axis=0)
+        NGf = np.repeat(NG, s, axis=0)
+        Ff = np.repeat(F, s, axis=0)
+        c = np.zeros((n, 3, 9))
+        y = np.zeros(n * s)
+        for j, lt in enumerate(self.lights.area):
+            if every:
+                idx = np.arange(n * s)
+                uj = np.mod(u + j * LIGHT_SHIFT, 1.0)  # decorrelate the lights' points
+            else:
+                idx = np.nonzero(pick == j)[0]
+                uj = u[idx]
+            if len(idx) == 0:
+                continue
+            d, dist, val, pdf = lt.sample(Pf[idx], uj)
+            loc = to_local(d, Ff[idx])
+            ok = (pdf > 0) & (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NGf[idx]) > 0)
+            ok &= np.any(val > 0, axis=1) & self._lit(lt, np.full(len(idx), self.texel_mesh))
+            idx, d, dist, val, pdf, loc = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], loc[ok]
+            if len(idx) == 0:
+                continue
+            o = self.tr.offset(Pf[idx], NGf[idx], d)
+            vis = ~self._occluded(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
+            idx, val, pdf, loc = idx[vis], val[vis], pdf[vis], loc[vis]
+            pl = pdf * self.texel_sel
+            w = _w_light(self.strategy, pl, texel_hemisphere_pdf(loc[:, 2]))
+            f = val * (w / pl)[:, None]
+            Yb = shmod.basis(loc)
+            np.add.at(c, idx // s, np.einsum("mc,mk->mck", f, Yb))
+            np.add.at(y, idx, shmod.IZ_FROM_L10 * (f @ shmod.LUMINANCE) * Yb[:, 2])
+        return c, y.reshape(n, s)
+
+    # ------------------------------------------------------------------ path level
+    def incoming(self, o, d, hits, pdf_dir, sel_area, depth, rng, src):
+        """Radiance arriving at ``o`` along ``d`` (m,3), MIS-weighted against light sampling.
+
+        pdf_dir : (m,) solid-angle pdf the direction was sampled with; sel_area : selection
+        probability of an area light in the NEE the direction is paired with; depth :
+        reflections already made along the path; src : (m,) int mesh index of the surface
+        the rays leave (the receiver, for light linking; -1: unknown, lit by every light).
+        """
+        m = len(o)
+        L = np.zeros((m, 3))
+        t = hits["t"].astype(np.float64)
+        tri = hits["tri"]
+        miss = tri < 0
+        for lt in self.lights.visible:
+            hit, tl, rad = lt.intersect(o, d)
+            if self.cast.get(id(lt)) is None:
+                vis = hit & (miss if lt.infinite else (tl < t))
+            else:  # shadow-linked: only casting meshes may stand between the ray and the light
+                vis = hit.copy()
+                idx = np.nonzero(hit)[0]
+                if len(idx):
+                    vis[idx] = ~self._occluded(lt, o[idx], d[idx], tl[idx])
+            vis &= self._lit(lt, src)
+            if not np.any(vis):
+                continue
+            w = np.ones(int(vis.sum()))
+            if lt.sampled:
+                pl = lt.pdf(o[vis], d[vis], tl[vis]) * sel_area
+                w = _w_bsdf(self.strategy, pdf_dir[vis], pl)
+            L[vis] += w[:, None] * rad[vis]
+        surf = np.nonzero(~miss)[0]
+        if len(surf) == 0:
+            return L
+        tri_s = tri[surf]
+        u, v = hits["u"][surf], hits["v"][surf]
+        gn = self.tr.geom_normal[tri_s].astype(np.float64)
+        ds = d[surf]
+        front = np.einsum("ij,ij->i", ds, gn) < 0
+        if self.tr.has_emission:
+            em = self.tr.emission_at(tri_s, u, v).astype(np.float64)
+            if self.lights.emissive is not None:  # MIS against the emitter's light samples
+                cos_abs = np.abs(np.einsum("ij,ij->i", ds, gn))
+                pl = self.lights.emissive.pdf_hit(tri_s, t[surf], cos_abs) * sel_area
+                em = em * _w_bsdf(self.strategy, pdf_dir[surf], pl)[:, None]
+            L[surf] += np.where(front[:, None], em, 0.0)
+        if depth + 1 > self.bounces:
+            return L
+        albedo = self.tr.albedo_at(tri_s, u, v).astype(np.float64)
+        keep = np.any(albedo > 0, axis=1)
+        if depth + 1 > RR_DEPTH:
+            q = np.clip(albedo.max(axis=1), 0.05, 1.0)
+            keep &= rng.random(len(q)) < q
+            albedo = albedo / q[:, None]
+        if not np.any(keep):
+            return L
+        surf, tri_s, u, v, gn, ds, albedo = (a[keep] for a in (surf, tri_s, u, v, gn, ds, albedo))
+        p = self.tr.hit_points(tri_s, u, v)
+        ns = self.tr.shading_normals(tri_s, u, v)
+        side = np.where(np.einsum("ij,ij->i", ds, gn) < 0, 1.0, -1.0)[:, None]
+        gn = gn * side  # face the incoming ray (two-sided shading)
+        ns = ns * side
+        ns = np.where((np.einsum("ij,ij->i", ns, gn) > 0)[:, None], ns, gn)
+        L[surf] += albedo * self.reflect(p, gn, ns, depth + 1, rng, self.tr.tri_mesh[tri_s])
+        return L
+
+    def reflect(self, p, gn, ns, depth, rng, mesh):
+        """(1/pi) * integral of incoming radiance * cos at surface points: NEE + one BSDF ray.
+        mesh : (m,) int scene mesh index of each point (light linking)."""
+        m = len(p)
+        out = np.zeros((m, 3))
+        nee = self.lights.nee
+        n_nee = len(nee)
+        if n_nee:
+            pick = (rng.random(m) * n_nee).astype(np.int64)
+            uu = rng.random((m, 2))
+            for j, lt in enumerate(nee):
+                idx = np.nonzero(pick == j)[0]
+                if len(idx) == 0:
+                    continue
+                d, dist, val, pdf = lt.sample(p[idx], uu[idx])
+                cos = np.einsum("ij,ij->i", d, ns[idx])
+                ok = (cos > 0) & (np.einsum("ij,ij->i", d, gn[idx]) > 0) & (pdf > 0)
+                ok &= np.any(val > 0, axis=1) & self._lit(lt, mesh[idx])
+                idx, d, dist, val, pdf, cos = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], cos[ok]
+                if len(idx) == 0:
+                    continue
+                o = self.tr.offset(p[idx], gn[idx], d)
+                vis = ~self._occluded(lt, o, *_shadow(o, p[idx], d, dist), rng=rng)
+                if lt.delta:
+                    f = val * (cos / np.pi * n_nee)[:, None]
+                else:
+                    pl = pdf / n_nee
+                    pb = cos / np.pi
+                    f = val * (_w_light(self.strategy, pl, pb) * cos / np.pi / pl)[:, None]
+                out[idx[vis]] += f[vis]
+        # continuation / MIS partner: cosine sampling about the shading normal
+        if self.lights.visible or self.tr.has_emission or depth < self.bounces:
+            loc, pdf = cosine_hemisphere(rng.random((m, 2)))
+            d = to_world(loc, orthonormal_basis(ns))
+            ok = np.einsum("ij,ij->i", d, gn) > 0
+            idx = np.nonzero(ok)[0]
+            if len(idx):
+                o = self.tr.offset(p[idx], gn[idx], d[idx])
+                hits = self.tr.intersect(o, d[idx], rng=rng)
+                sel = 1.0 / max(1, n_nee)
+                out[idx] += self.incoming(o, d[idx], hits, pdf[idx], sel, depth, rng, mesh[idx])
+        return out
+
+    # ------------------------------------------------------------------ light linking
+    def _lit(self, lt, mesh):
+        """(m,) bool: light ``lt`` lights receivers of scene mesh index ``mesh`` (m,) int."""
+        mask = self.recv.get(id(lt))
+        if mask is None:
+            return np.ones(len(mesh), bool)
+        return np.where(mesh >= 0, mask[np.maximum(mesh, 0)], True)
+
+    def _occluded(self, lt, o, d, tfar, rng=None):
+        """Shadow rays of light ``lt``: only meshes its shadowLink collection includes cast
+        shadows (others are passed through, up to LINK_MAX_CROSSINGS surfaces)."""
+        casters = self.cast.get(id(lt))
+        if casters is None:
+            return self.tr.occluded(o, d, tfar, rng=rng)
+        occ = np.zeros(len(o), bool)
+        todo = np.arange(len(o))
+        o, tfar = o.copy(), tfar.astype(np.float64).copy()
+        for _ in range(LINK_MAX_CROSSINGS):
+            if len(todo) == 0:
+                break
+            h = self.tr.intersect(o[todo], d[todo], tfar[todo], rng=rng)
+            hit = h["tri"] >= 0
+            mesh = self.tr.tri_mesh[np.where(hit, h["tri"], 0)]
+            blocks = hit & casters[mesh]
+            occ[todo[blocks]] = True
+            go = hit & ~blocks  # a non-caster: continue past it
+            nxt = todo[go]
+            step = h["t"][go].astype(np.float64) + self.tr.offset_eps
+            o[nxt] = o[nxt] + step[:, None] * d[nxt]
+            tfar[nxt] = tfar[nxt] - step
+            keep = tfar[nxt] > 0
+            todo = nxt[keep]
+        return occ
+
+
+def _mesh_mask(indices, n):
+    """(n,) bool mask of scene meshes from sorted indices, or None for "every mesh"."""
+    if indices is None:
+        return None
+    mask = np.zeros(n, bool)
+    mask[np.asarray(indices, np.int64)] = True
+    return mask
+
+
+def has_light_linking(lights) -> bool:
+    """Whether any light restricts the meshes it lights or whose shadows it casts."""
+    return any(
+        getattr(lt, "lit_meshes", None) is not None
+        or getattr(lt, "shadow_meshes", None) is not None
+        for lt in lights
+    )
+
+
+def _texel_selection(m):
+    """Selection probability of one sampled light in the texel's light samples."""
+    return 1.0 if m <= ALL_LIGHTS_MAX else 1.0 / m
+
+
+def _power(pa, pb):
+    """MIS power heuristic (beta 2) weight of strategy a."""
+    a2 = pa * pa
+    den = a2 + pb * pb
+    return np.divide(a2, den, out=np.zeros_like(den), where=den > 0)
+
+
+def _w_light(strategy, pl, pb):
+    """Weight of a light (NEE) sample of a light the BSDF can also hit (see STRATEGIES)."""
+    if strategy == "mis":
+        return _power(pl, pb)
+    return np.full(np.shape(pl), 1.0 if strategy == "nee" else 0.0)
+
+
+def _w_bsdf(strategy, pb, pl):
+    """Weight of a BSDF (hemisphere/cosine) sample that hit a light NEE also samples."""
+    if strategy == "mis":
+        return _power(pb, pl)
+    return np.full(np.shape(pb), 1.0 if strategy == "bsdf" else 0.0)
+
+
+def _shadow(o, p, d, dist):
+    """Shadow ray from the offset origin ``o`` to the light point ``p + dist d`` (m,3 each):
+    returns (direction (m,3), tfar (m,)) aimed at that point and stopping a relative
+    SHADOW_SHORTEN before it, so an emitter in the BVH never shadows its own sample. Infinite
+    ``dist`` (distant/dome lights) keeps ``d``."""
+    fin = np.isfinite(dist)
+    w = p + np.where(fin, dist, 0.0)[:, None] * d - o
+    ln = np.sqrt(np.einsum("ij,ij->i", w, w))
+    ok = fin & (ln > 0)
+    dirs = np.where(ok[:, None], w / np.where(ok, ln, 1.0)[:, None], d)
+    return dirs, np.where(fin, ln * (1.0 - SHADOW_SHORTEN), np.inf)

@@ -2,8 +2,8 @@
 
 - Hits: the same random rays give the same triangle ids and distances (same library, same
   build flags; distances to float32 precision).
-- Scalar numba ports (lights, textures) equal the numpy methods they mirror, to 1e-9 relative
-  (float64 arithmetic in a different order; texture values are rounded to float32 by both).
+- The scalar numba ports (lights, textures, the 9x9 solve) are checked against their numpy
+  twins in tests/test_kernel_parity.py.
 - Bakes: the two backends use different random streams, so their per-texel estimates are
   independent; the difference of the means over N texels must be below
   SIGMAS * sqrt(se_a^2 + se_b^2) with se the measured standard errors (``stats.SIGMAS`` = 5:
@@ -12,19 +12,15 @@
 
 import numpy as np
 import pytest
-from numba import njit
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from stats import assert_same_mean
 
 from usdahd.bake import embree_native
 from usdahd.bake.integrate import bake_texels
-from usdahd.bake.kernels import lights as K
-from usdahd.bake.kernels.layout import NativeTables
-from usdahd.bake.trace import Tracer, nb_texture, pack_textures
+from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
 from usdahd.numerics import sh
-from usdahd.scene import lights as L
 from usdahd.scene.types import Texture
 from usdahd.usd.reader import load_scene
 
@@ -195,115 +191,6 @@ def test_unknown_backend_is_a_usage_error():
         Tracer(scene, backend="optix")
 
 
-# ----------------------------------------------------------------------------- scalar ports
-
-
-@njit(cache=False)
-def _nb_lights(kind, par, img, pmf, cdf, p, u, d, t, do_sample):
-    m = p.shape[0]
-    smp = np.zeros((m, 8))
-    isc = np.zeros((m, 5))
-    pdf = np.zeros(m)
-    for i in range(m):
-        if do_sample:
-            smp[i] = K.light_sample(
-                kind, par, img, pmf, cdf, p[i, 0], p[i, 1], p[i, 2], u[i, 0], u[i, 1]
-            )
-        h, tt, r, g, b = K.light_intersect(
-            kind, par, img, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2]
-        )
-        isc[i] = (1.0 if h else 0.0, tt, r, g, b)
-        pdf[i] = K.light_pdf(
-            kind, par, pmf, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2], t[i]
-        )
-    return smp, isc, pdf  # fmt: skip
-
-
-def _all_lights():
-    img = np.random.default_rng(5).random((8, 16, 3)).astype(np.float32) + 0.1
-    img[1:3, 4:6] = 20.0
-    rot = np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]])
-    return [
-        L.SphereLight("/s", np.array([1.0, 2, 3]), center=np.array([0.3, 0.1, 2.0]), radius=0.4),
-        L.PointLight("/p", np.array([2.0, 1, 1]), center=np.array([0.3, -0.4, 1.0])),
-        L.RectLight("/r", np.ones(3), center=np.array([0, 0, 1.5]), ex=np.array([0.6, 0, 0.1]),
-                    ey=np.array([0, 0.3, 0]), normal=np.array([0, 0, -1.0])),
-        L.RectLight("/rshear", np.ones(3), center=np.array([0, 0, 1.5]),
-                    ex=np.array([0.6, 0, 0.1]), ey=np.array([0.2, 0.3, 0]),
-                    normal=np.array([0, 0, -1.0])),
-        L.RectLight("/rnear", np.ones(3), center=np.array([0, 0, 0.35]),
-                    ex=np.array([2.0, 0, 0]), ey=np.array([0, 1.5, 0]),
-                    normal=np.array([0, 0, -1.0])),
-        L.DiskLight("/d", np.ones(3), center=np.array([0.2, 0, 1.0]), ex=np.array([0.5, 0, 0]),
-                    ey=np.array([0, 0.4, 0]), normal=np.array([0, 0, -1.0])),
-        L.CylinderLight("/c", np.ones(3), center=np.array([0, 0, 1.0]),
-                        axis=np.array([1.0, 0, 0]), half_length=0.7, radius=0.2),
-        L.DistantLight("/sun", np.ones(3), direction=np.array([0, 0.6, 0.8]), half_angle=0.2),
-        L.DistantLight("/dsun", np.ones(3), direction=np.array([0.6, 0, 0.8]), half_angle=0.0),
-        L.DomeLight("/dome", np.array([0.5, 1, 2])),
-        L.DomeLight("/tdome", np.array([0.5, 1, 2]), image=img, rotation=rot),
-    ]  # fmt: skip
-
-
-@pytest.mark.parametrize("light", _all_lights(), ids=lambda lt: lt.path)
-def test_numba_lights_equal_numpy(light):
-    rng = np.random.default_rng(1)
-    m = 3000
-    p = rng.uniform(-1, 1, (m, 3)) * [1, 1, 0.3]
-    u = rng.random((m, 2))
-    tab = K.pack_lights([light])
-    if light.sampled:
-        d_s, dist, val, pdf = light.sample(p, u)
-    else:  # a uniform dome is never sampled (hemisphere sampling covers it)
-        d_s = rng.normal(size=(m, 3))
-    # intersect/pdf queried along the sampled directions (hits) and random ones (misses)
-    d = np.where(rng.random((m, 1)) < 0.5, d_s, rng.normal(size=(m, 3)))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hit, t, rad = light.intersect(p, d)
-    smp, isc, npdf = _nb_lights(
-        tab.kind[0], tab.par[0], tab.img, tab.pmf, tab.cdf, p, u, d, np.where(hit, t, np.inf),
-        light.sampled,
-    )  # fmt: skip
-    if light.sampled:
-        np.testing.assert_allclose(smp[:, 0:3], d_s, rtol=REL, atol=REL)
-        np.testing.assert_allclose(smp[:, 3], dist, rtol=REL)
-        np.testing.assert_allclose(smp[:, 4:7], val, rtol=REL, atol=REL)
-        np.testing.assert_allclose(smp[:, 7], pdf, rtol=REL)
-    np.testing.assert_array_equal(isc[:, 0] > 0, hit)
-    np.testing.assert_allclose(isc[:, 1][hit], t[hit], rtol=REL)
-    np.testing.assert_allclose(isc[:, 2:5], rad, rtol=REL, atol=REL)
-    ph = light.pdf(p[hit], d[hit], t[hit])
-    np.testing.assert_allclose(npdf[hit], ph, rtol=REL)
-
-
-@njit(cache=False)
-def _nb_tex(tb, k, uv):
-    out = np.zeros((uv.shape[0], 4))
-    for i in range(uv.shape[0]):
-        v, n = nb_texture(tb, k, uv[i, 0], uv[i, 1])
-        out[i] = v
-    return out
-
-
-@pytest.mark.parametrize("channels", [(0, 1, 2), (3,), (1,), (0, 1, 2, 3)])
-@pytest.mark.parametrize("c", [1, 2, 3, 4])
-@pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror"])
-def test_numba_texture_equals_texture_sample(channels, c, wrap):
-    rng = np.random.default_rng(c)
-    tex = Texture(
-        "t.exr",
-        rng.random((5, 7, c)).astype(np.float32),
-        np.array([1.0, 0.5, 2.0, 1.0]),
-        np.array([0.0, 0.1, 0.0, -0.2]),
-        channels,
-        (wrap, wrap),
-    )
-    uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = NativeTables(*(None,) * 7, *pack_textures([tex]))
-    got = _nb_tex(tb, 0, uv)[:, : len(channels)]
-    np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
-
-
 # ----------------------------------------------------------------------------- bakes
 
 
@@ -381,31 +268,6 @@ def test_native_bake_deterministic_and_thread_independent():
         tr.close()
     np.testing.assert_array_equal(outs[0], outs[1])
     np.testing.assert_array_equal(outs[1], outs[2])
-
-
-@pytest.mark.parametrize("regression", [False, True])
-def test_native_result_equals_numpy_result(regression):
-    """The per-texel 9x9 solve on the threads equals ``Accum.result`` (float32 output)."""
-    from usdahd.bake.kernels.integrate import native_result
-    from usdahd.bake.reference import Accum
-
-    rng = np.random.default_rng(4)
-    n = 50
-    acc = Accum(n)
-    y = rng.normal(size=(n, 40, 9))
-    acc.gram[:] = np.matmul(y.transpose(0, 2, 1), y)
-    acc.hemi[:] = rng.normal(size=(n, 3, 9))
-    acc.nee[:] = rng.normal(size=(n, 3, 9))
-    acc.delta[:] = rng.normal(size=(n, 3, 9))
-    acc.count[:] = rng.integers(1, 40, n)
-    acc.back[:] = rng.integers(0, 5, n)
-    ref, bf_ref = acc.result("regression" if regression else "mc")
-    out = np.empty((n, 3, 9), np.float32)
-    bf = np.empty(n, np.float32)
-    native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
-                   regression, out, bf)  # fmt: skip
-    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
-    np.testing.assert_array_equal(bf, bf_ref)
 
 
 def test_kernel_cache_tracks_every_inlined_source():

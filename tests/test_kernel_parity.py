@@ -1,0 +1,304 @@
+"""Every numba kernel function against its numpy twin (issue 12; design.md: "Every numba kernel
+has a numpy twin with the same named fields and a parity test").
+
+Tolerances, with their reason:
+
+- ``REL`` = 1e-9 relative: a scalar float64 port of a vectorized numpy expression evaluates the
+  same formula in a different order (numpy's einsum/matmul sum order, ``np.clip`` vs min/max),
+  so results differ by a few ulp, amplified at most by the conditioning of arcsin/sqrt near
+  their domain edges (lights); 1e-9 leaves ~1e6 ulp of room and still catches a wrong slot or
+  sign, which shows at O(1).
+- Bit for bit: where twin and port perform the same float64 operations in the same order (the
+  MIS weights, the ray offset, the SH basis), results are compared bit for bit.
+- Textures: 1e-6, both round the texel value to float32.
+- The 9x9 solve: 1e-5, the output is float32 and LU with partial pivoting (numba) vs LAPACK's
+  ``gesv`` (numpy) round differently.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from numba import njit
+
+from usdahd.bake import reference as R
+from usdahd.bake.kernels import integrate as KI
+from usdahd.bake.kernels import lights as K
+from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTables
+from usdahd.bake.trace import Tracer, nb_offset, nb_texture, pack_textures
+from usdahd.numerics import sh
+from usdahd.numerics.sampling import orthonormal_basis, to_world
+from usdahd.scene import lights as L
+from usdahd.scene.types import Texture
+
+REL = 1e-9  # float64 scalar vs vectorized numpy: rounding-order differences only
+
+#: integrate.STRATEGIES order -> kernel mode
+MODES = {"mis": MODE_MIS, "bsdf": MODE_BSDF, "nee": MODE_NEE}
+
+
+def _unit(rng, m):
+    v = rng.normal(size=(m, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+# ----------------------------------------------------------------------------- lights
+
+
+@njit(cache=False)
+def _nb_lights(kind, par, img, pmf, cdf, p, u, d, t, do_sample):
+    m = p.shape[0]
+    smp = np.zeros((m, 8))
+    isc = np.zeros((m, 5))
+    pdf = np.zeros(m)
+    for i in range(m):
+        if do_sample:
+            smp[i] = K.light_sample(
+                kind, par, img, pmf, cdf, p[i, 0], p[i, 1], p[i, 2], u[i, 0], u[i, 1]
+            )
+        h, tt, r, g, b = K.light_intersect(
+            kind, par, img, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2]
+        )
+        isc[i] = (1.0 if h else 0.0, tt, r, g, b)
+        pdf[i] = K.light_pdf(
+            kind, par, pmf, p[i, 0], p[i, 1], p[i, 2], d[i, 0], d[i, 1], d[i, 2], t[i]
+        )
+    return smp, isc, pdf  # fmt: skip
+
+
+def _all_lights():
+    img = np.random.default_rng(5).random((8, 16, 3)).astype(np.float32) + 0.1
+    img[1:3, 4:6] = 20.0
+    rot = np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]])
+    return [
+        L.SphereLight("/s", np.array([1.0, 2, 3]), center=np.array([0.3, 0.1, 2.0]), radius=0.4),
+        L.PointLight("/p", np.array([2.0, 1, 1]), center=np.array([0.3, -0.4, 1.0])),
+        L.RectLight("/r", np.ones(3), center=np.array([0, 0, 1.5]), ex=np.array([0.6, 0, 0.1]),
+                    ey=np.array([0, 0.3, 0]), normal=np.array([0, 0, -1.0])),
+        L.RectLight("/rshear", np.ones(3), center=np.array([0, 0, 1.5]),
+                    ex=np.array([0.6, 0, 0.1]), ey=np.array([0.2, 0.3, 0]),
+                    normal=np.array([0, 0, -1.0])),
+        L.RectLight("/rnear", np.ones(3), center=np.array([0, 0, 0.35]),
+                    ex=np.array([2.0, 0, 0]), ey=np.array([0, 1.5, 0]),
+                    normal=np.array([0, 0, -1.0])),
+        L.DiskLight("/d", np.ones(3), center=np.array([0.2, 0, 1.0]), ex=np.array([0.5, 0, 0]),
+                    ey=np.array([0, 0.4, 0]), normal=np.array([0, 0, -1.0])),
+        L.CylinderLight("/c", np.ones(3), center=np.array([0, 0, 1.0]),
+                        axis=np.array([1.0, 0, 0]), half_length=0.7, radius=0.2),
+        L.DistantLight("/sun", np.ones(3), direction=np.array([0, 0.6, 0.8]), half_angle=0.2),
+        L.DistantLight("/dsun", np.ones(3), direction=np.array([0.6, 0, 0.8]), half_angle=0.0),
+        L.DomeLight("/dome", np.array([0.5, 1, 2])),
+        L.DomeLight("/tdome", np.array([0.5, 1, 2]), image=img, rotation=rot),
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("light", _all_lights(), ids=lambda lt: lt.path)
+def test_numba_lights_equal_numpy(light):
+    rng = np.random.default_rng(1)
+    m = 3000
+    p = rng.uniform(-1, 1, (m, 3)) * [1, 1, 0.3]
+    u = rng.random((m, 2))
+    tab = K.pack_lights([light])
+    if light.sampled:
+        d_s, dist, val, pdf = light.sample(p, u)
+    else:  # a uniform dome is never sampled (hemisphere sampling covers it)
+        d_s = rng.normal(size=(m, 3))
+    # intersect/pdf queried along the sampled directions (hits) and random ones (misses)
+    d = np.where(rng.random((m, 1)) < 0.5, d_s, rng.normal(size=(m, 3)))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hit, t, rad = light.intersect(p, d)
+    smp, isc, npdf = _nb_lights(
+        tab.kind[0], tab.par[0], tab.img, tab.pmf, tab.cdf, p, u, d, np.where(hit, t, np.inf),
+        light.sampled,
+    )  # fmt: skip
+    if light.sampled:
+        np.testing.assert_allclose(smp[:, 0:3], d_s, rtol=REL, atol=REL)
+        np.testing.assert_allclose(smp[:, 3], dist, rtol=REL)
+        np.testing.assert_allclose(smp[:, 4:7], val, rtol=REL, atol=REL)
+        np.testing.assert_allclose(smp[:, 7], pdf, rtol=REL)
+    np.testing.assert_array_equal(isc[:, 0] > 0, hit)
+    np.testing.assert_allclose(isc[:, 1][hit], t[hit], rtol=REL)
+    np.testing.assert_allclose(isc[:, 2:5], rad, rtol=REL, atol=REL)
+    ph = light.pdf(p[hit], d[hit], t[hit])
+    np.testing.assert_allclose(npdf[hit], ph, rtol=REL)
+
+
+@njit(cache=False)
+def _nb_tex(tb, k, uv):
+    out = np.zeros((uv.shape[0], 4))
+    for i in range(uv.shape[0]):
+        v, n = nb_texture(tb, k, uv[i, 0], uv[i, 1])
+        out[i] = v
+    return out
+
+
+@pytest.mark.parametrize("channels", [(0, 1, 2), (3,), (1,), (0, 1, 2, 3)])
+@pytest.mark.parametrize("c", [1, 2, 3, 4])
+@pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror"])
+def test_numba_texture_equals_texture_sample(channels, c, wrap):
+    rng = np.random.default_rng(c)
+    tex = Texture(
+        "t.exr",
+        rng.random((5, 7, c)).astype(np.float32),
+        np.array([1.0, 0.5, 2.0, 1.0]),
+        np.array([0.0, 0.1, 0.0, -0.2]),
+        channels,
+        (wrap, wrap),
+    )
+    uv = rng.uniform(-1.5, 2.5, (500, 2))
+    tb = NativeTables(*(None,) * 7, *pack_textures([tex]))
+    got = _nb_tex(tb, 0, uv)[:, : len(channels)]
+    np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("regression", [False, True])
+def test_native_result_equals_numpy_result(regression):
+    """The per-texel 9x9 solve on the threads equals ``Accum.result`` (float32 output)."""
+    from usdahd.bake.kernels.integrate import native_result
+    from usdahd.bake.reference import Accum
+
+    rng = np.random.default_rng(4)
+    n = 50
+    acc = Accum(n)
+    y = rng.normal(size=(n, 40, 9))
+    acc.gram[:] = np.matmul(y.transpose(0, 2, 1), y)
+    acc.hemi[:] = rng.normal(size=(n, 3, 9))
+    acc.nee[:] = rng.normal(size=(n, 3, 9))
+    acc.delta[:] = rng.normal(size=(n, 3, 9))
+    acc.count[:] = rng.integers(1, 40, n)
+    acc.back[:] = rng.integers(0, 5, n)
+    ref, bf_ref = acc.result("regression" if regression else "mc")
+    out = np.empty((n, 3, 9), np.float32)
+    bf = np.empty(n, np.float32)
+    native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
+                   regression, out, bf)  # fmt: skip
+    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
+    np.testing.assert_array_equal(bf, bf_ref)
+
+
+# ----------------------------------------------------------------------------- small helpers
+@njit(cache=False)
+def _nb_sh9(d):
+    out = np.zeros((d.shape[0], 9))
+    Y = np.zeros(9)
+    for i in range(d.shape[0]):
+        KI._sh9(Y, d[i, 0], d[i, 1], d[i, 2])
+        out[i] = Y
+    return out
+
+
+def test_sh9_equals_sh_basis():
+    """The kernel's SH basis (texel light samples, delta lights) is :func:`usdahd.sh.basis`:
+    the same products of the same constants in the same order: bit-identical."""
+    d = _unit(np.random.default_rng(0), 2000)
+    np.testing.assert_array_equal(_nb_sh9(d), sh.basis(d))
+
+
+@njit(cache=False)
+def _nb_offsets(eps, p, ng, d):
+    out = np.zeros_like(p)
+    for i in range(p.shape[0]):
+        out[i] = nb_offset(eps, p[i, 0], p[i, 1], p[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
+                           d[i, 0], d[i, 1], d[i, 2])  # fmt: skip
+    return out
+
+
+def test_nb_offset_equals_tracer_offset():
+    """``nb_offset`` is :meth:`Tracer.offset` for one ray (both sides, and d . ng = 0 which
+    both send to the +ng side); same operations in the same order: bit-identical."""
+    rng = np.random.default_rng(1)
+    m = 1000
+    p = rng.uniform(-50, 50, (m, 3))
+    ng = _unit(rng, m)
+    d = _unit(rng, m)
+    ng[:10], d[:10] = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]  # tangent: d . ng exactly 0
+    eps = 3e-5
+    ref = Tracer.offset(SimpleNamespace(offset_eps=eps), p, ng, d)
+    np.testing.assert_array_equal(_nb_offsets(eps, p, ng, d), ref)
+
+
+@njit(cache=False)
+def _nb_frames(n, loc):
+    out = np.zeros_like(loc)
+    for i in range(n.shape[0]):
+        out[i] = K.nb_basis_apply(n[i, 0], n[i, 1], n[i, 2], loc[i, 0], loc[i, 1], loc[i, 2])
+    return out
+
+
+def test_nb_basis_apply_equals_to_world_orthonormal_basis():
+    """The kernel's Duff et al. frame is :func:`usdahd.numerics.sampling.orthonormal_basis`."""
+    rng = np.random.default_rng(2)
+    n = _unit(rng, 2000)
+    n[:4] = [[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0, -1.0, 0]]
+    loc = _unit(rng, 2000)
+    ref = to_world(loc, orthonormal_basis(n))
+    np.testing.assert_allclose(_nb_frames(n, loc), ref, rtol=REL, atol=REL)
+
+
+@njit(cache=False)
+def _nb_cones(axis, omc, u):
+    out = np.zeros((axis.shape[0], 3))
+    for i in range(axis.shape[0]):
+        out[i] = K._cone(axis[i, 0], axis[i, 1], axis[i, 2], omc[i], u[i, 0], u[i, 1])
+    return out
+
+
+def test_cone_equals_scene_cone_dirs():
+    """The kernel's cone sampler (sphere and distant lights) is ``scene.lights._cone_dirs``,
+    down to tiny cones (1 - cos = 1e-12, the stable form both use)."""
+    rng = np.random.default_rng(3)
+    m = 2000
+    axis = _unit(rng, m)
+    omc = 10.0 ** rng.uniform(-12, 0.3, m)
+    u = rng.random((m, 2))
+    ref = L._cone_dirs(axis, omc, u)
+    np.testing.assert_allclose(_nb_cones(axis, omc, u), ref, rtol=REL, atol=REL)
+
+
+@njit(cache=False)
+def _nb_weights(mode, pa, pb):
+    wl = np.zeros(pa.shape[0])
+    wb = np.zeros(pa.shape[0])
+    for i in range(pa.shape[0]):
+        wl[i] = KI._wl(mode, pa[i], pb[i])
+        wb[i] = KI._wb(mode, pb[i], pa[i])
+    return wl, wb
+
+
+@pytest.mark.parametrize("strategy", sorted(MODES))
+def test_mis_weights_equal_reference(strategy):
+    """``_wl``/``_wb`` (power heuristic, or the strategy's 0/1 weights) are the reference's
+    ``_w_light``/``_w_bsdf``, including both pdfs zero (weight 0): bit-identical."""
+    rng = np.random.default_rng(4)
+    pa = rng.exponential(size=500)
+    pb = rng.exponential(size=500)
+    pa[:5] = pb[:5] = 0.0
+    pa[5:10] = 0.0
+    wl, wb = _nb_weights(MODES[strategy], pa, pb)
+    np.testing.assert_array_equal(wl, R._w_light(strategy, pa, pb))
+    np.testing.assert_array_equal(wb, R._w_bsdf(strategy, pb, pa))
+
+
+@njit(cache=False)
+def _nb_shadows(o, p, d, dist):
+    out = np.zeros((o.shape[0], 4))
+    for i in range(o.shape[0]):
+        out[i] = KI._shadow1(o[i, 0], o[i, 1], o[i, 2], p[i, 0], p[i, 1], p[i, 2],
+                             d[i, 0], d[i, 1], d[i, 2], dist[i])  # fmt: skip
+    return out
+
+
+def test_shadow1_equals_reference_shadow():
+    """``_shadow1`` is the reference's ``_shadow`` (finite lights aimed at the sampled point
+    and shortened, infinite ones keep d)."""
+    rng = np.random.default_rng(5)
+    m = 1000
+    p = rng.uniform(-1, 1, (m, 3))
+    d = _unit(rng, m)
+    o = p + 1e-4 * _unit(rng, m)
+    dist = rng.uniform(0.1, 5.0, m)
+    dist[::7] = np.inf
+    dirs, tfar = R._shadow(o, p, d, dist)
+    got = _nb_shadows(o, p, d, dist)
+    np.testing.assert_allclose(got[:, :3], dirs, rtol=REL, atol=REL)
+    np.testing.assert_allclose(got[:, 3], tfar, rtol=REL)

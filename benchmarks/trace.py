@@ -15,7 +15,7 @@ The raw rays are cosine-distributed; ``isect_u``/``ratio_u`` repeat the raw INTE
 uniform-hemisphere rays, the distribution of the bake's own primary rays (grazing rays cost
 more on bumpy geometry). The raw rates are single-ray queries (``rtcIntersect1``, embreex's own
 batches); the native bake traces 16-ray packets, so ``pk16``/``ratio_pk`` repeat the raw cosine
-INTERSECT rate through the same packet call (``embree_native.intersect_rays``, both threads).
+INTERSECT rate through the same packet call (``embree.intersect_rays``, both threads).
 Medians of ``--repeat`` runs; JIT kernels are warmed up (loaded from numba's cache) first.
 """
 
@@ -33,8 +33,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from pxr import Gf, Usd, UsdGeom, UsdLux  # noqa: E402
 
-from usdahd.bake import embree_native  # noqa: E402
 from usdahd.bake.integrate import bake_texels  # noqa: E402
+from usdahd.bake.kernels import embree  # noqa: E402
 from usdahd.bake.trace import Tracer  # noqa: E402
 from usdahd.bake.types import Texels  # noqa: E402
 from usdahd.numerics.sampling import (  # noqa: E402
@@ -134,8 +134,8 @@ def packet_rate(tr, rays):
 
     def run(r):
         hits = np.empty((len(r), 7))
-        pk, rec = embree_native.new_packet(), embree_native.new_scratch()
-        embree_native.intersect_rays(tr.native_handle, pk, rec, r, len(r), hits)
+        pk, rec = embree.new_packet(), embree.new_scratch()
+        embree.intersect_rays(tr.native_handle, pk, rec, r, len(r), hits)
 
     t0 = time.perf_counter()
     tr._split(run, len(rays), rays)

@@ -25,7 +25,8 @@ from usdahd.bake import reference as R
 from usdahd.bake.kernels import integrate as KI
 from usdahd.bake.kernels import lights as K
 from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTables
-from usdahd.bake.trace import Tracer, nb_offset, nb_texture, pack_textures
+from usdahd.bake.kernels.trace import nb_offset, nb_texture
+from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
 from usdahd.numerics.sampling import orthonormal_basis, to_world
 from usdahd.scene import lights as L

@@ -109,7 +109,7 @@ RULES = (
     ),
     Rule(
         "usd",
-        "USD readers return scene/ types; usd/ never imports the baker (bake.lights loads Embree)",
+        "USD readers return scene/ types; usd/ never imports the baker (which loads Embree)",
         scope=("usdahd.usd",),
         forbid=frozenset({"usdahd.bake", "usdahd.pipeline", "usdahd.validate", "usdahd.commands"}),
     ),

@@ -15,8 +15,8 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from stats import assert_same_mean
 
-from usdahd.bake import embree_native
 from usdahd.bake.integrate import bake_texels
+from usdahd.bake.kernels import embree
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
@@ -27,7 +27,7 @@ from usdahd.usd.reader import load_scene
 REL = 1e-9  # float64 scalar vs vectorized numpy: rounding-order differences only
 
 pytestmark = pytest.mark.skipif(
-    not embree_native.available(), reason="libembree4 not found next to embreex"
+    not embree.available(), reason="libembree4 not found next to embreex"
 )
 
 
@@ -168,9 +168,9 @@ def test_packets_give_the_same_hits_as_single_rays(m):
     tfar = np.where(rng.random(m) < 0.5, np.inf, rng.uniform(0.1, 5, m))
     rays = np.c_[o, d, tfar]
     hits = np.full((m, 7), np.nan)
-    pk, rec = embree_native.new_packet(), embree_native.new_scratch()
-    assert pk.ctypes.data % 64 == 0 and len(pk) == embree_native.PACKET_FLOATS
-    embree_native.intersect_rays(tr.native_handle, pk, rec, rays, m, hits)
+    pk, rec = embree.new_packet(), embree.new_scratch()
+    assert pk.ctypes.data % 64 == 0 and len(pk) == embree.PACKET_FLOATS
+    embree.intersect_rays(tr.native_handle, pk, rec, rays, m, hits)
     ref = tr.intersect(o, d, tfar)
     np.testing.assert_array_equal(hits[:, 1].astype(np.int64), ref["tri"])
     hit = ref["tri"] >= 0
@@ -181,7 +181,7 @@ def test_packets_give_the_same_hits_as_single_rays(m):
     gn = tr.geom_normal[ref["tri"][hit]]
     np.testing.assert_allclose(hits[hit, 4:7], gn, atol=1e-5)
     occ = np.zeros(m, bool)
-    embree_native.occluded_rays(tr.native_handle, pk, rec, rays, m, occ)
+    embree.occluded_rays(tr.native_handle, pk, rec, rays, m, occ)
     np.testing.assert_array_equal(occ, tr.occluded(o, d, tfar))
 
 
@@ -280,5 +280,5 @@ def test_kernel_cache_tracks_every_inlined_source():
     loc = integrate.native_pass._cache._impl.locator
     assert isinstance(loc, cache._KernelStampMixin)
     names = {s[0] for s in loc.get_source_stamp()}
-    assert {"trace.py", "lights.py", "integrate.py", "embree_native.py", "reference.py"} <= names
+    assert {"trace.py", "lights.py", "integrate.py", "embree.py", "reference.py"} <= names
     assert {"layout.py", "sampling.py", "sh.py"} <= names

@@ -47,7 +47,7 @@ Two implementations of the same estimator, chosen by the tracer's backend:
 
 - ``native`` (default): :func:`usdahd.bake.kernels.integrate.native_pass`, a numba kernel
   (``nogil``, no NRT) that, per texel, samples, traces through libembree4 directly
-  (:mod:`usdahd.bake.embree_native`) in 16-ray packets (a small wavefront over the texel's
+  (:mod:`usdahd.bake.kernels.embree`) in 16-ray packets (a small wavefront over the texel's
   samples, ``kernels.integrate._paths``), shades and accumulates the SH sums; texels are spread
   over the tracer's threads. Each texel has its own splitmix64 stream seeded from the chunk
   generator, so output is independent of the thread count. The SH regression solve also runs

@@ -22,7 +22,8 @@ _PKG = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 KERNEL_SOURCES = tuple(
     os.path.join(_PKG, *parts)
     for parts in (
-        ("bake", "embree_native.py"),
+        ("bake", "kernels", "embree.py"),
+        ("bake", "kernels", "trace.py"),
         ("bake", "trace.py"),
         ("bake", "kernels", "cache.py"),
         ("bake", "kernels", "layout.py"),

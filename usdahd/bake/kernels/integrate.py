@@ -12,8 +12,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from usdahd.bake import embree_native
-from usdahd.bake.kernels import cache  # noqa: F401  (numba cache locators, before any @njit)
+from usdahd.bake.kernels import (
+    cache,  # noqa: F401  (numba cache locators, before any @njit)
+    embree,
+)
 from usdahd.bake.kernels.layout import (
     CFG_BOUNCES,
     CFG_EMISSION,
@@ -61,8 +63,7 @@ from usdahd.bake.kernels.lights import (
     light_sample,
     nb_basis_apply,
 )
-from usdahd.bake.reference import ALL_LIGHTS_MAX, G_HEMI, LIGHT_SHIFT, RR_DEPTH, SHADOW_SHORTEN
-from usdahd.bake.trace import (
+from usdahd.bake.kernels.trace import (
     nb_albedo,
     nb_emission,
     nb_hit_point,
@@ -73,6 +74,7 @@ from usdahd.bake.trace import (
     nb_shading_normal,
     nb_trace_rays,
 )
+from usdahd.bake.reference import ALL_LIGHTS_MAX, G_HEMI, LIGHT_SHIFT, RR_DEPTH, SHADOW_SHORTEN
 from usdahd.numerics import sh as shmod
 
 
@@ -130,7 +132,7 @@ def native_result(ids, gram, hemi, nee, delta, count, back, regression, out, bf)
 # the ``Accum`` arrays at those rows only, so threads given disjoint ``ids`` never touch the same
 # memory. Per texel it is a small wavefront: the pass's hemisphere rays (all from one origin), the
 # texel's light-sample shadow rays, and then each bounce's shadow and continuation rays are traced
-# as 16-ray packets (:func:`usdahd.bake.embree_native.intersect_rays`). Random numbers: one
+# as 16-ray packets (:func:`usdahd.bake.kernels.embree.intersect_rays`). Random numbers: one
 # splitmix64 stream per texel (state in ``rng_state``), so results do not depend on threads or on
 # how texels are split among them. Helpers are plain ``@njit`` functions: LLVM inlines the small
 # ones when the kernel is linked (numba-level ``inline="always"`` cost ~3x the compile time for no
@@ -248,7 +250,7 @@ def _set_row(a, j, x0, x1, x2, x3, x4, x5, x6):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sval, sidx, occ, R):
     """``ReferenceCtx.incoming`` as a wavefront over the ``n`` paths in rows [0, n) of ``ps`` whose
-    first hits are ``hits`` (the layout of ``embree_native.intersect_rays``): each path's
+    first hits are ``hits`` (the layout of ``embree.intersect_rays``): each path's
     radiance is added to ``R[k]`` (k its sample index). Per bounce, every live path makes one
     NEE shadow ray (``srays``, value ``sval``, sample ``sidx``) and one cosine continuation ray
     (``rays``; live rows are compacted to the front); both sets are traced as packets.
@@ -701,8 +703,8 @@ def native_pass(
 def native_work(s):
     """Per-thread scratch of :func:`native_pass` for passes of ``s`` samples."""
     return (
-        embree_native.new_scratch(),
-        embree_native.new_packet(),
+        embree.new_scratch(),
+        embree.new_packet(),
         np.zeros(1, np.uint64),
         np.zeros(9),
         np.zeros(GRAM_SUMS),

@@ -140,7 +140,7 @@ MODE_MIS, MODE_BSDF, MODE_NEE = 0, 1, 2
 #: light it is paired with, reflections so far, sample index.
 PATH_O, PATH_D, PATH_BETA, PATH_PDF, PATH_SEL, PATH_DEPTH, PATH_SAMPLE = 0, 3, 6, 9, 10, 11, 12
 PATH_COLS = 13
-#: Columns of the hit rows ``hits`` (s, 7) f64 of :func:`usdahd.bake.embree_native
+#: Columns of the hit rows ``hits`` (s, 7) f64 of :func:`usdahd.bake.kernels.embree
 #: .intersect_rays`: t, triangle (-1: miss), u, v, geometric normal (3). (Ray rows are origin,
 #: direction, tfar, written positionally by ``kernels.integrate._set_row``.)
 HIT_T, HIT_TRI, HIT_U, HIT_V, HIT_NG = 0, 1, 2, 3, 4

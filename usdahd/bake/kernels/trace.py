@@ -1,0 +1,271 @@
+"""Numba twins of the :class:`usdahd.bake.trace.Tracer` queries, per ray, for the fused kernel.
+
+``tb`` is the :class:`usdahd.bake.kernels.layout.NativeTables` of
+:meth:`usdahd.bake.trace.Tracer.native_tables`, ``st`` a (1,) uint64 splitmix64 state, ``scene``
+the RTCScene address (:attr:`Tracer.native_handle`), ``rec``/``pk`` the scratch records of
+:mod:`usdahd.bake.kernels.embree`. Parity with the numpy methods: tests/test_kernel_parity.py
+and tests/test_trace.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from usdahd.bake.kernels import (
+    cache,  # noqa: F401  (numba cache locators, before any @njit)
+    embree,
+)
+from usdahd.bake.kernels.layout import (
+    MAT_ALBEDO,
+    MAT_OPACITY,
+    MAT_THRESHOLD,
+    TEX_ALBEDO,
+    TEX_EMISSION,
+    TEX_OPACITY,
+)
+from usdahd.bake.trace import MAX_TRANSMIT
+
+# ----------------------------------------------------------------------------- numba side
+# Scalar per-ray versions of the methods above for the fused integrator kernel; ``tb`` is the
+# NativeTables returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.
+
+_U64 = np.uint64
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_random(st):
+    """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
+    z = st[0] + _U64(0x9E3779B97F4A7C15)
+    st[0] = z
+    z = (z ^ (z >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> _U64(27))) * _U64(0x94D049BB133111EB)
+    z = z ^ (z >> _U64(31))
+    return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
+    """:meth:`Tracer.offset` for one ray."""
+    s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
+    sc = s * (eps + 1e-7 * max(abs(px), abs(py), abs(pz)))
+    return px + sc * nx, py + sc * ny, pz + sc * nz
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _wrap(i, n, mode):
+    if mode == 1:
+        return min(max(i, 0), n - 1)
+    if mode == 2:
+        i = i % (2 * n)
+        return 2 * n - 1 - i if i >= n else i
+    return i % n
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
+    return (
+        data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
+        + data[off + (ys0 * w + xs1) * c + ch] * fx * (1 - fy)
+        + data[off + (ys1 * w + xs0) * c + ch] * (1 - fx) * fy
+        + data[off + (ys1 * w + xs1) * c + ch] * fx * fy
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_texture(tb, k, s, t):
+    """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
+    scale/bias, missing channels padded as :meth:`usdahd.scene.types.Texture.sample`)."""
+    data, info, chan, sb = tb.tex_data, tb.tex_info, tb.tex_chan, tb.tex_sb
+    off, h, w, c = info[k, 0], info[k, 1], info[k, 2], info[k, 3]
+    x = s * w - 0.5
+    y = (1.0 - t) * h - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    xi, yi = int(x0), int(y0)
+    xs0, xs1 = _wrap(xi, w, info[k, 4]), _wrap(xi + 1, w, info[k, 4])
+    ys0, ys1 = _wrap(yi, h, info[k, 5]), _wrap(yi + 1, h, info[k, 5])
+    out = (0.0, 0.0, 0.0, 0.0)
+    for j in range(info[k, 6]):
+        q = chan[k, j]
+        if q < c:
+            v = _bilinear(data, off, w, c, q, xs0, xs1, ys0, ys1, fx, fy)
+        elif c == 1 and q < 3:
+            v = _bilinear(data, off, w, c, np.int64(0), xs0, xs1, ys0, ys1, fx, fy)
+        else:
+            v = 1.0
+        v = np.float64(np.float32(v * sb[k, q] + sb[k, 4 + q]))
+        if j == 0:
+            out = (v, out[1], out[2], out[3])
+        elif j == 1:
+            out = (out[0], v, out[2], out[3])
+        elif j == 2:
+            out = (out[0], out[1], v, out[3])
+        else:
+            out = (out[0], out[1], out[2], v)
+    return out, info[k, 6]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _uv(tb, tri, u, v):
+    tc = tb.tri_texcoord
+    w0 = 1.0 - u - v
+    return (
+        w0 * tc[tri, 0, 0] + u * tc[tri, 1, 0] + v * tc[tri, 2, 0],
+        w0 * tc[tri, 0, 1] + u * tc[tri, 1, 1] + v * tc[tri, 2, 1],
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _material_rgb(tb, tri, u, v, which):
+    # which: TEX_ALBEDO or TEX_EMISSION; its constant rgb starts at column 3 * which
+    m = tb.tri_material[tri]
+    k = tb.mat_tex[m, which]
+    mc = tb.mat_const
+    if k < 0:
+        c0 = MAT_ALBEDO + 3 * which
+        return mc[m, c0], mc[m, c0 + 1], mc[m, c0 + 2]
+    s, t = _uv(tb, tri, u, v)
+    val, nch = nb_texture(tb, k, s, t)
+    if nch == 1:
+        return val[0], val[0], val[0]
+    return val[0], val[1], val[2]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_albedo(tb, tri, u, v):
+    """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
+    r, g, b = _material_rgb(tb, tri, u, v, np.int64(TEX_ALBEDO))
+    return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_emission(tb, tri, u, v):
+    """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
+    return _material_rgb(tb, tri, u, v, np.int64(TEX_EMISSION))
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_transmits(tb, tri, u, v, st):
+    """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
+    m = tb.tri_material[tri]
+    mc = tb.mat_const
+    k = tb.mat_tex[m, TEX_OPACITY]
+    op = mc[m, MAT_OPACITY]
+    if k >= 0:
+        s, t = _uv(tb, tri, u, v)
+        op = nb_texture(tb, k, s, t)[0][0]
+    elif op >= 1.0:
+        return False
+    th = np.float32(mc[m, MAT_THRESHOLD])
+    op = np.float32(op)
+    if th > 0:
+        return op < th
+    if op < 1.0:
+        return nb_random(st) >= op
+    return False
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_hit_point(tb, tri, u, v):
+    w = tb.verts
+    w0 = 1.0 - u - v
+    return (
+        w0 * w[tri, 0, 0] + u * w[tri, 1, 0] + v * w[tri, 2, 0],
+        w0 * w[tri, 0, 1] + u * w[tri, 1, 1] + v * w[tri, 2, 1],
+        w0 * w[tri, 0, 2] + u * w[tri, 1, 2] + v * w[tri, 2, 2],
+    )
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_shading_normal(tb, tri, u, v):
+    cn = tb.corner_normal
+    w0 = 1.0 - u - v
+    nx = w0 * cn[tri, 0, 0] + u * cn[tri, 1, 0] + v * cn[tri, 2, 0]
+    ny = w0 * cn[tri, 0, 1] + u * cn[tri, 1, 1] + v * cn[tri, 2, 1]
+    nz = w0 * cn[tri, 0, 2] + u * cn[tri, 1, 2] + v * cn[tri, 2, 2]
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln > 1e-12:
+        return nx / ln, ny / ln, nz / ln
+    g = tb.geom_normal
+    return g[tri, 0], g[tri, 1], g[tri, 2]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
+    """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
+    on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
+    per-triangle table is read)."""
+    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    rays = 1
+    if not transmission:
+        if tri < 0:
+            return np.inf, tri, 0.0, 0.0, 0.0, 0.0, 1.0, rays
+        gx, gy, gz = embree.hit_normal(rec)
+        return np.float64(t), tri, np.float64(u), np.float64(v), gx, gy, gz, rays
+    t = np.float64(t)
+    u = np.float64(u)
+    v = np.float64(v)
+    travelled = 0.0
+    for _ in range(MAX_TRANSMIT):
+        if tri < 0 or not nb_transmits(tb, tri, u, v, st):
+            break
+        px, py, pz = nb_hit_point(tb, tri, np.float32(u), np.float32(v))
+        g = tb.geom_normal
+        qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
+        done = travelled + t
+        t2, tri, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+        rays += 1
+        travelled = done
+        t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
+    if tri < 0:
+        return np.inf, tri, u, v, 0.0, 0.0, 1.0, rays
+    gx, gy, gz = embree.hit_normal(rec)
+    return np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
+    """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
+    if not transmission:
+        return embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar), 1
+    r = nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar)
+    return r[1] >= 0, r[7]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
+    """:meth:`Tracer.intersect` for ``rays[:n]`` into ``hits[:n]`` (the row layouts of
+    :func:`usdahd.bake.kernels.embree.intersect_rays`): 16-ray packets, or one ray at a time
+    through :func:`nb_trace` when the scene has transmissive surfaces. returns rays traced."""
+    if not transmission:
+        embree.intersect_rays(scene, pk, rec, rays, n, hits)
+        return n
+    total = 0
+    for r in range(n):
+        t, tri, u, v, gx, gy, gz, k = nb_trace(
+            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
+            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        )  # fmt: skip
+        hits[r, 0], hits[r, 1], hits[r, 2], hits[r, 3] = t, tri, u, v
+        hits[r, 4], hits[r, 5], hits[r, 6] = gx, gy, gz
+        total += k
+    return total
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, out):
+    """:meth:`Tracer.occluded` for ``rays[:n]`` into ``out[:n]`` (bool). returns rays traced."""
+    if not transmission:
+        embree.occluded_rays(scene, pk, rec, rays, n, out)
+        return n
+    total = 0
+    for r in range(n):
+        occ, k = nb_occluded(
+            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
+            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        )  # fmt: skip
+        out[r] = occ
+        total += k
+    return total

@@ -28,7 +28,7 @@ from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTabl
 from usdahd.bake.kernels.trace import nb_offset, nb_texture
 from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
-from usdahd.numerics.sampling import orthonormal_basis, to_world
+from usdahd.numerics.sampling import orthonormal_basis, sample_discrete, to_world
 from usdahd.scene import lights as L
 from usdahd.scene.types import Texture
 
@@ -303,3 +303,23 @@ def test_shadow1_equals_reference_shadow():
     got = _nb_shadows(o, p, d, dist)
     np.testing.assert_allclose(got[:, :3], dirs, rtol=REL, atol=REL)
     np.testing.assert_allclose(got[:, 3], tfar, rtol=REL)
+
+
+@njit(cache=False)
+def _nb_search(cdf, base, n, u):
+    out = np.zeros(u.shape[0], np.int64)
+    for i in range(u.shape[0]):
+        out[i] = K.search_right(cdf, base, n, u[i])
+    return out
+
+
+def test_search_right_equals_sample_discrete():
+    """The kernels' table lookup (dome pixels, emissive triangles) is
+    :func:`usdahd.numerics.sampling.sample_discrete` on one block: integers, exact."""
+    rng = np.random.default_rng(6)
+    pmf = rng.random(37)
+    pmf[[3, 4, 20]] = 0.0  # empty bins are never chosen
+    cdf = np.cumsum(pmf) / pmf.sum()
+    table = np.r_[rng.random(5), cdf, rng.random(4)]  # the block at offset 5
+    u = np.r_[rng.random(2000), 0.0, cdf[:5], 1.0 - 1e-16]
+    np.testing.assert_array_equal(_nb_search(table, 5, len(cdf), u), sample_discrete(cdf, u))

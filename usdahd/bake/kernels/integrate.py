@@ -62,6 +62,7 @@ from usdahd.bake.kernels.lights import (
     light_pdf,
     light_sample,
     nb_basis_apply,
+    search_right,
 )
 from usdahd.bake.kernels.trace import (
     nb_albedo,
@@ -169,14 +170,7 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
     if kind != KIND_EMISSIVE:
         return light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1)
     base, ne = int(p[PAR_EM_TABLE]), int(p[PAR_EM_COUNT])
-    lo_i, hi_i = 0, ne
-    while lo_i < hi_i:  # searchsorted(cdf, u0, side="right")
-        mid = (lo_i + hi_i) // 2
-        if cdf[base + mid] <= u0:
-            lo_i = mid + 1
-        else:
-            hi_i = mid
-    k = min(lo_i, ne - 1)
+    k = search_right(cdf, base, ne, u0)
     lo = cdf[base + k - 1] if k > 0 else 0.0
     pk = pmf[base + k]
     uu = min(max((u0 - lo) / max(pk, 1e-300), 0.0), 1.0)

@@ -385,6 +385,35 @@ def _dome_lookup(p, dx, dy, dz):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def search_right(cdf, base, n, u):
+    """``sampling.sample_discrete`` on the block ``cdf[base:base + n]``:
+    ``min(searchsorted(block, u, side="right"), n - 1)``."""
+    lo_i, hi_i = 0, n
+    while lo_i < hi_i:
+        mid = (lo_i + hi_i) // 2
+        if cdf[base + mid] <= u:
+            lo_i = mid + 1
+        else:
+            hi_i = mid
+    return min(lo_i, n - 1)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _area_sample(p, wx, wy, wz, nx, ny, nz):
+    """An area light's sample towards the point at offset (wx, wy, wz) from the query, whose
+    emitting side has normal n: (dx, dy, dz, dist, r, g, b, pdf) with the area-measure pdf
+    converted to solid angle (zero value and pdf from the back side)."""
+    dist = np.sqrt(wx * wx + wy * wy + wz * wz)
+    inv = 1.0 / max(dist, 1e-300)
+    dx, dy, dz = wx * inv, wy * inv, wz * inv
+    cos_l = -(dx * nx + dy * ny + dz * nz)
+    if cos_l > 0.0:
+        r, g, b = p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
+        return dx, dy, dz, dist, r, g, b, dist * dist / (p[PAR_AREA] * cos_l)
+    return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
     if kind == KIND_POINT:
@@ -455,22 +484,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         wx = p[PAR_CENTER] + a * p[PAR_EX] + b * p[PAR_EY] - x
         wy = p[PAR_CENTER + 1] + a * p[PAR_EX + 1] + b * p[PAR_EY + 1] - y
         wz = p[PAR_CENTER + 2] + a * p[PAR_EX + 2] + b * p[PAR_EY + 2] - z
-        dist = np.sqrt(wx * wx + wy * wy + wz * wz)
-        inv = 1.0 / max(dist, 1e-300)
-        dx, dy, dz = wx * inv, wy * inv, wz * inv
-        cos_l = -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2])
-        if cos_l > 0.0:
-            return (
-                dx,
-                dy,
-                dz,
-                dist,
-                p[PAR_RADIANCE],
-                p[PAR_RADIANCE + 1],
-                p[PAR_RADIANCE + 2],
-                dist * dist / (p[PAR_AREA] * cos_l),
-            )
-        return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+        return _area_sample(p, wx, wy, wz, p[PAR_NORMAL], p[PAR_NORMAL + 1], p[PAR_NORMAL + 2])
     if kind == KIND_CYLINDER:
         xx = (2.0 * u0 - 1.0) * p[PAR_HALF_LENGTH]
         phi = TWO_PI * u1
@@ -483,22 +497,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         wx = p[PAR_CENTER] + xx * p[PAR_AXIS] + p[PAR_RADIUS] * rx - x
         wy = p[PAR_CENTER + 1] + xx * p[PAR_AXIS + 1] + p[PAR_RADIUS] * ry - y
         wz = p[PAR_CENTER + 2] + xx * p[PAR_AXIS + 2] + p[PAR_RADIUS] * rz - z
-        dist = np.sqrt(wx * wx + wy * wy + wz * wz)
-        inv = 1.0 / max(dist, 1e-300)
-        dx, dy, dz = wx * inv, wy * inv, wz * inv
-        cos_l = -(dx * rx + dy * ry + dz * rz)
-        if cos_l > 0.0:
-            return (
-                dx,
-                dy,
-                dz,
-                dist,
-                p[PAR_RADIANCE],
-                p[PAR_RADIANCE + 1],
-                p[PAR_RADIANCE + 2],
-                dist * dist / (p[PAR_AREA] * cos_l),
-            )
-        return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+        return _area_sample(p, wx, wy, wz, rx, ry, rz)
     if kind == KIND_DISTANT:
         if p[PAR_OMC] <= 0.0:
             return (
@@ -527,14 +526,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     # textured dome (uniform domes are never sampled)
     h, w = int(p[PAR_DOME_H]), int(p[PAR_DOME_W])
     base = int(p[PAR_DOME_PMF])
-    lo_i, hi_i = 0, h * w
-    while lo_i < hi_i:  # searchsorted(cdf, u0, side="right")
-        mid = (lo_i + hi_i) // 2
-        if cdf[base + mid] <= u0:
-            lo_i = mid + 1
-        else:
-            hi_i = mid
-    idx = min(lo_i, h * w - 1)
+    idx = search_right(cdf, base, h * w, u0)
     lo = cdf[base + idx - 1] if idx > 0 else 0.0
     frac = min(max((u0 - lo) / max(pmf[base + idx], 1e-300), 0.0), 1.0 - 1e-12)
     yy, xx = idx // w, idx % w

@@ -62,6 +62,13 @@ def add_parser(sub):
     p.add_argument(
         "--exposure", type=float, default=0.0, help="stops added to the automatic exposure"
     )
+    p.add_argument(
+        "--backend",
+        choices=("auto", "wgpu", "embree"),
+        default="auto",
+        help="wgpu (the shipped shaders on Vulkan), embree (primary rays + the numpy decoders), "
+        "or auto: wgpu, falling back to embree when there is no Vulkan adapter",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -174,15 +181,29 @@ def vertex_data(mesh, tangent, sign) -> np.ndarray:
 # Rendering
 
 
-def device():
-    """A wgpu device (UsageError with what to install when there is none)."""
+def request_adapter():
+    """The wgpu adapter, or None (no adapter); raises ImportError without wgpu."""
+    import wgpu
+
     try:
-        import wgpu
+        return wgpu.gpu.request_adapter_sync(power_preference="high-performance")
+    except Exception:  # wgpu raises when no Vulkan loader/driver is present
+        return None
+
+
+def device(backend: str = "wgpu"):
+    """(adapter, device) for wgpu, or None when ``backend`` is "auto" and there is no Vulkan
+    adapter (one line on stderr says what to install). UsageError when "wgpu" has none."""
+    try:
+        adapter = request_adapter()
+        why = "no Vulkan adapter found"
     except ImportError:
-        raise UsageError(f"wgpu is not installed; {INSTALL_HINT}") from None
-    adapter = wgpu.gpu.request_adapter_sync(power_preference="high-performance")
+        adapter, why = None, "wgpu is not installed"
     if adapter is None:
-        raise UsageError(f"no Vulkan adapter found; {INSTALL_HINT}")
+        if backend == "auto":
+            print(f"usdahd preview: {why}; {INSTALL_HINT}; falling back to Embree", file=sys.stderr)
+            return None
+        raise UsageError(f"{why}; {INSTALL_HINT}")
     return adapter, adapter.request_device_sync()
 
 
@@ -412,8 +433,9 @@ def run(args) -> int:
         raise UsageError(f"-o {out}: the preview is a PNG (use a .png name)")
     if not Path(args.stage).exists():
         raise StageError(f"{args.stage}: no such file")
-    adapter, dev = device()  # before any long work
-    print(f"usdahd preview: {adapter.summary}", file=sys.stderr)
+    gpu = None if args.backend == "embree" else device(args.backend)  # before any long work
+    summary = gpu[0].summary if gpu else "embree (primary rays, numpy decoders)"
+    print(f"usdahd preview: {summary}", file=sys.stderr)
     stage, meshes, up = baked_meshes(args.stage)
     aspect = w / h
     if args.camera:
@@ -428,7 +450,15 @@ def run(args) -> int:
         items.append(
             (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
         )
-    image = render(dev, items, viewproj, (w, h))
+    if gpu:
+        image = render(gpu[1], items, viewproj, (w, h))
+    else:
+        from usdahd.preview import raytrace
+        from usdahd.usd.reader import load_scene
+
+        scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)  # the materials
+        traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
+        image = raytrace.render(scene, traced, viewproj, (w, h))
     ldr, scale = tonemap(image, args.exposure)
     images.write(out, ldr, color_space="srgb_rec709_scene")
     report = {
@@ -436,7 +466,8 @@ def run(args) -> int:
         "output": str(out),
         "size": [w, h],
         "camera": args.camera or "auto",
-        "adapter": adapter.summary,
+        "adapter": summary,
+        "backend": "wgpu" if gpu else "embree",
         "meshes": len(items),
         "models": sorted({f"{m}/{r}" for _, m, r, _, _ in items}),
         "exposure_scale": scale,

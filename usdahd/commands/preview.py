@@ -7,8 +7,12 @@ the lightmap UV, decoded and evaluated at the shading normal. The result is norm
 irradiance (a white Lambertian surface's radiance times pi); the PNG is tone-mapped (auto
 exposure on the 99th percentile, sRGB), ``--json`` prints linear statistics.
 
+Back faces are culled (closed rooms open towards the camera). Without a Vulkan adapter
+``--backend auto`` falls back to Embree primary rays + the numpy decoders
+(:mod:`usdahd.preview.raytrace`, which culls the same faces); one stderr line says what to install.
+
 Not yet: albedo and normal maps (``--model-view``), ``--compare`` (path-traced reference),
-``--atlas``, and the Embree fallback without a Vulkan adapter (the command says what to install).
+``--atlas``.
 """
 
 from __future__ import annotations

@@ -6,6 +6,11 @@ bilinearly (texel centres at (i + 0.5) / W, clamp to edge, like the wgpu sampler
 scale, the model's Python ``decode`` turns the samples into parameters and ``evaluate`` gives the
 irradiance at the tangent-space shading normal (0, 0, 1) (no normal map). Output matches
 ``render`` of the wgpu path: (H, W, 4) float32, alpha 1 where a baked mesh is hit.
+
+Back faces are culled as the wgpu pipeline culls them (``cull_mode="back"``, counter-clockwise
+front): a ray passes through a triangle whose geometric normal (the winding's, as the rasteriser
+sees it) does not face the ray, so a closed room viewed from outside opens the same way (the
+auto framing looks down through the ceiling's back face).
 """
 
 from __future__ import annotations
@@ -29,6 +34,39 @@ def primary_rays(viewproj: np.ndarray, size) -> tuple[np.ndarray, np.ndarray]:
     far = far[:, :3] / far[:, 3:]
     d = far - near
     return near, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+#: Back faces a primary ray may pass through before it is taken as a miss.
+MAX_BACK_FACES = 16
+
+
+def front_hits(tracer, o: np.ndarray, d: np.ndarray) -> dict:
+    """Closest front-facing hits of rays o, d (m, 3): ``tracer.intersect``'s dict (``tri`` -1 on
+    a miss, ``u``, ``v`` barycentrics), with back-facing and edge-on triangles (geometric normal
+    . d >= 0) passed through, as the rasteriser's back-face culling drops them."""
+    o = np.asarray(o, np.float64)
+    d = np.asarray(d, np.float64)
+    hit = tracer.intersect(o, d)
+    tri, u, v = hit["tri"].copy(), hit["u"].copy(), hit["v"].copy()
+    for _ in range(MAX_BACK_FACES):
+        idx = np.nonzero(tri >= 0)[0]
+        ng = tracer.geom_normal[tri[idx]].astype(np.float64)
+        cos = np.einsum("ij,ij->i", ng, d[idx])
+        back = cos >= 0.0
+        idx, cos = idx[back], cos[back]
+        if not idx.size:
+            break
+        # Continue the same ray: step past the plane along d (not along the normal, which
+        # would shift the ray sideways by the offset and move the hit behind by as much).
+        step = tracer.offset_eps / np.maximum(cos, 1e-3)
+        p = tracer.hit_points(tri[idx], u[idx], v[idx]) + step[:, None] * d[idx]
+        again = tracer.intersect(p, d[idx])
+        tri[idx], u[idx], v[idx] = again["tri"], again["u"], again["v"]
+    else:
+        idx = np.nonzero(tri >= 0)[0]
+        ng = tracer.geom_normal[tri[idx]].astype(np.float64)
+        tri[idx[np.einsum("ij,ij->i", ng, d[idx]) >= 0.0]] = -1
+    return {"tri": tri, "u": u, "v": v}
 
 
 def bilinear(pixels: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -62,7 +100,7 @@ def render(scene, items, viewproj: np.ndarray, size) -> np.ndarray:
     tracer = Tracer(sc)
     try:
         o, d = primary_rays(viewproj, size)
-        hit = tracer.intersect(o, d)
+        hit = front_hits(tracer, o, d)
         tri, u, v = hit["tri"], hit["u"], hit["v"]
         image = np.zeros((h * w, 4), np.float32)
         for k, (mesh, model, ratio, textures, factors) in enumerate(items):

@@ -48,3 +48,23 @@ def samples_dir() -> Path:
 def sample_copy(tmp_path):
     """``sample_copy(name)``: samples/<name> (and its textures) copied into tmp_path."""
     return lambda name: copy_sample(tmp_path, name)
+
+
+def baked_mean_iz(layer: Path) -> float:
+    """Mean baked I_z (channel R) over the covered texels of the one baked prim of ``layer``,
+    from its float SH sidecar (reloaded, so a re-bake in the same process is seen)."""
+    import numpy as np
+    from pxr import Sdf, Usd
+
+    from usdahd import images
+    from usdahd.numerics import sh as shmod
+    from usdahd.usd import schema
+
+    Sdf.Layer.FindOrOpen(str(layer)).Reload(force=True)
+    stage = Usd.Stage.Open(str(layer))
+    (prim,) = schema.prims_with_api(stage)
+    res = schema.read_results(prim)
+    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
+    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
+    covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
+    return float(shmod.iz(covered)[:, 0].mean())

@@ -8,11 +8,9 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import numpy as np
+from conftest import baked_mean_iz
 
-from usdahd import cli, images, pipeline
-from usdahd.numerics import sh as shmod
-from usdahd.usd import schema
+from usdahd import cli, pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANE = ROOT / "samples" / "open_plane.usda"
@@ -35,18 +33,7 @@ def _scenario(tmp_path: Path, name: str, intensity: float) -> Path:
     return path
 
 
-def _iz(layer: Path) -> float:
-    """Mean baked I_z (luminance-free: channel R) over covered texels, from the SH sidecar."""
-    from pxr import Sdf, Usd
-
-    Sdf.Layer.FindOrOpen(str(layer)).Reload(force=True)
-    stage = Usd.Stage.Open(str(layer))
-    (prim,) = schema.prims_with_api(stage)
-    res = schema.read_results(prim)
-    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
-    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
-    covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
-    return float(shmod.iz(covered)[:, 0].mean())
+_iz = baked_mean_iz
 
 
 def test_day_and_night_layers_in_one_folder_keep_their_own_lighting(tmp_path, capsys):

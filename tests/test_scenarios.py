@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
+from conftest import baked_mean_iz
 
 import usdahd.usd  # noqa: F401  (registers the plugins first)
 from usdahd.errors import UsageError
@@ -173,21 +173,7 @@ def _scenario_stage(tmp_path: Path) -> Path:
     return stage
 
 
-def _iz(layer: Path) -> float:
-    from pxr import Sdf, Usd
-
-    from usdahd import images
-    from usdahd.numerics import sh as shmod
-    from usdahd.usd import schema
-
-    Sdf.Layer.FindOrOpen(str(layer)).Reload(force=True)
-    st = Usd.Stage.Open(str(layer))
-    (prim,) = schema.prims_with_api(st)
-    res = schema.read_results(prim)
-    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
-    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
-    covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
-    return float(shmod.iz(covered)[:, 0].mean())
+_iz = baked_mean_iz
 
 
 def test_bake_two_scenarios_into_one_folder(tmp_path, capsys):

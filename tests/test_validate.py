@@ -39,9 +39,10 @@ def assets(tmp_path_factory):
 
 
 def _findings(layer: Path) -> list[V.Finding]:
-    from usdahd.commands.validate import _open, validate_stage
+    from usdahd.usd.stage import open_stage
+    from usdahd.validate.run import validate_stage
 
-    return validate_stage(_open(str(layer)))
+    return validate_stage(open_stage(str(layer)))
 
 
 def _ours(findings, severities=("error", "warning")):

@@ -13,10 +13,13 @@ Why the plugin module is this package: a ``"Type": "python"`` Plug plugin is loa
 package itself. Importing this package registers the implementations (:func:`register`).
 
 Layout (one module per rule domain): ``registry`` (rule names and docs), ``options``
-(tolerances), ``findings`` (Finding, UsdValidation/JSON conversion), ``loading`` (textures and
-the decoded bake), ``schema_values``, ``textures``, ``texel_values``, ``irradiance`` (IzCheck,
-EncodingError), ``staleness``, ``uvset``, ``plugin`` (registration, :func:`run_rule`); the
-opt-in Retrace rule is :mod:`usdahd.validate.retrace`.
+(tolerances), ``findings`` (Finding, JSON), ``loading`` (textures and the decoded bake),
+``schema_values``, ``textures``, ``texel_values``, ``irradiance`` (IzCheck, EncodingError),
+``staleness``, ``uvset``, ``plugin`` (registration, :func:`run_rule`), ``run`` (what
+``usdahd validate`` runs on a stage file); the opt-in Retrace rule is
+:mod:`usdahd.validate.retrace`. No module here imports pxr: the rules read prims through
+:mod:`usdahd.usd` (:mod:`usdahd.usd.inspect` for the small reads), and the UsdValidation glue
+(tasks, error conversion, the ValidationContext) is :mod:`usdahd.usd.validation`.
 
 Rules (see docs/validate.md for what each checks and how to fix it):
 
@@ -40,7 +43,6 @@ from usdahd import models  # noqa: F401  (V.models in tests)
 from usdahd.numerics import sh as shm  # noqa: F401
 from usdahd.usd import schema  # noqa: F401
 from usdahd.validate.findings import (  # noqa: F401
-    _TYPES,
     FINDING_DATA,
     Finding,
     _jsonable,
@@ -104,10 +106,7 @@ from usdahd.validate.registry import (  # noqa: F401
     Rule,
     validator_name,
 )
-from usdahd.validate.schema_values import (  # noqa: F401
-    _prim_definition,
-    check_schema_values,
-)
+from usdahd.validate.schema_values import check_schema_values  # noqa: F401
 from usdahd.validate.staleness import (  # noqa: F401
     _SCENES,
     _SETTING_KEYS,
@@ -121,13 +120,11 @@ from usdahd.validate.texel_values import (  # noqa: F401
     check_texel_values,
 )
 from usdahd.validate.textures import (  # noqa: F401
-    _udim_tiles,
     _uv_tiles,
     check_textures,
 )
 from usdahd.validate.uvset import (  # noqa: F401
     _coverage_kernel_py,
-    _read_uvs,
     check_uv_set,
     texel_coverage,
 )

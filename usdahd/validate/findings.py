@@ -9,17 +9,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Sdf, UsdValidation
 
+from usdahd.usd import validation as usd_validation
 from usdahd.validate.registry import PLUGIN_NAME
 
 # --------------------------------------------------------------------------------- findings
-
-_TYPES = {
-    "error": UsdValidation.ValidationErrorType.Error,
-    "warning": UsdValidation.ValidationErrorType.Warn,
-    "info": UsdValidation.ValidationErrorType.Info,
-}
 
 
 @dataclass
@@ -38,9 +32,9 @@ class Finding:
     message: str
     data: dict = field(default_factory=dict)
 
-    def to_usd(self, stage) -> UsdValidation.ValidationError:
-        site = UsdValidation.ValidationErrorSite(stage, Sdf.Path(self.prim))
-        return UsdValidation.ValidationError(self.code, _TYPES[self.severity], [site], self.message)
+    def to_usd(self, stage):
+        """The ``UsdValidation.ValidationError`` of this finding on ``stage``."""
+        return usd_validation.to_error(self, stage)
 
 
 class _Rule:
@@ -87,27 +81,8 @@ FINDING_DATA: dict = {}
 
 def finding_from_usd(error) -> Finding:
     """A Finding from a UsdValidation.ValidationError (ours or a built-in validator's)."""
-    validator = error.GetValidator()
-    vname = validator.GetMetadata().name if validator else ""
+    vname, sev, prim, code, msg = usd_validation.error_record(error)
     rule = vname.split(":", 1)[1] if vname.startswith(PLUGIN_NAME + ":") else vname
-    sev = {
-        UsdValidation.ValidationErrorType.Error: "error",
-        UsdValidation.ValidationErrorType.Warn: "warning",
-    }.get(error.GetType(), "info")
-    prim = ""
-    for site in error.GetSites():
-        p = site.GetPrim()
-        if p:
-            prim = str(p.GetPath())
-            break
-        prop = site.GetProperty()
-        if prop:
-            prim = str(prop.GetPrimPath())
-            break
-        layer = site.GetLayer()
-        if layer:
-            prim = f"@{layer.identifier}@"
-    code, msg = str(error.GetName()), error.GetMessage()
     return Finding(rule, sev, prim, code, msg, dict(FINDING_DATA.get((rule, prim, code, msg), {})))
 
 

@@ -1,12 +1,12 @@
 """Registration of the rules with UsdValidation (prim validators + the stage rule ``Lightmapped``)
-and the plain-function path :func:`run_rule`.
+and the plain-function path :func:`run_rule`. The UsdValidation calls themselves (tasks, error
+conversion, the registry) are in :mod:`usdahd.usd.validation`.
 """
 
 from __future__ import annotations
 
-from pxr import Sdf, UsdValidation
-
 from usdahd.usd import schema
+from usdahd.usd import validation as usd_validation
 from usdahd.validate.findings import FINDING_DATA, Finding
 from usdahd.validate.irradiance import check_encoding_error, check_iz
 from usdahd.validate.loading import _LOCK
@@ -54,30 +54,25 @@ def run_rule(rule: str, prim) -> list[Finding]:
         ]
 
 
-def _task(rule: str):
-    def task(prim, time_range=None):
-        try:
-            stage = prim.GetStage()
-            found = run_rule(rule, prim)
-            with _LOCK:
-                for f in found:
-                    FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
-                while len(FINDING_DATA) > 10000:
-                    FINDING_DATA.pop(next(iter(FINDING_DATA)))
-            return [f.to_usd(stage) for f in found]
-        except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
-            site = UsdValidation.ValidationErrorSite(prim.GetStage(), prim.GetPath())
-            return [
-                UsdValidation.ValidationError(
-                    "InternalError",
-                    UsdValidation.ValidationErrorType.Error,
-                    [site],
-                    f"rule {rule} could not run: {exc}",
-                )
-            ]
+def _recorded(rule: str):
+    """``run_rule(rule, prim)``, keeping each finding's data in FINDING_DATA (UsdValidation
+    carries only the message; ``usdahd validate --json`` adds the numbers back from there)."""
 
-    task.__name__ = f"usdahd_{rule}"
-    return task
+    def check(prim):
+        found = run_rule(rule, prim)
+        with _LOCK:
+            for f in found:
+                FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
+            while len(FINDING_DATA) > 10000:
+                FINDING_DATA.pop(next(iter(FINDING_DATA)))
+        return found
+
+    return check
+
+
+def _task(rule: str):
+    """The UsdValidation prim task of a rule."""
+    return usd_validation.prim_task(rule, _recorded(rule))
 
 
 def register() -> list[str]:
@@ -86,17 +81,13 @@ def register() -> list[str]:
     Only rules whose metadata the plugInfo declared are registered (USD refuses the others);
     returns the names registered by this call.
     """
-    reg = UsdValidation.ValidationRegistry()
     done = []
     for rule in RULE_NAMES:
         name = validator_name(rule)
-        if reg.HasValidator(name) or reg.GetValidatorMetadata(name) is None:
-            continue
-        reg.RegisterPluginPrimValidator(name, _task(rule))
-        done.append(name)
+        if usd_validation.register_validator(name, _task(rule)):
+            done.append(name)
     name = validator_name(STAGE_RULE.name)
-    if not reg.HasValidator(name) and reg.GetValidatorMetadata(name) is not None:
-        reg.RegisterPluginStageValidator(name, _stage_task)
+    if usd_validation.register_validator(name, _stage_task, stage=True):
         done.append(name)
     return done
 
@@ -121,16 +112,5 @@ def check_lightmapped(stage) -> list[Finding]:
     ]
 
 
-def _stage_task(stage, time_range=None):
-    try:
-        return [f.to_usd(stage) for f in check_lightmapped(stage)]
-    except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
-        site = UsdValidation.ValidationErrorSite(stage, Sdf.Path.absoluteRootPath)
-        return [
-            UsdValidation.ValidationError(
-                "InternalError",
-                UsdValidation.ValidationErrorType.Error,
-                [site],
-                f"rule {STAGE_RULE.name} could not run: {exc}",
-            )
-        ]
+#: The UsdValidation stage task of Lightmapped.
+_stage_task = usd_validation.stage_task(STAGE_RULE.name, check_lightmapped)

@@ -689,43 +689,38 @@ def validator_name() -> str:
     return f"{PLUGIN_NAME}:{RULE}"
 
 
-def _task(prim, time_range=None):
-    from pxr import UsdValidation
-
+def _recorded(prim) -> list:
+    """check_retrace on a prim with AhdLightmapAPI, an exception becoming an InternalError
+    finding, keeping each finding's data in FINDING_DATA (see usdahd.validate.plugin)."""
     from usdahd import validate as V
     from usdahd.usd import schema
 
+    if not schema.has_api(prim):
+        return []
     try:
-        if not schema.has_api(prim):
-            return []
-        try:
-            found = check_retrace(prim)
-        except Exception as exc:  # noqa: BLE001 - reported, never raised (see validate.run_rule)
-            first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
-            found = [
-                _finding(
-                    prim,
-                    "error",
-                    "InternalError",
-                    f"rule {RULE} could not run: {type(exc).__name__}: {first}",
-                    "report this as a usdahd bug (with the stage) and check the prim by hand",
-                )
-            ]
-        stage = prim.GetStage()
-        with V._LOCK:
-            for f in found:
-                V.FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
-        return [f.to_usd(stage) for f in found]
-    except Exception as exc:  # noqa: BLE001 - never let an exception abort Validate()
-        site = UsdValidation.ValidationErrorSite(prim.GetStage(), prim.GetPath())
-        return [
-            UsdValidation.ValidationError(
+        found = check_retrace(prim)
+    except Exception as exc:  # noqa: BLE001 - reported, never raised (see validate.run_rule)
+        first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
+        found = [
+            _finding(
+                prim,
+                "error",
                 "InternalError",
-                UsdValidation.ValidationErrorType.Error,
-                [site],
-                f"rule {RULE} could not run: {exc}",
+                f"rule {RULE} could not run: {type(exc).__name__}: {first}",
+                "report this as a usdahd bug (with the stage) and check the prim by hand",
             )
         ]
+    with V._LOCK:
+        for f in found:
+            V.FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
+    return found
+
+
+def _task(prim, time_range=None):
+    """The UsdValidation prim task of Retrace (usdahd.usd.validation.prim_task)."""
+    from usdahd.usd import validation as usd_validation
+
+    return usd_validation.prim_task(RULE, _recorded)(prim, time_range)
 
 
 _task.__name__ = f"usdahd_{RULE}"
@@ -734,11 +729,7 @@ _task.__name__ = f"usdahd_{RULE}"
 def register() -> list[str]:
     """Register the Retrace validator with UsdValidation (idempotent; only when the plugInfo
     declares it). Returns the names registered by this call."""
-    from pxr import UsdValidation
+    from usdahd.usd import validation as usd_validation
 
-    reg = UsdValidation.ValidationRegistry()
     name = validator_name()
-    if reg.HasValidator(name) or reg.GetValidatorMetadata(name) is None:
-        return []
-    reg.RegisterPluginPrimValidator(name, _task)
-    return [name]
+    return [name] if usd_validation.register_validator(name, _task) else []

@@ -2,23 +2,17 @@
 
 from __future__ import annotations
 
-from pxr import Usd
-
 from usdahd import models
-from usdahd.usd import schema
+from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
 
 # ----------------------------------------------------------------------- rule 1: SchemaValues
 
 
-def _prim_definition():
-    return Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(schema.API_NAME)
-
-
 def check_schema_values(prim) -> list[Finding]:
     """Rule SchemaValues (see RULES)."""
     r = _Rule("SchemaValues", prim)
-    defn = _prim_definition()
+    defn = inspect.api_definition()
     ns = schema.NAMESPACE + ":"
     version_attr = prim.GetAttribute(schema.property_name("baked:formatVersion"))
     old = int((version_attr.Get() if version_attr else 0) or 0) in schema.OLD_FORMAT_VERSIONS

@@ -6,10 +6,9 @@ import math
 from collections import OrderedDict
 
 import numpy as np
-from pxr import Usd, UsdGeom
 
 from usdahd import models
-from usdahd.usd import schema
+from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
 from usdahd.validate.loading import _LOCK
 
@@ -29,23 +28,10 @@ class _SceneCache:
 
     @staticmethod
     def key(stage, uv_name: str, time=None):
-        parts = []
-        for layer in stage.GetUsedLayers():
-            if layer.anonymous and layer != stage.GetSessionLayer():
-                return None
-            if layer.dirty and not layer.anonymous:
-                return None
-            if layer.anonymous:
-                if not layer.empty:
-                    return None
-                continue
-            from usdahd.usd import assets
-
-            stamp = assets.stamp(layer.realPath)  # a layer inside a usdz: its package's
-            if stamp is None:
-                return None
-            parts.append((layer.identifier, *stamp))
-        return (tuple(sorted(parts)), uv_name, repr(time))
+        layers = inspect.layers_stamp(stage)
+        if layers is None:
+            return None
+        return (layers, uv_name, repr(time))
 
     def get(self, stage, uv_name: str, time=None):
         """Hash parts of the stage read at ``time`` (the bake's: a number or "default")."""
@@ -228,22 +214,13 @@ def _normals_drift(prim, results) -> str | None:
 
     if results.normals not in (N.RULE_CREASE, N.RULE_SMOOTH):
         return None
-    mesh = UsdGeom.Mesh(prim)
     time = results.settings.get("time", "default")
-    t = Usd.TimeCode.Default() if time == "default" else Usd.TimeCode(float(time))
-    pts, counts, idx = (
-        mesh.GetPointsAttr().Get(t),
-        mesh.GetFaceVertexCountsAttr().Get(t),
-        mesh.GetFaceVertexIndicesAttr().Get(t),
-    )
-    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
-    authored = pv.ComputeFlattened(t) if pv and pv.HasValue() else mesh.GetNormalsAttr().Get(t)
+    pts, counts, idx, authored, left = inspect.normals_inputs(prim, time)
     if pts is None or counts is None or idx is None or authored is None:
         return None
     idx = np.asarray(idx, np.int64)
     if len(idx) == 0 or idx.min() < 0 or idx.max() >= len(pts) or len(authored) != len(idx):
         return "the normals the bake authored no longer fit the mesh's topology"
-    left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
     want = N.compute_normals(np.asarray(pts, np.float64), counts, idx, results.normals, left)
     got = np.asarray(authored, np.float32).reshape(-1, 3)
     if np.abs(got - want).max() > 1e-5:

@@ -6,30 +6,18 @@ from __future__ import annotations
 import os
 
 import numpy as np
-from pxr import Usd, UsdShade
 
 from usdahd import models
-from usdahd.usd import schema
+from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
 from usdahd.validate.loading import read_image
 from usdahd.validate.options import OIIO_FORMATS
-from usdahd.validate.uvset import _read_uvs
 
 # --------------------------------------------------------------------------- rule 2: Textures
 
 
-def _udim_tiles(prim, asset: str, attr) -> list[tuple[int, str]]:
-    layer = None
-    for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
-        if spec.HasDefaultValue():
-            layer = spec.layer
-            break
-    tiles = UsdShade.UdimUtils.ResolveUdimTilePaths(asset, layer) if layer else []
-    return [(int(t[1]), str(t[0])) for t in tiles]
-
-
 def _uv_tiles(prim, uv_name: str) -> set[int]:
-    uv = _read_uvs(prim, uv_name)
+    uv = inspect.corner_uvs(prim, uv_name)
     if uv is None:
         return set()
     u = np.floor(uv[..., 0].mean(axis=1)).astype(int)
@@ -67,7 +55,7 @@ def check_textures(prim) -> list[Finding]:
                 property=prop,
             )
         if "<UDIM>" in asset:
-            tiles = _udim_tiles(prim, asset, attr)
+            tiles = inspect.udim_tiles(attr, asset)
             have = {t for t, _ in tiles}
             want = _uv_tiles(prim, results.uv_primvar)
             missing = sorted(want - have)

@@ -5,40 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom
 
 from usdahd.numerics.raster import fan_triangulate, uv_to_pixel
-from usdahd.usd import schema
+from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
 from usdahd.validate.options import OPTIONS
 
 # ------------------------------------------------------------------------------ rule 7: UVSet
-
-
-def _read_uvs(prim, name: str) -> np.ndarray | None:
-    """Per-triangle-corner UVs (t, 3, 2) float64 by the baker's fan triangulation
-    (:func:`usdahd.numerics.raster.fan_triangulate`), or None if absent."""
-    mesh = UsdGeom.Mesh(prim)
-    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
-    if not pv or not pv.HasValue():
-        return None
-    vals = pv.ComputeFlattened()
-    if vals is None:
-        return None
-    vals = np.asarray(vals, dtype=np.float64).reshape(-1, 2)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
-    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
-    interp = pv.GetInterpolation()
-    if interp == UsdGeom.Tokens.faceVarying:
-        per_corner = vals
-    elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        per_corner = vals[fvi]
-    elif interp == UsdGeom.Tokens.uniform:
-        per_corner = np.repeat(vals, counts, axis=0)
-    else:
-        per_corner = np.broadcast_to(vals[:1], (len(fvi), 2))
-    _, tri = fan_triangulate(counts)
-    return per_corner[tri]
 
 
 def texel_coverage(uv: np.ndarray, resolution: tuple[int, int]) -> np.ndarray:
@@ -107,22 +80,22 @@ def check_uv_set(prim) -> list[Finding]:
     if results is None or not results.uv_primvar:
         return r.out
     name = results.uv_primvar
-    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
-    if not pv or not pv.HasValue():
+    ptype = inspect.primvar_type(prim, name)
+    if ptype is None:
         r.error(
             "MissingUVSet",
             f"primvars:{name} (ahdLightmap:baked:uvPrimvar) does not exist or has no value",
             "re-bake the prim (the bake authors the UV set it unwrapped) or restore the primvar",
         )
         return r.out
-    if pv.GetTypeName().type != Sdf.ValueTypeNames.TexCoord2fArray.type:
+    if not ptype[1]:
         r.error(
             "UVSetType",
-            f"primvars:{name} is {pv.GetTypeName()}, not a float2/texCoord2f array",
+            f"primvars:{name} is {ptype[0]}, not a float2/texCoord2f array",
             "author the lightmap UVs as texCoord2f[]",
         )
         return r.out
-    uv = _read_uvs(prim, name)
+    uv = inspect.corner_uvs(prim, name)
     if uv is None or uv.size == 0:
         r.error("MissingUVSet", f"primvars:{name} has no values", "re-bake the prim")
         return r.out
@@ -158,14 +131,9 @@ def check_uv_set(prim) -> list[Finding]:
                 texel=(int(xs[0]), int(ys[0])),
             )
     # Texel density: texels per unit of world area per triangle.
-    mesh = UsdGeom.Mesh(prim)
-    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
-    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    pts, counts, fvi = inspect.mesh_topology(prim)
     if len(pts) and len(fvi):
-        m = np.asarray(
-            UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
-        ).T
+        m = inspect.local_to_world(prim)
         wp = pts @ m[:3, :3].T + m[:3, 3]
         tri = wp[fvi[fan_triangulate(counts)[1]]]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)

@@ -1,0 +1,128 @@
+"""Small prim and layer reads for the validator's rules (:mod:`usdahd.validate`), which never
+import pxr themselves: lightmap UVs per triangle corner, mesh topology and transform, the
+inputs of the normals rule, UDIM tiles, the AhdLightmapAPI prim definition and a stamp of the
+stage's layers on disk.
+
+Each reads the prim as authored, without the scene reader's checks and warnings
+(:mod:`usdahd.usd.geometry`): a rule reports what is wrong with it itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+from usdahd.numerics.raster import fan_triangulate
+from usdahd.usd import assets, schema
+
+
+def corner_uvs(prim, name: str) -> np.ndarray | None:
+    """Per-triangle-corner values of the primvar ``name`` at the default time: (t, 3, 2)
+    float64 by the baker's fan triangulation (:func:`usdahd.numerics.raster.fan_triangulate`),
+    or None if the primvar is absent or has no value."""
+    mesh = UsdGeom.Mesh(prim)
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+    if not pv or not pv.HasValue():
+        return None
+    vals = pv.ComputeFlattened()
+    if vals is None:
+        return None
+    vals = np.asarray(vals, dtype=np.float64).reshape(-1, 2)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
+    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    interp = pv.GetInterpolation()
+    if interp == UsdGeom.Tokens.faceVarying:
+        per_corner = vals
+    elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+        per_corner = vals[fvi]
+    elif interp == UsdGeom.Tokens.uniform:
+        per_corner = np.repeat(vals, counts, axis=0)
+    else:
+        per_corner = np.broadcast_to(vals[:1], (len(fvi), 2))
+    _, tri = fan_triangulate(counts)
+    return per_corner[tri]
+
+
+def primvar_type(prim, name: str) -> tuple[str, bool] | None:
+    """(type name, whether it is ``texCoord2f[]``) of the primvar ``name``; None when it does
+    not exist or has no value."""
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+    if not pv or not pv.HasValue():
+        return None
+    tname = pv.GetTypeName()
+    return str(tname), tname.type == Sdf.ValueTypeNames.TexCoord2fArray.type
+
+
+def mesh_topology(prim) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """points (n, 3) float64, faceVertexCounts (f,) int64, faceVertexIndices (k,) int64 of a
+    mesh at the default time (empty arrays when unauthored)."""
+    mesh = UsdGeom.Mesh(prim)
+    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
+    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    return pts, counts, fvi
+
+
+def local_to_world(prim) -> np.ndarray:
+    """(4, 4) float64 local-to-world matrix at the default time, for column vectors
+    (``world = m[:3, :3] @ p + m[:3, 3]``)."""
+    return np.asarray(
+        UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
+    ).T
+
+
+def normals_inputs(prim, time="default"):
+    """What the normals rule (:func:`usdahd.usd.normals.compute_normals`) and the normals the
+    bake authored are compared on, read at ``time`` (a number or "default"):
+    (points, faceVertexCounts, faceVertexIndices, authored normals, left-handed) with the
+    values as USD returns them (any may be None); the authored normals are ``primvars:normals``
+    flattened, else the ``normals`` attribute; the orientation is read at the default time."""
+    mesh = UsdGeom.Mesh(prim)
+    t = Usd.TimeCode.Default() if time == "default" else Usd.TimeCode(float(time))
+    pts, counts, idx = (
+        mesh.GetPointsAttr().Get(t),
+        mesh.GetFaceVertexCountsAttr().Get(t),
+        mesh.GetFaceVertexIndicesAttr().Get(t),
+    )
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+    authored = pv.ComputeFlattened(t) if pv and pv.HasValue() else mesh.GetNormalsAttr().Get(t)
+    left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
+    return pts, counts, idx, authored, left
+
+
+def udim_tiles(attr, asset: str) -> list[tuple[int, str]]:
+    """(tile number, resolved path) of the UDIM set ``asset`` of an asset attribute, resolved
+    against the layer that authors its default value ([] when none does)."""
+    layer = None
+    for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
+        if spec.HasDefaultValue():
+            layer = spec.layer
+            break
+    tiles = UsdShade.UdimUtils.ResolveUdimTilePaths(asset, layer) if layer else []
+    return [(int(t[1]), str(t[0])) for t in tiles]
+
+
+def api_definition():
+    """The AhdLightmapAPI ``Usd.PrimDefinition`` (None when the schema is not registered)."""
+    return Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(schema.API_NAME)
+
+
+def layers_stamp(stage):
+    """A hashable stamp of every layer the stage uses: sorted (identifier, *file stamp) of the
+    layers on disk, or None when any layer has unsaved edits or is anonymous (other than an
+    empty session layer) or has no stamp, i.e. when the stage may differ from its files."""
+    parts = []
+    for layer in stage.GetUsedLayers():
+        if layer.anonymous and layer != stage.GetSessionLayer():
+            return None
+        if layer.dirty and not layer.anonymous:
+            return None
+        if layer.anonymous:
+            if not layer.empty:
+                return None
+            continue
+        stamp = assets.stamp(layer.realPath)  # a layer inside a usdz: its package's
+        if stamp is None:
+            return None
+        parts.append((layer.identifier, *stamp))
+    return tuple(sorted(parts))

@@ -1,0 +1,110 @@
+"""What ``usdahd validate STAGE`` runs: our validators (keyword ``UsdAhdValidators``) plus the
+built-in validators that matter for a baked stage (:data:`BUILTIN_VALIDATORS`) through one
+``ValidationContext`` (:mod:`usdahd.usd.validation`), so its findings are the ones any
+UsdValidation run with our plugin path reports; the CLI (:mod:`usdahd.commands.validate`)
+only handles arguments and prints.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from usdahd.usd import schema
+from usdahd.usd import validation as usd_validation
+from usdahd.usd.stage import open_stage
+from usdahd.validate.findings import Finding, finding_from_usd
+from usdahd.validate.plugin import check_lightmapped
+from usdahd.validate.registry import (
+    BUILTIN_VALIDATORS,
+    KEYWORD,
+    RULE_NAMES,
+    STAGE_RULE,
+    validator_name,
+)
+
+SEVERITY_ORDER = {"error": 0, "warning": 1, "info": 2}
+
+
+def context(retrace: bool = False):
+    """The ValidationContext ``usdahd validate`` uses: our keyword plus the built-ins (plus the
+    opt-in Retrace validator with ``retrace``). Raises StageError when ours are not
+    registered."""
+    from usdahd.validate import retrace as rt
+
+    required = [validator_name(r) for r in (*RULE_NAMES, STAGE_RULE.name)]
+    extra = rt.validator_name() if retrace else None
+    return usd_validation.context(KEYWORD, required, BUILTIN_VALIDATORS, extra)
+
+
+def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False) -> list[Finding]:
+    """Run the validation context on a stage (or the prims at ``prims`` and their
+    descendants); returns the findings sorted by prim, severity, rule and code.
+
+    retrace : also run the opt-in Retrace rule (settings in usdahd.validate.retrace.OPTIONS).
+    Raises UsageError for a ``prims`` path that is not on the stage.
+    """
+    errors = usd_validation.run_context(context(retrace), stage, prims)
+    findings = [finding_from_usd(e) for e in errors]
+    findings.sort(key=lambda f: (f.prim, SEVERITY_ORDER.get(f.severity, 3), f.rule, f.code))
+    return findings
+
+
+def dedupe(findings: list, stage_dir: Path) -> list:
+    """Drop USD's MissingReferenceValidator finding for a texture our Textures rule already
+    reported missing (one missing file, one finding)."""
+    missing = set()
+    for f in findings:
+        asset = (getattr(f, "data", None) or {}).get("asset")
+        if f.code == "MissingFile" and asset:
+            missing.add(os.path.normpath(str(stage_dir / asset)))
+    if not missing:
+        return findings
+    out = []
+    for f in findings:
+        if f.code == "UnresolvableDependency":
+            quoted = f.message.split("'")
+            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in missing:
+                continue
+        out.append(f)
+    return out
+
+
+@dataclass
+class Report:
+    """What validating a stage file gave.
+
+    findings : sorted, deduplicated; prims : paths of the prims with AhdLightmapAPI;
+    usd_diagnostics : USD's own TfDiagnostic messages while validating (sorted, unique);
+    stderr : other lines written to stderr meanwhile (progress, notices), in order.
+    """
+
+    findings: list[Finding]
+    prims: list[str]
+    usd_diagnostics: list[str] = field(default_factory=list)
+    stderr: list[str] = field(default_factory=list)
+
+
+def validate_file(path: str, prims: list[str] | None = None, retrace: bool = False) -> Report:
+    """Open the stage at ``path`` and validate it (or ``prims``), with USD's C++ diagnostics
+    captured instead of interleaved with the findings.
+
+    Lightmapped is a stage validator and runs on a whole stage only: with ``prims`` on a stage
+    without AhdLightmapAPI its error is added here, so a CI job pointed at the wrong file fails
+    either way. Raises StageError (unreadable stage, validators missing) and UsageError.
+    """
+    with usd_validation.captured_stderr_fd() as lines:
+        stage = open_stage(path)
+        baked = [str(p.GetPath()) for p in schema.prims_with_api(stage)]
+        findings = validate_stage(stage, prims, retrace=retrace)
+        if not baked and not any(f.code == "NoAhdLightmapAPI" for f in findings):
+            findings = check_lightmapped(stage) + findings
+    findings = dedupe(findings, Path(path).resolve().parent)
+    usd = [ln for ln in lines if usd_validation.is_usd_diagnostic(ln)]
+    return Report(
+        findings,
+        baked,
+        sorted({usd_validation.usd_diagnostic(ln) for ln in usd}),
+        [ln for ln in lines if not usd_validation.is_usd_diagnostic(ln)],
+    )

@@ -1,0 +1,319 @@
+"""Output files of a bake: where textures go and what they are called (content-addressed
+names under ``lightmaps/``), committing them (rename + fsync), removing files no layer references,
+the per-output lock, and the fault-injection points the fault tests kill a bake at.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from usdahd.pipeline.settings import BakeOptions
+
+#: Folder beside the output layer that holds its textures.
+LIGHTMAPS_DIR = "lightmaps"
+#: Hex digits of the content hash in a texture's file name.
+DIGEST_CHARS = 16
+
+
+def sanitize(prim_path: str) -> str:
+    """A file-name stem for a prim path that cannot escape the output directory.
+
+    ``/World/Geo/wall_1`` -> ``World_Geo_wall_1-<hash8>``; the hash of the full path keeps
+    paths distinct that would collide after replacing separators (``/A/B_C`` vs ``/A_B/C``).
+    """
+    stem = re.sub(r"[^A-Za-z0-9_]+", "_", prim_path.strip("/"))[:80] or "root"
+    digest = hashlib.sha1(prim_path.encode()).hexdigest()[:8]
+    return f"{stem}-{digest}"
+
+
+def _inside_lightmaps(path: Path, out: Path) -> bool:
+    """``path`` is a regular file (no symlink) directly inside ``out``'s lightmaps folder."""
+    folder = (out.parent / LIGHTMAPS_DIR).resolve()
+    try:
+        return (
+            not path.is_symlink()
+            and path.resolve().parent == folder
+            and path.is_file()
+            and path.resolve().is_relative_to(folder)
+        )
+    except OSError:
+        return False
+
+
+def layer_prefix(out: Path) -> str:
+    """The file-name prefix of every texture written for the output layer ``out``.
+
+    ``day.lightmaps.usda`` -> ``day_lightmaps-<hash6>``: layers sharing a folder never share
+    (or clean up) each other's textures; the hash of the exact file name separates names that
+    only differ in punctuation.
+    """
+    clean = re.sub(r"[^A-Za-z0-9_]+", "_", out.stem)[:48] or "layer"
+    return f"{clean}-{hashlib.sha1(out.name.encode()).hexdigest()[:6]}"
+
+
+def texture_path(out: Path, prim_path: str, role: str, ext: str) -> Path:
+    """Where a new texture of ``prim_path`` is first written (a hidden staging name).
+
+    The one place that names output files: :func:`_commit_textures` renames the staged file
+    to ``<layer prefix>.<prim stem>.<role>.<content hash><ext>`` (:func:`output_name`), so a
+    new bake never overwrites a file the current layer references.
+    """
+    return out.parent / LIGHTMAPS_DIR / f".{layer_prefix(out)}.{sanitize(prim_path)}.{role}{ext}"
+
+
+def output_name(out: Path, staged: Path, digest: str) -> str:
+    """Content-addressed name of a staged texture (see :func:`texture_path`)."""
+    stem = staged.name[1 + len(layer_prefix(out)) + 1 :]  # "<prim stem>.<role><ext>"
+    base, ext = os.path.splitext(stem)
+    return f"{layer_prefix(out)}.{base}.{digest[:DIGEST_CHARS]}{ext}"
+
+
+def _owned_pattern(out: Path) -> re.Pattern:
+    """Final texture names this layer owns (written by :func:`_commit_textures`)."""
+    return re.compile(
+        re.escape(layer_prefix(out))
+        + r"\.[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.[0-9a-f]{"
+        + str(DIGEST_CHARS)
+        + r"}\.(exr|png|tif|tiff|ktx2)$"
+    )
+
+
+def _fsync(path: Path, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _commit_textures(jobs: list, out: Path) -> None:
+    """Rename each job's staged textures to content-addressed names, check they read back
+    whole, and fsync them (before the layer that references them is committed).
+
+    Raises OutputError (the previous layer and its files are untouched) when a file cannot be
+    read back, e.g. truncated by a full disk.
+    """
+    from usdahd import images
+    from usdahd.errors import OutputError
+
+    folder = out.parent / LIGHTMAPS_DIR
+    for job in jobs:
+        for role, staged in list(job.results.textures.items()):
+            staged = Path(staged)
+            if not staged.name.startswith("."):
+                continue  # already committed
+            digest = hashlib.sha256(staged.read_bytes()).hexdigest()
+            final = folder / output_name(out, staged, digest)
+            try:
+                img = images.read(staged)
+                ok = np.asarray(img.pixels).shape[:2] == tuple(job.results.resolution[::-1])
+            except Exception as exc:  # a truncated or empty file
+                import shutil
+
+                free = shutil.disk_usage(folder).free
+                why = (
+                    f"the disk is full ({free / 1024:.0f} KiB free)"
+                    if free < 4 * 2**20
+                    else str(exc).splitlines()[0][:160]
+                    if str(exc)
+                    else type(exc).__name__
+                )
+                raise OutputError(
+                    f"{job.path}: the new {role} texture in {folder} is truncated or unreadable "
+                    f"after writing: {why}; free space and re-run (the previous bake is intact)"
+                ) from None
+            if not ok:
+                raise OutputError(f"{job.path}: the new {role} texture came back truncated")
+            _fsync(staged)
+            # A KTX2 container written beside the texture (--container ktx2) follows its name.
+            ktx, ktx_final = staged.with_suffix(".ktx2"), final.with_suffix(".ktx2")
+            if ktx.is_file():
+                _fsync(ktx)
+                os.replace(ktx, ktx_final)
+                entry = job.report.get("ktx2", {}).get(role)
+                if entry is not None:
+                    entry["path"] = str(ktx_final)
+            if final.is_file() and not final.is_symlink():
+                staged.unlink()  # same content already there
+            else:
+                os.replace(staged, final)
+            job.results.textures[role] = str(final)
+            _fault("first_texture_committed")
+    if jobs:
+        _fsync(folder, directory=True)
+
+
+def _referenced(out: Path, anonymous: bool = False) -> set[Path] | None:
+    """Resolved paths of every asset the layer file ``out`` names (None if unreadable).
+    ``anonymous``: read a private copy (leaves layers other stages use alone)."""
+    from pxr import Sdf
+
+    if not out.is_file():
+        return set()
+    try:
+        if anonymous:
+            layer = Sdf.Layer.OpenAsAnonymous(str(out))
+        else:
+            layer = Sdf.Layer.FindOrOpen(str(out))
+            if layer is not None:
+                layer.Reload(force=True)
+        if layer is None:
+            return None
+    except Exception:
+        return None
+    found: set[Path] = set()
+
+    def visit(path):
+        spec = layer.GetObjectAtPath(path)
+        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
+            v = spec.default
+            for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
+                if isinstance(a, Sdf.AssetPath) and a.path:
+                    found.add((out.parent / a.path).resolve())
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return found
+
+
+def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
+    """Remove files of this output layer that no layer references: textures it owns
+    (:func:`_owned_pattern`) that ``out`` does not name, and temp/staging files a killed or
+    failed bake left (only those with ``staged_only``). Only names this tool writes, only
+    inside the output folder; call with the output lock held. returns the names removed."""
+    removed = []
+    folder = out.parent / LIGHTMAPS_DIR
+    prefix = layer_prefix(out)
+    refs = None if staged_only else _referenced(out)
+    owned = _owned_pattern(out)
+    layer_tmp = re.compile(
+        r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
+    )
+    candidates = []
+    if folder.is_dir() and not folder.is_symlink():
+        for f in folder.iterdir():
+            name = f.name
+            staged = name.lstrip(".") != name and name.lstrip(".").startswith(prefix + ".")
+            if staged:
+                candidates.append(f)
+            elif refs is not None and owned.match(name) and f.resolve() not in refs:
+                # a .ktx2 is not in the layer: it stays while the texture it was made from does
+                if f.suffix != ".ktx2" or not any(
+                    r.parent == f.resolve().parent and r.stem == f.stem for r in refs
+                ):
+                    candidates.append(f)
+    if out.parent.is_dir():
+        candidates += [f for f in out.parent.iterdir() if layer_tmp.fullmatch(f.name)]
+    for f in candidates:
+        try:
+            if f.is_file() or f.is_symlink():
+                f.unlink()
+                removed.append(f.name)
+        except OSError:
+            pass
+    return removed
+
+
+def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
+    """Textures of an older usdahd (named ``<prim stem>.<role>.<ext>``, shared by every layer of
+    a folder) that the previous version of ``out`` referenced and no layer in the folder
+    references now: removed after the commit. returns the names removed."""
+    folder = (out.parent / LIGHTMAPS_DIR).resolve()
+    legacy = re.compile(r"[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.(exr|png|tif|tiff)")
+    candidates = {
+        f for f in old_refs if f.parent == folder and legacy.fullmatch(f.name) and f.is_file()
+    }
+    if not candidates:
+        return []
+    in_use: set[Path] = set()
+    for layer in out.parent.iterdir():
+        if layer.suffix not in (".usda", ".usdc", ".usd") or not layer.is_file():
+            continue
+        if layer.suffix == ".usda":
+            with open(layer, "rb") as f:
+                if b"usdahd" not in f.read(4096):
+                    continue  # not a layer usdahd wrote (its doc string names usdahd)
+        refs = _referenced(layer, anonymous=True)
+        if refs is None:
+            return []  # a layer we cannot read may use them: keep everything
+        in_use |= refs
+    removed = []
+    for f in sorted(candidates - in_use):
+        try:
+            f.unlink()
+            removed.append(f.name)
+        except OSError:
+            pass
+    return removed
+
+
+@contextlib.contextmanager
+def output_lock(out: Path, opts: BakeOptions):
+    """Hold an exclusive lock on ``.<output name>.lock`` beside the output layer.
+
+    A second bake of the same output waits (printing who holds it) until the first has
+    committed and cleaned up, then plans against the layer the first one wrote.
+    """
+    import fcntl
+
+    from usdahd.errors import OutputError
+
+    path = out.parent / f".{out.name}.lock"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create the bake lock ({exc.strerror})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            _warn(
+                opts,
+                f"another usdahd bake (pid {holder}) is writing {out}; waiting for it to finish…",
+            )
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+#: Fault-injection points of a bake, in order (tests/test_faults.py kills a bake at each).
+FAULT_POINTS = (
+    "traced",
+    "textures_staged",
+    "first_texture_committed",
+    "textures_committed",
+    "layer_exported",
+    "layer_replaced",
+)
+
+
+def _fault(point: str) -> None:
+    """``USDAHD_FAULT=<point>`` sends this process ``USDAHD_FAULT_SIGNAL`` (default KILL) at
+    ``point``: how the fault tests stop a bake at exact places. No effect otherwise."""
+    if os.environ.get("USDAHD_FAULT") == point:
+        import signal
+
+        sig = getattr(signal, "SIG" + os.environ.get("USDAHD_FAULT_SIGNAL", "KILL"))
+        os.kill(os.getpid(), sig)
+        time.sleep(1.0)  # let a handled signal (SIGINT -> KeyboardInterrupt) arrive here
+
+
+def _warn(opts: BakeOptions, msg: str) -> None:
+    """A warning on stderr: shown with --quiet, hidden with -qq."""
+    if int(opts.quiet or 0) < 2:
+        from usdahd import progress
+
+        progress.clear_line()
+        print(f"warning: {msg}", file=sys.stderr)

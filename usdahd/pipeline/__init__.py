@@ -4,7 +4,8 @@ The only orchestration module: each step lives in its own module (``usd/reader.p
 ``bake/texels.py``, ``bake/integrate.py``, ``bake/post.py``, ``models/``, ``images.py``,
 ``usd/schema.py``); this one decides what to bake, in what order, and what to skip.
 Settings live in ``pipeline/settings.py``; output file names, commit, cleanup and the output
-lock in ``pipeline/outputs.py``; the checks before any scene is read in ``pipeline/preflight.py``.
+lock in ``pipeline/outputs.py``; the checks before any scene is read in ``pipeline/preflight.py``;
+the per-mesh plan (``PrimJob``: settings, UVs, resolution) in ``pipeline/plan.py``.
 
 Nothing is written until a prim's bake succeeded; every file is written atomically (temp file
 + rename) and the override layer last, so an interrupted bake leaves the previous outputs valid.
@@ -19,7 +20,6 @@ import os
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,11 @@ from usdahd.pipeline.outputs import (
 from usdahd.pipeline.outputs import (
     sanitize as sanitize,
 )
+from usdahd.pipeline.plan import (
+    PrimJob,
+    _plan,
+    settings_resolution_given,
+)
 from usdahd.pipeline.preflight import (
     _check_stage,
     _check_values,
@@ -60,51 +65,24 @@ from usdahd.pipeline.preflight import (
 )
 from usdahd.pipeline.settings import (
     DEFAULTS,
-    DENSITY_MAX_RESOLUTION,
-    MAX_RESOLUTION,
     TINY_RESOLUTION,
-    UV_DEGENERATE_LIMIT,
-    UV_OUTSIDE_LIMIT,
-    UV_OVERLAP_LIMIT,
     BakeOptions,
-    _authored_inputs,
     _check_options,
-    record_time,
-    resolve_settings,
+)
+from usdahd.pipeline.settings import (
+    MAX_RESOLUTION as MAX_RESOLUTION,
+)
+from usdahd.pipeline.settings import (
+    resolve_settings as resolve_settings,
 )
 from usdahd.scene.hashing import (
     changed_parts,
     content_hash,
     is_dark,
     scene_hash_parts,
-    shape_digest,
 )
 from usdahd.usd.author import generator_id
 from usdahd.usd.stage import open_stage, utf8_problem
-
-
-@dataclass
-class PrimJob:
-    """One mesh to bake, with its resolved settings."""
-
-    path: str
-    mesh: object  # MeshData
-    settings: dict
-    resolution: tuple[int, int] = (0, 0)
-    unwrapped: bool = False
-    content_hash: str = ""
-    parts: dict = field(default_factory=dict)
-    report: dict = field(default_factory=dict)
-    previous: object = None  # BakeResults of an unchanged previous bake
-    fallback: object = None  # BakeResults of the previous bake, kept if this one fails
-    results: object = None  # BakeResults of this bake
-    uv_primvar_values: object = None  # (t, 3, 2) UVs to author when unwrapped
-    texels: object = None  # Texels
-    sh: object = None  # (n, 3, 9) float32 radiance SH
-    stats: dict = field(default_factory=dict)
-    charts: object = None  # (n,) int32 chart id per texel
-    normals: object = None  # scene.types.ComputedNormals to author, None when authored
-    refit_from: str | None = None  # SH sidecar of the previous bake to refit from (no tracing)
 
 
 def _status(opts: BakeOptions, msg: str) -> None:
@@ -436,201 +414,6 @@ def _refit_sh(job) -> None:
         trace_seconds=0.0,
         refit=True,
     )
-
-
-def _texels_per_unit(settings: dict, scene) -> float:
-    """Schema texel density is per metre; the mesh is in stage units."""
-    return float(settings["texel_density"]) * float(scene.meters_per_unit or 1.0)
-
-
-def _uv_problem(texels) -> str | None:
-    """Why a rasterised UV set cannot hold a lightmap, or None if it can."""
-    st = texels.stats
-    covered = max(len(texels), 1)
-    if len(texels) == 0:
-        return "covers no texel"
-    if st.get("overlap_texels", 0) > UV_OVERLAP_LIMIT * covered:
-        return f"overlaps itself on {100 * st['overlap_texels'] / covered:.0f}% of its texels"
-    if st.get("uv_outside_fraction", 0.0) > UV_OUTSIDE_LIMIT:
-        return f"has {100 * st['uv_outside_fraction']:.1f}% of its UVs outside [0,1]"
-    return None
-
-
-def settings_resolution_given(job) -> bool:
-    """Whether the resolution came from a flag or schema input rather than a texel density."""
-    return job.settings.get("texel_density") is None
-
-
-def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:
-    """A problem string when zero-area UV triangles cover more than UV_DEGENERATE_LIMIT of the
-    mesh's surface (those triangles would get no lightmap texel at all)."""
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    texel_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * res[0] * res[1]
-    p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
-    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    total = world.sum()
-    if total <= 0:
-        return None
-    share = world[texel_area < 1e-6].sum() / total
-    if share > UV_DEGENERATE_LIMIT:
-        return f"has zero-area UV triangles on {100 * share:.0f}% of the surface"
-    return None
-
-
-def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
-    from usdahd.bake.texels import resolution_for_density
-
-    tpu = _texels_per_unit(settings, scene)
-    try:
-        w, h = resolution_for_density(mesh, tpu, max_resolution=MAX_RESOLUTION)
-    except UsageError as exc:
-        mpu = float(scene.meters_per_unit or 1.0)
-        raise UsageError(
-            f"{exc}; the stage's metersPerUnit is {mpu:g}, so {settings['texel_density']:g} "
-            f"texels per metre are {tpu:.3g} per stage unit: check metersPerUnit, or pass "
-            "--resolution"
-        ) from None
-    if max(w, h) > DENSITY_MAX_RESOLUTION:
-        job.report.setdefault("warnings", []).append(
-            f"texel density {settings['texel_density']:g}/m needs {w}x{h}; clamped to "
-            f"{DENSITY_MAX_RESOLUTION} (pass --resolution or author ahdLightmap:resolution)"
-        )
-        return DENSITY_MAX_RESOLUTION, DENSITY_MAX_RESOLUTION
-    return w, h
-
-
-def _unwrap(job, mesh, settings, scene) -> None:
-    from usdahd.bake.unwrap import unwrap
-
-    if settings["resolution"]:
-        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
-    else:
-        try:
-            uv, res = unwrap(
-                mesh,
-                texels_per_unit=_texels_per_unit(settings, scene),
-                padding=2,
-                max_resolution=DENSITY_MAX_RESOLUTION,
-            )
-        except UsageError:
-            job.report.setdefault("warnings", []).append(
-                f"texel density {settings['texel_density']:g}/m needs an atlas above "
-                f"{DENSITY_MAX_RESOLUTION}; packed into {DENSITY_MAX_RESOLUTION}x"
-                f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
-            )
-            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2)
-    mesh.uv = uv
-    job.unwrapped = True
-    job.uv_primvar_values = uv
-    job.resolution = tuple(int(r) for r in res)
-
-
-def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
-    """UVs an earlier run unwrapped for this mesh, read back from its output layer, when the
-    mesh's shape and every unwrap input are unchanged (so a re-run does not call xatlas
-    again); else None. returns (uv (t, 3, 2) float32, resolution) or None."""
-    from pxr import Sdf
-
-    if old is None or old_layer is None or old.uv_primvar != uv_name:
-        return None
-    prev = old.settings or {}
-    same = (
-        old.part_hashes.get("shape") == shape_digest(mesh).hexdigest()
-        and prev.get("texel_density") == settings["texel_density"]
-        and prev.get("meters_per_unit") == settings["meters_per_unit"]
-        and (not settings["resolution"] or list(old.resolution) == [settings["resolution"]] * 2)
-    )
-    if not same:
-        return None
-    spec = old_layer.GetAttributeAtPath(Sdf.Path(mesh.path).AppendProperty(f"primvars:{uv_name}"))
-    if spec is None or spec.default is None:
-        return None
-    values = np.asarray(spec.default, dtype=np.float32)
-    corner = np.asarray(mesh.corner)
-    if values.ndim != 2 or values.shape[1] != 2 or corner.size and corner.max() >= len(values):
-        return None
-    return values[corner], tuple(int(r) for r in old.resolution)
-
-
-def _plan(
-    scene, index: int, mesh, stage, opts: BakeOptions, report: dict, prev=None, old_layer=None
-) -> PrimJob:
-    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
-    from usdahd.bake.texels import rasterize
-    from usdahd.errors import SchemaError
-
-    prim = stage.GetPrimAtPath(mesh.path)
-    try:
-        authored = _authored_inputs(prim)
-    except SchemaError as exc:
-        raise InputError(str(exc)) from None
-    settings = resolve_settings(opts, authored, scene.meters_per_unit)
-    record_time(settings, scene)
-    if settings["resolution"] and not 1 <= int(settings["resolution"]) <= MAX_RESOLUTION:
-        raise UsageError(
-            f"{mesh.path}: resolution {settings['resolution']} is outside 1..{MAX_RESOLUTION}; "
-            "lower --resolution or ahdLightmap:resolution"
-        )
-    uv_name = settings["uv"]
-    if uv_name != mesh.uv_name:
-        tc = scene.texcoords[index].get(uv_name) if index < len(scene.texcoords) else None
-        mesh.uv, mesh.uv_name = tc, uv_name
-    job = PrimJob(path=mesh.path, mesh=mesh, settings=settings, report=report)
-    if mesh.uv is not None:
-        uv = np.asarray(mesh.uv, np.float64)
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
-        texels, problem = None, None
-        if not np.isfinite(uv).all():
-            problem = "contains NaN or infinite UVs"
-        elif uv_area <= 1e-12:
-            problem = "has zero area (every UV is the same point or on a line)"
-        else:
-            if settings["resolution"]:
-                res = (int(settings["resolution"]),) * 2
-            else:
-                res = _density_resolution(mesh, settings, scene, job)
-            problem = _degenerate_uv_share(mesh, uv, res)
-            if problem is None:
-                texels = rasterize(mesh, res)
-                problem = _uv_problem(texels)
-        if problem is None:
-            job.texels, job.resolution = texels, res
-        else:
-            new = f"{uv_name}_lightmap"
-            if not opts.unwrap:
-                raise InputError(
-                    f"{mesh.path}: UV set {uv_name!r} {problem}, so it cannot hold a lightmap; "
-                    f"author a lightmap UV set (--uv) or drop --no-unwrap to unwrap into {new!r}"
-                )
-            report["warnings"].append(
-                f"UV set {uv_name!r} {problem}: unwrapped with xatlas into a new primvar "
-                f"{new!r} (authored in the output layer; {uv_name!r} is left as it is)"
-            )
-            mesh.uv, mesh.uv_name = None, new
-            settings["uv"] = new
-    if mesh.uv is None:
-        if not opts.unwrap:
-            raise InputError(
-                f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "
-                "(--no-unwrap); author the primvar, pick another with --uv, or drop --no-unwrap"
-            )
-        reuse = _previous_unwrap(
-            (prev or {}).get(mesh.path), old_layer, mesh, settings, settings["uv"]
-        )
-        if reuse is not None:
-            mesh.uv, res = reuse
-            job.unwrapped = True
-            job.uv_primvar_values = mesh.uv
-            job.resolution = res
-            report.setdefault("notes", []).append(
-                f"no usable UV set {uv_name!r}: reusing the xatlas unwrap {settings['uv']!r} "
-                "authored by the previous bake (mesh unchanged)"
-            )
-        else:
-            _unwrap(job, mesh, settings, scene)
-    settings["resolution"] = list(job.resolution)
-    return job
 
 
 def _author_layer(

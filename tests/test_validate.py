@@ -336,8 +336,9 @@ def _plain_env():
     return env
 
 
-def test_plain_usd_validation_gives_the_same_findings(assets):
-    paths = [str(p) for p in assets.values()]
+def _plain_findings(paths: list[str]) -> dict:
+    """Findings of a plain UsdValidation run (usdahd not imported by the caller): path -> sorted
+    [validator, code, type, prims, message] rows."""
     proc = subprocess.run(
         [sys.executable, "-c", _PLAIN, ",".join(V.BUILTIN_VALIDATORS), *paths],
         env=_plain_env(),
@@ -347,7 +348,12 @@ def test_plain_usd_validation_gives_the_same_findings(assets):
         cwd=str(ROOT),
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    plain = json.loads(proc.stdout.strip().splitlines()[-1])
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_plain_usd_validation_gives_the_same_findings(assets):
+    paths = [str(p) for p in assets.values()]
+    plain = _plain_findings(paths)
     sev = {"error": "Error", "warning": "Warn", "info": "Info"}
     for p in paths:
         ours = []
@@ -363,16 +369,7 @@ def test_plain_usd_validation_fails_a_stage_without_lightmaps(tmp_path):
     caller): a CI job pointed at the unbaked source stage gets an error, not a green run."""
     src = tmp_path / "source.usda"
     src.write_text('#usda 1.0\ndef Mesh "Plane" {}\n')
-    proc = subprocess.run(
-        [sys.executable, "-c", _PLAIN, ",".join(V.BUILTIN_VALIDATORS), str(src)],
-        env=_plain_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=str(ROOT),
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    found = json.loads(proc.stdout.strip().splitlines()[-1])[str(src)]
+    found = _plain_findings([str(src)])[str(src)]
     ours = [f for f in found if f[0] == V.validator_name(V.STAGE_RULE.name)]
     assert [(f[1], f[2], f[3]) for f in ours] == [("NoAhdLightmapAPI", "Error", ["/"])]
     assert "no prim of" in ours[0][4] and "NAME.lightmaps.usda" in ours[0][4]

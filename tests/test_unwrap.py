@@ -7,7 +7,7 @@ import pytest
 
 from usdahd.bake import texels as tx
 from usdahd.bake.unwrap import unwrap
-from usdahd.errors import UsageError
+from usdahd.errors import BakeError, UsageError
 
 trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("xatlas")
@@ -101,3 +101,13 @@ def test_interlocking_charts_do_not_overlap():
     mesh.uv = uv
     t = tx.rasterize(mesh, res)
     assert t.stats["overlap_texels"] == 0
+
+
+def test_a_wedged_xatlas_child_is_stopped_with_an_error_naming_the_prim(monkeypatch):
+    # A limit far below the child's interpreter start-up stands in for a child that never ends.
+    from usdahd.bake import unwrap as unwrap_mod
+
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_S", 0.01)
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_PER_TRIANGLE_S", 0.0)
+    with pytest.raises(BakeError, match=r"/box: xatlas did not finish .* within 0 s.*--uv"):
+        unwrap(box_mesh(), texels_per_unit=20.0)

@@ -22,6 +22,12 @@ MAX_ATTEMPTS = 8
 #: Rough packing efficiency of xatlas charts (atlas area / chart area), used only for the first
 #: guess of texels_per_unit and the early size check; the real size is always measured.
 PACK_EFFICIENCY = 0.6
+#: Wall-clock limit of one isolated xatlas run, seconds: a fixed allowance (interpreter start-up,
+#: imports) plus a per-triangle one. Far above xatlas's real cost (the 82k-triangle icosphere
+#: unwraps in seconds); it only turns a wedged native child into an error instead of a bake
+#: (and a CI job) that never ends.
+UNWRAP_TIMEOUT_S = 300.0
+UNWRAP_TIMEOUT_PER_TRIANGLE_S = 2e-3
 
 
 def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
@@ -114,13 +120,22 @@ def _pack_isolated(args, path):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     code = "from usdahd.bake.unwrap import _child_main; _child_main()"
-    proc = subprocess.run(
-        [sys.executable, "-c", code],
-        input=pickle.dumps(args),
-        capture_output=True,
-        env=env,
-        check=False,
-    )
+    limit = UNWRAP_TIMEOUT_S + UNWRAP_TIMEOUT_PER_TRIANGLE_S * len(args[1])
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", code],
+            input=pickle.dumps(args),
+            capture_output=True,
+            env=env,
+            check=False,
+            timeout=limit,
+        )
+    except subprocess.TimeoutExpired:
+        raise BakeError(
+            f"{path}: xatlas did not finish unwrapping this mesh within {limit:.0f} s "
+            "(the child process was stopped); author a lightmap UV set for it and pass it "
+            "with --uv"
+        ) from None
     if proc.returncode != 0 or not proc.stdout:
         detail = proc.stderr.decode(errors="replace").strip().splitlines()
         detail = detail[-1] if detail else f"exit code {proc.returncode}"

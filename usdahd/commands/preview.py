@@ -11,8 +11,11 @@ Back faces are culled (closed rooms open towards the camera). Without a Vulkan a
 ``--backend auto`` falls back to Embree primary rays + the numpy decoders
 (:mod:`usdahd.preview.raytrace`, which culls the same faces); one stderr line says what to install.
 
-Not yet: albedo and normal maps (``--model-view``), ``--compare`` (path-traced reference),
-``--atlas``.
+``--compare`` traces a reference of the same view with the baker's integrator at each pixel's
+visible point and writes preview | reference | error heat map side by side
+(:mod:`usdahd.preview.compare`).
+
+Not yet: albedo and normal maps (``--model-view``), ``--atlas``.
 """
 
 from __future__ import annotations
@@ -36,6 +39,8 @@ AUTO_FOV = 40.0
 ELEVATION = 0.5
 #: Rec. 709 luminance.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: Default reference samples per pixel of --compare.
+COMPARE_SAMPLES = 256
 FACTORS = (
     "izScale",
     "ambientScale",
@@ -73,6 +78,27 @@ def add_parser(sub):
         help="wgpu (the shipped shaders on Vulkan), embree (primary rays + the numpy decoders), "
         "or auto: wgpu, falling back to embree when there is no Vulkan adapter",
     )
+    c = p.add_argument_group("--compare (path-traced reference of the same view)")
+    c.add_argument(
+        "--compare",
+        action="store_true",
+        help="add a path-traced reference (the baker's integrator at each pixel's visible point) "
+        "and an error heat map beside the preview; --json reports relRMSE, bias and the "
+        "reference's noise",
+    )
+    c.add_argument(
+        "--compare-samples",
+        type=int,
+        metavar="N",
+        help=f"reference samples per pixel (default {COMPARE_SAMPLES}, in 8 batches)",
+    )
+    c.add_argument(
+        "--compare-bounces",
+        type=int,
+        metavar="N",
+        help="the reference's bounce cap (default: the bake's recorded --bounces)",
+    )
+    c.add_argument("--seed", type=int, help="seed of the reference (default 0)")
     p.set_defaults(func=run)
     return p
 
@@ -400,9 +426,15 @@ def tonemap(image: np.ndarray, exposure_stops: float = 0.0) -> tuple[np.ndarray,
     lum = image[..., :3] @ LUMA
     ref = float(np.percentile(lum[covered], 99)) if covered.any() else 0.0
     scale = (0.9 / ref if ref > 0 else 1.0) * 2.0**exposure_stops
+    return tonemap_with(image, scale), scale
+
+
+def tonemap_with(image: np.ndarray, scale: float) -> np.ndarray:
+    """(H, W, 4) linear -> (H, W, 3) uint8 sRGB at a given linear scale (uncovered: black)."""
     x = np.clip(image[..., :3] * scale, 0.0, 1.0)
+    x = np.where(image[..., 3:] > 0, x, 0.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.rint(255.0 * srgb).astype(np.uint8), scale
+    return np.rint(255.0 * srgb).astype(np.uint8)
 
 
 def stats(image: np.ndarray) -> dict:
@@ -437,6 +469,25 @@ def run(args) -> int:
         raise UsageError(f"-o {out}: the preview is a PNG (use a .png name)")
     if not Path(args.stage).exists():
         raise StageError(f"{args.stage}: no such file")
+    if not args.compare:
+        given = [
+            a
+            for a in ("compare_samples", "compare_bounces", "seed")
+            if getattr(args, a) is not None
+        ]
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise UsageError(f"{flag} is an option of --compare; add --compare")
+    samples = COMPARE_SAMPLES if args.compare_samples is None else args.compare_samples
+    if samples < 2:
+        raise UsageError(
+            f"--compare-samples {samples}: the reference needs at least 2 samples per pixel "
+            "(its noise estimate comes from the scatter of independent batches); give 2 or more"
+        )
+    if args.compare_bounces is not None and args.compare_bounces < 0:
+        raise UsageError(
+            f"--compare-bounces {args.compare_bounces}: bounces must be >= 0 (0: direct light)"
+        )
     gpu = None if args.backend == "embree" else device(args.backend)  # before any long work
     summary = gpu[0].summary if gpu else "embree (primary rays, numpy decoders)"
     print(f"usdahd preview: {summary}", file=sys.stderr)
@@ -464,6 +515,28 @@ def run(args) -> int:
         traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
         image = raytrace.render(scene, traced, viewproj, (w, h))
     ldr, scale = tonemap(image, args.exposure)
+    compared = None
+    if args.compare:
+        from usdahd.preview import compare
+
+        def progress(line):
+            if not args.quiet:
+                print(f"usdahd preview: {line}", file=sys.stderr)
+
+        ref, var, info = compare.reference(
+            stage,
+            meshes,
+            viewproj,
+            (w, h),
+            samples=samples,
+            seed=args.seed or 0,
+            bounces=args.compare_bounces,
+            progress=progress,
+        )
+        compared = {**info, **compare.error_stats(image, ref, var)}
+        ldr = compare.side_by_side(
+            ldr, tonemap_with(ref, scale), compare.heat_map(image, ref)
+        )  # the reference at the preview's exposure: the two panels compare by eye
     images.write(out, ldr, color_space="srgb_rec709_scene")
     report = {
         "stage": str(args.stage),
@@ -477,6 +550,8 @@ def run(args) -> int:
         "exposure_scale": scale,
         **stats(image),
     }
+    if compared is not None:
+        report["compare"] = compared
     if args.json:
         print(json.dumps(report, indent=2))
     elif not args.quiet:
@@ -485,4 +560,10 @@ def run(args) -> int:
             f"{out}: {w}x{h}, {len(items)} meshes, covered {report['covered_fraction']:.1%}, "
             f"mean irradiance {lum.get('mean', 0.0):.4g} (p99 {lum.get('p99', 0.0):.4g})"
         )
+        if compared is not None and compared["relrmse"] is not None:
+            print(
+                f"  vs path-traced reference ({compared['samples']} samples, "
+                f"{compared['bounces']} bounces): relRMSE {compared['relrmse']:.2%}, bias "
+                f"{compared['bias']:+.2%}, reference noise {compared['reference_noise']:.2%}"
+            )
     return 0

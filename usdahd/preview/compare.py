@@ -1,0 +1,282 @@
+"""``usdahd preview --compare``: a path-traced reference of the preview's view (issue 14).
+
+Visible points: one primary ray per pixel centre through the preview's view-projection, the
+closest *front-facing* hit on a baked mesh (:func:`usdahd.preview.raytrace.front_hits`, the
+faces the rasteriser keeps), so the reference is traced at the surface point each preview pixel
+shows. At each point the frame is built as the baker builds a texel's
+(:func:`usdahd.bake.texels.rasterize`): n the normalized interpolated corner normal, t the
+interpolated corner tangent (:func:`usdahd.bake.texels.tangent_frames`, the one the preview's
+vertices carry) Gram-Schmidt against
+n, b = sign * cross(n, t).
+
+Reference: the baker's own integrator (:func:`usdahd.bake.integrate.bake_texels`, as
+``usdahd validate --retrace`` calls it) over the *whole* stage (unbaked meshes occlude and
+reflect), plain Monte Carlo (``estimator="mc"``, unbiased), the bake's own bounce cap (from its
+recorded settings; ``--compare-bounces`` overrides), ``samples`` per point in K independent
+batches (streams 1..K of a seed hashed from ``--seed``). The pixel value is I_z of the traced SH
+(irradiance about the shading normal over pi, the quantity the preview's decoders return at the
+unperturbed normal), so the two images are the same quantity.
+
+Statistics over the pixels both images cover (RGB, linear):
+
+- ``relrmse`` = sqrt(sum (b - r)^2 / sum r^2), b the preview, r the reference;
+- ``bias`` = sum (b - r) / sum r (the relative mean difference);
+- ``reference_noise`` = sqrt(sum Var(r) / sum r^2), Var(r) the variance of each pixel's
+  reference mean from the scatter of its K batch means (K - 1 degrees of freedom);
+- ``relrmse_denoised`` = sqrt(max(relrmse^2 - reference_noise^2, 0)): the reference's noise is
+  independent of the bake, so it adds its variance to E[(b - r)^2]; subtracting it estimates the
+  preview's error against the noiseless reference.
+
+The error heat map shows |b - r| per pixel relative to max(r, 0.1 mean r) (luminance), on a
+black-blue-green-yellow-red ramp from 0 to ``HEAT_RANGE``.
+
+numpy only here; the tracer and integrator are imported when a reference is traced.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import math
+
+import numpy as np
+
+from usdahd.errors import UsageError
+
+#: Batches K of the reference (per-pixel noise estimate with K - 1 degrees of freedom).
+BATCHES = 8
+#: Relative error mapped to the top of the heat map's ramp.
+HEAT_RANGE = 0.2
+#: Per-pixel relative errors are taken against max(r, DARK_FLOOR * mean r).
+DARK_FLOOR = 0.1
+#: Rec. 709 luminance.
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: The heat map's ramp: (position, RGB 0..255).
+RAMP = np.array(
+    [
+        (0.0, 0, 0, 0),
+        (0.25, 30, 60, 220),
+        (0.5, 30, 200, 80),
+        (0.75, 240, 220, 40),
+        (1.0, 230, 30, 30),
+    ],
+    np.float64,
+)
+
+
+def reference_seed(seed: int) -> int:
+    """The 32-bit seed of the reference's random stream (its own: hashed ``preview:{seed}``)."""
+    return int.from_bytes(hashlib.sha256(f"preview:{seed}".encode()).digest()[:4], "little")
+
+
+def batch_plan(samples: int) -> tuple[int, int]:
+    """(K batches, samples per batch) for ``samples`` >= 2 samples per point."""
+    if samples < 2:
+        raise UsageError(f"--compare-samples {samples}: the reference needs at least 2 samples")
+    k = min(BATCHES, samples)
+    return k, samples // k
+
+
+def visible_points(meshes, viewproj: np.ndarray, size, scene):
+    """Front-facing surface points of the preview's pixels.
+
+    meshes : [(MeshData, BakeResults, tangent, sign)] (:func:`baked_meshes`); scene : the stage's
+        Scene (its materials). returns (pixel (m,) int64 row-major pixel index, mesh (m,) int64
+        index into ``meshes``, Texels of the m points).
+    """
+    from usdahd.bake.trace import Tracer
+    from usdahd.bake.types import Texels
+    from usdahd.preview.raytrace import front_hits, primary_rays
+
+    sc = copy.copy(scene)
+    sc.meshes = [m for m, *_ in meshes]
+    tracer = Tracer(sc)
+    try:
+        o, d = primary_rays(viewproj, size)
+        hit = front_hits(tracer, o, d)
+        pix = np.nonzero(hit["tri"] >= 0)[0]
+        tri = hit["tri"][pix]
+        which = tracer.tri_mesh[tri].astype(np.int64)
+        local = tracer.tri_local[tri].astype(np.int64)
+        u = hit["u"][pix].astype(np.float64)
+        v = hit["v"][pix].astype(np.float64)
+        pos = tracer.hit_points(tri, hit["u"][pix], hit["v"][pix])
+    finally:
+        tracer.close()
+    m = len(pix)
+    lam = np.stack([1.0 - u - v, u, v], axis=1)
+    geom = np.zeros((m, 3))
+    shade = np.zeros((m, 3))
+    tan = np.zeros((m, 3))
+    sgn = np.ones(m)
+    for k, (mesh, _res, tangent, sign) in enumerate(meshes):
+        sel = np.nonzero(which == k)[0]
+        if not sel.size:
+            continue
+        t_idx = local[sel]
+        pts = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles)[t_idx]]
+        geom[sel] = np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0])
+        nrm = np.asarray(mesh.normals, np.float64)[t_idx]
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-30)
+        shade[sel] = np.einsum("nc,nci->ni", lam[sel], nrm)
+        tan[sel] = np.einsum("nc,nci->ni", lam[sel], np.asarray(tangent, np.float64)[t_idx])
+        sgn[sel] = np.asarray(sign, np.float64)[t_idx]
+    geom = _unit(geom, np.array([0.0, 0.0, 1.0]))
+    shade = _unit(shade, geom)
+    tan = tan - shade * np.einsum("ni,ni->n", shade, tan)[:, None]
+    tan = _unit(tan, _perpendicular(shade))
+    bit = sgn[:, None] * np.cross(shade, tan)
+    texels = Texels(
+        resolution=tuple(size),
+        xy=np.stack([pix % size[0], pix // size[0]], axis=1).astype(np.int32),
+        position=pos.astype(np.float32),
+        geom_normal=geom.astype(np.float32),
+        frame=np.stack([tan, bit, shade], axis=1).astype(np.float32),
+        triangle=local.astype(np.int32),
+        center_inside=np.ones(m, bool),
+    )
+    return pix, which, texels
+
+
+def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    ok = n > 1e-12
+    return np.where(ok, v / np.where(ok, n, 1.0), np.broadcast_to(fallback, v.shape))
+
+
+def _perpendicular(n: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to each unit n (m, 3) (Duff et al. 2017)."""
+    s = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (s + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    return np.stack([1.0 + s * n[:, 0] ** 2 * a, s * b, -s * n[:, 0]], axis=-1)
+
+
+def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces, progress=None):
+    """Path-traced reference of the preview's view.
+
+    stage : the baked stage; meshes : :func:`baked_meshes`'s list; samples : per visible point
+    (split into K batches); bounces : the integrator's cap (None: the bake's recorded
+    ``bounces``, else the integrator's default). progress : callable(str) or None.
+    returns (image (H, W, 4) float32: I_z RGB, alpha 1 on traced pixels; variance (H, W, 3)
+    float64 of each pixel's mean; info dict: samples, batches, bounces, seed, rays, points,
+    inside_geometry).
+    """
+    from usdahd.bake import integrate
+    from usdahd.bake.trace import Tracer
+    from usdahd.numerics import sh as shm
+    from usdahd.scene.hashing import is_dark
+    from usdahd.usd.reader import load_scene
+
+    w, h = size
+    k, s = batch_plan(int(samples))
+    if bounces is None:
+        recorded = {(r.settings or {}).get("bounces") for _, r, *_ in meshes}
+        recorded.discard(None)
+        bounces = max(recorded) if recorded else integrate.DEFAULT_BOUNCES
+    bounces = int(bounces)
+    if bounces < 0:
+        raise UsageError(f"--compare-bounces {bounces}: bounces must be >= 0")
+    scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)
+    pix, which, texels = visible_points(meshes, viewproj, size, scene)
+    image = np.zeros((h * w, 4), np.float32)
+    var = np.zeros((h * w, 3))
+    info = {
+        "samples": k * s,
+        "batches": k,
+        "bounces": bounces,
+        "seed": int(seed),
+        "points": int(len(pix)),
+        "rays": 0,
+        "inside_geometry": 0,
+    }
+    if not len(pix):
+        return image.reshape(h, w, 4), var.reshape(h, w, 3), info
+    image[pix, 3] = 1.0
+    if is_dark(scene):  # nothing emits: the exact answer is 0 (the baker traces nothing either)
+        return image.reshape(h, w, 4), var.reshape(h, w, 3), info
+    index = {m.path: i for i, m in enumerate(scene.meshes)}
+    rseed = reference_seed(seed)
+    batches = np.zeros((k, len(pix), 3))
+    backface = np.zeros(len(pix))
+    tracer = Tracer(scene)
+    try:
+        for mk, (mesh, *_rest) in enumerate(meshes):
+            sel = np.nonzero(which == mk)[0]
+            if not sel.size:
+                continue
+            sub = copy.copy(texels)
+            for name in ("xy", "position", "geom_normal", "frame", "triangle", "center_inside"):
+                setattr(sub, name, getattr(texels, name)[sel])
+            if progress:
+                progress(f"reference {mesh.path}: {len(sel)} points x {k * s} samples")
+            for j in range(k):
+                sh, st = integrate.bake_texels(
+                    scene,
+                    tracer,
+                    sub,
+                    samples=s,
+                    bounces=bounces,
+                    seed=rseed,
+                    stream=1 + j + k * mk,
+                    estimator="mc",
+                    mesh=index.get(mesh.path),
+                )
+                batches[j, sel] = shm.iz(sh.astype(np.float64))
+                backface[sel] += np.asarray(st["backface_fraction"], np.float64) / k
+                info["rays"] += int(st["rays"])
+    finally:
+        tracer.close()
+    info["inside_geometry"] = int((backface > 0.25).sum())
+    image[pix, :3] = batches.mean(axis=0)
+    var[pix] = batches.var(axis=0, ddof=1) / k
+    return image.reshape(h, w, 4), var.reshape(h, w, 3), info
+
+
+def error_stats(baked: np.ndarray, ref: np.ndarray, ref_var: np.ndarray) -> dict:
+    """The ``--compare`` statistics (see the module doc) of baked and reference (H, W, 4)
+    images over the pixels both cover; ref_var (H, W, 3) the variance of each reference pixel."""
+    cov = (baked[..., 3] > 0) & (ref[..., 3] > 0)
+    b = baked[..., :3][cov].astype(np.float64)
+    r = ref[..., :3][cov].astype(np.float64)
+    v = ref_var[cov]
+    out = {"pixels": int(cov.sum())}
+    r2 = float((r * r).sum())
+    if not cov.any() or r2 <= 0.0:
+        return {**out, "relrmse": None, "bias": None, "reference_noise": None,
+                "relrmse_denoised": None}  # fmt: skip
+    rel = math.sqrt(float(((b - r) ** 2).sum()) / r2)
+    noise = math.sqrt(float(v.sum()) / r2)
+    return {
+        **out,
+        "relrmse": rel,
+        "bias": float((b - r).sum() / r.sum()),
+        "reference_noise": noise,
+        "relrmse_denoised": math.sqrt(max(rel * rel - noise * noise, 0.0)),
+        "reference_mean_rgb": [float(x) for x in r.mean(axis=0)],
+    }
+
+
+def heat_map(baked: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: per-pixel |b - r| / max(r, DARK_FLOOR mean r) in luminance on the RAMP
+    from 0 to HEAT_RANGE; pixels not covered by both images are black."""
+    cov = (baked[..., 3] > 0) & (ref[..., 3] > 0)
+    lb = baked[..., :3].astype(np.float64) @ LUMA
+    lr = ref[..., :3].astype(np.float64) @ LUMA
+    floor = DARK_FLOOR * float(lr[cov].mean()) if cov.any() else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.abs(lb - lr) / np.maximum(np.maximum(lr, floor), 1e-30)
+    x = np.clip(np.where(cov, err, 0.0) / HEAT_RANGE, 0.0, 1.0)
+    rgb = np.stack([np.interp(x, RAMP[:, 0], RAMP[:, c]) for c in (1, 2, 3)], axis=-1)
+    rgb[~cov] = 0.0
+    return np.rint(rgb).astype(np.uint8)
+
+
+def side_by_side(*panels: np.ndarray, gap: int = 4) -> np.ndarray:
+    """Panels (H, W, 3) uint8 left to right, ``gap`` black columns between them."""
+    h = panels[0].shape[0]
+    sep = np.zeros((h, gap, 3), np.uint8)
+    row = []
+    for i, p in enumerate(panels):
+        row += [sep, p] if i else [p]
+    return np.concatenate(row, axis=1)

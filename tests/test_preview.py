@@ -195,10 +195,23 @@ def test_compare_cornell_baked_view_within_5_percent_of_the_path_traced_view(
     assert c["relrmse"] < 0.05
     assert abs(c["bias"]) < 0.02
     assert c["relrmse_denoised"] <= c["relrmse"]
+    assert set(c) == _documented_fields("compare` field"), "docs/preview.md drifted"
     img = images.read(out).pixels
     assert img.shape[:2] == (72, 3 * 96 + 2 * 4)  # preview | reference | heat map
     heat = img[:, 2 * 96 + 8 :]
     assert heat[0, 0].max() == 0 and heat.max() > 0  # uncovered black, errors coloured
+
+
+def _documented_fields(header: str) -> set[str]:
+    """The backticked names in the first column of the docs/preview.md table under header."""
+    import re
+
+    text = (SAMPLES.parent / "docs" / "preview.md").read_text(encoding="utf-8")
+    table = text.split(header, 1)[1].split("\n\n", 1)[0]
+    names = set()
+    for row in table.splitlines()[2:]:
+        names |= set(re.findall(r"`([a-z_]+)`", row.split("|")[1]))
+    return names
 
 
 def test_compare_noise_estimate_matches_the_scatter_between_seeds(full_bake):

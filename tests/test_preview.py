@@ -332,3 +332,102 @@ def test_compare_subprocess(layer, tmp_path):
             "usdahd preview: error: --compare-samples 0: the reference needs at least 2 samples"
         )
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# --atlas: the contact sheet of every lightmap texture
+
+
+def _atlas(layer, out, capsys, *extra):
+    capsys.readouterr()
+    assert cli.main(["preview", str(layer), "-o", str(out), "--atlas", "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_atlas_tiles_are_the_textures_with_chart_outlines(layer, tmp_path, capsys):
+    """Every texture of every baked prim is a tile; a tile pixel inside a texel away from chart
+    boundaries shows the texture's display value at that texel (nearest magnification), and
+    exactly the pixels on chart boundaries (from the baker's rasteriser) are the outline
+    colour."""
+    from usdahd.preview import atlas
+
+    out = tmp_path / "atlas.png"
+    rep = _atlas(layer, out, capsys)
+    _, meshes, _ = P.baked_meshes(str(layer))
+    by_path = {m.path: (m, r) for m, r, *_ in meshes}
+    expected = sum(len(models.get(r.model).layout(r.ratio)) for _, r, *_ in meshes)
+    assert len(rep["tiles"]) == expected == 14 and rep["meshes"] == 7
+    assert rep["flagged"] == [] and rep["outline_pixels"] > 0
+    sheet = images.read(out).pixels
+    assert list(sheet.shape[1::-1]) == rep["size"]
+    for t in rep["tiles"]:
+        mesh, res = by_path[t["prim"]]
+        role = next(lay for lay in models.get(res.model).layout(res.ratio) if lay.role == t["role"])
+        px = images.read(res.textures[role.role], channels=role.channels).pixels
+        charts = atlas.chart_image(mesh, res.resolution)
+        s = atlas.magnification(res.resolution)
+        assert (t["width"], t["height"]) == (px.shape[1] * s, px.shape[0] * s)
+        got = sheet[t["y"] : t["y"] + t["height"], t["x"] : t["x"] + t["width"]]
+        want, edge = atlas.tile(px, charts, [], s)
+        assert np.array_equal(got, want)
+        assert np.all(got[edge] == atlas.OUTLINE)
+        centre = atlas.display(px, charts >= 0)  # the texel centres, where no outline runs
+        c = s // 2
+        assert np.array_equal(got[c::s, c::s], centre)
+        # an outline pixel wherever the chart id changes between neighbouring texels
+        ys, xs = np.nonzero(charts[:, 1:] != charts[:, :-1])
+        assert np.all(edge[ys * s + c, (xs + 1) * s])
+
+
+def test_atlas_marks_the_texels_validate_flags(layer, tmp_path, capsys):
+    """A negative I_z written into one texel of the floor's I_z texture: usdahd validate's
+    TexelValues names that texel, and the sheet frames it in the flag colour in both of the
+    floor's tiles."""
+    from usdahd.preview import atlas
+
+    d = tmp_path / "copy"
+    shutil.copytree(layer.parent, d)
+    copied = d / layer.name
+    _, meshes, _ = P.baked_meshes(str(copied))
+    floor = next(r for m, r, *_ in meshes if m.path.endswith("/Floor"))
+    img = images.read(floor.textures["iz"])
+    px = img.pixels.copy()
+    px[5, 7] = -1.0
+    images.write(floor.textures["iz"], px, color_space=img.color_space, channels=img.channels)
+    rep = _atlas(copied, tmp_path / "a.png", capsys)
+    marks = [f for f in rep["flagged"] if f["prim"] == "/World/Geometry/Floor"]
+    assert {"texel": [7, 5], "finding": "TexelValues/NegativeIz"} in [
+        {k: f[k] for k in ("texel", "finding")} for f in marks
+    ]
+    sheet = images.read(tmp_path / "a.png").pixels
+    tiles = [t for t in rep["tiles"] if t["prim"] == "/World/Geometry/Floor"]
+    assert len(tiles) == 2
+    for t in tiles:
+        s = atlas.magnification(floor.resolution)
+        x0, y0 = t["x"] + 7 * s - 1, t["y"] + 5 * s - 1
+        assert np.all(sheet[y0, x0 : x0 + s + 1] == atlas.FLAG)  # the frame's top edge
+        assert np.all(sheet[y0 : y0 + s + 1, x0] == atlas.FLAG)  # and its left edge
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--camera", "/Cam"], "--camera does not apply to --atlas"),
+        (["--size", "64", "48"], "--size does not apply to --atlas"),
+        (["--compare"], "--compare does not apply to --atlas"),
+    ],
+)
+def test_atlas_bad_options(layer, tmp_path, capsys, extra, message):
+    capsys.readouterr()
+    argv = ["preview", str(layer), "-o", str(tmp_path / "x.png"), "--atlas", *extra]
+    assert cli.main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_atlas_of_an_unbaked_stage_is_an_error(tmp_path, capsys):
+    stage = tmp_path / "cornell_box.usda"
+    shutil.copy(SAMPLES / "cornell_box.usda", stage)
+    argv = ["preview", str(stage), "-o", str(tmp_path / "x.png"), "--atlas"]
+    assert cli.main(argv) == 2
+    assert "no baked prim (formatVersion 0); run usdahd bake first" in capsys.readouterr().err

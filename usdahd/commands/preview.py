@@ -66,7 +66,7 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, help="PNG to write")
     p.add_argument("--camera", metavar="PATH", help="UsdGeomCamera prim to render from")
     p.add_argument(
-        "--size", nargs=2, type=int, metavar=("W", "H"), default=(640, 480), help="image size"
+        "--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 640 480)"
     )
     p.add_argument(
         "--exposure", type=float, default=0.0, help="stops added to the automatic exposure"
@@ -77,6 +77,13 @@ def add_parser(sub):
         default="auto",
         help="wgpu (the shipped shaders on Vulkan), embree (primary rays + the numpy decoders), "
         "or auto: wgpu, falling back to embree when there is no Vulkan adapter",
+    )
+    p.add_argument(
+        "--atlas",
+        action="store_true",
+        help="instead of a view: a contact sheet of every lightmap texture (one row per baked "
+        "prim, tone-mapped, chart outlines in white, texels flagged by usdahd validate in "
+        "magenta); --json lists the tiles and the flagged texels",
     )
     c = p.add_argument_group("--compare (path-traced reference of the same view)")
     c.add_argument(
@@ -458,17 +465,25 @@ def stats(image: np.ndarray) -> dict:
     }
 
 
-def run(args) -> int:
-    from usdahd import images, models
-
-    w, h = args.size
-    if w < 1 or h < 1 or w > 16384 or h > 16384:
-        raise UsageError(f"--size {w} {h}: width and height must be 1..16384")
+def _check(args) -> Path:
+    """Usage errors before any work; returns the output path."""
+    if args.size is not None:
+        w, h = args.size
+        if w < 1 or h < 1 or w > 16384 or h > 16384:
+            raise UsageError(f"--size {w} {h}: width and height must be 1..16384")
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise UsageError(f"-o {out}: the preview is a PNG (use a .png name)")
     if not Path(args.stage).exists():
         raise StageError(f"{args.stage}: no such file")
+    if args.atlas:
+        given = [f for f, v in (("--camera", args.camera), ("--size", args.size),
+                                ("--compare", args.compare or None)) if v is not None]  # fmt: skip
+        if given:
+            raise UsageError(
+                f"{given[0]} does not apply to --atlas (a sheet of the textures, not a view); "
+                "drop one of them"
+            )
     if not args.compare:
         given = [
             a
@@ -488,6 +503,43 @@ def run(args) -> int:
         raise UsageError(
             f"--compare-bounces {args.compare_bounces}: bounces must be >= 0 (0: direct light)"
         )
+    return out
+
+
+def run_atlas(args, out: Path) -> int:
+    """``--atlas``: the contact sheet (:mod:`usdahd.preview.atlas`)."""
+    from usdahd import images
+    from usdahd.preview import atlas
+    from usdahd.validate.run import validate_file
+
+    _, meshes, _ = baked_meshes(args.stage)
+    findings = validate_file(str(args.stage)).findings
+    img, info = atlas.contact_sheet(meshes, findings)
+    images.write(out, img, color_space="srgb_rec709_scene")
+    report = {
+        "stage": str(args.stage),
+        "output": str(out),
+        "size": [int(img.shape[1]), int(img.shape[0])],
+        "meshes": len(meshes),
+        **info,
+    }
+    if args.json:
+        print(json.dumps(report, indent=2))
+    elif not args.quiet:
+        print(
+            f"{out}: {img.shape[1]}x{img.shape[0]} contact sheet, {len(meshes)} prims, "
+            f"{len(info['tiles'])} textures, {len(info['flagged'])} texel(s) flagged by validate"
+        )
+    return 0
+
+
+def run(args) -> int:
+    from usdahd import images, models
+
+    out = _check(args)
+    if args.atlas:
+        return run_atlas(args, out)
+    w, h = args.size or (640, 480)
     gpu = None if args.backend == "embree" else device(args.backend)  # before any long work
     summary = gpu[0].summary if gpu else "embree (primary rays, numpy decoders)"
     print(f"usdahd preview: {summary}", file=sys.stderr)
@@ -528,7 +580,7 @@ def run(args) -> int:
             meshes,
             viewproj,
             (w, h),
-            samples=samples,
+            samples=COMPARE_SAMPLES if args.compare_samples is None else args.compare_samples,
             seed=args.seed or 0,
             bounces=args.compare_bounces,
             progress=progress,

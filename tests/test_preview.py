@@ -134,7 +134,9 @@ def test_preview_pixels_match_the_sidecar(layer):
 
 
 def test_no_adapter_falls_back_to_embree(layer, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(P, "request_adapter", lambda: None)
+    from usdahd.preview import gpu
+
+    monkeypatch.setattr(gpu, "request_adapter", lambda: None)
     out = tmp_path / "v.png"
     argv = ["preview", str(layer), "-o", str(out), "--size", *map(str, SIZE), "--json"]
     assert cli.main(argv) == 0

@@ -1,9 +1,8 @@
 """``usdahd preview``: render the baked lighting of a stage as an engine would (issue 14).
 
 Rasterises every baked mesh through wgpu (Vulkan: Mesa's lavapipe on the CPU, or a GPU) with the
-shipped WGSL decoders (``usdahd/shaders/``): per fragment the lightmap tangent frame is rebuilt
-from the interpolated normal and the lightmap-UV tangent, the textures are sampled bilinearly at
-the lightmap UV, decoded and evaluated at the shading normal. The result is normalized
+shipped WGSL decoders (``usdahd/shaders/``, :mod:`usdahd.preview.gpu`) from a UsdGeomCamera or
+an automatic framing (:mod:`usdahd.preview.camera`). The result is normalized
 irradiance (a white Lambertian surface's radiance times pi); the PNG is tone-mapped (auto
 exposure on the 99th percentile, sRGB), ``--json`` prints linear statistics.
 
@@ -15,40 +14,39 @@ Back faces are culled (closed rooms open towards the camera). Without a Vulkan a
 visible point and writes preview | reference | error heat map side by side
 (:mod:`usdahd.preview.compare`).
 
-Not yet: albedo and normal maps (``--model-view``), ``--atlas``.
+``--atlas`` writes a contact sheet of the textures instead (:mod:`usdahd.preview.atlas`).
+
+This module is the command only (arguments, usage errors, the report); the rendering lives in
+:mod:`usdahd.preview`. Not yet: albedo and normal maps (``--model-view``).
 """
 
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from usdahd.errors import StageError, UsageError
+from usdahd.preview.camera import auto_camera, usd_camera, view_projection
+from usdahd.preview.gpu import device, render, request_adapter
+from usdahd.preview.meshes import baked_meshes, draw_items, render_view, vertex_data
+from usdahd.preview.tonemap import stats, tonemap, tonemap_with
 
-INSTALL_HINT = (
-    "usdahd preview renders through wgpu on a Vulkan device; install one: "
-    "pip install wgpu, and for the CPU apt-get install mesa-vulkan-drivers libvulkan1"
-)
-#: Vertical field of view of the automatic framing (degrees).
-AUTO_FOV = 40.0
-#: Tangent of the automatic framing's elevation above the horizon (0.5: ~27 degrees).
-ELEVATION = 0.5
-#: Rec. 709 luminance.
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: The rendering lives in usdahd.preview; these names stay importable from the command.
+__all__ = [
+    "add_parser",
+    "auto_camera",
+    "baked_meshes",
+    "device",
+    "render",
+    "request_adapter",
+    "run",
+    "usd_camera",
+    "vertex_data",
+]
+
 #: Default reference samples per pixel of --compare.
 COMPARE_SAMPLES = 256
-FACTORS = (
-    "izScale",
-    "ambientScale",
-    "directionalScale",
-    "coefficientsScale",
-    "l0Scale",
-    "ratioScale",
-)
 
 
 def add_parser(sub):
@@ -108,361 +106,6 @@ def add_parser(sub):
     c.add_argument("--seed", type=int, help="seed of the reference (default 0)")
     p.set_defaults(func=run)
     return p
-
-
-# ---------------------------------------------------------------------------------------------
-# Camera
-
-
-def look_at(eye, target, up) -> np.ndarray:
-    """View matrix (4, 4) float64, column vectors, camera looking down -z (right-handed)."""
-    f = np.asarray(target, float) - np.asarray(eye, float)
-    f /= np.linalg.norm(f)
-    s = np.cross(f, up)
-    s /= np.linalg.norm(s)
-    u = np.cross(s, f)
-    m = np.eye(4)
-    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
-    m[:3, 3] = -m[:3, :3] @ np.asarray(eye, float)
-    return m
-
-
-def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
-    """Projection (4, 4) float64 to WebGPU clip space (z in [0, 1])."""
-    f = 1.0 / math.tan(math.radians(fov_y_deg) / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0], m[1, 1] = f / aspect, f
-    m[2, 2], m[2, 3] = far / (near - far), near * far / (near - far)
-    m[3, 2] = -1.0
-    return m
-
-
-def auto_camera(points: np.ndarray, up_axis: str, aspect: float) -> np.ndarray:
-    """View-projection (4, 4) framing the bounding sphere of points (n, 3) from the front
-    (+z for a Y-up stage, -y for Z-up) and above; back-face culling opens closed rooms (their
-    front wall and ceiling face away from the camera)."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    c = 0.5 * (lo + hi)
-    r = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6)
-    up = np.array([0.0, 1.0, 0.0]) if up_axis == "Y" else np.array([0.0, 0.0, 1.0])
-    front = np.array([0.0, 0.0, 1.0]) if up_axis == "Y" else np.array([0.0, -1.0, 0.0])
-    back = front + ELEVATION * up  # from the front and above: floors and planes are not edge-on
-    back /= np.linalg.norm(back)
-    half = math.radians(AUTO_FOV) / 2.0
-    fit = min(half, math.atan(math.tan(half) * aspect))
-    dist = r / math.sin(fit)
-    eye = c + back * dist
-    near, far = max(dist - 1.5 * r, 1e-3 * dist), dist + 1.5 * r
-    return perspective(AUTO_FOV, aspect, near, far) @ look_at(eye, c, up)
-
-
-def usd_camera(stage, path: str, aspect: float) -> np.ndarray:
-    """View-projection (4, 4) of a UsdGeomCamera (its vertical aperture kept, the horizontal
-    one fitted to the image aspect), WebGPU clip space."""
-    from usdahd.usd.camera import read_camera
-
-    view, fov, near, far = read_camera(stage, path)
-    return perspective(fov, aspect, near, far) @ view
-
-
-# ---------------------------------------------------------------------------------------------
-# Scene
-
-
-def baked_meshes(layer: str):
-    """[(MeshData, BakeResults)] of every baked mesh, and the stage's up axis."""
-    from usdahd.bake import texels
-    from usdahd.usd import schema
-    from usdahd.usd.reader import load_scene
-    from usdahd.usd.stage import open_stage
-
-    stage = open_stage(layer)  # re-read from disk when this process opened it before
-    records = {}
-    for prim in schema.prims_with_api(stage):
-        res = schema.read_results(prim)
-        if res is not None:
-            records[str(prim.GetPath())] = res
-    if not records:
-        raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
-    out, up = [], "Y"
-    for uv in sorted({r.uv_primvar for r in records.values()}):
-        sc = load_scene(stage, uv_name=uv)
-        up = sc.up_axis
-        for mesh in sc.meshes:
-            res = records.get(mesh.path)
-            if res is None or res.uv_primvar != uv:
-                continue
-            if mesh.uv is None:
-                raise StageError(f"{mesh.path}: the baked UV set {uv!r} is missing")
-            tangent, sign = texels.tangent_frames(mesh)
-            out.append((mesh, res, tangent, sign))
-    if not out:
-        raise StageError(f"{layer}: the baked prims are not visible meshes of the stage")
-    return stage, out, up
-
-
-def vertex_data(mesh, tangent, sign) -> np.ndarray:
-    """Per-corner vertices (3t, 12) float32: position, lightmap st, normal, tangent + sign."""
-    t = len(mesh.triangles)
-    pos = np.asarray(mesh.points, np.float64)[mesh.triangles]
-    v = np.zeros((t, 3, 12), np.float32)
-    v[..., 0:3] = pos
-    v[..., 3:5] = mesh.uv
-    v[..., 5:8] = mesh.normals
-    v[..., 8:11] = tangent
-    v[..., 11] = np.asarray(sign)[:, None]
-    return v.reshape(-1, 12)
-
-
-# ---------------------------------------------------------------------------------------------
-# Rendering
-
-
-def request_adapter():
-    """The wgpu adapter, or None (no adapter); raises ImportError without wgpu."""
-    import wgpu
-
-    try:
-        return wgpu.gpu.request_adapter_sync(power_preference="high-performance")
-    except Exception:  # wgpu raises when no Vulkan loader/driver is present
-        return None
-
-
-def device(backend: str = "wgpu"):
-    """(adapter, device) for wgpu, or None when ``backend`` is "auto" and there is no Vulkan
-    adapter (one line on stderr says what to install). UsageError when "wgpu" has none."""
-    try:
-        adapter = request_adapter()
-        why = "no Vulkan adapter found"
-    except ImportError:
-        adapter, why = None, "wgpu is not installed"
-    if adapter is None:
-        if backend == "auto":
-            print(f"usdahd preview: {why}; {INSTALL_HINT}; falling back to Embree", file=sys.stderr)
-            return None
-        raise UsageError(f"{why}; {INSTALL_HINT}")
-    return adapter, adapter.request_device_sync()
-
-
-_SHADER = """
-struct U {{
-    viewproj: mat4x4<f32>,
-    f0: vec4<f32>,
-    f1: vec4<f32>,
-}}
-@group(0) @binding(0) var<uniform> u: U;
-@group(0) @binding(1) var samp: sampler;
-{textures}
-{library}
-struct VOut {{
-    @builtin(position) pos: vec4<f32>,
-    @location(0) st: vec2<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) tangent: vec4<f32>,
-}}
-
-@vertex
-fn vs(@location(0) p: vec3<f32>, @location(1) st: vec2<f32>, @location(2) n: vec3<f32>,
-      @location(3) t: vec4<f32>) -> VOut {{
-    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t);
-}}
-
-@fragment
-fn fs(v: VOut) -> @location(0) vec4<f32> {{
-    let izScale = u.f0.x;
-    let ambientScale = u.f0.y;
-    let directionalScale = u.f0.z;
-    let coefficientsScale = u.f0.w;
-    let l0Scale = u.f1.x;
-    let ratioScale = u.f1.y;
-    let frame = usdahd_tangent_frame(v.normal, v.tangent);
-    let n = usdahd_to_tangent(frame, frame.n); // the shading normal (no normal map yet)
-    let uv = usdahd_lightmap_texcoord(v.st);
-{samples}
-    let p = {decode};
-    return vec4<f32>({evaluate}(p, n), 1.0);
-}}
-"""
-
-
-def shader_source(model: str, ratio: str, n_textures: int) -> str:
-    """WGSL vertex + fragment shader of one model variant (the shipped decoders)."""
-    from usdahd import shaders
-
-    _, call, _, evaluate = shaders.calls(model, ratio)
-    return _SHADER.format(
-        textures="\n".join(
-            f"@group(0) @binding({2 + j}) var tex{j}: texture_2d<f32>;" for j in range(n_textures)
-        ),
-        samples="\n".join(
-            f"    let s{j} = textureSample(tex{j}, samp, uv);" for j in range(n_textures)
-        ),
-        library=shaders.source("wgsl", model),
-        decode=call,
-        evaluate=evaluate,
-    )
-
-
-def _texture(dev, pixels: np.ndarray):
-    import wgpu
-
-    h, w, c = pixels.shape
-    if pixels.dtype == np.float16:
-        fmt, one = wgpu.TextureFormat.rgba16float, np.float16(1.0)
-    else:
-        fmt, one = wgpu.TextureFormat.rgba8unorm, np.uint8(255)
-    rgba = np.full((h, w, 4), one, pixels.dtype)
-    rgba[..., :c] = pixels
-    tex = dev.create_texture(
-        size=(w, h, 1),
-        format=fmt,
-        usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST,
-    )
-    dev.queue.write_texture(
-        {"texture": tex},
-        np.ascontiguousarray(rgba).tobytes(),
-        {"bytes_per_row": w * 4 * rgba.itemsize, "rows_per_image": h},
-        (w, h, 1),
-    )
-    return tex
-
-
-def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
-    """Rasterise [(vertices (3t, 12), model, ratio, textures [(h, w, c)], factors)] ->
-    (H, W, 4) float32: normalized irradiance RGB, alpha 1 where a mesh covers the pixel."""
-    import wgpu
-
-    w, h = size
-    color = dev.create_texture(
-        size=(w, h, 1),
-        format=wgpu.TextureFormat.rgba32float,
-        usage=wgpu.TextureUsage.RENDER_ATTACHMENT | wgpu.TextureUsage.COPY_SRC,
-    )
-    depth = dev.create_texture(
-        size=(w, h, 1),
-        format=wgpu.TextureFormat.depth32float,
-        usage=wgpu.TextureUsage.RENDER_ATTACHMENT,
-    )
-    sampler = dev.create_sampler(
-        mag_filter="linear", min_filter="linear", address_mode_u="clamp-to-edge",
-        address_mode_v="clamp-to-edge",
-    )  # fmt: skip
-    attrs = [
-        {"format": wgpu.VertexFormat.float32x3, "offset": 0, "shader_location": 0},
-        {"format": wgpu.VertexFormat.float32x2, "offset": 12, "shader_location": 1},
-        {"format": wgpu.VertexFormat.float32x3, "offset": 20, "shader_location": 2},
-        {"format": wgpu.VertexFormat.float32x4, "offset": 32, "shader_location": 3},
-    ]
-    pipelines = {}
-    draws = []
-    for verts, model, ratio, textures, factors in items:
-        key = (model, ratio, len(textures))
-        if key not in pipelines:
-            module = dev.create_shader_module(code=shader_source(*key))
-            pipelines[key] = dev.create_render_pipeline(
-                layout="auto",
-                vertex={
-                    "module": module,
-                    "entry_point": "vs",
-                    "buffers": [{"array_stride": 48, "step_mode": "vertex", "attributes": attrs}],
-                },
-                primitive={"topology": "triangle-list", "front_face": "ccw", "cull_mode": "back"},
-                depth_stencil={
-                    "format": wgpu.TextureFormat.depth32float,
-                    "depth_write_enabled": True,
-                    "depth_compare": "less",
-                },
-                fragment={
-                    "module": module,
-                    "entry_point": "fs",
-                    "targets": [{"format": wgpu.TextureFormat.rgba32float}],
-                },
-            )
-        pipe = pipelines[key]
-        uni = np.zeros(24, np.float32)
-        uni[:16] = viewproj.T.reshape(-1)  # WGSL matrices are column-major
-        uni[16:22] = [factors.get(f, 1.0) for f in FACTORS]
-        ubuf = dev.create_buffer_with_data(data=uni.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
-        vbuf = dev.create_buffer_with_data(
-            data=np.ascontiguousarray(verts).tobytes(), usage=wgpu.BufferUsage.VERTEX
-        )
-        entries = [
-            {"binding": 0, "resource": {"buffer": ubuf}},
-            {"binding": 1, "resource": sampler},
-        ]
-        entries += [
-            {"binding": 2 + j, "resource": _texture(dev, t).create_view()}
-            for j, t in enumerate(textures)
-        ]
-        group = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=entries)
-        draws.append((pipe, group, vbuf, len(verts)))
-    enc = dev.create_command_encoder()
-    rp = enc.begin_render_pass(
-        color_attachments=[
-            {
-                "view": color.create_view(),
-                "clear_value": (0.0, 0.0, 0.0, 0.0),
-                "load_op": "clear",
-                "store_op": "store",
-            }
-        ],
-        depth_stencil_attachment={
-            "view": depth.create_view(),
-            "depth_clear_value": 1.0,
-            "depth_load_op": "clear",
-            "depth_store_op": "store",
-        },
-    )
-    for pipe, group, vbuf, n in draws:
-        rp.set_pipeline(pipe)
-        rp.set_bind_group(0, group)
-        rp.set_vertex_buffer(0, vbuf)
-        rp.draw(n)
-    rp.end()
-    dev.queue.submit([enc.finish()])
-    data = dev.queue.read_texture(
-        {"texture": color}, {"bytes_per_row": w * 16, "rows_per_image": h}, (w, h, 1)
-    )
-    return np.frombuffer(data, np.float32).reshape(h, w, 4).copy()
-
-
-def tonemap(image: np.ndarray, exposure_stops: float = 0.0) -> tuple[np.ndarray, float]:
-    """(H, W, 4) linear -> (H, W, 3) uint8 sRGB and the scale applied (99th percentile of the
-    covered luminance -> 0.9, times 2^stops)."""
-    covered = image[..., 3] > 0
-    lum = image[..., :3] @ LUMA
-    ref = float(np.percentile(lum[covered], 99)) if covered.any() else 0.0
-    scale = (0.9 / ref if ref > 0 else 1.0) * 2.0**exposure_stops
-    return tonemap_with(image, scale), scale
-
-
-def tonemap_with(image: np.ndarray, scale: float) -> np.ndarray:
-    """(H, W, 4) linear -> (H, W, 3) uint8 sRGB at a given linear scale (uncovered: black)."""
-    x = np.clip(image[..., :3] * scale, 0.0, 1.0)
-    x = np.where(image[..., 3:] > 0, x, 0.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.rint(255.0 * srgb).astype(np.uint8)
-
-
-def stats(image: np.ndarray) -> dict:
-    """Linear statistics of the covered pixels (normalized irradiance, Rec. 709 luminance)."""
-    covered = image[..., 3] > 0
-    lum = (image[..., :3] @ LUMA)[covered]
-    rgb = image[..., :3][covered]
-    if not lum.size:
-        return {"covered_fraction": 0.0}
-    return {
-        "covered_fraction": float(covered.mean()),
-        "mean_rgb": [float(v) for v in rgb.mean(axis=0)],
-        "luminance": {
-            "mean": float(lum.mean()),
-            "min": float(lum.min()),
-            "p50": float(np.percentile(lum, 50)),
-            "p99": float(np.percentile(lum, 99)),
-            "max": float(lum.max()),
-        },
-        "non_finite": int((~np.isfinite(image[..., :3][covered])).sum()),
-    }
 
 
 def _check(args) -> Path:
@@ -534,7 +177,7 @@ def run_atlas(args, out: Path) -> int:
 
 
 def run(args) -> int:
-    from usdahd import images, models
+    from usdahd import images
 
     out = _check(args)
     if args.atlas:
@@ -544,28 +187,9 @@ def run(args) -> int:
     summary = gpu[0].summary if gpu else "embree (primary rays, numpy decoders)"
     print(f"usdahd preview: {summary}", file=sys.stderr)
     stage, meshes, up = baked_meshes(args.stage)
-    aspect = w / h
-    if args.camera:
-        viewproj = usd_camera(stage, args.camera, aspect)
-    else:
-        pts = np.concatenate([np.asarray(m.points) for m, *_ in meshes])
-        viewproj = auto_camera(pts, up, aspect)
-    items = []
-    for mesh, res, tangent, sign in meshes:
-        layout = models.get(res.model).layout(res.ratio)
-        textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
-        items.append(
-            (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
-        )
-    if gpu:
-        image = render(gpu[1], items, viewproj, (w, h))
-    else:
-        from usdahd.preview import raytrace
-        from usdahd.usd.reader import load_scene
-
-        scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)  # the materials
-        traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
-        image = raytrace.render(scene, traced, viewproj, (w, h))
+    viewproj = view_projection(stage, meshes, up, args.camera, w / h)
+    items = draw_items(meshes)
+    image = render_view(stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None)
     ldr, scale = tonemap(image, args.exposure)
     compared = None
     if args.compare:

@@ -143,7 +143,7 @@ def sheet(rows) -> tuple[np.ndarray, list[dict]]:
 
 
 def contact_sheet(meshes, findings, tile_size: int = TILE) -> tuple[np.ndarray, dict]:
-    """The ``--atlas`` sheet of ``meshes`` (:func:`usdahd.commands.preview.baked_meshes`'s
+    """The ``--atlas`` sheet of ``meshes`` (:func:`usdahd.preview.meshes.baked_meshes`'s
     list) with ``findings`` (usdahd.validate Findings of the stage, or [] to mark none).
     returns (sheet (H, W, 3) uint8, report dict: tiles, flagged, outline_pixels)."""
     from usdahd import images, models

@@ -80,9 +80,10 @@ def batch_plan(samples: int) -> tuple[int, int]:
 def visible_points(meshes, viewproj: np.ndarray, size, scene):
     """Front-facing surface points of the preview's pixels.
 
-    meshes : [(MeshData, BakeResults, tangent, sign)] (:func:`baked_meshes`); scene : the stage's
-        Scene (its materials). returns (pixel (m,) int64 row-major pixel index, mesh (m,) int64
-        index into ``meshes``, Texels of the m points).
+    meshes : [(MeshData, BakeResults, tangent, sign)]
+        (:func:`usdahd.preview.meshes.baked_meshes`); scene : the stage's Scene (its materials).
+    returns (pixel (m,) int64 row-major pixel index, mesh (m,) int64 index into ``meshes``,
+        Texels of the m points).
     """
     from usdahd.bake.trace import Tracer
     from usdahd.bake.types import Texels
@@ -155,9 +156,10 @@ def _perpendicular(n: np.ndarray) -> np.ndarray:
 def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces, progress=None):
     """Path-traced reference of the preview's view.
 
-    stage : the baked stage; meshes : :func:`baked_meshes`'s list; samples : per visible point
-    (split into K batches); bounces : the integrator's cap (None: the bake's recorded
-    ``bounces``, else the integrator's default). progress : callable(str) or None.
+    stage : the baked stage; meshes : :func:`usdahd.preview.meshes.baked_meshes`'s list;
+    samples : per visible point (split into K batches); bounces : the integrator's cap (None:
+    the bake's recorded ``bounces``, else the integrator's default); progress : callable(str)
+    or None.
     returns (image (H, W, 4) float32: I_z RGB, alpha 1 on traced pixels; variance (H, W, 3)
     float64 of each pixel's mean; info dict: samples, batches, bounces, seed, rays, points,
     inside_geometry).

@@ -1,0 +1,237 @@
+"""wgpu rasterisation of ``usdahd preview`` with the shipped WGSL decoders (issue 14).
+
+Per fragment the lightmap tangent frame is rebuilt from the interpolated normal and the
+lightmap-UV tangent, the textures are sampled bilinearly at the lightmap UV, decoded and
+evaluated at the shading normal (``usdahd/shaders/wgsl``). Back faces are culled
+(counter-clockwise front faces). :func:`device` finds a Vulkan adapter (Mesa's lavapipe on the
+CPU, or a GPU) or says what to install.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from usdahd.errors import UsageError
+
+INSTALL_HINT = (
+    "usdahd preview renders through wgpu on a Vulkan device; install one: "
+    "pip install wgpu, and for the CPU apt-get install mesa-vulkan-drivers libvulkan1"
+)
+FACTORS = (
+    "izScale",
+    "ambientScale",
+    "directionalScale",
+    "coefficientsScale",
+    "l0Scale",
+    "ratioScale",
+)
+
+
+def request_adapter():
+    """The wgpu adapter, or None (no adapter); raises ImportError without wgpu."""
+    import wgpu
+
+    try:
+        return wgpu.gpu.request_adapter_sync(power_preference="high-performance")
+    except Exception:  # wgpu raises when no Vulkan loader/driver is present
+        return None
+
+
+def device(backend: str = "wgpu"):
+    """(adapter, device) for wgpu, or None when ``backend`` is "auto" and there is no Vulkan
+    adapter (one line on stderr says what to install). UsageError when "wgpu" has none."""
+    try:
+        adapter = request_adapter()
+        why = "no Vulkan adapter found"
+    except ImportError:
+        adapter, why = None, "wgpu is not installed"
+    if adapter is None:
+        if backend == "auto":
+            print(f"usdahd preview: {why}; {INSTALL_HINT}; falling back to Embree", file=sys.stderr)
+            return None
+        raise UsageError(f"{why}; {INSTALL_HINT}")
+    return adapter, adapter.request_device_sync()
+
+
+_SHADER = """
+struct U {{
+    viewproj: mat4x4<f32>,
+    f0: vec4<f32>,
+    f1: vec4<f32>,
+}}
+@group(0) @binding(0) var<uniform> u: U;
+@group(0) @binding(1) var samp: sampler;
+{textures}
+{library}
+struct VOut {{
+    @builtin(position) pos: vec4<f32>,
+    @location(0) st: vec2<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) tangent: vec4<f32>,
+}}
+
+@vertex
+fn vs(@location(0) p: vec3<f32>, @location(1) st: vec2<f32>, @location(2) n: vec3<f32>,
+      @location(3) t: vec4<f32>) -> VOut {{
+    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t);
+}}
+
+@fragment
+fn fs(v: VOut) -> @location(0) vec4<f32> {{
+    let izScale = u.f0.x;
+    let ambientScale = u.f0.y;
+    let directionalScale = u.f0.z;
+    let coefficientsScale = u.f0.w;
+    let l0Scale = u.f1.x;
+    let ratioScale = u.f1.y;
+    let frame = usdahd_tangent_frame(v.normal, v.tangent);
+    let n = usdahd_to_tangent(frame, frame.n); // the shading normal (no normal map yet)
+    let uv = usdahd_lightmap_texcoord(v.st);
+{samples}
+    let p = {decode};
+    return vec4<f32>({evaluate}(p, n), 1.0);
+}}
+"""
+
+
+def shader_source(model: str, ratio: str, n_textures: int) -> str:
+    """WGSL vertex + fragment shader of one model variant (the shipped decoders)."""
+    from usdahd import shaders
+
+    _, call, _, evaluate = shaders.calls(model, ratio)
+    return _SHADER.format(
+        textures="\n".join(
+            f"@group(0) @binding({2 + j}) var tex{j}: texture_2d<f32>;" for j in range(n_textures)
+        ),
+        samples="\n".join(
+            f"    let s{j} = textureSample(tex{j}, samp, uv);" for j in range(n_textures)
+        ),
+        library=shaders.source("wgsl", model),
+        decode=call,
+        evaluate=evaluate,
+    )
+
+
+def _texture(dev, pixels: np.ndarray):
+    import wgpu
+
+    h, w, c = pixels.shape
+    if pixels.dtype == np.float16:
+        fmt, one = wgpu.TextureFormat.rgba16float, np.float16(1.0)
+    else:
+        fmt, one = wgpu.TextureFormat.rgba8unorm, np.uint8(255)
+    rgba = np.full((h, w, 4), one, pixels.dtype)
+    rgba[..., :c] = pixels
+    tex = dev.create_texture(
+        size=(w, h, 1),
+        format=fmt,
+        usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST,
+    )
+    dev.queue.write_texture(
+        {"texture": tex},
+        np.ascontiguousarray(rgba).tobytes(),
+        {"bytes_per_row": w * 4 * rgba.itemsize, "rows_per_image": h},
+        (w, h, 1),
+    )
+    return tex
+
+
+def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
+    """Rasterise [(vertices (3t, 12), model, ratio, textures [(h, w, c)], factors)] ->
+    (H, W, 4) float32: normalized irradiance RGB, alpha 1 where a mesh covers the pixel."""
+    import wgpu
+
+    w, h = size
+    color = dev.create_texture(
+        size=(w, h, 1),
+        format=wgpu.TextureFormat.rgba32float,
+        usage=wgpu.TextureUsage.RENDER_ATTACHMENT | wgpu.TextureUsage.COPY_SRC,
+    )
+    depth = dev.create_texture(
+        size=(w, h, 1),
+        format=wgpu.TextureFormat.depth32float,
+        usage=wgpu.TextureUsage.RENDER_ATTACHMENT,
+    )
+    sampler = dev.create_sampler(
+        mag_filter="linear", min_filter="linear", address_mode_u="clamp-to-edge",
+        address_mode_v="clamp-to-edge",
+    )  # fmt: skip
+    attrs = [
+        {"format": wgpu.VertexFormat.float32x3, "offset": 0, "shader_location": 0},
+        {"format": wgpu.VertexFormat.float32x2, "offset": 12, "shader_location": 1},
+        {"format": wgpu.VertexFormat.float32x3, "offset": 20, "shader_location": 2},
+        {"format": wgpu.VertexFormat.float32x4, "offset": 32, "shader_location": 3},
+    ]
+    pipelines = {}
+    draws = []
+    for verts, model, ratio, textures, factors in items:
+        key = (model, ratio, len(textures))
+        if key not in pipelines:
+            module = dev.create_shader_module(code=shader_source(*key))
+            pipelines[key] = dev.create_render_pipeline(
+                layout="auto",
+                vertex={
+                    "module": module,
+                    "entry_point": "vs",
+                    "buffers": [{"array_stride": 48, "step_mode": "vertex", "attributes": attrs}],
+                },
+                primitive={"topology": "triangle-list", "front_face": "ccw", "cull_mode": "back"},
+                depth_stencil={
+                    "format": wgpu.TextureFormat.depth32float,
+                    "depth_write_enabled": True,
+                    "depth_compare": "less",
+                },
+                fragment={
+                    "module": module,
+                    "entry_point": "fs",
+                    "targets": [{"format": wgpu.TextureFormat.rgba32float}],
+                },
+            )
+        pipe = pipelines[key]
+        uni = np.zeros(24, np.float32)
+        uni[:16] = viewproj.T.reshape(-1)  # WGSL matrices are column-major
+        uni[16:22] = [factors.get(f, 1.0) for f in FACTORS]
+        ubuf = dev.create_buffer_with_data(data=uni.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
+        vbuf = dev.create_buffer_with_data(
+            data=np.ascontiguousarray(verts).tobytes(), usage=wgpu.BufferUsage.VERTEX
+        )
+        entries = [
+            {"binding": 0, "resource": {"buffer": ubuf}},
+            {"binding": 1, "resource": sampler},
+        ]
+        entries += [
+            {"binding": 2 + j, "resource": _texture(dev, t).create_view()}
+            for j, t in enumerate(textures)
+        ]
+        group = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=entries)
+        draws.append((pipe, group, vbuf, len(verts)))
+    enc = dev.create_command_encoder()
+    rp = enc.begin_render_pass(
+        color_attachments=[
+            {
+                "view": color.create_view(),
+                "clear_value": (0.0, 0.0, 0.0, 0.0),
+                "load_op": "clear",
+                "store_op": "store",
+            }
+        ],
+        depth_stencil_attachment={
+            "view": depth.create_view(),
+            "depth_clear_value": 1.0,
+            "depth_load_op": "clear",
+            "depth_store_op": "store",
+        },
+    )
+    for pipe, group, vbuf, n in draws:
+        rp.set_pipeline(pipe)
+        rp.set_bind_group(0, group)
+        rp.set_vertex_buffer(0, vbuf)
+        rp.draw(n)
+    rp.end()
+    dev.queue.submit([enc.finish()])
+    data = dev.queue.read_texture(
+        {"texture": color}, {"bytes_per_row": w * 16, "rows_per_image": h}, (w, h, 1)
+    )
+    return np.frombuffer(data, np.float32).reshape(h, w, 4).copy()

@@ -1,0 +1,84 @@
+"""The baked meshes ``usdahd preview`` draws: read from a baked layer, as vertex arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from usdahd.errors import StageError, UsageError
+
+
+def baked_meshes(layer: str):
+    """[(MeshData, BakeResults)] of every baked mesh, and the stage's up axis."""
+    from usdahd.bake import texels
+    from usdahd.usd import schema
+    from usdahd.usd.reader import load_scene
+    from usdahd.usd.stage import open_stage
+
+    stage = open_stage(layer)  # re-read from disk when this process opened it before
+    records = {}
+    for prim in schema.prims_with_api(stage):
+        res = schema.read_results(prim)
+        if res is not None:
+            records[str(prim.GetPath())] = res
+    if not records:
+        raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
+    out, up = [], "Y"
+    for uv in sorted({r.uv_primvar for r in records.values()}):
+        sc = load_scene(stage, uv_name=uv)
+        up = sc.up_axis
+        for mesh in sc.meshes:
+            res = records.get(mesh.path)
+            if res is None or res.uv_primvar != uv:
+                continue
+            if mesh.uv is None:
+                raise StageError(f"{mesh.path}: the baked UV set {uv!r} is missing")
+            tangent, sign = texels.tangent_frames(mesh)
+            out.append((mesh, res, tangent, sign))
+    if not out:
+        raise StageError(f"{layer}: the baked prims are not visible meshes of the stage")
+    return stage, out, up
+
+
+def vertex_data(mesh, tangent, sign) -> np.ndarray:
+    """Per-corner vertices (3t, 12) float32: position, lightmap st, normal, tangent + sign."""
+    t = len(mesh.triangles)
+    pos = np.asarray(mesh.points, np.float64)[mesh.triangles]
+    v = np.zeros((t, 3, 12), np.float32)
+    v[..., 0:3] = pos
+    v[..., 3:5] = mesh.uv
+    v[..., 5:8] = mesh.normals
+    v[..., 8:11] = tangent
+    v[..., 11] = np.asarray(sign)[:, None]
+    return v.reshape(-1, 12)
+
+
+def draw_items(meshes) -> list:
+    """[(vertices (3t, 12), model, ratio, textures [(h, w, c) stored pixels], factors)] of
+    ``meshes`` (:func:`baked_meshes`), textures in the model's layout order: what
+    :func:`usdahd.preview.gpu.render` draws."""
+    from usdahd import images, models
+
+    items = []
+    for mesh, res, tangent, sign in meshes:
+        layout = models.get(res.model).layout(res.ratio)
+        textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+        items.append(
+            (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
+        )
+    return items
+
+
+def render_view(stage, meshes, items, viewproj: np.ndarray, size, dev=None) -> np.ndarray:
+    """The preview image (H, W, 4) float32 of ``items`` (:func:`draw_items` of ``meshes``):
+    rasterised on the wgpu device ``dev``, or with ``dev`` None by the Embree fallback
+    (:mod:`usdahd.preview.raytrace`, the stage's materials)."""
+    if dev is not None:
+        from usdahd.preview.gpu import render
+
+        return render(dev, items, viewproj, size)
+    from usdahd.preview import raytrace
+    from usdahd.usd.reader import load_scene
+
+    scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)  # the materials
+    traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
+    return raytrace.render(scene, traced, viewproj, size)

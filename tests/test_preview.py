@@ -455,3 +455,31 @@ def test_compare_of_the_open_plane_is_noise_only(tmp_path, capsys):
     assert c["relrmse_denoised"] < 0.5 * c["reference_noise"]
     se = c["reference_noise"] / np.sqrt(c["pixels"])  # of the mean over independent pixels
     assert abs(c["reference_mean_rgb"][1] - 1.0) < 4 * se
+
+
+def test_atlas_subprocess(layer, tmp_path):
+    """--atlas as a user runs it: the JSON report on stdout and the sheet; --atlas with --size
+    is one error line and exit code 2."""
+    import os
+    import subprocess
+    import sys
+
+    import usdahd
+
+    env = dict(os.environ, PYTHONPATH=str(Path(usdahd.__file__).resolve().parents[1]))
+    out = tmp_path / "sheet.png"
+    base = [sys.executable, "-m", "usdahd", "preview", str(layer), "-o", str(out), "--atlas"]
+    proc = subprocess.run([*base, "--json"], capture_output=True, text=True, env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout)
+    assert len(rep["tiles"]) == 14
+    assert list(images.read(out).pixels.shape[1::-1]) == rep["size"]
+    out.unlink()
+    bad = subprocess.run(
+        [*base, "--size", "8", "8"], capture_output=True, text=True, env=env, timeout=900
+    )
+    assert bad.returncode == 2 and bad.stdout == "" and not out.exists()
+    assert bad.stderr.strip().splitlines()[-1] == (
+        "usdahd preview: error: --size does not apply to --atlas (a sheet of the textures, not "
+        "a view); drop one of them"
+    )

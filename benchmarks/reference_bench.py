@@ -86,6 +86,49 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     return rows
 
 
+def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
+    """Per stage: the wall time each renderer needs to reach Cycles' error at ``target_spp``.
+
+    usdahd's time is interpolated between its two measured runs that bracket the target error,
+    linearly in log(time) against log(relRMSE) (both fall as a power law in the samples);
+    ``None`` when none of its runs reaches the target (bias-limited, or more samples needed).
+    Returns [{"stage", "target", "cycles_seconds", "usdahd_seconds", "ratio"}].
+    """
+    out = []
+    for stage in dict.fromkeys(r["stage"] for r in rows):
+        cyc = [r for r in rows if r["stage"] == stage and r["renderer"] == "cycles"]
+        ref = next((r for r in cyc if r["spp"] == target_spp and "rel_rmse" in r), None)
+        if ref is None:
+            continue
+        target = ref["rel_rmse"]
+        ours = sorted(
+            (r["seconds"], r["rel_rmse"])
+            for r in rows
+            if r["stage"] == stage and r["renderer"] == "usdahd" and "rel_rmse" in r
+        )
+        t_reach = None
+        for (t0, e0), (t1, e1) in zip(ours, ours[1:], strict=False):
+            if e0 <= target:
+                t_reach = t0
+                break
+            if e1 <= target < e0 and t1 > 0 and t0 > 0 and e1 > 0:
+                f = (math.log(e0) - math.log(target)) / (math.log(e0) - math.log(e1))
+                t_reach = math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0)))
+                break
+        if t_reach is None and ours and ours[-1][1] <= target:
+            t_reach = ours[-1][0]
+        out.append(
+            {
+                "stage": stage,
+                "target": target,
+                "cycles_seconds": ref["seconds"],
+                "usdahd_seconds": t_reach,
+                "ratio": None if t_reach is None else t_reach / ref["seconds"],
+            }
+        )
+    return out
+
+
 def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     noise = {}
     for r in rows:
@@ -114,6 +157,27 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         )
     if plot_name:
         lines += ["", f"![relRMSE vs time]({plot_name})"]
+    ttq = time_to_quality(rows)
+    if ttq:
+        lines += [
+            "",
+            "### Time to Cycles' 1024-spp error",
+            "",
+            "Wall time each renderer needs to reach the error Cycles reaches at 1024 spp "
+            '(usdahd\'s interpolated in log-log between its measured runs; "not reached" when '
+            "no run of it gets there: bias-limited or more samples needed). Issue 16's target "
+            "is a ratio <= 0.2.",
+            "",
+            "| stage | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio |",
+            "|---|---|---|---|---|",
+        ]
+        for t in ttq:
+            ours = "not reached" if t["usdahd_seconds"] is None else f"{t['usdahd_seconds']:.1f}"
+            ratio = "-" if t["ratio"] is None else f"{t['ratio']:.2f}"
+            lines.append(
+                f"| {t['stage']} | {100 * t['target']:.2f} % | {t['cycles_seconds']:.1f} | "
+                f"{ours} | {ratio} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -149,6 +213,45 @@ def plot(rows: list[dict], path: Path) -> bool:
     return True
 
 
+#: The stages and sample counts of the ``reference`` section of benchmarks/run.py, per plan.
+SECTION_PLANS = {
+    "full": {"resolution": 32, "samples": [16, 64, 256, 1024], "truth_spp": 4096},
+    "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024},
+}
+SECTION_STAGES = ("cornell_box", "pillar_room", "floor_lamp")
+
+
+def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) -> dict:
+    """The ``reference`` section of benchmarks/run.py: both renderers on SECTION_STAGES.
+
+    Returns {"rows", "args", "plot"} or {"skipped": why} when no bpy interpreter is set up
+    (the section then says how to set one up instead of failing the whole run).
+    """
+    try:
+        bpy = runner.find_bpy(bpy_python)
+    except runner.ReferenceUnavailable as exc:
+        return {"skipped": str(exc)}
+    cfg = SECTION_PLANS[plan_name]
+    rows = []
+    for name in SECTION_STAGES:
+        rows += bench_stage(REPO / "samples" / f"{name}.usda", cfg["resolution"],
+                            cfg["samples"], cfg["truth_spp"], bpy)  # fmt: skip
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    png = plots_dir / "reference_time_error.png"
+    return {"rows": rows, "args": dict(cfg), "plot": png.name if plot(rows, png) else None}
+
+
+def section(result: dict, plots_rel: str = "benchmarks") -> str:
+    """Markdown of :func:`run_section`'s result (headings one level below the page's)."""
+    if "skipped" in result:
+        return (
+            "## usdahd vs Cycles: error against a converged truth vs time\n\n"
+            f"Not run: {result['skipped']}\n"
+        )
+    plot_name = f"{plots_rel}/{result['plot']}" if result.get("plot") else None
+    return markdown(result["rows"], argparse.Namespace(**result["args"]), plot_name)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--stages", nargs="+", default=["cornell_box", "pillar_room", "floor_lamp"])
@@ -161,6 +264,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.from_json:
         rows = json.loads(a.from_json.read_text())
+        a.out.parent.mkdir(parents=True, exist_ok=True)
         png = a.out.with_name("reference_time_error.png")
         has_plot = plot(rows, png)
         a.out.write_text(markdown(rows, a, png.name if has_plot else None), encoding="utf-8")

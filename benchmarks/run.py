@@ -107,8 +107,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--sections",
-        default="bake,fit,encodings,skipping,soak,ktx2",
-        help="comma-separated subset of bake,fit,encodings,skipping,soak,ktx2",
+        default="bake,fit,encodings,skipping,soak,ktx2,reference",
+        help="comma-separated subset of bake,fit,encodings,skipping,soak,ktx2,reference "
+        "(reference: usdahd vs Blender Cycles; needs $USDAHD_BPY_PYTHON, see "
+        "benchmarks/reference/README.md)",
     )
     ap.add_argument(
         "--fresh", action="store_true", help="delete cached reference bakes first (from scratch)"
@@ -132,11 +134,11 @@ def run(args) -> Path:
     plan_name = "quick" if args.quick else "full"
     plan = PLANS[plan_name]
     sections = {s.strip() for s in args.sections.split(",") if s.strip()}
-    unknown = sections - {"bake", "fit", "encodings", "skipping", "soak", "ktx2"}
+    unknown = sections - {"bake", "fit", "encodings", "skipping", "soak", "ktx2", "reference"}
     if unknown:
         raise UsageError(
             f"unknown --sections {', '.join(sorted(unknown))}; "
-            "choose from bake, fit, encodings, skipping, soak, ktx2"
+            "choose from bake, fit, encodings, skipping, soak, ktx2, reference"
         )
     common.VERBOSE = not getattr(args, "quiet", False)
     out = Path(args.out)
@@ -225,6 +227,12 @@ def run(args) -> Path:
         import ktx2_bench
 
         results["ktx2"] = timed_section("ktx2", ktx2_bench.run)
+    if "reference" in sections:
+        import reference_bench
+
+        results["reference"] = timed_section(
+            "reference", lambda: reference_bench.run_section(plan_name, plots)
+        )
     total = time.perf_counter() - t_start
 
     md.append(report_header(facts, plan_name, plan, total, timings, no_denoise))
@@ -243,6 +251,10 @@ def run(args) -> Path:
         import ktx2_bench
 
         md.append(ktx2_bench.section(results["ktx2"]))
+    if "reference" in results:
+        import reference_bench
+
+        md.append(reference_bench.section(results["reference"]))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n\n".join(md).rstrip() + "\n")
     raw = CACHE / f"results-{plan_name}.json"

@@ -444,3 +444,39 @@ def test_compare_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch):
     assert abs(row["usdahd"]["bias"]) < 1e-4 and abs(row["cycles"]["bias"]) < 1e-5
     assert "| **overall** |" in compare.table(res)
     assert list((tmp_path / "cache").glob("*.npz"))  # the truth was cached
+
+
+def test_time_to_quality_interpolates_in_log_log_and_says_not_reached():
+    from benchmarks import reference_bench as rb
+
+    def row(ren, spp, secs, err, stage="s"):
+        return {"stage": stage, "renderer": ren, "spp": spp, "seconds": secs, "rel_rmse": err}
+
+    # usdahd: error halves per 4x time (a power law): Cycles' 1024-spp error 0.02 sits exactly
+    # between its runs at 0.04 (1 s) and 0.01 (16 s) in log-log, i.e. at 4 s.
+    rows = [row("cycles", 1024, 40.0, 0.02), row("usdahd", 256, 1.0, 0.04)]
+    rows += [row("usdahd", 1024, 16.0, 0.01)]
+    rows += [row("cycles", 1024, 10.0, 0.01, "b"), row("usdahd", 16, 1.0, 0.05, "b")]
+    rows += [row("usdahd", 1024, 9.0, 0.03, "b")]  # bias-limited: never reaches 0.01
+    got = {t["stage"]: t for t in rb.time_to_quality(rows)}
+    assert got["s"]["usdahd_seconds"] == pytest.approx(4.0)
+    assert got["s"]["ratio"] == pytest.approx(0.1)
+    assert got["b"]["usdahd_seconds"] is None and got["b"]["ratio"] is None
+    md = rb.markdown(rows, type("A", (), {"resolution": 8, "samples": [16], "truth_spp": 64}), None)
+    assert "| b | 1.00 % | 10.0 | not reached | - |" in md
+
+
+def test_run_section_without_bpy_says_how_to_set_it_up(monkeypatch, tmp_path):
+    from benchmarks import reference_bench as rb
+
+    monkeypatch.delenv("USDAHD_BPY_PYTHON", raising=False)
+    monkeypatch.setattr(
+        runner,
+        "find_bpy",
+        lambda _=None: (_ for _ in ()).throw(
+            runner.ReferenceUnavailable("no bpy interpreter configured; create one with: ...")
+        ),
+    )
+    got = rb.run_section("quick", tmp_path)
+    assert "skipped" in got
+    assert "Not run: no bpy interpreter configured" in rb.section(got)

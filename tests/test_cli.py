@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 import usdahd
-from usdahd import cli, pipeline
+from usdahd import cli
+from usdahd.pipeline import run
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The folder holding the usdahd these tests import (the checkout for an editable install,
@@ -49,6 +50,22 @@ def _error_line(err: str, command: str) -> str:
     lines = [ln for ln in err.splitlines() if ln.startswith(f"usdahd {command}: error: ")]
     assert len(lines) == 1, err
     return lines[0]
+
+
+def _count_traces(monkeypatch) -> list[int]:
+    """Replace the bake's trace/fit/write stages (what ``run.bake`` calls once its plan is
+    made) by a recorder: the list it returns grows by one per call. The tests that expect a
+    refusal before tracing assert it stays empty; the control below shows it does grow."""
+    traced: list[int] = []
+    monkeypatch.setattr(run, "bake_jobs", lambda *a, **k: traced.append(1))
+    return traced
+
+
+def test_trace_recorder_sees_a_bake_that_traces(tmp_path, capsys, monkeypatch):
+    traced = _count_traces(monkeypatch)
+    code, _, err = _main(capsys, "bake", str(_copy(tmp_path)), *FAST)
+    assert code == 0, err
+    assert traced == [1]
 
 
 # ----------------------------------------------------------------------------- shared options
@@ -161,8 +178,7 @@ def test_lightmaps_folder_replaced_is_refused_before_tracing(tmp_path, capsys, k
     else:
         (tmp_path / "elsewhere").mkdir()
         lm.symlink_to(tmp_path / "elsewhere")
-    traced = []
-    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    traced = _count_traces(monkeypatch)
     for extra in ([], ["--dry-run"]):
         code, _, err = _main(capsys, "bake", str(plane), *FAST, *extra)
         assert code == 2, err
@@ -195,8 +211,7 @@ def test_read_only_output_folder_fails_before_tracing(tmp_path, capsys, monkeypa
     plane = _copy(tmp_path)
     ro = tmp_path / "ro"
     _read_only_dir(ro)
-    traced = []
-    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    traced = _count_traces(monkeypatch)
     try:
         for extra in ([], ["--dry-run"]):
             code, out, err = _main(
@@ -219,8 +234,7 @@ def test_denoise_without_pyoidn_fails_before_tracing(tmp_path, capsys, monkeypat
     monkeypatch.setattr(
         importlib.util, "find_spec", lambda name, *a: None if name == "pyoidn" else real(name, *a)
     )
-    traced = []
-    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    traced = _count_traces(monkeypatch)
     for extra in ([], ["--dry-run"]):
         code, _, err = _main(capsys, "bake", str(plane), "--denoise", *FAST, *extra)
         assert code == 2
@@ -270,7 +284,7 @@ def test_dry_run_reports_texel_total_and_would_create(tmp_path, capsys):
 
 def test_planned_memory_above_the_machine_is_refused_in_dry_run(tmp_path, capsys, monkeypatch):
     stage = _copy(tmp_path, "cornell_box.usda")
-    monkeypatch.setattr(pipeline, "MAX_BAKE_BYTES", 1000)
+    monkeypatch.setattr(run, "MAX_BAKE_BYTES", 1000)
     code, _, err = _main(capsys, "bake", str(stage), "--dry-run", "--resolution", "16")
     assert code == 2
     line = _error_line(err, "bake")
@@ -476,8 +490,7 @@ def test_read_only_override_layer_is_refused_before_tracing(tmp_path, capsys, mo
     layer = tmp_path / "open_plane.lightmaps.usda"
     layer.chmod(0o444)
     before = layer.read_bytes()
-    traced = []
-    monkeypatch.setattr(pipeline, "_bake_jobs", lambda *a, **k: traced.append(1))
+    traced = _count_traces(monkeypatch)
     code, _, err = _main(capsys, "bake", str(plane), *FAST, "--force")
     assert code == 2 and not traced
     line = _error_line(err, "bake")

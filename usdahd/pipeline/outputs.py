@@ -10,11 +10,13 @@ import hashlib
 import os
 import re
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 
 #: Folder beside the output layer that holds its textures.
@@ -317,3 +319,39 @@ def _warn(opts: BakeOptions, msg: str) -> None:
 
         progress.clear_line()
         print(f"warning: {msg}", file=sys.stderr)
+
+
+def _author_layer(
+    src: Path, out: Path, source_stage, jobs: list[PrimJob], scenario: str | None = None
+) -> bool:
+    """Write the override layer; its atomic replace is the bake's single commit point.
+
+    The layer is built in memory by :func:`usdahd.usd.author.build_layer`, exported to a fresh
+    temp file beside ``out`` (created by mkstemp and kept, so no other process can take its
+    name), fsynced, then renamed over ``out``. returns False when the content is unchanged
+    (nothing replaced). Raises OutputError when the layer cannot be written (disk full,
+    read-only); ``out`` is then untouched.
+    """
+    from usdahd.usd import author
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    layer = author.build_layer(src, out, source_stage, jobs, scenario)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        author.export_layer(layer, tmp_name, out)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        _fsync(tmp)
+        _fault("layer_exported")
+        new = tmp.read_bytes()
+        if out.is_file() and out.read_bytes() == new:
+            return False
+        os.replace(tmp, out)  # the commit point
+        _fsync(out.parent, directory=True)
+        return True
+    finally:
+        if tmp.exists():
+            tmp.unlink()

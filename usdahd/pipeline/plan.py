@@ -5,7 +5,9 @@ unwrap, or unwrapped now) and lightmap resolution (given, or from the texel dens
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -241,3 +243,33 @@ def _plan(
             _unwrap(job, mesh, settings, scene)
     settings["resolution"] = list(job.resolution)
     return job
+
+
+#: Settings that only change the fit and encoding of the baked SH, never the SH: a change of
+#: only these refits from the previous bake's float32 SH sidecar instead of tracing.
+REFIT_SETTINGS = ("model", "ratio", "solver", "padding", "container")
+
+
+def _norm(settings: dict) -> dict:
+    """Settings as the layer stores them (JSON round trip: tuples become lists)."""
+    return json.loads(json.dumps(settings, sort_keys=True, default=str))
+
+
+def _refit_source(job, old, changed: list[str]) -> str | None:
+    """The previous bake's SH sidecar when ``job`` differs from it only in REFIT_SETTINGS (same
+    geometry, UVs, lights, materials, baker, resolution), and the sidecar is the file that bake
+    wrote (digest); else None (trace again)."""
+    if not changed or set(changed) != {"settings"}:
+        return None
+    a, b = _norm(old.settings), _norm(job.settings)
+    if {k for k in set(a) | set(b) if a.get(k) != b.get(k)} - set(REFIT_SETTINGS):
+        return None
+    side = old.textures.get("sh")
+    if side is None or not Path(side).is_file() or tuple(old.resolution) != tuple(job.resolution):
+        return None
+    from usdahd.usd import schema
+
+    want = old.digests.get("sh")
+    if not want or schema.file_digest(side) != want:
+        return None
+    return side

@@ -1,0 +1,302 @@
+"""``usdahd bake`` end to end: :func:`bake` checks (:mod:`~usdahd.pipeline.preflight`), opens
+the stage, takes the output lock, plans every prim (:mod:`~usdahd.pipeline.plan`), decides what
+is skipped, kept, refitted or traced, runs the stages (:mod:`~usdahd.pipeline.stages`) and
+commits (:mod:`~usdahd.pipeline.outputs`: textures, then the override layer, then cleanup).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+from usdahd.errors import BakeError, InputError, StageError, UsageError
+from usdahd.pipeline.outputs import (
+    LIGHTMAPS_DIR,
+    _author_layer,
+    _commit_textures,
+    _fault,
+    _inside_lightmaps,
+    _referenced,
+    _remove_legacy,
+    cleanup_outputs,
+    output_lock,
+)
+from usdahd.pipeline.plan import (
+    REFIT_SETTINGS,
+    PrimJob,
+    _norm,
+    _plan,
+    _refit_source,
+    settings_resolution_given,
+)
+from usdahd.pipeline.preflight import (
+    _check_stage,
+    _check_values,
+    _files_exist,
+    _no_mesh_message,
+    preflight,
+)
+from usdahd.pipeline.settings import DEFAULTS, TINY_RESOLUTION, BakeOptions, _check_options
+from usdahd.pipeline.stages import bake_jobs
+from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
+from usdahd.usd.author import generator_id
+from usdahd.usd.stage import open_stage, utf8_problem
+
+
+def _previous_results(out: Path) -> tuple[dict, list[str]]:
+    """(prim path -> BakeResults, warnings) from an existing output layer (empty if none).
+
+    A record is only trusted when every texture it names is a regular file (not a symlink)
+    inside the output's ``lightmaps/`` folder: a hand-edited layer pointing elsewhere
+    (``../../x/...``) is ignored with a warning and the prim re-baked, so a bake never reads or
+    keeps files outside its output folder.
+    """
+    if not out.is_file():
+        return {}, []
+    from usdahd.usd import schema
+
+    try:
+        stage = open_stage(out)
+    except StageError:
+        return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
+    prev, warnings = {}, []
+    for prim in schema.prims_with_api(stage):
+        try:
+            res = schema.read_results(prim)
+        except Exception:  # an invalid old record is simply re-baked
+            continue
+        if res is None:
+            continue
+        outside = [p for p in res.textures.values() if not _inside_lightmaps(Path(p), out)]
+        if outside:
+            shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
+            warnings.append(
+                f"{prim.GetPath()}: the previous bake record in {out.name} names textures "
+                f"outside {out.parent / LIGHTMAPS_DIR} (e.g. {shown}); ignored, the prim is "
+                "re-baked"
+            )
+            continue
+        prev[str(prim.GetPath())] = res
+    return prev, warnings
+
+
+#: Bytes of working memory a whole bake may plan for (SH, fits and copies; see bake()).
+MAX_BAKE_BYTES = int(
+    os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if hasattr(os, "sysconf") and "SC_PHYS_PAGES" in os.sysconf_names
+    else 64 * 2**30
+)
+
+
+def bake(stage_path, opts: BakeOptions | None = None) -> dict:
+    """Bake a stage; returns the report printed by ``usdahd bake --json``.
+
+    Every check that can fail runs before tracing (:func:`preflight`: source readable, output
+    folder writable, dependencies of the options present, prims exist, resolutions within
+    limits); ``dry_run`` runs them all and reports the texel total. Raises
+    InputError/StageError/UsageError/OutputError (exit 2) for unusable input or output; per-prim
+    failures are reported in the result with ``exit_code`` 1.
+
+    Outputs (see :func:`_commit`): textures go to new content-addressed names, the override
+    layer's atomic replace is the single commit point, and files of this layer no layer
+    references are removed afterwards. A lock file serialises bakes of one output: a second
+    bake of the same output waits (with a message) until the first has committed.
+    """
+    from usdahd.progress import CompileNotice
+    from usdahd.usd import plugin
+
+    plugin.register()
+    opts = opts or BakeOptions()
+    _check_options(opts)
+    t_start = time.perf_counter()
+    src, out = preflight(stage_path, opts)
+    try:
+        stage = open_stage(src)
+        if opts.scenario:  # before any check or read: the variant decides what the stage holds
+            from usdahd.usd import scenarios
+
+            chosen = scenarios.resolve(stage, opts.scenario)
+            scenarios.select(stage, chosen)
+            opts = dataclasses.replace(opts, scenario=chosen.spec())
+        _check_stage(src, stage, opts)
+        if opts.dry_run:
+            return _bake_locked(src, out, stage, opts, t_start)
+        with CompileNotice(quiet=bool(opts.quiet)), output_lock(out, opts):
+            try:
+                return _bake_locked(src, out, stage, opts, t_start)
+            finally:
+                cleanup_outputs(out)
+    except UnicodeDecodeError:  # pxr hands Python a name or string that is not UTF-8
+        raise StageError(utf8_problem(src)) from None
+
+
+def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float) -> dict:
+    from usdahd.usd import schema
+    from usdahd.usd.reader import load_scene
+
+    # Meshes carrying the API select themselves (bake on); else every visible mesh.
+    api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}
+    uv_default = opts.uv or DEFAULTS["uv"]
+    checked = _check_values(src, stage, uv_default)
+    scene = load_scene(stage, uv_name=uv_default, prims=opts.prims, time=opts.time)
+    for m in scene.meshes:
+        if m.path in checked.prim_errors:
+            m.bake = False
+    if api_prims:
+        for m in scene.meshes:
+            if m.bake:
+                p = api_prims.get(m.path)
+                m.bake = bool(p) and bool(schema.read_inputs(p, validate=False).bake)
+    prev, untrusted = _previous_results(out)
+    report = {
+        "stage": str(src),
+        "output": str(out),
+        "time": scene.time_setting,
+        **({"scenario": opts.scenario} if opts.scenario else {}),
+        "prims": [],
+        "warnings": list(checked.warnings) + list(scene.warnings) + untrusted,
+        "notes": [],
+        "dry_run": bool(opts.dry_run),
+        "written": False,
+        "output_exists": out.is_file(),
+    }
+    from pxr import UsdGeom
+
+    if not UsdGeom.StageHasAuthoredMetersPerUnit(stage):
+        report["warnings"].append(
+            f"{src.name} does not author metersPerUnit, so USD's fallback applies "
+            f"({scene.meters_per_unit:g} m per unit); texel densities are per metre. Author "
+            "metersPerUnit on the root layer or pass --resolution if the lightmaps come out tiny"
+        )
+    from pxr import Sdf
+
+    old_layer = Sdf.Layer.FindOrOpen(str(out)) if prev else None
+    jobs = []
+    failed = 0
+    # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
+    # the rest of the stage still bakes.
+    selected = set(opts.prims or [])
+    for path, msg in sorted(checked.prim_errors.items()):
+        if not selected or any(path == p or path.startswith(p + "/") for p in selected):
+            report["prims"].append({"path": path, "status": "failed", "error": msg})
+            report["prims"][-1]["warnings"] = []
+            failed += 1
+    for path, msg in sorted(getattr(scene, "failed", {}).items()):
+        report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
+        failed += 1
+    for i, mesh in enumerate(scene.meshes):
+        if not mesh.bake:
+            continue
+        entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
+        report["prims"].append(entry)
+        try:
+            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer)
+        except (InputError, UsageError, BakeError) as exc:
+            entry.update(status="failed", error=str(exc))
+            failed += 1
+            continue
+        entry["resolution"] = list(job.resolution)
+        job.normals = scene.computed_normals.get(mesh.path)
+        if max(job.resolution) < TINY_RESOLUTION and not settings_resolution_given(job):
+            entry["warnings"].append(
+                f"texel density {job.settings['texel_density']:g}/m gives only "
+                f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
+                "metersPerUnit or pass --texel-density / --resolution"
+            )
+        if job.unwrapped and not any(
+            "xatlas" in w for w in entry["warnings"] + entry.get("notes", [])
+        ):
+            entry["warnings"].append(
+                f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
+                f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
+            )
+        jobs.append(job)
+    if not jobs and not failed:
+        raise InputError(_no_mesh_message(src, stage, api_prims))
+    # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
+    # (the validator recomputes these from the output stage).
+    parts = scene_hash_parts(scene)
+    for job in jobs:
+        job.content_hash, job.parts = content_hash(parts, job.path, job.settings, generator_id())
+        old = prev.get(job.path)
+        unchanged = old is not None and old.content_hash == job.content_hash
+        if unchanged and not opts.force and _files_exist(old):
+            job.report["status"] = "skipped"
+            job.previous = old
+            continue
+        job.report["status"] = "planned"
+        if old is not None and _files_exist(old):
+            job.fallback = old  # a prim that fails now (e.g. disk full) keeps its old record
+        if opts.force:
+            reason = "forced"
+        elif old is None:
+            reason = "no previous bake"
+        else:
+            what = changed_parts(old.part_hashes, job.parts)
+            reason = "changed: " + ", ".join(what) if what else "texture files missing"
+            refit = _refit_source(job, old, what)
+            if refit is not None:
+                job.refit_from = refit
+                changed = sorted(
+                    k
+                    for k in REFIT_SETTINGS
+                    if _norm(old.settings).get(k) != _norm(job.settings).get(k)
+                )
+                reason = (
+                    f"refit: only {', '.join(changed)} changed; fitted from the SH sidecar, "
+                    "0 rays traced"
+                )
+        job.report["reason"] = reason
+    # Prims not selected this time (--prim) or failing now keep their previous results: nothing
+    # already baked is lost (the validator reports them stale if their inputs changed).
+    planned = {j.path for j in jobs}
+    for path, old in prev.items():
+        if path not in planned and stage.GetPrimAtPath(path):
+            keep = PrimJob(path=path, mesh=None, settings={}, previous=old)
+            keep.report = {"path": path, "status": "kept"}
+            jobs.append(keep)
+    todo = [j for j in jobs if j.report["status"] == "planned"]
+    texels_total = sum(int(j.resolution[0]) * int(j.resolution[1]) for j in todo)
+    report["texels_total"] = texels_total
+    # (n, 3, 9) float32 SH per texel plus the traced and fitted copies: a rough peak.
+    report["memory_estimate_bytes"] = int(texels_total * 27 * 4 * 4)
+    if report["memory_estimate_bytes"] > MAX_BAKE_BYTES:
+        raise UsageError(
+            f"{src}: the planned lightmaps total {texels_total:.3g} texels (about "
+            f"{report['memory_estimate_bytes'] / 2**30:.1f} GiB while baking); lower "
+            "--resolution / --texel-density or the ahdLightmap:resolution inputs, or bake "
+            "fewer prims at once (--prim)"
+        )
+    if is_dark(scene):
+        report["warnings"].append(
+            "the stage has no lights and no emissive surfaces: every lightmap is black "
+            "(nothing was traced); add a UsdLux light or an emissiveColor"
+        )
+    if opts.dry_run:
+        report["exit_code"] = 1 if failed else 0
+        report["seconds"] = time.perf_counter() - t_start
+        return report
+
+    if todo:
+        bake_jobs(scene, todo, out, opts)
+    for j in todo:
+        if j.report["status"] == "failed":
+            failed += 1
+    _fault("textures_staged")
+    old_refs = _referenced(out) or set()
+    if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
+        _commit_textures([j for j in todo if j.results is not None], out)
+        cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
+        _fault("textures_committed")
+        report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
+        _fault("layer_replaced")
+        if report["written"]:
+            _remove_legacy(out, old_refs)
+    for j in todo:
+        if j.report["status"] == "failed" and j.fallback is not None:
+            j.report["previous_kept"] = True
+    report["exit_code"] = 1 if failed else 0
+    report["seconds"] = time.perf_counter() - t_start
+    return report

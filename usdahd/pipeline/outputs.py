@@ -96,7 +96,7 @@ def _fsync(path: Path, directory: bool = False) -> None:
         os.close(fd)
 
 
-def _commit_textures(jobs: list, out: Path) -> None:
+def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
     """Rename each job's staged textures to content-addressed names, check they read back
     whole, and fsync them (before the layer that references them is committed).
 

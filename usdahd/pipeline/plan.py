@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,29 +26,46 @@ from usdahd.pipeline.settings import (
 )
 from usdahd.scene.hashing import shape_digest
 
+if TYPE_CHECKING:
+    from usdahd.bake.types import Texels
+    from usdahd.scene.types import ComputedNormals, MeshData
+    from usdahd.usd.schema import BakeResults
+
 
 @dataclass
 class PrimJob:
-    """One mesh to bake, with its resolved settings."""
+    """One mesh to bake: its plan, then what each stage adds (``n`` covered texels, ``t``
+    triangles; :mod:`usdahd.pipeline.stages` fills in the trace-and-write fields).
 
-    path: str
-    mesh: object  # MeshData
-    settings: dict
-    resolution: tuple[int, int] = (0, 0)
-    unwrapped: bool = False
-    content_hash: str = ""
-    parts: dict = field(default_factory=dict)
-    report: dict = field(default_factory=dict)
-    previous: object = None  # BakeResults of an unchanged previous bake
-    fallback: object = None  # BakeResults of the previous bake, kept if this one fails
-    results: object = None  # BakeResults of this bake
-    uv_primvar_values: object = None  # (t, 3, 2) UVs to author when unwrapped
-    texels: object = None  # Texels
-    sh: object = None  # (n, 3, 9) float32 radiance SH
-    stats: dict = field(default_factory=dict)
-    charts: object = None  # (n,) int32 chart id per texel
-    normals: object = None  # scene.types.ComputedNormals to author, None when authored
-    refit_from: str | None = None  # SH sidecar of the previous bake to refit from (no tracing)
+    A job with ``mesh`` None keeps a previous bake of a prim not re-planned this run
+    (``previous`` set, ``report`` status ``kept``).
+    """
+
+    # -- the plan (plan.py, run.py)
+    path: str  #: prim path
+    mesh: MeshData | None  #: the triangulated mesh (its ``uv`` set to the lightmap UVs)
+    settings: dict[str, Any]  #: resolved settings (settings.resolve_settings, record_time)
+    resolution: tuple[int, int] = (0, 0)  #: lightmap (width, height)
+    unwrapped: bool = False  #: the UVs come from xatlas (authored in the output layer)
+    #: (t, 3, 2) float32 per-corner UVs to author when unwrapped, else None
+    uv_primvar_values: np.ndarray | None = None
+    #: normals the scene reader computed, authored in the output layer (None: authored ones)
+    normals: ComputedNormals | None = None
+    content_hash: str = ""  #: hash of every input of this prim's bake (scene.hashing)
+    parts: dict[str, str] = field(default_factory=dict)  #: part name -> hash (what changed)
+    #: the prim's entry of the bake report (status, reason, warnings, notes, timings)
+    report: dict[str, Any] = field(default_factory=dict)
+    previous: BakeResults | None = None  #: an unchanged previous bake, kept as it is
+    fallback: BakeResults | None = None  #: the previous bake, kept if this one fails
+    refit_from: str | None = None  #: SH sidecar of the previous bake to refit from (no tracing)
+    # -- the stages (stages.py)
+    texels: Texels | None = None  #: the covered texels (rasterised when planned or traced)
+    #: (n, 3, 9) float32 radiance SH per texel (RGB x 9 coefficients)
+    sh: np.ndarray | None = None
+    #: integrator statistics (bake.integrate.bake_texels): "rays" int, "invalid" (n,) bool, ...
+    stats: dict[str, Any] = field(default_factory=dict)
+    charts: np.ndarray | None = None  #: (n,) int32 UV chart id per texel
+    results: BakeResults | None = None  #: what this bake wrote (set once written)
 
 
 def _texels_per_unit(settings: dict, scene) -> float:
@@ -68,7 +86,7 @@ def _uv_problem(texels) -> str | None:
     return None
 
 
-def settings_resolution_given(job) -> bool:
+def settings_resolution_given(job: PrimJob) -> bool:
     """Whether the resolution came from a flag or schema input rather than a texel density."""
     return job.settings.get("texel_density") is None
 
@@ -89,7 +107,7 @@ def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:
     return None
 
 
-def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
+def _density_resolution(mesh, settings, scene, job: PrimJob) -> tuple[int, int]:
     from usdahd.bake.texels import resolution_for_density
 
     tpu = _texels_per_unit(settings, scene)
@@ -111,7 +129,7 @@ def _density_resolution(mesh, settings, scene, job) -> tuple[int, int]:
     return w, h
 
 
-def _unwrap(job, mesh, settings, scene) -> None:
+def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     from usdahd.bake.unwrap import unwrap
 
     if settings["resolution"]:
@@ -255,7 +273,7 @@ def _norm(settings: dict) -> dict:
     return json.loads(json.dumps(settings, sort_keys=True, default=str))
 
 
-def _refit_source(job, old, changed: list[str]) -> str | None:
+def _refit_source(job: PrimJob, old, changed: list[str]) -> str | None:
     """The previous bake's SH sidecar when ``job`` differs from it only in REFIT_SETTINGS (same
     geometry, UVs, lights, materials, baker, resolution), and the sidecar is the file that bake
     wrote (digest); else None (trace again)."""

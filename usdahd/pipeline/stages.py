@@ -28,7 +28,7 @@ def _status(opts: BakeOptions, msg: str) -> None:
         print(msg, file=sys.stderr)
 
 
-def _refit_sh(job) -> None:
+def _refit_sh(job: PrimJob) -> None:
     """job.sh from the previous bake's sidecar at job's texels (the SH after fill, denoise and
     stitching, exactly what was fitted); BakeError if the sidecar does not cover them."""
     from usdahd import images
@@ -199,7 +199,7 @@ def _write_failure(prim_path: str, exc: Exception, out: Path) -> str:
     return f"{prim_path}: {text}" if prim_path not in text else text
 
 
-def _write_ktx2(job, lay, img, mask, path: Path, factors: dict) -> None:
+def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict) -> None:
     """The KTX2 engine container of one texture (chart-aware mips, BC7 / RGBA16F), next to the
     EXR/PNG; its key/value data carries the packing and decode factors."""
     from usdahd import ktx2

@@ -194,31 +194,13 @@ def test_case_in_process(case, tmp_path, capsys):
         root = tmp_path.resolve()
         for f in _written_files(tmp_path):
             assert f.resolve().is_relative_to(root), f
-        for path in _texture_paths(Path(report["output"])):
+        from usdahd.usd.author import referenced_assets
+
+        for path in referenced_assets(Path(report["output"])):
             assert path.resolve().is_relative_to(root), path
         assert ESCAPE.exists() == escape_before
     elif check == "no_warning":
         assert not warnings.strip(), warnings
-
-
-def _texture_paths(layer: Path) -> list[Path]:
-    """Every asset path authored in the output layer, resolved against it."""
-    from pxr import Sdf
-
-    out = []
-    lyr = Sdf.Layer.FindOrOpen(str(layer))
-    lyr.Reload(force=True)
-
-    def visit(path):
-        spec = lyr.GetObjectAtPath(path)
-        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
-            v = spec.default
-            for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
-                if isinstance(a, Sdf.AssetPath) and a.path:
-                    out.append(layer.parent / a.path)
-
-    lyr.Traverse(Sdf.Path.absoluteRootPath, visit)
-    return out
 
 
 def test_texture_names_distinct_across_collision_cases(tmp_path, capsys):

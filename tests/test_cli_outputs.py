@@ -11,6 +11,7 @@ from pathlib import Path
 from conftest import baked_mean_iz
 
 from usdahd import cli, pipeline
+from usdahd.usd.author import referenced_assets
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANE = ROOT / "samples" / "open_plane.usda"
@@ -44,8 +45,8 @@ def test_day_and_night_layers_in_one_folder_keep_their_own_lighting(tmp_path, ca
     # The open plane sees only the uniform sky: I_z = intensity exactly (docs: samples/README).
     assert abs(_iz(day_layer) - 1.0) < 0.02
     assert abs(_iz(night_layer) - 0.25) < 0.005
-    day_files = pipeline._referenced(day_layer)
-    night_files = pipeline._referenced(night_layer)
+    day_files = referenced_assets(day_layer)
+    night_files = referenced_assets(night_layer)
     assert day_files and night_files and not day_files & night_files
     night_bytes = {f: f.read_bytes() for f in night_files}
     # Re-baking day (new resolution: new files, day's old ones cleaned up) leaves night alone.
@@ -55,7 +56,7 @@ def test_day_and_night_layers_in_one_folder_keep_their_own_lighting(tmp_path, ca
     assert _run(capsys, "validate", "--quiet", str(day_layer)) == 0
     assert abs(_iz(night_layer) - 0.25) < 0.005
     left = {f.resolve() for f in (tmp_path / "lightmaps").iterdir()}
-    assert left == pipeline._referenced(day_layer) | night_files  # day's old files removed
+    assert left == referenced_assets(day_layer) | night_files  # day's old files removed
 
 
 def test_texture_names_are_content_addressed_and_per_layer(tmp_path, capsys):
@@ -65,7 +66,7 @@ def test_texture_names_are_content_addressed_and_per_layer(tmp_path, capsys):
     prefix = pipeline.layer_prefix(layer)
     import hashlib
 
-    for f in pipeline._referenced(layer):
+    for f in referenced_assets(layer):
         assert f.name.startswith(prefix + ".")
         digest = f.name.split(".")[-2]
         assert hashlib.sha256(f.read_bytes()).hexdigest().startswith(digest)
@@ -84,7 +85,7 @@ def test_previous_layer_paths_outside_the_output_folder_are_not_trusted(tmp_path
     outside.mkdir()
     # Hand-edit: move one texture outside and point the layer at it (hash unchanged).
     text = layer.read_text()
-    ref = sorted(f for f in pipeline._referenced(layer) if ".iz." in f.name)[0]
+    ref = sorted(f for f in referenced_assets(layer) if ".iz." in f.name)[0]
     moved = outside / ref.name
     shutil.copy2(ref, moved)
     layer.write_text(text.replace(f"./lightmaps/{ref.name}", f"../x/{ref.name}"))
@@ -97,7 +98,7 @@ def test_previous_layer_paths_outside_the_output_folder_are_not_trusted(tmp_path
     report = json.loads(out)
     assert report["prims"][0]["status"] == "baked"  # not skipped on the old record's word
     assert any("outside" in w and "re-baked" in w for w in report["warnings"])
-    for f in pipeline._referenced(layer):
+    for f in referenced_assets(layer):
         assert f.parent == (stage.parent / "lightmaps").resolve()
     assert moved.read_bytes() == before  # never written, never removed
     assert _run(capsys, "validate", "--quiet", str(layer)) == 0
@@ -112,7 +113,7 @@ def test_textures_of_an_older_usdahd_are_removed_unless_another_layer_uses_them(
     layer = tmp_path / "a.lightmaps.usda"
     text = layer.read_text()
     legacy = []
-    for f in sorted(pipeline._referenced(layer)):
+    for f in sorted(referenced_assets(layer)):
         _, stem, role, _, ext = f.name.split(".")
         old = f.with_name(f"{stem}.{role}.{ext}")
         f.rename(old)

@@ -20,6 +20,7 @@ import pytest
 
 import usdahd
 from usdahd import cli, pipeline
+from usdahd.usd.author import referenced_assets
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The folder holding the usdahd these tests import (the checkout for an editable install,
@@ -71,14 +72,14 @@ def _resolutions(layer: Path) -> set[tuple[int, int]]:
 def _snapshot(layer: Path) -> dict[Path, bytes]:
     """The layer and every file it references, by content."""
     files = {layer: layer.read_bytes()}
-    for f in pipeline._referenced(layer):
+    for f in referenced_assets(layer):
         files[f] = f.read_bytes()
     return files
 
 
 def _assert_tidy(layer: Path) -> None:
     """Nothing but referenced textures in lightmaps/, no temp layers beside the layer."""
-    refs = pipeline._referenced(layer)
+    refs = referenced_assets(layer)
     for f in (layer.parent / "lightmaps").iterdir():
         assert f.resolve() in refs, f"stray file {f.name}"
     lock = f".{layer.name}.lock"  # the lock file stays (removing it would race)

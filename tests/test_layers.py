@@ -145,9 +145,7 @@ RULES = (
 #: issue 12 that removes it. Prefixes match submodules too, so a module split into a package
 #: (pipeline.py -> pipeline/) keeps its entries. Never add an entry except for a violation
 #: another part is removing; delete entries as they go.
-ALLOWLIST: dict[tuple[str, str, str], str] = {
-    ("pxr", "usdahd.pipeline", "pxr"): "pipeline: USD authoring moves to usd/author.py",
-}
+ALLOWLIST: dict[tuple[str, str, str], str] = {}
 
 
 def module_name(path: Path) -> str:

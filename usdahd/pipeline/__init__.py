@@ -18,7 +18,7 @@ This module only re-exports the public names.
 
 from __future__ import annotations
 
-from usdahd.pipeline.outputs import FAULT_POINTS, _referenced, layer_prefix, sanitize
+from usdahd.pipeline.outputs import FAULT_POINTS, layer_prefix, sanitize
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.preflight import default_output, preflight
 from usdahd.pipeline.run import MAX_BAKE_BYTES, bake
@@ -31,7 +31,6 @@ __all__ = [
     "MAX_RESOLUTION",
     "BakeOptions",
     "PrimJob",
-    "_referenced",
     "bake",
     "default_output",
     "layer_prefix",

@@ -18,6 +18,7 @@ import numpy as np
 
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
+from usdahd.usd.author import referenced_assets
 
 #: Folder beside the output layer that holds its textures.
 LIGHTMAPS_DIR = "lightmaps"
@@ -153,38 +154,6 @@ def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
         _fsync(folder, directory=True)
 
 
-def _referenced(out: Path, anonymous: bool = False) -> set[Path] | None:
-    """Resolved paths of every asset the layer file ``out`` names (None if unreadable).
-    ``anonymous``: read a private copy (leaves layers other stages use alone)."""
-    from pxr import Sdf
-
-    if not out.is_file():
-        return set()
-    try:
-        if anonymous:
-            layer = Sdf.Layer.OpenAsAnonymous(str(out))
-        else:
-            layer = Sdf.Layer.FindOrOpen(str(out))
-            if layer is not None:
-                layer.Reload(force=True)
-        if layer is None:
-            return None
-    except Exception:
-        return None
-    found: set[Path] = set()
-
-    def visit(path):
-        spec = layer.GetObjectAtPath(path)
-        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
-            v = spec.default
-            for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
-                if isinstance(a, Sdf.AssetPath) and a.path:
-                    found.add((out.parent / a.path).resolve())
-
-    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
-    return found
-
-
 def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     """Remove files of this output layer that no layer references: textures it owns
     (:func:`_owned_pattern`) that ``out`` does not name, and temp/staging files a killed or
@@ -193,7 +162,7 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     removed = []
     folder = out.parent / LIGHTMAPS_DIR
     prefix = layer_prefix(out)
-    refs = None if staged_only else _referenced(out)
+    refs = None if staged_only else referenced_assets(out)
     owned = _owned_pattern(out)
     layer_tmp = re.compile(
         r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
@@ -242,7 +211,7 @@ def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
             with open(layer, "rb") as f:
                 if b"usdahd" not in f.read(4096):
                     continue  # not a layer usdahd wrote (its doc string names usdahd)
-        refs = _referenced(layer, anonymous=True)
+        refs = referenced_assets(layer, anonymous=True)
         if refs is None:
             return []  # a layer we cannot read may use them: keep everything
         in_use |= refs

@@ -159,7 +159,7 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
     """UVs an earlier run unwrapped for this mesh, read back from its output layer, when the
     mesh's shape and every unwrap input are unchanged (so a re-run does not call xatlas
     again); else None. returns (uv (t, 3, 2) float32, resolution) or None."""
-    from pxr import Sdf
+    from usdahd.usd import author
 
     if old is None or old_layer is None or old.uv_primvar != uv_name:
         return None
@@ -172,10 +172,10 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
     )
     if not same:
         return None
-    spec = old_layer.GetAttributeAtPath(Sdf.Path(mesh.path).AppendProperty(f"primvars:{uv_name}"))
-    if spec is None or spec.default is None:
+    authored = author.authored_default(old_layer, mesh.path, f"primvars:{uv_name}")
+    if authored is None:
         return None
-    values = np.asarray(spec.default, dtype=np.float32)
+    values = np.asarray(authored, dtype=np.float32)
     corner = np.asarray(mesh.corner)
     if values.ndim != 2 or values.shape[1] != 2 or corner.size and corner.max() >= len(values):
         return None

@@ -116,17 +116,17 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
 def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
     """Checks on the opened stage before any scene is read: not an output layer of ours
     (``usdahd bake x.lightmaps.usda`` by mistake), every ``--prim`` exists."""
-    from pxr import Sdf
+    from usdahd.usd import author
+    from usdahd.usd import stage as usd_stage
 
-    doc = stage.GetRootLayer().documentation or ""
-    if doc.startswith("Directional lightmaps baked by usdahd") and not opts.output:
+    if author.is_output_layer(stage) and not opts.output:
         raise UsageError(
             f"{src}: this is an output layer of usdahd bake (it would bake into "
             f"{default_output(src).name} and re-bake everything); bake its source stage "
             "instead, or pass -o to bake this layer on purpose"
         )
     for p in opts.prims or []:
-        if not Sdf.Path.IsValidPathString(p) or not Sdf.Path(p).IsAbsolutePath():
+        if not usd_stage.is_prim_path(p):
             raise UsageError(f"--prim {p!r}: not an absolute prim path (like /World/Floor)")
         if not stage.GetPrimAtPath(p):
             raise UsageError(
@@ -145,19 +145,6 @@ def _check_values(src: Path, stage, uv_name: str):
         more = len(found.errors) - 1
         raise StageError(found.errors[0] + (f" (and {more} more problem(s))" if more else ""))
     return found
-
-
-def _no_mesh_message(src: Path, stage, api_prims: dict) -> str:
-    from pxr import UsdGeom
-
-    not_mesh = [p for p, prim in sorted(api_prims.items()) if not prim.IsA(UsdGeom.Mesh)]
-    if not_mesh:
-        kinds = ", ".join(f"{p} ({api_prims[p].GetTypeName() or 'untyped'})" for p in not_mesh[:5])
-        return (
-            f"{src}: no mesh to bake: AhdLightmapAPI is applied to {kinds}, which is not a "
-            "Mesh; apply it to the meshes to bake (or remove it to bake every visible mesh)"
-        )
-    return f"{src}: no mesh to bake (all meshes are occluders or have bake off)"
 
 
 def _files_exist(res) -> bool:

@@ -18,7 +18,6 @@ from usdahd.pipeline.outputs import (
     _commit_textures,
     _fault,
     _inside_lightmaps,
-    _referenced,
     _remove_legacy,
     cleanup_outputs,
     output_lock,
@@ -35,14 +34,14 @@ from usdahd.pipeline.preflight import (
     _check_stage,
     _check_values,
     _files_exist,
-    _no_mesh_message,
     preflight,
 )
 from usdahd.pipeline.settings import DEFAULTS, TINY_RESOLUTION, BakeOptions, _check_options
 from usdahd.pipeline.stages import bake_jobs
 from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
-from usdahd.usd.author import generator_id
-from usdahd.usd.stage import open_stage, utf8_problem
+from usdahd.usd import author
+from usdahd.usd.checks import no_mesh_message
+from usdahd.usd.stage import meters_per_unit_authored, open_stage, utf8_problem
 
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
@@ -162,17 +161,13 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         "written": False,
         "output_exists": out.is_file(),
     }
-    from pxr import UsdGeom
-
-    if not UsdGeom.StageHasAuthoredMetersPerUnit(stage):
+    if not meters_per_unit_authored(stage):
         report["warnings"].append(
             f"{src.name} does not author metersPerUnit, so USD's fallback applies "
             f"({scene.meters_per_unit:g} m per unit); texel densities are per metre. Author "
             "metersPerUnit on the root layer or pass --resolution if the lightmaps come out tiny"
         )
-    from pxr import Sdf
-
-    old_layer = Sdf.Layer.FindOrOpen(str(out)) if prev else None
+    old_layer = author.previous_layer(out) if prev else None
     jobs = []
     failed = 0
     # Meshes the scene could not extract (bad points, topology, primvars): that prim fails,
@@ -214,12 +209,14 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             )
         jobs.append(job)
     if not jobs and not failed:
-        raise InputError(_no_mesh_message(src, stage, api_prims))
+        raise InputError(no_mesh_message(src, api_prims))
     # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
     # (the validator recomputes these from the output stage).
     parts = scene_hash_parts(scene)
     for job in jobs:
-        job.content_hash, job.parts = content_hash(parts, job.path, job.settings, generator_id())
+        job.content_hash, job.parts = content_hash(
+            parts, job.path, job.settings, author.generator_id()
+        )
         old = prev.get(job.path)
         unchanged = old is not None and old.content_hash == job.content_hash
         if unchanged and not opts.force and _files_exist(old):
@@ -285,7 +282,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         if j.report["status"] == "failed":
             failed += 1
     _fault("textures_staged")
-    old_refs = _referenced(out) or set()
+    old_refs = author.referenced_assets(out) or set()
     if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
         _commit_textures([j for j in todo if j.results is not None], out)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space

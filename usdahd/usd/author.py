@@ -3,7 +3,9 @@
 The layer sublayers the source stage and holds, per baked prim, the unwrapped lightmap UVs
 (faceVarying primvar), the normals the bake traced with and the ``AhdLightmapAPI`` results
 (:func:`usdahd.usd.schema.write_results`). :mod:`usdahd.pipeline` decides what goes in and
-commits the exported file atomically.
+commits the exported file atomically. The end of the module reads an existing output layer
+back for the pipeline (is a stage one of ours, the UVs an earlier run unwrapped, the assets a
+layer names), so the pipeline itself never calls pxr.
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 from usdahd._version import __version__
 from usdahd.errors import OutputError
 from usdahd.usd import normals, schema
+
+#: How the documentation of every override layer ``usdahd bake`` writes begins.
+DOC_PREFIX = "Directional lightmaps baked by usdahd"
 
 
 def generator_id() -> str:
@@ -98,7 +103,7 @@ def build_layer(
     src_root = source_stage.GetRootLayer()
     layer.subLayerPaths.append(str(src.resolve()))
     layer.documentation = (
-        f"Directional lightmaps baked by usdahd {__version__} for {src.name}; "
+        f"{DOC_PREFIX} {__version__} for {src.name}; "
         "regenerate with usdahd bake, do not edit by hand."
     )
     for key in ("defaultPrim", "upAxis", "metersPerUnit"):
@@ -112,7 +117,7 @@ def build_layer(
     ostage.SetEditTarget(layer)
     if not src_root.pseudoRoot.HasInfo("upAxis"):
         UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
-    old_layer = Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
+    old_layer = previous_layer(out)
     for job in sorted(jobs, key=lambda j: j.path):
         res = job.results or job.previous or job.fallback
         if res is None:
@@ -162,3 +167,54 @@ def export_layer(layer: Sdf.Layer, tmp: str, out: Path) -> None:
             "disk full or the folder read-only? Free space and re-run (the previous bake "
             "is intact)"
         )
+
+
+# ------------------------------------------------------------------- reading an output back
+
+
+def is_output_layer(stage) -> bool:
+    """Whether ``stage``'s root layer is an override layer ``usdahd bake`` wrote."""
+    return (stage.GetRootLayer().documentation or "").startswith(DOC_PREFIX)
+
+
+def previous_layer(out: Path) -> Sdf.Layer | None:
+    """The existing output layer ``out`` (the registry's copy), or None when there is none."""
+    return Sdf.Layer.FindOrOpen(str(out)) if out.is_file() else None
+
+
+def authored_default(layer: Sdf.Layer, prim_path: str, name: str):
+    """The default value ``layer`` authors for the property ``name`` of ``prim_path`` (a Vt
+    value), or None when it authors none."""
+    spec = layer.GetAttributeAtPath(Sdf.Path(prim_path).AppendProperty(name))
+    return None if spec is None else spec.default
+
+
+def referenced_assets(out: Path, anonymous: bool = False) -> set[Path] | None:
+    """Resolved paths of every asset the layer file ``out`` names (an empty set when there is
+    no file, None when it is unreadable). ``anonymous``: read a private copy (leaves layers
+    other stages use alone); else the registry's copy, reloaded from disk."""
+    if not out.is_file():
+        return set()
+    try:
+        if anonymous:
+            layer = Sdf.Layer.OpenAsAnonymous(str(out))
+        else:
+            layer = Sdf.Layer.FindOrOpen(str(out))
+            if layer is not None:
+                layer.Reload(force=True)
+        if layer is None:
+            return None
+    except Exception:
+        return None
+    found: set[Path] = set()
+
+    def visit(path):
+        spec = layer.GetObjectAtPath(path)
+        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
+            v = spec.default
+            for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
+                if isinstance(a, Sdf.AssetPath) and a.path:
+                    found.add((out.parent / a.path).resolve())
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return found

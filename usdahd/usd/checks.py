@@ -218,3 +218,16 @@ def asset_problem(path) -> str | None:
     if st.st_size > MAX_ASSET_BYTES:
         return f"is {st.st_size / 2**30:.1f} GiB, above the {MAX_ASSET_BYTES / 2**30:.0f} GiB limit"
     return None
+
+
+def no_mesh_message(src, api_prims: dict) -> str:
+    """Why a bake found nothing to bake: the AhdLightmapAPI prims (path -> prim) that are
+    not meshes, or that every mesh is an occluder or has bake off."""
+    not_mesh = [p for p, prim in sorted(api_prims.items()) if not prim.IsA(UsdGeom.Mesh)]
+    if not_mesh:
+        kinds = ", ".join(f"{p} ({api_prims[p].GetTypeName() or 'untyped'})" for p in not_mesh[:5])
+        return (
+            f"{src}: no mesh to bake: AhdLightmapAPI is applied to {kinds}, which is not a "
+            "Mesh; apply it to the meshes to bake (or remove it to bake every visible mesh)"
+        )
+    return f"{src}: no mesh to bake (all meshes are occluders or have bake off)"

@@ -18,7 +18,15 @@ from pxr import Sdf, Usd, UsdGeom
 
 from usdahd.errors import StageError
 
-__all__ = ["as_stage", "composition_warnings", "meters_per_unit", "open_stage", "up_axis"]
+__all__ = [
+    "as_stage",
+    "composition_warnings",
+    "is_prim_path",
+    "meters_per_unit",
+    "meters_per_unit_authored",
+    "open_stage",
+    "up_axis",
+]
 
 
 def one_line(text, limit: int = 300) -> str:
@@ -97,6 +105,16 @@ def meters_per_unit(stage, source) -> float:
             "number (1 = metres, 0.01 = centimetres); fix it in the root layer"
         )
     return mpu
+
+
+def meters_per_unit_authored(stage) -> bool:
+    """Whether the stage authors metersPerUnit (else USD's fallback, 0.01, applies)."""
+    return bool(UsdGeom.StageHasAuthoredMetersPerUnit(stage))
+
+
+def is_prim_path(text: str) -> bool:
+    """Whether ``text`` is an absolute prim path (like ``/World/Floor``)."""
+    return Sdf.Path.IsValidPathString(text) and Sdf.Path(text).IsAbsolutePath()
 
 
 def up_axis(stage, warn) -> str:

@@ -31,3 +31,24 @@ def test_prim_job_fields_resolve_to_concrete_types():
     assert hints["sh"] == hints["charts"] == hints["uv_primvar_values"] == np.ndarray | None
     for name in ("previous", "fallback", "results"):
         assert hints[name] == BakeResults | None
+
+
+class _Texels:
+    """What _uv_problem reads of a rasterisation: the covered count and its stats."""
+
+    def __init__(self, covered: int, overlap: int):
+        self.n, self.stats = covered, {"overlap_texels": overlap, "uv_outside_fraction": 0.0}
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def test_one_uv_overlap_limit_for_the_baker_and_the_validator():
+    from usdahd.numerics.raster import UV_OVERLAP_LIMIT
+    from usdahd.pipeline.plan import _uv_problem
+    from usdahd.validate.options import Options
+
+    at = round(UV_OVERLAP_LIMIT * 10000)
+    assert _uv_problem(_Texels(10000, at)) is None
+    assert _uv_problem(_Texels(10000, at + 1)) == "overlaps itself on 1% of its texels"
+    assert Options().uv_overlap == UV_OVERLAP_LIMIT

@@ -12,7 +12,13 @@ import importlib
 import numpy as np
 
 from usdahd.errors import InputError, ModelError
-from usdahd.models.base import Fit, TextureLayout  # noqa: F401  (re-exported)
+from usdahd.models.base import (  # noqa: F401  (re-exported)
+    CHOICE_TEXT,
+    Fit,
+    TextureLayout,
+    check_choice,
+    choice_problem,
+)
 
 #: name -> module path, or "module:attribute" for a model object in a module. Add a model by
 #: adding a line here.
@@ -80,11 +86,9 @@ def fit(sh, model: str = "hhd", *, ratio: str | None = None, solver: str | None 
     if not np.issubdtype(sh.dtype, np.floating):
         sh = sh.astype(np.float64)
     ratio = ratio or mod.RATIOS[0]
-    if ratio not in mod.RATIOS:
-        raise ModelError(f"model {model!r} supports ratio {', '.join(mod.RATIOS)}, not {ratio!r}")
+    check_choice(model, "ratio", ratio, mod.RATIOS)
     solver = solver or mod.DEFAULT_SOLVER
-    if solver not in mod.SOLVERS:
-        raise ModelError(f"model {model!r} has solvers {', '.join(mod.SOLVERS)}, not {solver!r}")
+    check_choice(model, "solver", solver, mod.SOLVERS)
     params = mod.fit(sh, ratio=ratio, solver=solver, **options)
     return Fit(model=model, ratio=ratio, solver=solver, params=params)
 

@@ -47,12 +47,6 @@ def prepare(sh) -> tuple[np.ndarray, np.ndarray]:
     return x, bad
 
 
-def check_choice(kind: str, value: str, allowed: tuple[str, ...], model: str) -> None:
-    """ModelError unless ``value`` is one of ``allowed``."""
-    if value not in allowed:
-        raise ModelError(f"model {model!r} supports {kind} {', '.join(allowed)}, not {value!r}")
-
-
 def finish(coeffs: np.ndarray, bad: np.ndarray, **extra) -> dict:
     """float64 coefficients (..., N, 3) -> float32 params dict with ``invalid`` (..., 1)."""
     c = np.clip(np.where(bad[..., None, None], 0.0, coeffs), -F32_MAX, F32_MAX)

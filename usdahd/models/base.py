@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from usdahd.errors import ModelError
+
 #: Texture roles shared by the schema (one asset-valued property per role), the baker and the
 #: validator (format version 2). Every texture has 3 or 4 channels (R, G, B[, A]): what engines'
 #: importers take (at most 4 channels; no 1- or 2-channel PNGs, which are grey/grey+alpha).
@@ -160,3 +162,41 @@ class Fit:
         from usdahd.models import get
 
         return get(self.model).encode(self.params, ratio=self.ratio)
+
+
+# ------------------------------------------------------------------ ratio and solver choices
+
+#: The default wording of a ratio / solver a model does not offer, per kind. Callers that name
+#: the choice otherwise (a CLI flag, a schema property) pass their own ``text``: a format
+#: string with the fields ``model``, ``value`` and ``allowed`` (the choices, comma-separated).
+CHOICE_TEXT = {
+    "ratio": "model {model!r} supports ratio {allowed}, not {value!r}",
+    "solver": "model {model!r} has solvers {allowed}, not {value!r}",
+}
+
+
+def choice_problem(
+    model: str, kind: str, value, allowed: tuple[str, ...], text: str | None = None
+) -> str | None:
+    """None when ``value`` is one of ``allowed`` (the ``RATIOS`` or ``SOLVERS`` of ``model``),
+    else the message, in the caller's ``text`` or :data:`CHOICE_TEXT` of ``kind``: the one
+    ratio/solver check of the package (models.fit, the linear models, the bake settings, the
+    validator)."""
+    if value in allowed:
+        return None
+    return (text or CHOICE_TEXT[kind]).format(model=model, value=value, allowed=", ".join(allowed))
+
+
+def check_choice(
+    model: str,
+    kind: str,
+    value,
+    allowed: tuple[str, ...],
+    text: str | None = None,
+    error: type[Exception] = ModelError,
+) -> None:
+    """Raise ``error`` (ModelError by default) with :func:`choice_problem`'s message when
+    ``value`` is not one of ``allowed``."""
+    problem = choice_problem(model, kind, value, allowed, text)
+    if problem is not None:
+        raise error(problem)

@@ -20,7 +20,7 @@ import numpy as np
 
 from usdahd.errors import InputError
 from usdahd.models import _linear
-from usdahd.models.base import rgb_layout
+from usdahd.models.base import check_choice, rgb_layout
 from usdahd.numerics import encoding
 from usdahd.numerics import sh as shm
 
@@ -37,8 +37,8 @@ FIT = _linear.hemisphere_fit_matrix(H_SH[None])
 
 def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {ambient (..., 3), invalid (..., 1)}."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    _linear.check_choice("solver", solver, SOLVERS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
+    check_choice(NAME, "solver", solver, SOLVERS)
     x, bad = _linear.prepare(sh)
     if solver == "iz":
         c = shm.iz(x)
@@ -59,19 +59,19 @@ def evaluate(params, normals, *, albedo=None):
 
 
 def layout(ratio="none"):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     return [rgb_layout("ambient", "C", "half", "lin_rec709_scene", "ambientScale")]
 
 
 def encode(params, *, ratio="none"):
     """-> ({"ambient": float16 (..., 3)}, {"ambientScale": s})."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     h, s = encoding.encode_half(np.asarray(params["ambient"], dtype=np.float64))
     return {"ambient": h}, {"ambientScale": s}
 
 
 def decode(channels, *, ratio="none", factors=None):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     if "ambient" not in channels:
         raise InputError("hemisphere model needs the 'ambient' texture")
     c = encoding.decode_half(channels["ambient"], (factors or {}).get("ambientScale", 1.0))

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.polynomial import legendre
 
 from usdahd.models import _linear
+from usdahd.models.base import check_choice
 from usdahd.numerics import sh as shm
 
 NAME = "hl2"
@@ -107,8 +108,8 @@ FIT = np.linalg.solve(GRAM, CROSS)
 
 def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 3, 3), invalid}."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    _linear.check_choice("solver", solver, SOLVERS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
+    check_choice(NAME, "solver", solver, SOLVERS)
     x, bad = _linear.prepare(sh)
     return _linear.finish(_linear.apply_fit_matrix(FIT, _linear.irradiance_sh(x)), bad)
 
@@ -124,17 +125,17 @@ def evaluate(params, normals, *, albedo=None):
 
 
 def layout(ratio="none"):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     return _linear.coefficients_layout(BASIS)
 
 
 def encode(params, *, ratio="none"):
     """-> ({"coefficients0".."coefficients2": float16 (..., 3)}, {"coefficientsScale": s})."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     return _linear.encode_coefficients(params)
 
 
 def decode(channels, *, ratio="none", factors=None):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     c = _linear.decode_coefficients(channels, factors, 3)
     return {"coefficients": c, "invalid": _linear.valid_flag(c.shape[:-2])}

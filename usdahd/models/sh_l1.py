@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.models import _linear
-from usdahd.models.base import TextureLayout
+from usdahd.models.base import TextureLayout, check_choice
 from usdahd.numerics import sh as shm
 
 NAME = "sh_l1"
@@ -60,8 +60,8 @@ _L1_FROM_SH = shm.IZ_FROM_L10 / 4.0  # 1 / (2 sqrt(3 pi)), exactly
 
 def fit(sh, *, ratio="linear", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 4, 3), invalid, ...}."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    _linear.check_choice("solver", solver, SOLVERS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
+    check_choice(NAME, "solver", solver, SOLVERS)
     if solver == "auto":
         solver = "hemisphere" if ratio == "linear" else "project"
     x, bad = _linear.prepare(sh)
@@ -133,7 +133,7 @@ def evaluate(params, normals, *, albedo=None):
 
 
 def layout(ratio="linear"):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     if ratio == "8bit":
         return [
             TextureLayout(
@@ -167,7 +167,7 @@ def encode(params, *, ratio="linear"):
     """Quantize. linear/nonlinear: float16 ``coefficients0..3`` (..., 3) + coefficientsScale;
     8bit: uint8 ``coefficients0..2`` (..., 4), one RGBA texture per colour R, G, B holding
     (L0, L1x, L1y, L1z) codes, + l0Scale."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     if ratio != "8bit":
         return _linear.encode_coefficients(params)
     l0, l1 = to_enlighten(params["coefficients"])
@@ -187,7 +187,7 @@ def encode(params, *, ratio="linear"):
 
 def decode(channels, *, ratio="linear", factors=None):
     """Stored channels -> float32 params (Enlighten's C++ decode for ``8bit``)."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     factors = factors or {}
     if ratio != "8bit":
         c = _linear.decode_coefficients(channels, factors, 4)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.models import _linear
+from usdahd.models.base import check_choice
 from usdahd.numerics import sh as shm
 
 NAME = "sh_l2"
@@ -53,8 +54,8 @@ ENLIGHTEN_SCALE = np.array(
 
 def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 9, 3), invalid}."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
-    _linear.check_choice("solver", solver, SOLVERS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
+    check_choice(NAME, "solver", solver, SOLVERS)
     x, bad = _linear.prepare(sh)
     return _linear.finish(np.swapaxes(x, -1, -2), bad)
 
@@ -111,17 +112,17 @@ def evaluate(params, normals, *, albedo=None):
 
 
 def layout(ratio="none"):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     return _linear.coefficients_layout(BASIS)
 
 
 def encode(params, *, ratio="none"):
     """-> ({"coefficients0".."coefficients8": float16 (..., 3)}, {"coefficientsScale": s})."""
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     return _linear.encode_coefficients(params)
 
 
 def decode(channels, *, ratio="none", factors=None):
-    _linear.check_choice("ratio", ratio, RATIOS, NAME)
+    check_choice(NAME, "ratio", ratio, RATIOS)
     c = _linear.decode_coefficients(channels, factors, 9)
     return {"coefficients": c, "invalid": _linear.valid_flag(c.shape[:-2])}

@@ -33,6 +33,10 @@ COVER_EPS = 1e-6
 #: is farther than this from every edge; centres on a shared edge of adjacent triangles are not
 #: overlap.
 OVERLAP_EPS = 1e-4
+#: Share of a lightmap's covered texels whose centres may lie in two UV triangles: above it the
+#: baker does not use the UV set (it unwraps a new one, usdahd/pipeline/plan.py) and the
+#: validator's UVSet rule reports UVOverlap, so a UV set the baker accepts passes validation.
+UV_OVERLAP_LIMIT = 0.01
 #: |2 x signed UV area| in texels^2 below this -> degenerate UV triangle (no barycentrics).
 DEGENERATE_UV_AREA2 = 1e-10
 #: Candidate texels per vectorized chunk of the numpy path: bounds peak memory (~100 bytes per

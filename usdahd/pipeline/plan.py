@@ -13,12 +13,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics.raster import UV_OVERLAP_LIMIT
 from usdahd.pipeline.settings import (
     DENSITY_MAX_RESOLUTION,
     MAX_RESOLUTION,
     UV_DEGENERATE_LIMIT,
     UV_OUTSIDE_LIMIT,
-    UV_OVERLAP_LIMIT,
     BakeOptions,
     _authored_inputs,
     record_time,

@@ -29,11 +29,16 @@ MAX_RESOLUTION = 8192
 #: quad at 16 texels/m would otherwise take most of the bake; clamped with a warning.
 DENSITY_MAX_RESOLUTION = 1024
 #: A UV set is unusable as a lightmap (and gets unwrapped into a new primvar) when more than
-#: this fraction of its covered texels overlap, or of its UVs lie outside [0, 1].
-UV_OVERLAP_LIMIT = 0.01
+#: numerics.raster.UV_OVERLAP_LIMIT of its covered texels overlap, or more than this fraction
+#: of its UVs lie outside [0, 1].
 UV_OUTSIDE_LIMIT = 0.001
 #: ... or when zero-area UV triangles cover more than this fraction of the mesh's surface.
 UV_DEGENERATE_LIMIT = 0.01
+#: How a --ratio / --solver the model does not offer is reported (models.choice_problem).
+FLAG_TEXT = {
+    "ratio": "model {model!r} supports --ratio {allowed}, not {value!r}",
+    "solver": "model {model!r} has --solver {allowed}, not {value!r}",
+}
 #: A density-derived lightmap smaller than this on its longer side gets a warning (wrong units?).
 TINY_RESOLUTION = 8
 
@@ -104,18 +109,14 @@ def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float =
         if k == "resolution":
             s["texel_density"] = None
     mod = models.get(s["model"])
-    if s["ratio"] not in mod.RATIOS:
+    problem = models.choice_problem(s["model"], "ratio", s["ratio"], mod.RATIOS, FLAG_TEXT["ratio"])
+    if problem is not None:
         if opts.ratio is not None and "ratio" not in authored:
-            raise UsageError(
-                f"model {s['model']!r} supports --ratio {', '.join(mod.RATIOS)}, not {s['ratio']!r}"
-            )
+            raise UsageError(problem)
         s["ratio"] = mod.RATIOS[0]  # e.g. the schema fallback "luminance" on an SH model
     if s["solver"] in (None, ""):
         s["solver"] = mod.DEFAULT_SOLVER
-    if s["solver"] not in mod.SOLVERS:
-        raise UsageError(
-            f"model {s['model']!r} has solvers {', '.join(mod.SOLVERS)}, not {s['solver']!r}"
-        )
+    models.check_choice(s["model"], "solver", s["solver"], mod.SOLVERS, error=UsageError)
     s["seed"] = opts.seed
     s["meters_per_unit"] = meters_per_unit
     s["adaptive"] = bool(opts.adaptive)
@@ -135,15 +136,14 @@ def record_time(settings: dict, scene) -> None:
 
 def _check_options(opts: BakeOptions) -> None:
     """Flag combinations that are wrong for every prim: usage errors (exit 2) up front."""
-    mod = models.get(opts.model or DEFAULTS["model"])
-    if opts.ratio is not None and opts.ratio not in mod.RATIOS:
-        raise UsageError(
-            f"model {mod.NAME!r} supports --ratio {', '.join(mod.RATIOS)}, not {opts.ratio!r}"
-        )
-    if opts.solver is not None and opts.solver not in mod.SOLVERS:
-        raise UsageError(
-            f"model {mod.NAME!r} has --solver {', '.join(mod.SOLVERS)}, not {opts.solver!r}"
-        )
+    model = opts.model or DEFAULTS["model"]
+    mod = models.get(model)
+    for kind, value, allowed in (
+        ("ratio", opts.ratio, mod.RATIOS),
+        ("solver", opts.solver, mod.SOLVERS),
+    ):
+        if value is not None:
+            models.check_choice(model, kind, value, allowed, FLAG_TEXT[kind], error=UsageError)
     if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
         raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
     if opts.container not in (None, "files", "ktx2"):

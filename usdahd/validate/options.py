@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from usdahd.numerics import encoding
+from usdahd.numerics.raster import UV_OVERLAP_LIMIT
 
 # ------------------------------------------------------------------------------- tolerances
 
@@ -29,7 +30,8 @@ class Options:
     rmse_max_texels : texels sampled (evenly) for the RMSE, so big lightmaps stay fast.
     uv_epsilon : UVs may leave [0, 1] by this much (float32 rounding of authored 0 and 1).
     uv_overlap : fraction of covered texels whose centre lies in two triangles that still
-        passes; shared edges can double-count a centre that lies exactly on them.
+        passes: the baker's own limit (numerics.raster.UV_OVERLAP_LIMIT), so a UV set the
+        baker accepts passes.
     density_spread : area-weighted 90th/10th percentile ratio of texel density that warns.
     """
 
@@ -38,7 +40,7 @@ class Options:
     rmse_normals: int = 64
     rmse_max_texels: int = 20000
     uv_epsilon: float = 1e-5
-    uv_overlap: float = 0.005
+    uv_overlap: float = UV_OVERLAP_LIMIT
     density_spread: float = 4.0
 
 

@@ -50,11 +50,17 @@ def check_schema_values(prim) -> list[Finding]:
     if inputs.model in models.REGISTRY and inputs.solver:
         try:
             mod = models.get(inputs.model)
-            if inputs.solver not in mod.SOLVERS:
+            problem = models.choice_problem(
+                inputs.model,
+                "solver",
+                inputs.solver,
+                mod.SOLVERS,
+                "ahdLightmap:solver = {value!r} is not a solver of model {model!r} ({allowed})",
+            )
+            if problem is not None:
                 r.error(
                     "SolverNotInModel",
-                    f"ahdLightmap:solver = {inputs.solver!r} is not a solver of model "
-                    f"{inputs.model!r} ({', '.join(mod.SOLVERS)})",
+                    problem,
                     "author one of those, or an empty string for the model's default",
                 )
         except Exception:
@@ -114,20 +120,25 @@ def check_schema_values(prim) -> list[Finding]:
     except Exception as exc:
         r.error("ModelUnavailable", f"model {results.model!r}: {exc}", "install a usdahd with it")
         return r.out
-    if results.ratio not in mod.RATIOS:
-        r.error(
-            "RatioNotInModel",
-            f"baked ratio {results.ratio!r} is not a ratio type of model {results.model!r} "
-            f"({', '.join(mod.RATIOS)})",
-            "re-bake the prim",
-        )
+    problem = models.choice_problem(
+        results.model,
+        "ratio",
+        results.ratio,
+        mod.RATIOS,
+        "baked ratio {value!r} is not a ratio type of model {model!r} ({allowed})",
+    )
+    if problem is not None:
+        r.error("RatioNotInModel", problem, "re-bake the prim")
         return r.out
-    if results.solver and results.solver not in mod.SOLVERS:
-        r.error(
-            "SolverNotInModel",
-            f"baked solver {results.solver!r} is not a solver of model {results.model!r}",
-            "re-bake the prim",
-        )
+    problem = results.solver and models.choice_problem(
+        results.model,
+        "solver",
+        results.solver,
+        mod.SOLVERS,
+        "baked solver {value!r} is not a solver of model {model!r}",
+    )
+    if problem:
+        r.error("SolverNotInModel", problem, "re-bake the prim")
     if results.model != "hlsh" and results.factor("ratioScale") != 1.0:
         r.error(
             "FactorNotInModel",

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from usdahd.errors import InputError, UsageError
+from usdahd.models.base import check_choice
 from usdahd.models.irradz import reference
 from usdahd.models.irradz.reference import (
     DZ_FLOOR,
@@ -645,8 +646,7 @@ def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **op
         raise UsageError(f"unknown fit option(s) for {kind}: {', '.join(sorted(options))}")
     if kind not in KINDS:
         raise UsageError(f"unknown IrradZ model {kind!r}; choose one of {', '.join(KINDS)}")
-    if solver not in SOLVERS[kind]:
-        raise UsageError(f"model {kind!r} has solvers {', '.join(SOLVERS[kind])}, not {solver!r}")
+    check_choice(kind, "solver", solver, SOLVERS[kind], error=UsageError)
     if ratio not in ("luminance", "rgb"):
         raise UsageError(f"ratio must be 'luminance' or 'rgb', not {ratio!r}")
     if objective not in (None, "luminance", "rgb"):

@@ -188,10 +188,10 @@ def _plan(
     """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
     from usdahd.bake.texels import rasterize
     from usdahd.errors import SchemaError
+    from usdahd.usd.stage import prim_at
 
-    prim = stage.GetPrimAtPath(mesh.path)
     try:
-        authored = _authored_inputs(prim)
+        authored = _authored_inputs(prim_at(stage, mesh.path))
     except SchemaError as exc:
         raise InputError(str(exc)) from None
     settings = resolve_settings(opts, authored, scene.meters_per_unit)

@@ -128,7 +128,7 @@ def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
     for p in opts.prims or []:
         if not usd_stage.is_prim_path(p):
             raise UsageError(f"--prim {p!r}: not an absolute prim path (like /World/Floor)")
-        if not stage.GetPrimAtPath(p):
+        if usd_stage.prim_at(stage, p) is None:
             raise UsageError(
                 f"--prim {p}: no such prim on {src.name}; list the meshes with "
                 "usdahd bake --dry-run, or check the spelling"

@@ -41,7 +41,7 @@ from usdahd.pipeline.stages import bake_jobs
 from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
 from usdahd.usd import author
 from usdahd.usd.checks import no_mesh_message
-from usdahd.usd.stage import meters_per_unit_authored, open_stage, utf8_problem
+from usdahd.usd.stage import meters_per_unit_authored, open_stage, prim_at, utf8_problem
 
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
@@ -61,7 +61,7 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
     except StageError:
         return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
     prev, warnings = {}, []
-    for prim in schema.prims_with_api(stage):
+    for path, prim in schema.api_prims(stage).items():
         try:
             res = schema.read_results(prim)
         except Exception:  # an invalid old record is simply re-baked
@@ -72,12 +72,12 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
         if outside:
             shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
             warnings.append(
-                f"{prim.GetPath()}: the previous bake record in {out.name} names textures "
+                f"{path}: the previous bake record in {out.name} names textures "
                 f"outside {out.parent / LIGHTMAPS_DIR} (e.g. {shown}); ignored, the prim is "
                 "re-baked"
             )
             continue
-        prev[str(prim.GetPath())] = res
+        prev[path] = res
     return prev, warnings
 
 
@@ -136,7 +136,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     from usdahd.usd.reader import load_scene
 
     # Meshes carrying the API select themselves (bake on); else every visible mesh.
-    api_prims = {str(p.GetPath()): p for p in schema.prims_with_api(stage)}
+    api_prims = schema.api_prims(stage)
     uv_default = opts.uv or DEFAULTS["uv"]
     checked = _check_values(src, stage, uv_default)
     scene = load_scene(stage, uv_name=uv_default, prims=opts.prims, time=opts.time)
@@ -250,7 +250,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # already baked is lost (the validator reports them stale if their inputs changed).
     planned = {j.path for j in jobs}
     for path, old in prev.items():
-        if path not in planned and stage.GetPrimAtPath(path):
+        if path not in planned and prim_at(stage, path) is not None:
             keep = PrimJob(path=path, mesh=None, settings={}, previous=old)
             keep.report = {"path": path, "status": "kept"}
             jobs.append(keep)

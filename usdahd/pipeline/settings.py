@@ -78,12 +78,9 @@ def _authored_inputs(prim) -> dict:
     if not prim or not schema.has_api(prim):
         return {}
     rename = {"uv_primvar": "uv"}
-    out = {}
     inputs = schema.read_inputs(prim)  # validates every value; SchemaError names the prim
-    for field_name, key in schema.INPUT_KEYS.items():
-        attr = prim.GetAttribute(schema.property_name(key))
-        if attr and attr.HasAuthoredValue():
-            out[rename.get(field_name, field_name)] = getattr(inputs, field_name)
+    authored = schema.authored_input_fields(prim)
+    out = {rename.get(n, n): getattr(inputs, n) for n in schema.INPUT_KEYS if n in authored}
     if out.get("resolution") == 0:
         del out["resolution"]  # 0 means "from texel density"
     return out

@@ -284,6 +284,21 @@ def prims_with_api(stage: Usd.Stage) -> list[Usd.Prim]:
     return [p for p in rng if p.HasAPI(API_NAME)]
 
 
+def api_prims(stage: Usd.Stage) -> dict[str, Usd.Prim]:
+    """:func:`prims_with_api` by prim path (str)."""
+    return {str(p.GetPath()): p for p in prims_with_api(stage)}
+
+
+def authored_input_fields(prim: Usd.Prim) -> set[str]:
+    """The :class:`BakeInputs` fields (:data:`INPUT_KEYS`) ``prim`` authors a value for."""
+    out = set()
+    for field_name, key in INPUT_KEYS.items():
+        attr = prim.GetAttribute(property_name(key))
+        if attr and attr.HasAuthoredValue():
+            out.add(field_name)
+    return out
+
+
 def _attr(prim, key: str) -> Usd.Attribute:
     name = property_name(key)
     attr = prim.GetAttribute(name)

@@ -25,6 +25,7 @@ __all__ = [
     "meters_per_unit",
     "meters_per_unit_authored",
     "open_stage",
+    "prim_at",
     "up_axis",
 ]
 
@@ -105,6 +106,12 @@ def meters_per_unit(stage, source) -> float:
             "number (1 = metres, 0.01 = centimetres); fix it in the root layer"
         )
     return mpu
+
+
+def prim_at(stage, path: str):
+    """The prim at ``path`` (a ``Usd.Prim``), or None when the stage has none there."""
+    prim = stage.GetPrimAtPath(path)
+    return prim if prim else None
 
 
 def meters_per_unit_authored(stage) -> bool:

@@ -95,12 +95,9 @@ def settings_drift(prim, settings: dict) -> list[str]:
     if schema.input_problems(inputs):
         return []  # SchemaValues reports invalid inputs; do not guess
     out = []
-    authored = {
-        f: prim.GetAttribute(schema.property_name(k)).HasAuthoredValue()
-        for f, k in schema.INPUT_KEYS.items()
-    }
+    authored = schema.authored_input_fields(prim)
     for f, key in _SETTING_KEYS.items():
-        if not authored.get(f) or key not in settings:
+        if f not in authored or key not in settings:
             continue
         v, old = getattr(inputs, f), settings[key]
         if f == "resolution":
@@ -108,7 +105,7 @@ def settings_drift(prim, settings: dict) -> list[str]:
                 continue
             same = list(old or []) == [v, v] or old == v
         elif f == "texel_density":
-            if authored.get("resolution") and inputs.resolution:
+            if "resolution" in authored and inputs.resolution:
                 continue
             same = old is not None and math.isclose(float(old), float(v), rel_tol=1e-6)
         elif f == "ratio":

@@ -21,6 +21,8 @@ texel_density(mesh, resolution) -> float                    texels per world uni
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from usdahd.bake.types import Texels
@@ -421,3 +423,146 @@ def barycentrics(texels: Texels, mesh: MeshData) -> np.ndarray:
         axis=1,
     )
     return lam / nn[:, None]
+
+
+# --------------------------------------------------------------------------------------------
+# contacts: sample points moved off surfaces that cross the texel's footprint
+
+#: Directions of the footprint probes, in half-texel steps along (dP/du, dP/dv): the 4 edge
+#: midpoints and the 4 corners of the texel's footprint on its triangle's plane.
+CONTACT_PROBES = np.array(
+    [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)], dtype=np.float64
+)
+#: Probe rounds: after a move the probes are cast again from the new point; a texel still
+#: behind a surface after this many moves is reported invalid (filled from its neighbours).
+CONTACT_ROUNDS = 3
+#: Floor on the cosine between a probe and the back face it hit when placing the point beyond
+#: that face (a grazing hit would otherwise push the point arbitrarily far).
+CONTACT_MIN_COS = 0.05
+
+
+def half_texel_vectors(mesh: MeshData, resolution) -> np.ndarray:
+    """World vectors (t, 2, 3) float64 of half a texel step along u and along v per triangle.
+
+    ``dP/du / (2 w)`` and ``dP/dv / (2 h)`` from the triangle's UV Jacobian; zero for
+    triangles with degenerate UVs (their texels are not probed).
+    """
+    w, h = _check_resolution(resolution, max_resolution=np.iinfo(np.int32).max)
+    uv = _check_mesh(mesh)
+    p = np.asarray(mesh.points, dtype=np.float64)[np.asarray(mesh.triangles, dtype=np.int64)]
+    dp = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=2)  # (t, 3, 2)
+    duv = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)  # (t, 2, 2)
+    det = duv[:, 0, 0] * duv[:, 1, 1] - duv[:, 0, 1] * duv[:, 1, 0]
+    scale2 = np.max(np.sum((uv - uv[:, [1, 2, 0]]) ** 2, axis=-1), axis=1)
+    ok = np.abs(det) > 1e-12 * scale2 + 1e-30
+    safe = np.where(ok, det, 1.0)
+    inv = (
+        np.stack(
+            [
+                np.stack([duv[:, 1, 1], -duv[:, 0, 1]], axis=1),
+                np.stack([-duv[:, 1, 0], duv[:, 0, 0]], axis=1),
+            ],
+            axis=1,
+        )
+        / safe[:, None, None]
+    )  # (t, 2, 2) inverse of duv
+    jac = np.einsum("tik,tkj->tij", dp, inv)  # (t, 3, 2): columns dP/du, dP/dv
+    out = np.stack([jac[:, :, 0] / (2.0 * w), jac[:, :, 1] / (2.0 * h)], axis=1)
+    return np.where(ok[:, None, None], out, 0.0)
+
+
+def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, np.ndarray]:
+    """Move sample points whose ray origin lies behind a surface crossing the texel's footprint.
+
+    The problem: a sample point exactly on (or within ``offset_eps`` of) a contact, e.g. the
+    bottom edge of an overhanging face resting on the ground, gets its ray origin
+    ``P + offset_eps * n`` on the far side of the other surface (below the ground, inside a
+    solid); its hemisphere then sees what lies behind that surface (the sky under the ground)
+    and the texel comes out as a bright line. No test from the origin back to ``P`` can see a
+    surface through ``P`` itself in float32.
+
+    The rule (the "push out of geometry" of GPU lightmappers such as Bakery, Unity's
+    progressive lightmapper and Godot's LightmapGI, which probe a texel's footprint with short
+    rays): from each texel's ray origin (:meth:`Tracer.offset` along its geometric normal, the
+    origin the integrator uses) 8 probes run in the plane of its triangle toward the 4 edge
+    midpoints and 4 corners of the texel's footprint (``CONTACT_PROBES`` x
+    :func:`half_texel_vectors`, so each reaches exactly the footprint's boundary). If a probe's
+    first hit is a **back face** (``dot(d, n_hit) > 0``), the origin is behind a surface that
+    crosses the footprint: the sample point moves along the nearest such probe to just beyond
+    that hit (by ``2 * offset / max(cos, CONTACT_MIN_COS)``, so the new origin is in front of
+    it), still on the triangle's plane and inside the footprint, and the probes are cast again
+    (up to ``CONTACT_ROUNDS`` rounds, for corners of two surfaces). Front-face hits (a wall the
+    origin is in front of, a crease of the mesh itself) leave the texel alone, as do texels
+    whose whole footprint is behind a surface (no probe hits anything: they are inside
+    geometry and the integrator's back-face test flags them). A texel still behind a surface
+    after the last round, or whose move would leave its footprint, keeps its point and is
+    returned in ``invalid`` so the caller fills it from valid neighbours, like texels inside
+    geometry.
+
+    Why move rather than always invalidate: the moved point still lies in the texel's own
+    footprint and sees what that part of the footprint sees (Cycles, which jitters samples
+    over the footprint, averages over it); filling from neighbours instead would replace a
+    whole row of contact texels by values from one side. The frame and geometric normal are
+    kept (the point stays on the triangle's plane).
+
+    texels, mesh: as :func:`rasterize` returned them for this mesh; tracer: a
+    :class:`usdahd.bake.trace.Tracer` over the scene (``offset``, ``intersect``,
+    ``geom_normal``, ``offset_eps``). Costs ``8 x rounds`` rays per texel (a bake traces
+    hundreds). Returns ``(texels, invalid (n,) bool)``; ``texels`` is the same object when no
+    point moved, else a copy with the new ``position`` and ``stats["contact_texels"]`` (moved)
+    and ``stats["contact_invalid"]``.
+    """
+    n = len(texels)
+    invalid = np.zeros(n, bool)
+    if n == 0:
+        return texels, invalid
+    half = half_texel_vectors(mesh, texels.resolution)[texels.triangle]  # (n, 2, 3)
+    probes = np.einsum("kj,njc->nkc", CONTACT_PROBES, half)  # (n, 8, 3)
+    length = np.linalg.norm(probes, axis=2)
+    ok = length > 0
+    dirs = probes / np.where(ok, length, 1.0)[..., None]
+    k = len(CONTACT_PROBES)
+    pos = texels.position.astype(np.float64)
+    ng = texels.geom_normal.astype(np.float64)
+    moved = np.zeros(n, bool)
+    todo = np.nonzero(ok.any(axis=1))[0]
+    for rnd in range(CONTACT_ROUNDS + 1):
+        if len(todo) == 0:
+            break
+        p, g = pos[todo], ng[todo]
+        origin = tracer.offset(p, g, g)
+        o = np.repeat(origin, k, axis=0)
+        d = dirs[todo].reshape(-1, 3)
+        tfar = length[todo].reshape(-1)
+        hit = tracer.intersect(o, np.where(tfar[:, None] > 0, d, g.repeat(k, 0)), tfar)
+        tri = hit["tri"]
+        hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
+        cos = np.einsum("ij,ij->i", d, hn)
+        back = (tri >= 0) & (tfar > 0) & (hit["t"] < tfar) & (cos > 0.0)
+        back = back.reshape(-1, k)
+        behind = back.any(axis=1)
+        if not behind.any():
+            break
+        t = np.where(back, hit["t"].reshape(-1, k), np.inf)
+        j = np.argmin(t, axis=1)
+        rows = np.arange(len(todo))
+        sel = todo[behind]
+        if rnd == CONTACT_ROUNDS:  # still behind a surface after the last move
+            invalid[sel] = True
+            break
+        jb, rb = j[behind], rows[behind]
+        scale = tracer.offset_eps + 1e-7 * np.abs(p[rb]).max(axis=1)
+        step = t[rb, jb] + 2.0 * scale / np.maximum(cos.reshape(-1, k)[rb, jb], CONTACT_MIN_COS)
+        fits = step <= length[sel, jb]
+        invalid[sel[~fits]] = True
+        go = sel[fits]
+        pos[go] += dirs[go, jb[fits]] * step[fits][:, None]
+        moved[go] = True
+        todo = go
+    moved &= ~invalid
+    if not moved.any() and not invalid.any():
+        return texels, invalid
+    # invalid texels keep their original point
+    position = np.where(moved[:, None], pos, texels.position).astype(np.float32)
+    stats = dict(texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum()))
+    return replace(texels, position=position, stats=stats), invalid

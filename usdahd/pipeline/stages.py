@@ -33,7 +33,7 @@ def _refit_sh(job: PrimJob) -> None:
     stitching, exactly what was fitted); BakeError if the sidecar does not cover them."""
     from usdahd import images
     from usdahd.bake import post
-    from usdahd.bake.texels import rasterize
+    from usdahd.bake.texels import push_off_contacts, rasterize
     from usdahd.usd import schema
 
     if job.texels is None:
@@ -90,6 +90,9 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                 job.sh = np.zeros((n, 3, 9), np.float32)
                 job.stats = {"rays": 0, "invalid": np.zeros(n, bool)}
             else:
+                # sample points on contacts moved in front of the surface they touch
+                # (docs/texels.md, "Contacts"); the rest of the texel stays as rasterised
+                job.texels, contact_invalid = push_off_contacts(job.texels, job.mesh, tracer)
                 bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
                 job.sh, job.stats = bake_texels(
                     scene,
@@ -103,6 +106,7 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                     mesh=next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None),
                 )
                 bar.close()
+                job.stats["invalid"] = job.stats["invalid"] | contact_invalid
         except UsdAhdError as exc:
             job.report.update(status="failed", error=str(exc))
             continue
@@ -112,6 +116,7 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
             rays=int(job.stats.get("rays", 0)),
             rays_saved=int(job.stats.get("rays_saved", 0)),
             invalid_texels=int(np.count_nonzero(job.stats.get("invalid", []))),
+            contact_texels=int(st.get("contact_texels", 0)),
             uv_overlap_texels=int(st.get("overlap_texels", 0)),
             uv_outside_fraction=float(st.get("uv_outside_fraction", 0.0)),
             trace_seconds=time.perf_counter() - t1,

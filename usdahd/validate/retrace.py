@@ -442,7 +442,7 @@ def check_retrace(prim, options: RetraceOptions | None = None) -> list:
 def _check(prim, opt: RetraceOptions) -> list:
     from usdahd import validate as V
     from usdahd.bake import integrate
-    from usdahd.bake.texels import chart_ids, rasterize
+    from usdahd.bake.texels import chart_ids, push_off_contacts, rasterize
     from usdahd.errors import UsdAhdError
     from usdahd.numerics import sh as shm
 
@@ -469,6 +469,9 @@ def _check(prim, opt: RetraceOptions) -> list:
         texels = rasterize(mesh, res.resolution)
     except UsdAhdError as exc:
         return skipped(f"the lightmap UVs do not rasterise ({exc}); see UVSet")
+    contact_invalid = np.zeros(len(texels), bool)
+    if tracer is not None:  # the bake's sample points (moved off contacts, docs/texels.md)
+        texels, contact_invalid = push_off_contacts(texels, mesh, tracer)
     w, h = res.resolution
     rows_img = np.full((h, w), -1, np.int64)
     rows_img[bake.xy[:, 1], bake.xy[:, 0]] = np.arange(len(bake.xy))
@@ -483,6 +486,7 @@ def _check(prim, opt: RetraceOptions) -> list:
             )
     ok = rows >= 0
     ok[ok] = bake.valid[rows[ok]]
+    ok &= ~contact_invalid  # filled from neighbours in the bake, not estimated there
     candidates = np.nonzero(ok & texels.center_inside)[0]
     if len(candidates) < MIN_TEXELS:
         return skipped(f"only {len(candidates)} covered texel centre(s) decode validly")

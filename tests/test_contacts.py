@@ -232,3 +232,20 @@ def test_contact_row_is_not_brighter_than_its_open_sky(backend):
     # the sun is exact (one delta shadow ray); the dome part is a mean of 256 samples of
     # 2 cos(theta) <= 2, whose standard deviation is at most sqrt(4/3 / 256) = 0.072
     assert giz.max() < 2.0 + SIGMAS * 0.072
+
+
+def test_bake_moves_contact_texels_and_reports_them(tmp_path, capsys):
+    """The bake applies the rule before tracing and reports the moved texels per prim."""
+    import json
+
+    from usdahd import cli
+
+    st = _box_stage()
+    path = tmp_path / "box.usda"
+    st.GetRootLayer().Export(str(path))
+    argv = ["bake", str(path), "--json", "--resolution", str(RES), "--samples", "64"]
+    assert cli.main([*argv, "--bounces", "0", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    prims = {p["path"]: p for p in report["prims"]}
+    assert prims["/ground"]["contact_texels"] == 9 + 9 + 9 - 2  # as the test above
+    assert prims["/box"]["contact_texels"] == 0

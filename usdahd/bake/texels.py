@@ -1,7 +1,8 @@
 """Lightmap texels of one mesh: sample points, tangent frames, charts, density.
 
-numpy only (no pxr, OpenImageIO or Embree). See ``docs/texels.md`` for the conventions an
-engine importer needs (texel/UV convention, tangent-frame construction). The UV rasterisation
+numpy only (no pxr, OpenImageIO or Embree; :func:`push_off_contacts` is handed a tracer).
+See ``docs/texels.md`` for the conventions an engine importer needs (texel/UV convention,
+tangent-frame construction) and the contact rule. The UV rasterisation
 itself (coverage, winning triangle, barycentrics, UV -> pixel mapping) is
 :mod:`usdahd.numerics.raster`, shared with the validator; this module adds the baker's
 policy (resolution limits, input checks) and the 3-D side (positions, normals, frames).
@@ -17,6 +18,8 @@ chart_ids(mesh) -> (t,) int32                               UV-connected charts
 resolution_for_density(mesh, texels_per_unit, *, max_resolution=8192) -> (w, h)
 mesh_from_arrays(points, triangles, *, uv=None, normals=None, path="/mesh") -> MeshData
 texel_density(mesh, resolution) -> float                    texels per world unit achieved
+half_texel_vectors(mesh, resolution) -> (t, 2, 3)          half a texel along u, v in world units
+push_off_contacts(texels, mesh, tracer) -> (Texels, invalid) sample points moved off contacts
 """
 
 from __future__ import annotations

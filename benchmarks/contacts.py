@@ -20,11 +20,12 @@ default ``/work/shared/scenes``) has no lights; a wrapper stage beside the outpu
 sun and sky of ``samples/exterior_sun_sky.usda``.
 
     python -m benchmarks.contacts [--resolution 256] [--out DIR] [--json OUT.json]
-                                  [--repeat 3] [--usdahd-repo CHECKOUT]
+                                  [--repeat 3] [--usdahd-repo CHECKOUT] [--probe-cost]
 
 ``--repeat N`` bakes each stage N times (``--force``) and reports the median trace seconds per
 mesh (and the load average); ``--usdahd-repo`` bakes with another checkout (e.g. a worktree of
-main, for the cost of a change), measured by this script.
+main, for the cost of a change), measured by this script; ``--probe-cost`` also times the
+contact probes alone (median of 3, in process) on each baked mesh.
 """
 
 from __future__ import annotations
@@ -150,6 +151,32 @@ def measure(
     return {"stage": str(stage), "wall_seconds": wall, "meshes": rows}
 
 
+def probe_cost(layer: Path, repeat: int = 3) -> dict:
+    """Median seconds of :func:`push_off_contacts` per baked mesh of an output layer (this
+    checkout, in process, the tracer's default threads), with the texel count."""
+    from benchmarks.reference.compare import usdahd_results
+    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.trace import Tracer
+    from usdahd.usd.reader import load_scene
+
+    baked = usdahd_results(layer)
+    out = {}
+    for uv in sorted({v["uv"] for v in baked.values()}):
+        scene = load_scene(str(layer), uv_name=uv)
+        tracer = Tracer(scene)
+        for m in scene.meshes:
+            if m.path not in baked or baked[m.path]["uv"] != uv:
+                continue
+            tx = rasterize(m, tuple(baked[m.path]["resolution"]))
+            secs = []
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                push_off_contacts(tx, m, tracer)
+                secs.append(time.perf_counter() - t0)
+            out[m.path] = {"texels": len(tx), "seconds": float(np.median(secs))}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", type=int, default=256)
@@ -158,6 +185,7 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-castle", action="store_true")
     ap.add_argument("--repeat", type=int, default=1, help="bakes per stage (median times)")
     ap.add_argument("--usdahd-repo", type=Path, default=REPO, help="checkout that bakes")
+    ap.add_argument("--probe-cost", action="store_true", help="also time the contact probes alone")
     ap.add_argument("extra", nargs="*", help="extra bake arguments (after --)")
     a = ap.parse_args(argv)
     out = a.out or Path(tempfile.mkdtemp(prefix="usdahd-contacts-"))
@@ -168,6 +196,11 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     for st in stages:
         res = measure(st, out, a.resolution, a.extra, a.repeat, a.usdahd_repo.resolve())
+        if a.probe_cost:
+            cost = probe_cost(out / f"{st.stem}.lightmaps.usda", max(3, a.repeat))
+            for path, c in cost.items():
+                res["meshes"][path]["probe_seconds"] = c["seconds"]
+                print(f"{st.stem:18s} {path:28s} contact probes {c['seconds']:.3f}s", flush=True)
         results.append(res)
         for path, row in res["meshes"].items():
             print(

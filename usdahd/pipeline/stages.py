@@ -33,7 +33,7 @@ def _refit_sh(job: PrimJob) -> None:
     stitching, exactly what was fitted); BakeError if the sidecar does not cover them."""
     from usdahd import images
     from usdahd.bake import post
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.texels import rasterize
     from usdahd.usd import schema
 
     if job.texels is None:
@@ -65,7 +65,7 @@ def _job_seed(seed: int, path: str) -> int:
 def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats)."""
     from usdahd.bake.integrate import bake_texels
-    from usdahd.bake.texels import rasterize
+    from usdahd.bake.texels import push_off_contacts, rasterize
     from usdahd.bake.trace import Tracer
     from usdahd.errors import UsdAhdError
     from usdahd.progress import Progress

@@ -145,7 +145,12 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         + ", ".join(f"{s} {100 * min(v):.2f} %" for s, v in noise.items())
         + ". Errors: Rec. 709 luminance of I_z on interior texels the truth lights "
         "(benchmarks/reference/compare.py); relRMSE includes the truth's noise. Time: usdahd's "
-        "bake (its report) and Cycles' bake call, both on the same 2 shared cores.",
+        "bake (its report) and Cycles' bake call, both on the same 2 shared cores. "
+        "Texel convention: usdahd samples each texel at its centre (docs/texels.md), Cycles "
+        "jitters over the texel (a box filter), so at a small light's hotspot or a hard shadow "
+        "edge the two differ by construction and usdahd's error against this truth stops "
+        "falling with more samples; `python -m benchmarks.reference compare STAGE "
+        "--oversample 5` compares against a centre-sampled truth instead.",
         "",
         "| stage | renderer | spp | time (s) | bias | relRMSE |",
         "|---|---|---|---|---|---|",

@@ -233,38 +233,62 @@ def test_half_tolerance_bounds_float16_rounding():
     assert rel.max() <= 2.0**-11 * (1 + 1e-6) <= V.FORMAT_RELATIVE_TOLERANCE["half"]
 
 
-def _coverage_brute(uv, res):
-    """Reference: every texel centre against every triangle with barycentric coordinates."""
+def _strict_overlap_brute(uv, res, eps=1e-4):
+    """Reference: texels whose centre is farther than eps texels inside the edges of two or
+    more triangles (every centre against every triangle, in pixel space)."""
     w, h = res
     ys, xs = np.mgrid[0:h, 0:w]
-    q = np.stack([(xs + 0.5) / w, 1.0 - (ys + 0.5) / h], axis=-1).reshape(-1, 2)
+    q = np.stack([xs + 0.5, ys + 0.5], axis=-1).reshape(-1, 2)
+    px = np.stack([uv[..., 0] * w, (1.0 - uv[..., 1]) * h], axis=-1)
     count = np.zeros(len(q), np.int32)
-    for a, b, c in uv:
-        m = np.array([b - a, c - a]).T
-        lam = np.linalg.solve(m, (q - a).T).T
-        count += ((lam >= 1e-9).all(axis=1) & (lam.sum(axis=1) <= 1 - 1e-9)).astype(np.int32)
-    return count.reshape(h, w)
+    for p in px:
+        e1, e2 = p[1] - p[0], p[2] - p[0]
+        area2 = e1[0] * e2[1] - e1[1] * e2[0]
+        inside = np.ones(len(q), bool)
+        for i in range(3):
+            a, b = p[i], p[(i + 1) % 3]
+            e, r = b - a, q - a
+            d = (e[0] * r[:, 1] - e[1] * r[:, 0]) * np.sign(area2) / np.linalg.norm(e)
+            inside &= d > eps
+        count += inside
+    return np.nonzero(count >= 2)[0]
 
 
-def test_texel_coverage_matches_brute_force_and_counts_shared_edges_once():
+def test_uvset_overlap_is_the_bakers_statistic():
+    """The UVSet rule counts with the baker's rasteriser (numerics.raster): the same covered
+    texels as bake.texels.rasterize and the same overlap count the baker's unwrap decision
+    (pipeline.plan._uv_problem) reads, so a UV set the baker keeps passes and one it
+    re-unwraps fails."""
+    from usdahd.bake import texels as tx
+    from usdahd.numerics.raster import UV_OVERLAP_LIMIT
+    from usdahd.pipeline.plan import _uv_problem
+
     rng = np.random.default_rng(2)
-    uv = rng.uniform(0, 1, (40, 3, 2))
-    cov = V.texel_coverage(uv, (37, 29))
-    ref = _coverage_brute(uv, (37, 29))
-    # Centres within 1e-9 of an edge may differ (the reference excludes them).
-    assert (cov != ref).sum() <= 2
-    assert np.array_equal(
-        V._coverage_kernel_py(
-            np.ascontiguousarray(np.stack([uv[..., 0] * 37, (1 - uv[..., 1]) * 29], axis=-1)),
-            37,
-            29,
-        ),
-        cov,
-    )
-    # Two triangles of a quad whose diagonal passes through texel centres: each once.
+    res = (37, 29)
+    for n in (1, 3, 40):
+        uv = rng.uniform(0, 1, (n, 3, 2))
+        covered, over, xy = V.overlap_statistic(uv, res)
+        ref = _strict_overlap_brute(uv, res)
+        assert over == len(ref) and np.array_equal(xy[:, 1] * res[0] + xy[:, 0], ref)
+        pts = np.concatenate([uv.reshape(-1, 2), np.zeros((3 * n, 1))], axis=1)
+        t = tx.rasterize(tx.mesh_from_arrays(pts, np.arange(3 * n).reshape(n, 3), uv=uv), res)
+        assert (covered, over) == (len(t), t.stats["overlap_texels"])
+        rejects = _uv_problem(t) is not None
+        assert rejects == (over > UV_OVERLAP_LIMIT * covered)
+        assert rejects == (n > 1)  # one triangle cannot overlap; these random ones do
+    # Two triangles of a quad whose diagonal passes through texel centres: no overlap.
     quad = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
-    cov = V.texel_coverage(quad, (8, 8))
-    assert (cov == 1).all()
+    assert V.overlap_statistic(quad, (8, 8))[:2] == (64, 0)
+
+
+def test_uvset_overlap_counts_on_the_overlapping_asset(assets):
+    """What the switch to the baker's statistic changed (the finding itself did not): the
+    validator's own top-left rasteriser counted 16 of 240 centre-covered texels; the baker's
+    counts 244 covered texels (conservative: 4 edge texels more) and 12 overlapping ones (the 4
+    centres on the reused cell's diagonal lie strictly inside neither triangle)."""
+    (f,) = [f for f in _findings(assets["overlapping_uvs"]) if f.code == "UVOverlap"]
+    assert (f.data["overlapping"], f.data["covered"]) == (12, 244)
+    assert "12 of 244 covered texels" in f.message
 
 
 # --------------------------------------------------------------------------------- the CLI

@@ -124,9 +124,8 @@ from usdahd.validate.textures import (  # noqa: F401
     check_textures,
 )
 from usdahd.validate.uvset import (  # noqa: F401
-    _coverage_kernel_py,
     check_uv_set,
-    texel_coverage,
+    overlap_statistic,
 )
 
 # Plug imports this package to load the plugin: register the implementations now.

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from usdahd.numerics.raster import fan_triangulate, uv_to_pixel
+from usdahd.numerics.raster import fan_triangulate, rasterize_uv
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
 from usdahd.validate.options import OPTIONS
@@ -14,60 +14,19 @@ from usdahd.validate.options import OPTIONS
 # ------------------------------------------------------------------------------ rule 7: UVSet
 
 
-def texel_coverage(uv: np.ndarray, resolution: tuple[int, int]) -> np.ndarray:
-    """How many triangles cover each texel centre: (h, w) int32 (row 0 = top, v = 1).
+def overlap_statistic(uv: np.ndarray, resolution) -> tuple[int, int, np.ndarray]:
+    """The baker's UV-overlap statistic (``usdahd.pipeline.plan`` unwraps above
+    ``UV_OVERLAP_LIMIT``): covered texels (conservative, as the bake rasterises them), texels
+    whose centre lies strictly inside two or more triangles, and those texels' (x, y) (m, 2),
+    row-major. Both come from :func:`usdahd.numerics.raster.rasterize_uv`, the baker's own
+    rasteriser, so a UV set the baker accepts passes the UVSet rule.
 
-    uv : (t, 3, 2) float. A centre on an edge counts for one side only (top-left rule), so
-    triangles sharing an edge do not double-count it.
+    uv : (t, 3, 2) float, finite. resolution : (w, h).
     """
-    w, h = resolution
-    px = uv_to_pixel(uv, (w, h))
-    return _coverage_kernel(np.ascontiguousarray(px), int(w), int(h))
-
-
-def _coverage_kernel_py(px, w, h):
-    count = np.zeros((h, w), np.int32)
-    for t in range(px.shape[0]):
-        ax, ay = px[t, 0]
-        bx, by = px[t, 1]
-        cx, cy = px[t, 2]
-        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        if area == 0.0 or not math.isfinite(area):
-            continue
-        if area < 0.0:  # make every triangle counter-clockwise in pixel space
-            bx, by, cx, cy = cx, cy, bx, by
-        x0 = max(int(math.floor(min(ax, bx, cx) - 0.5)), 0)
-        x1 = min(int(math.ceil(max(ax, bx, cx) - 0.5)), w - 1)
-        y0 = max(int(math.floor(min(ay, by, cy) - 0.5)), 0)
-        y1 = min(int(math.ceil(max(ay, by, cy) - 0.5)), h - 1)
-        e = ((ax, ay, bx, by), (bx, by, cx, cy), (cx, cy, ax, ay))
-        for y in range(y0, y1 + 1):
-            qy = y + 0.5
-            for x in range(x0, x1 + 1):
-                qx = x + 0.5
-                inside = True
-                for k in range(3):
-                    sx, sy, ex, ey = e[k]
-                    f = (ex - sx) * (qy - sy) - (ey - sy) * (qx - sx)
-                    if f < 0.0:
-                        inside = False
-                        break
-                    if f == 0.0:  # top-left rule: keep edges going up or exactly left
-                        dy, dx = ey - sy, ex - sx
-                        if not (dy < 0.0 or (dy == 0.0 and dx < 0.0)):
-                            inside = False
-                            break
-                if inside:
-                    count[y, x] += 1
-    return count
-
-
-try:
-    from numba import njit
-
-    _coverage_kernel = njit(cache=True, fastmath=False)(_coverage_kernel_py)
-except ImportError:  # pragma: no cover
-    _coverage_kernel = _coverage_kernel_py
+    w = int(resolution[0])
+    r = rasterize_uv(uv, resolution)
+    ids = r.overlap_ids
+    return len(r.ids), len(ids), np.stack([ids % w, ids // w], axis=1)
 
 
 def check_uv_set(prim) -> list[Finding]:
@@ -115,15 +74,14 @@ def check_uv_set(prim) -> list[Finding]:
                 "re-unwrap the lightmap UV set into [0, 1] and re-bake",
             )
             return r.out
-        cov = texel_coverage(uv, results.resolution)
-        covered = int((cov > 0).sum())
-        over = int((cov > 1).sum())
+        covered, over, xy = overlap_statistic(uv, results.resolution)
         if covered and over > OPTIONS.uv_overlap * covered:
-            ys, xs = np.nonzero(cov > 1)
+            xs, ys = xy[:, 0], xy[:, 1]
             r.error(
                 "UVOverlap",
-                f"{over} of {covered} covered texels ({100.0 * over / covered:.2g}%) lie in "
-                f"more than one triangle of primvars:{name}, first at texel ({xs[0]}, {ys[0]}); "
+                f"{over} of {covered} covered texels ({100.0 * over / covered:.2g}%) have "
+                f"their centre in more than one triangle of primvars:{name}, first at texel "
+                f"({xs[0]}, {ys[0]}); "
                 f"overlapping charts share (and fight over) lightmap texels",
                 "re-unwrap without overlaps (usdahd bake unwraps when the UV set is missing)",
                 overlapping=over,

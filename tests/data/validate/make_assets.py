@@ -150,10 +150,10 @@ def bake(
 ) -> Path:
     """Write a synthetic, consistent bake into ``directory``; returns the override layer."""
     from usdahd import pipeline
+    from usdahd.numerics.raster import rasterize_uv
     from usdahd.scene.hashing import content_hash, scene_hash_parts
     from usdahd.usd.author import generator_id
     from usdahd.usd.reader import load_scene
-    from usdahd.validate import texel_coverage
 
     directory.mkdir(parents=True, exist_ok=True)
     uvs = grid_uvs() if uvs is None else uvs
@@ -162,8 +162,8 @@ def bake(
     # Covered texels: centres inside a UV triangle (fan triangulation of the quads).
     quads = uvs.reshape(-1, 4, 2).astype(np.float64)
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    covered = texel_coverage(tris, RESOLUTION) > 0
-    ys, xs = np.nonzero(covered)
+    ids = rasterize_uv(tris, RESOLUTION, conservative=False).ids
+    ys, xs = ids // w, ids % w
     rng = np.random.default_rng(seed)
     sh = hemispherical_sh(len(xs), rng)
     mod = models.get(model)

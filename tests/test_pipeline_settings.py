@@ -39,3 +39,42 @@ def test_fit_and_the_models_use_the_default_wording():
     assert models.choice_problem("m", "ratio", "q", ("a", "b"), text) == (
         "baked ratio 'q' is not a ratio type of model 'm' (a, b)"
     )
+
+
+def test_one_setting_name_map_for_the_baker_and_the_staleness_rule():
+    """usd.schema.SETTING_KEYS maps every bake input but ``bake`` to its settings-record key:
+    the baker applies authored inputs through it and the validator compares them with the
+    record through it, so an authored input the bake used never reads as drift."""
+    from pxr import Usd, UsdGeom
+
+    from usdahd.pipeline.settings import DEFAULTS, _authored_inputs
+    from usdahd.usd import schema
+    from usdahd.validate.staleness import settings_drift
+
+    assert set(schema.SETTING_KEYS) == set(schema.INPUT_KEYS) - {"bake"}
+    assert set(schema.SETTING_KEYS.values()) <= set(DEFAULTS)
+    stage = Usd.Stage.CreateInMemory()
+    prim = UsdGeom.Mesh.Define(stage, "/Quad").GetPrim()
+    schema.apply(prim)
+    schema.write_inputs(
+        prim,
+        model="sh_l2",
+        ratio="none",
+        solver="project",
+        uv_primvar="lm",
+        resolution=64,
+        texel_density=8.0,
+        samples=32,
+        bounces=3,
+    )
+    authored = _authored_inputs(prim)
+    assert set(authored) == set(schema.SETTING_KEYS.values())
+    assert authored["uv"] == "lm"
+    settings = resolve_settings(BakeOptions(), authored)
+    settings["resolution"] = [64, 64]  # the record holds (w, h) (pipeline.plan)
+    assert settings_drift(prim, settings) == []
+    settings.update(uv="st", samples=256)
+    assert settings_drift(prim, settings) == [
+        "ahdLightmap:uvPrimvar ('st' -> 'lm')",
+        "ahdLightmap:samples (256 -> 32)",
+    ]

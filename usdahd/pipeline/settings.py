@@ -77,10 +77,10 @@ def _authored_inputs(prim) -> dict:
 
     if not prim or not schema.has_api(prim):
         return {}
-    rename = {"uv_primvar": "uv"}
     inputs = schema.read_inputs(prim)  # validates every value; SchemaError names the prim
     authored = schema.authored_input_fields(prim)
-    out = {rename.get(n, n): getattr(inputs, n) for n in schema.INPUT_KEYS if n in authored}
+    keys = schema.SETTING_KEYS
+    out = {keys[n]: getattr(inputs, n) for n in schema.INPUT_KEYS if n in keys and n in authored}
     if out.get("resolution") == 0:
         del out["resolution"]  # 0 means "from texel density"
     return out
@@ -98,8 +98,6 @@ def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float =
     if opts.resolution is not None:
         s["texel_density"] = None
     for k, v in authored.items():
-        if k == "bake":
-            continue
         s[k] = v
         if k == "texel_density" and "resolution" not in authored:
             s["resolution"] = None

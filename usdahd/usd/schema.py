@@ -211,6 +211,19 @@ INPUT_KEYS = {
     "samples": "samples",
     "bounces": "bounces",
 }
+#: BakeInputs field -> key of the bake settings record (``pipeline.settings.resolve_settings``,
+#: stored in ``baked:settings``): the one map, used by the baker to apply authored inputs and by
+#: the validator's Staleness rule to compare them with the record. ``bake`` is no setting.
+SETTING_KEYS = {
+    "model": "model",
+    "ratio": "ratio",
+    "solver": "solver",
+    "uv_primvar": "uv",
+    "samples": "samples",
+    "bounces": "bounces",
+    "resolution": "resolution",
+    "texel_density": "texel_density",
+}
 _INPUT_TYPES = {
     "bake": bool,
     "model": str,

@@ -109,7 +109,6 @@ from usdahd.validate.registry import (  # noqa: F401
 from usdahd.validate.schema_values import check_schema_values  # noqa: F401
 from usdahd.validate.staleness import (  # noqa: F401
     _SCENES,
-    _SETTING_KEYS,
     _normals_drift,
     _SceneCache,
     check_staleness,

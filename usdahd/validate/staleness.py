@@ -76,18 +76,6 @@ class _SceneCache:
 
 _SCENES = _SceneCache()
 
-#: Schema input -> key of the bake settings record (usdahd.pipeline.resolve_settings).
-_SETTING_KEYS = {
-    "model": "model",
-    "ratio": "ratio",
-    "solver": "solver",
-    "uv_primvar": "uv",
-    "samples": "samples",
-    "bounces": "bounces",
-    "resolution": "resolution",
-    "texel_density": "texel_density",
-}
-
 
 def settings_drift(prim, settings: dict) -> list[str]:
     """Authored bake inputs that differ from the settings the bake used (valid inputs only)."""
@@ -96,7 +84,7 @@ def settings_drift(prim, settings: dict) -> list[str]:
         return []  # SchemaValues reports invalid inputs; do not guess
     out = []
     authored = schema.authored_input_fields(prim)
-    for f, key in _SETTING_KEYS.items():
+    for f, key in schema.SETTING_KEYS.items():
         if f not in authored or key not in settings:
             continue
         v, old = getattr(inputs, f), settings[key]

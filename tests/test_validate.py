@@ -520,3 +520,23 @@ def _reference(bake):
         return np.maximum(V.shm.iz(bake.sh), 0.0)
     fitted = V.models.fit(bake.sh, res.model, ratio=res.ratio, solver=res.solver or None)
     return bake.mod.evaluate(V.models.representable(fitted, bake.mod), z).astype(np.float64)
+
+
+def test_rules_reading_the_bake_say_why_they_skip():
+    """IzCheck, EncodingError and TexelValues load the bake through one helper
+    (validate.loading.load_for): an unbaked prim gives each the same info finding."""
+    from pxr import UsdGeom
+
+    from usdahd.usd import schema
+
+    stage = Usd.Stage.CreateInMemory()
+    prim = UsdGeom.Mesh.Define(stage, "/Quad").GetPrim()
+    schema.apply(prim)
+    for rule, check in (
+        ("IzCheck", V.check_iz),
+        ("EncodingError", V.check_encoding_error),
+        ("TexelValues", V.check_texel_values),
+    ):
+        (f,) = check(prim)
+        assert (f.rule, f.severity, f.code) == (rule, "info", "Skipped")
+        assert f.message == f"{rule} did not run: the prim is not baked; see SchemaValues."

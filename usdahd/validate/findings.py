@@ -56,6 +56,10 @@ class _Rule:
     def info(self, code, message, fix="", **data):
         self.add("info", code, message, fix, **data)
 
+    def skipped(self, why) -> None:
+        """The info finding ``Skipped``: "<rule> did not run: <why>"."""
+        self.info("Skipped", f"{self.rule} did not run: {why}")
+
 
 def _jsonable(d: dict) -> dict:
     out = {}

@@ -10,8 +10,8 @@ import numpy as np
 
 from usdahd import models
 from usdahd.numerics import sh as shm
-from usdahd.validate.findings import Finding, _Rule, _Skip
-from usdahd.validate.loading import Bake, load_bake
+from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.loading import Bake, load_for
 from usdahd.validate.options import IRRADZ, MODEL_RMSE_NOTE, OPTIONS
 from usdahd.validate.texel_values import _texel
 
@@ -75,13 +75,8 @@ def quantization_tolerance(bake: Bake, got: np.ndarray | None = None) -> np.ndar
 def check_iz(prim) -> list[Finding]:
     """Rule IzCheck (see RULES)."""
     r = _Rule("IzCheck", prim)
-    try:
-        bake = load_bake(prim)
-    except _Skip as why:
-        r.info("Skipped", f"IzCheck did not run: {why}")
-        return r.out
-    if bake.sh is None:
-        r.info("Skipped", "IzCheck did not run: no readable SH sidecar (see SchemaValues)")
+    bake = load_for(r, prim, sidecar=" (see SchemaValues)")
+    if bake is None:
         return r.out
     res = bake.results
     z = np.array([0.0, 0.0, 1.0])
@@ -105,7 +100,7 @@ def check_iz(prim) -> list[Finding]:
     ok = bake.valid & np.isfinite(got).all(axis=1) & np.isfinite(ref).all(axis=1)
     n_skip = int((~ok).sum())
     if not ok.any():
-        r.info("Skipped", "IzCheck did not run: no texel decodes to finite values (TexelValues)")
+        r.skipped("no texel decodes to finite values (TexelValues)")
         return r.out
     err = np.where(ok[:, None], np.abs(got - ref), 0.0)
     # Relative figures against the texel's brightest channel (a black channel next to a bright
@@ -172,17 +167,12 @@ def check_encoding_error(prim) -> list[Finding]:
     the textures add). Warns when the quantization part exceeds OPTIONS.rmse_warning.
     """
     r = _Rule("EncodingError", prim)
-    try:
-        bake = load_bake(prim)
-    except _Skip as why:
-        r.info("Skipped", f"EncodingError did not run: {why}")
-        return r.out
-    if bake.sh is None:
-        r.info("Skipped", "EncodingError did not run: no readable SH sidecar")
+    bake = load_for(r, prim, sidecar="")
+    if bake is None:
         return r.out
     idx = np.nonzero(bake.valid & np.isfinite(bake.sh).all(axis=(1, 2)))[0]
     if idx.size == 0:
-        r.info("Skipped", "EncodingError did not run: no valid covered texel")
+        r.skipped("no valid covered texel")
         return r.out
     if idx.size > OPTIONS.rmse_max_texels:
         idx = idx[np.linspace(0, idx.size - 1, OPTIONS.rmse_max_texels).astype(np.int64)]

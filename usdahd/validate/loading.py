@@ -12,7 +12,7 @@ import numpy as np
 
 from usdahd import models
 from usdahd.usd import schema
-from usdahd.validate.findings import _Skip
+from usdahd.validate.findings import _Rule, _Skip
 from usdahd.validate.options import DZ_FLOOR, FORMAT_DTYPES
 
 # ------------------------------------------------------------------------------ image reading
@@ -147,6 +147,21 @@ def load_bake(prim) -> Bake:
         _BAKE_CACHE[key] = bake
         while len(_BAKE_CACHE) > 4:
             _BAKE_CACHE.popitem(last=False)
+    return bake
+
+
+def load_for(r: _Rule, prim, *, sidecar: str | None = None) -> Bake | None:
+    """The prim's bake for rule ``r``, or None after the finding "<rule> did not run: why"
+    (:func:`load_bake` raised _Skip; with ``sidecar``, also when the SH sidecar is unreadable,
+    ``sidecar`` completing "no readable SH sidecar")."""
+    try:
+        bake = load_bake(prim)
+    except _Skip as why:
+        r.skipped(why)
+        return None
+    if sidecar is not None and bake.sh is None:
+        r.skipped("no readable SH sidecar" + sidecar)
+        return None
     return bake
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.usd import schema
-from usdahd.validate.findings import Finding, _Rule, _Skip
-from usdahd.validate.loading import Bake, load_bake, read_image
+from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.loading import Bake, load_for, read_image
 from usdahd.validate.options import DZ_FLOOR, IRRADZ, NONNEGATIVE_COLOURS, UNIT_TOLERANCE
 
 # ------------------------------------------------------------------------ rule 3: TexelValues
@@ -19,10 +19,8 @@ def _texel(bake: Bake, i: int) -> tuple[int, int]:
 def check_texel_values(prim) -> list[Finding]:
     """Rule TexelValues (see RULES)."""
     r = _Rule("TexelValues", prim)
-    try:
-        bake = load_bake(prim)
-    except _Skip as why:
-        r.info("Skipped", f"TexelValues did not run: {why}")
+    bake = load_for(r, prim)
+    if bake is None:
         return r.out
     # Raw stored floats first: NaN/Inf anywhere in the texture, padding included.
     for role, lay in bake.layout.items():

@@ -127,6 +127,15 @@ def _bake_key(prim, results) -> tuple:
     return (str(prim.GetPath()), rec, tuple(stamps))
 
 
+def baked_record(prim):
+    """The prim's bake record (schema.BakeResults), or None when it has none or it cannot be
+    read (SchemaValues reports that; the other rules have nothing to check)."""
+    try:
+        return schema.read_results(prim, validate=False)
+    except Exception:
+        return None
+
+
 def load_bake(prim) -> Bake:
     """Read and decode a prim's textures; raises _Skip when another rule reports the cause."""
     try:

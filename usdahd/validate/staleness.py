@@ -10,7 +10,7 @@ import numpy as np
 from usdahd import models
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import _LOCK
+from usdahd.validate.loading import _LOCK, baked_record
 
 # -------------------------------------------------------------------------- rule 6: Staleness
 
@@ -115,10 +115,7 @@ def settings_drift(prim, settings: dict) -> list[str]:
 def check_staleness(prim) -> list[Finding]:
     """Rule Staleness (see RULES)."""
     r = _Rule("Staleness", prim)
-    try:
-        results = schema.read_results(prim, validate=False)
-    except Exception:
-        return r.out
+    results = baked_record(prim)
     if results is None:
         return r.out
     if not results.content_hash:

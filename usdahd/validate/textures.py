@@ -10,7 +10,7 @@ import numpy as np
 from usdahd import models
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import read_image
+from usdahd.validate.loading import baked_record, read_image
 from usdahd.validate.options import OIIO_FORMATS
 
 # --------------------------------------------------------------------------- rule 2: Textures
@@ -30,10 +30,7 @@ def check_textures(prim) -> list[Finding]:
     from usdahd.usd import assets
 
     r = _Rule("Textures", prim)
-    try:
-        results = schema.read_results(prim, validate=False)
-    except Exception:
-        return r.out  # SchemaValues reports it
+    results = baked_record(prim)  # None: SchemaValues reports it
     if results is None or results.format_version not in schema.KNOWN_FORMAT_VERSIONS:
         return r.out  # SchemaValues reports the version (RebakeNeeded / UnknownVersion)
     try:

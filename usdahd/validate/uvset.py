@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from usdahd.numerics.raster import fan_triangulate, rasterize_uv
-from usdahd.usd import inspect, schema
+from usdahd.usd import inspect
 from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.loading import baked_record
 from usdahd.validate.options import OPTIONS
 
 # ------------------------------------------------------------------------------ rule 7: UVSet
@@ -32,10 +33,7 @@ def overlap_statistic(uv: np.ndarray, resolution) -> tuple[int, int, np.ndarray]
 def check_uv_set(prim) -> list[Finding]:
     """Rule UVSet (see RULES)."""
     r = _Rule("UVSet", prim)
-    try:
-        results = schema.read_results(prim, validate=False)
-    except Exception:
-        return r.out
+    results = baked_record(prim)
     if results is None or not results.uv_primvar:
         return r.out
     name = results.uv_primvar

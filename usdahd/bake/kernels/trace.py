@@ -108,13 +108,16 @@ def nb_texture(tb, k, s, t):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _bary(a, tri, u, v, i):
+    """Component ``i`` of per-corner data ``a`` (t, 3, c) at barycentrics (1 - u - v, u, v)."""
+    w0 = 1.0 - u - v
+    return w0 * a[tri, 0, i] + u * a[tri, 1, i] + v * a[tri, 2, i]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _uv(tb, tri, u, v):
     tc = tb.tri_texcoord
-    w0 = 1.0 - u - v
-    return (
-        w0 * tc[tri, 0, 0] + u * tc[tri, 1, 0] + v * tc[tri, 2, 0],
-        w0 * tc[tri, 0, 1] + u * tc[tri, 1, 1] + v * tc[tri, 2, 1],
-    )
+    return _bary(tc, tri, u, v, 0), _bary(tc, tri, u, v, 1)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -170,21 +173,13 @@ def nb_transmits(tb, tri, u, v, st):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_hit_point(tb, tri, u, v):
     w = tb.verts
-    w0 = 1.0 - u - v
-    return (
-        w0 * w[tri, 0, 0] + u * w[tri, 1, 0] + v * w[tri, 2, 0],
-        w0 * w[tri, 0, 1] + u * w[tri, 1, 1] + v * w[tri, 2, 1],
-        w0 * w[tri, 0, 2] + u * w[tri, 1, 2] + v * w[tri, 2, 2],
-    )
+    return _bary(w, tri, u, v, 0), _bary(w, tri, u, v, 1), _bary(w, tri, u, v, 2)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def nb_shading_normal(tb, tri, u, v):
     cn = tb.corner_normal
-    w0 = 1.0 - u - v
-    nx = w0 * cn[tri, 0, 0] + u * cn[tri, 1, 0] + v * cn[tri, 2, 0]
-    ny = w0 * cn[tri, 0, 1] + u * cn[tri, 1, 1] + v * cn[tri, 2, 1]
-    nz = w0 * cn[tri, 0, 2] + u * cn[tri, 1, 2] + v * cn[tri, 2, 2]
+    nx, ny, nz = _bary(cn, tri, u, v, 0), _bary(cn, tri, u, v, 1), _bary(cn, tri, u, v, 2)
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)
     if ln > 1e-12:
         return nx / ln, ny / ln, nz / ln

@@ -89,6 +89,18 @@ def test_cone_sampler_pdf_and_support():
     _mc_ok(d[:, 2] / pdf, np.pi * np.sin(0.3) ** 2)  # projected solid angle of a cap
 
 
+def test_cone_sampler_is_stable_for_tiny_cones():
+    """uniform_cone is numerics.sampling.cone_local (the lights' rule): the sine of a direction
+    in a 1e-6 rad cone is exact to rounding, where sqrt(1 - z^2) cancels to ~1e-4 relative."""
+    u = np.random.default_rng(3).random((1000, 2))
+    cm = np.cos(1e-6)
+    d, _ = S.uniform_cone(u, cm)
+    omc = 1.0 - cm
+    want = np.sqrt(u[:, 0] * omc * (2.0 - u[:, 0] * omc))
+    np.testing.assert_allclose(np.hypot(d[:, 0], d[:, 1]), want, rtol=1e-12)
+    np.testing.assert_array_equal(d, S.cone_local(u, omc))
+
+
 def test_concentric_disk_uniform():
     p = S.concentric_disk(np.random.default_rng(2).random((N, 2)))
     r2 = (p**2).sum(1)

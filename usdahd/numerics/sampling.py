@@ -101,18 +101,32 @@ def uniform_sphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return d, np.full(z.shape, 1.0 / (4.0 * np.pi))
 
 
+def cone_local(u: np.ndarray, one_minus_cos_max) -> np.ndarray:
+    """Uniform directions (..., 3) in the cone around +z of solid angle
+    2 pi ``one_minus_cos_max``: z = 1 - u0 (1 - cos_max), phi = 2 pi u1.
+
+    Stable for tiny cones (distant spheres, the sun): the sine is sqrt(u0 (1 - cos_max)(1 + z))
+    (= sqrt(1 - z^2) without its cancellation), so pass 1 - cos_max, not cos_max. The one cone
+    sampler: :func:`uniform_cone`, the numpy lights (usdahd.scene.lights) and its numba twin
+    ``usdahd.bake.kernels.lights._cone`` (tests/test_kernel_parity.py) use this rule.
+    u : (..., 2); one_minus_cos_max : broadcastable to (...,), in (0, 2].
+    """
+    z = 1.0 - u[..., 0] * one_minus_cos_max
+    phi = TWO_PI * u[..., 1]
+    s = np.sqrt(np.clip(u[..., 0] * one_minus_cos_max * (1.0 + z), 0.0, None))  # sqrt(1-z^2)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+
+
 def uniform_cone(u: np.ndarray, cos_max: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Uniform directions in the cone of half-angle acos(cos_max) around +z.
+    """Uniform directions in the cone of half-angle acos(cos_max) around +z
+    (:func:`cone_local`).
 
     u : (..., 2); cos_max : broadcastable to (...,), in [-1, 1).
     returns : dirs (..., 3), pdf (...,) = 1 / (2 pi (1 - cos_max)).
     """
-    cos_max = np.asarray(cos_max, dtype=np.float64)
-    z = 1.0 - u[..., 0] * (1.0 - cos_max)
-    phi = TWO_PI * u[..., 1]
-    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
-    d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
-    pdf = np.broadcast_to(1.0 / (TWO_PI * (1.0 - cos_max)), z.shape)
+    omc = 1.0 - np.asarray(cos_max, dtype=np.float64)
+    d = cone_local(u, omc)
+    pdf = np.broadcast_to(1.0 / (TWO_PI * omc), d.shape[:-1])
     return d, np.array(pdf)
 
 

@@ -36,6 +36,7 @@ from usdahd.numerics.sampling import (
     SPHERICAL_RECT_MAX_SR,
     SPHERICAL_RECT_MIN_SR,
     concentric_disk,
+    cone_local,
     orthonormal_basis,
     sample_discrete,
     spherical_rectangle,
@@ -51,12 +52,9 @@ def _norm(v):
 
 
 def _cone_dirs(axis, one_minus_cos_max, u):
-    """Uniform cone sampling around per-query unit ``axis`` (m,3); stable for tiny cones."""
-    z = 1.0 - u[..., 0] * one_minus_cos_max
-    phi = TWO_PI * u[..., 1]
-    s = np.sqrt(np.clip(u[..., 0] * one_minus_cos_max * (1.0 + z), 0.0, None))  # sqrt(1-z^2)
-    local = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
-    return to_world(local, orthonormal_basis(axis))
+    """Uniform cone sampling (numerics.sampling.cone_local) around per-query unit ``axis``
+    (m, 3)."""
+    return to_world(cone_local(u, one_minus_cos_max), orthonormal_basis(axis))
 
 
 @dataclass

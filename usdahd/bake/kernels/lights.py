@@ -189,6 +189,7 @@ def nb_basis_apply(nx, ny, nz, lx, ly, lz):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _cone(ax, ay, az, omc, u0, u1):
+    # numba twin of numerics.sampling.cone_local (the one cone rule), turned onto the axis
     z = 1.0 - u0 * omc
     phi = TWO_PI * u1
     s = np.sqrt(max(u0 * omc * (1.0 + z), 0.0))

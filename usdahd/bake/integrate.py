@@ -117,6 +117,7 @@ def bake_texels(
     stream: int = 0,
     strategy: str = "mis",
     mesh: int | None = None,
+    first: int = 0,
 ):
     """Bake incident radiance SH for ``texels`` of one mesh.
 
@@ -130,6 +131,10 @@ def bake_texels(
         linking; None: lit by every light);
     stream : an integer identifying this task (e.g. the mesh index) for independent random
         streams; progress : optional callable(done_rays, total_estimate).
+    first : index of ``texels[0]`` among its mesh's texels when ``texels`` is a tile of them
+        (:mod:`usdahd.bake.tiles`): chunk generators are keyed by the mesh-wide index, so
+        tiles that start on a :func:`chunk_texels` boundary reproduce the whole-mesh bake
+        bit for bit.
     returns : (sh (n, 3, 9) float32, stats dict with ``rays``, ``time``, ``invalid`` (n,) bool,
         ``backface_fraction`` (n,) float32, ``samples`` (n,) int32, ``rays_saved`` int).
     """
@@ -155,23 +160,18 @@ def bake_texels(
     ctx = ReferenceCtx(scene, tracer, bounces, estimator, strategy, mesh)
     if n == 0:
         return out, _stats(tracer, rays0, t0, invalid, backfrac, used, 0)
-    passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1
-    per_pass = int(np.ceil(samples / passes))
+    passes, per_pass = _passes(samples, adaptive)
     # the native kernel has no light linking yet: linked stages take the numpy path (with the
     # same tracer's batch queries)
-    native = getattr(tracer, "backend", "embreex") == "native" and not has_light_linking(
-        scene.lights
-    )
+    native = uses_native(scene, getattr(tracer, "backend", "embreex"))
     if native:
         ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy)
-        chunk = max(64, NATIVE_CHUNK_RAYS // max(per_pass, 1))
-    else:
-        chunk = max(1, CHUNK_RAYS // max(per_pass, 1))
+    chunk = chunk_texels(samples, adaptive, native)
     est_rays_per_sample = None
     saved = 0
     for start in range(0, n, chunk):
         sl = slice(start, min(n, start + chunk))
-        rng = np.random.default_rng([seed, stream, start])
+        rng = np.random.default_rng([seed, stream, first + start])
         acc = Accum(sl.stop - sl.start)
         active = np.arange(sl.stop - sl.start)
         P = texels.position[sl].astype(np.float64)
@@ -209,6 +209,27 @@ def bake_texels(
                 est_rays_per_sample = done_rays / max(1, int(acc.count.sum()))
             progress(done_rays, int(est_rays_per_sample * n * samples) or done_rays)
     return out, _stats(tracer, rays0, t0, invalid, backfrac, used, saved)
+
+
+def _passes(samples: int, adaptive: bool) -> tuple[int, int]:
+    """(passes, samples per pass) of the sample budget."""
+    passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1
+    return passes, int(np.ceil(samples / passes))
+
+
+def uses_native(scene, backend: str) -> bool:
+    """Whether :func:`bake_texels` runs the native kernel for ``scene`` on a tracer of
+    ``backend`` (not for light-linked stages, which take the numpy path)."""
+    return backend == "native" and not has_light_linking(scene.lights)
+
+
+def chunk_texels(samples: int, adaptive: bool, native: bool) -> int:
+    """Texels per chunk (one random generator each) of :func:`bake_texels`; a tile of texels
+    starting on a multiple of it draws exactly the numbers the whole-mesh bake draws there."""
+    per_pass = _passes(samples, adaptive)[1]
+    if native:
+        return max(64, NATIVE_CHUNK_RAYS // max(per_pass, 1))
+    return max(1, CHUNK_RAYS // max(per_pass, 1))
 
 
 def _stats(tracer, rays0, t0, invalid, backfrac, used, saved):

@@ -73,6 +73,20 @@ def add_parser(sub):
         action="store_true",
         help="fail on meshes without the UV set instead of unwrapping them with xatlas",
     )
+    d = p.add_mutually_exclusive_group()
+    d.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="trace in tiles on a local Dask cluster of N worker processes; the outputs are "
+        "identical to a plain bake (needs usdahd[distributed]; docs/scaling.md)",
+    )
+    d.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="trace in tiles on the existing Dask cluster whose scheduler is at ADDRESS "
+        "(tcp://HOST:8786); workers need the same usdahd version (docs/scaling.md)",
+    )
     a("--force", action="store_true", help="re-bake prims even if unchanged")
     a("--dry-run", action="store_true", help="report what would be baked; write nothing")
     p.set_defaults(func=run)
@@ -124,6 +138,8 @@ def run(args) -> int:
         force=args.force,
         dry_run=args.dry_run,
         quiet=args.quiet,
+        workers=args.workers,
+        scheduler=args.scheduler,
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)

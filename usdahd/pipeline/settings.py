@@ -69,6 +69,11 @@ class BakeOptions:
     time: float | str | None = None  # None: automatic (usd.time.resolve_time); "default"
     #: A lighting scenario (usdahd.usd.scenarios): as given, then the canonical /Prim{set=v}.
     scenario: str | None = None
+    #: Trace in tiles on a Dask cluster (usdahd.pipeline.distributed): a LocalCluster of this
+    #: many worker processes, or the existing cluster at this scheduler address. Outputs are
+    #: identical to a plain bake, so neither is a bake setting (not in the content hash).
+    workers: int | None = None
+    scheduler: str | None = None
 
 
 def _authored_inputs(prim) -> dict:
@@ -143,6 +148,9 @@ def _check_options(opts: BakeOptions) -> None:
         raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
     if opts.container not in (None, "files", "ktx2"):
         raise UsageError(f"--container must be files or ktx2, got {opts.container!r}")
+    from usdahd.pipeline import distributed
+
+    distributed.require(opts.workers, opts.scheduler)  # before anything is read or traced
     if opts.container == "ktx2":
         try:
             import etcpak  # noqa: F401

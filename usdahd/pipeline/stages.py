@@ -63,7 +63,9 @@ def _job_seed(seed: int, path: str) -> int:
 
 
 def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
-    """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats)."""
+    """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats);
+    with ``--workers`` / ``--scheduler`` the tracing runs in tiles on a Dask cluster
+    (:mod:`usdahd.pipeline.distributed`), with the same results."""
     from usdahd.bake.integrate import bake_texels
     from usdahd.bake.texels import push_off_contacts, rasterize
     from usdahd.bake.trace import Tracer
@@ -71,10 +73,13 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     from usdahd.progress import Progress
 
     dark = is_dark(scene)
-    t0 = time.perf_counter()
-    tracer = None if dark else Tracer(scene)
-    if not dark:
+    cluster = not dark and (opts.workers is not None or opts.scheduler is not None)
+    tracer = None
+    if not dark and not cluster:
+        t0 = time.perf_counter()
+        tracer = Tracer(scene)
         _status(opts, f"BVH: {scene.triangle_count} triangles in {time.perf_counter() - t0:.2f}s")
+    remote = []
     for k, job in enumerate(jobs):
         t1 = time.perf_counter()
         try:
@@ -85,10 +90,14 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                     f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "
                     f"its UVs {job.settings['uv']!r} are degenerate or outside [0,1]"
                 )
+            mesh = next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None)
             if dark:  # nothing emits light: the radiance is exactly zero, trace nothing
                 n = len(job.texels)
                 job.sh = np.zeros((n, 3, 9), np.float32)
                 job.stats = {"rays": 0, "invalid": np.zeros(n, bool)}
+            elif cluster:
+                remote.append((job, mesh, _job_seed(opts.seed, job.path)))
+                continue
             else:
                 # sample points on contacts moved in front of the surface they touch
                 # (docs/texels.md, "Contacts"); the rest of the texel stays as rasterised
@@ -103,32 +112,41 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
                     seed=_job_seed(opts.seed, job.path),
                     adaptive=bool(job.settings["adaptive"]),
                     progress=bar.update,
-                    mesh=next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None),
+                    mesh=mesh,
                 )
                 bar.close()
                 job.stats["invalid"] = job.stats["invalid"] | contact_invalid
         except UsdAhdError as exc:
             job.report.update(status="failed", error=str(exc))
             continue
-        st = job.texels.stats
-        job.report.update(
-            texels=len(job.texels),
-            rays=int(job.stats.get("rays", 0)),
-            rays_saved=int(job.stats.get("rays_saved", 0)),
-            invalid_texels=int(np.count_nonzero(job.stats.get("invalid", []))),
-            contact_texels=int(st.get("contact_texels", 0)),
-            uv_overlap_texels=int(st.get("overlap_texels", 0)),
-            uv_outside_fraction=float(st.get("uv_outside_fraction", 0.0)),
-            trace_seconds=time.perf_counter() - t1,
+        _record_trace(job, t1)
+    if remote:
+        from usdahd.pipeline import distributed
+
+        distributed.trace_jobs(scene, remote, opts, _record_trace)
+
+
+def _record_trace(job: PrimJob, t1: float) -> None:
+    """A traced job's report: texel and ray counts, contact/UV statistics and warnings."""
+    st = job.texels.stats
+    job.report.update(
+        texels=len(job.texels),
+        rays=int(job.stats.get("rays", 0)),
+        rays_saved=int(job.stats.get("rays_saved", 0)),
+        invalid_texels=int(np.count_nonzero(job.stats.get("invalid", []))),
+        contact_texels=int(st.get("contact_texels", 0)),
+        uv_overlap_texels=int(st.get("overlap_texels", 0)),
+        uv_outside_fraction=float(st.get("uv_outside_fraction", 0.0)),
+        trace_seconds=time.perf_counter() - t1,
+    )
+    if st.get("overlap_texels"):
+        job.report["warnings"].append(
+            f"{st['overlap_texels']} texels are covered by overlapping UV triangles"
         )
-        if st.get("overlap_texels"):
-            job.report["warnings"].append(
-                f"{st['overlap_texels']} texels are covered by overlapping UV triangles"
-            )
-        if st.get("uv_outside_fraction"):
-            job.report["warnings"].append(
-                f"{100 * st['uv_outside_fraction']:.1f}% of UVs lie outside [0,1]"
-            )
+    if st.get("uv_outside_fraction"):
+        job.report["warnings"].append(
+            f"{100 * st['uv_outside_fraction']:.1f}% of UVs lie outside [0,1]"
+        )
 
 
 def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:

@@ -150,7 +150,7 @@ def trace_jobs(scene, work, opts, record) -> None:
         errors: dict[int, str] = {}
         bar = Progress(f"tiles on {n_workers} worker(s)", unit="tiles", quiet=opts.quiet)
         done = 0
-        for fut in distributed.as_completed(futures):
+        for fut in distributed.as_completed(futures, loop=client.loop):
             k, tile = owner[fut.key]
             try:
                 results[k].append(fut.result())

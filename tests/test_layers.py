@@ -134,6 +134,13 @@ RULES = (
         forbid=frozenset({"usdahd.pipeline"}),
     ),
     Rule(
+        "dask",
+        "Dask is optional (usdahd[distributed]): only usdahd/pipeline/distributed.py imports it",
+        scope=("usdahd",),
+        exempt=("usdahd.pipeline.distributed",),
+        forbid=frozenset({"dask", "distributed"}),
+    ),
+    Rule(
         "private",
         "a private module (usdahd.x._y) is used only inside its package; others use public API",
         scope=("usdahd",),

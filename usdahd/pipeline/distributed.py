@@ -112,7 +112,7 @@ def trace_jobs(scene, work, opts, record) -> None:
     for job, mesh, seed in work:
         s = job.settings
         chunk = chunk_texels(int(s["samples"]), bool(s["adaptive"]), native)
-        ranges = tiles.split(len(job.texels), chunk)
+        ranges = tiles.split(len(job.texels), chunk, tiles.TILE_TEXELS)
         per_job.append(
             [
                 tiles.Tile(

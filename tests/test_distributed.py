@@ -196,3 +196,28 @@ def test_a_tile_that_keeps_failing_fails_its_prim_naming_the_tile(tmp_path, caps
         "RuntimeError: simulated worker fault"
     ) in err
     assert "ShortBox" not in err
+
+
+def test_a_worker_killed_mid_bake_is_replaced_and_the_bake_is_identical(
+    tmp_path, capsys, monkeypatch, plain
+):
+    """The first worker to start the Floor's tile dies on the spot (os._exit, as a crash or
+    an OOM kill would); Dask reschedules the tile on a live worker and the outputs are still
+    the plain bake's, byte for byte."""
+    real = tiles.trace_tile
+    marker = tmp_path / "killed.txt"
+
+    def dying(key, scene, tile, backend, threads=None):
+        if tile.prim.endswith("Floor") and not marker.exists():
+            marker.write_text(str(os.getpid()))
+            os._exit(1)
+        return real(key, scene, tile, backend, threads)
+
+    monkeypatch.setattr(tiles, "trace_tile", dying)
+    stage = copy_sample(tmp_path / "bake", STAGE)
+    code, _, err = _main(capsys, "bake", stage, *SMALL, "--workers", "2")
+    assert code == 0, err
+    assert int(marker.read_text()) != os.getpid()  # a worker process died, not this one
+    got = _outputs(tmp_path / "bake")
+    assert sorted(got) == sorted(plain)
+    assert [k for k in plain if got[k] != plain[k]] == []

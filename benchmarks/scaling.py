@@ -94,8 +94,7 @@ def main(argv=None) -> int:
         else:
             over = (wall - plain) / max(n_tiles, 1)
             print(
-                f"| {name} | {wall:.2f} | {runs} | {n_tiles} | {n_tiles / wall:.2f} | "
-                f"{over:+.3f} |"
+                f"| {name} | {wall:.2f} | {runs} | {n_tiles} | {n_tiles / wall:.2f} | {over:+.3f} |"
             )
     print("\nevery run's SH sidecars and textures: identical to the plain bake")
     return 0

@@ -221,3 +221,15 @@ def test_a_worker_killed_mid_bake_is_replaced_and_the_bake_is_identical(
     got = _outputs(tmp_path / "bake")
     assert sorted(got) == sorted(plain)
     assert [k for k in plain if got[k] != plain[k]] == []
+
+
+def test_a_scheduler_without_workers_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    from usdahd.pipeline import distributed as dist
+
+    monkeypatch.setattr(dist, "CONNECT_TIMEOUT", 1)
+    stage = copy_sample(tmp_path, STAGE)
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as c:
+        code, _, err = _main(capsys, "bake", stage, *SMALL, "--scheduler", c.scheduler_address)
+    assert code == 2
+    assert "no Dask worker is connected to it" in err
+    assert f"dask worker {c.scheduler_address} --nthreads 1" in err

@@ -133,7 +133,15 @@ def trace_jobs(scene, work, opts, record) -> None:
     total = sum(len(t) for t in per_job)
     t0 = time.perf_counter()
     with _client(opts.workers, opts.scheduler) as (client, threads):
-        n_workers = len(client.scheduler_info(n_workers=-1)["workers"])
+        if not client.nthreads():
+            try:
+                client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+            except (TimeoutError, OSError):
+                raise UsageError(
+                    f"--scheduler {opts.scheduler}: no Dask worker is connected to it; start "
+                    f"some with `dask worker {opts.scheduler} --nthreads 1` and re-run"
+                ) from None
+        n_workers = len(client.nthreads())
         where = opts.scheduler or "a local cluster"
         _say(opts, f"tiles: {total} on {n_workers} Dask worker(s) of {where}")
         [scene_ref] = client.scatter([scene], broadcast=True, hash=False)

@@ -16,8 +16,12 @@ visible point and writes preview | reference | error heat map side by side
 
 ``--atlas`` writes a contact sheet of the textures instead (:mod:`usdahd.preview.atlas`).
 
+``--model-view`` shades as an engine's diffuse pass: albedo (UsdPreviewSurface
+``diffuseColor``) times the irradiance evaluated at the material's normal-mapped normal
+(``inputs:normal``), :mod:`usdahd.preview.surface`.
+
 This module is the command only (arguments, usage errors, the report); the rendering lives in
-:mod:`usdahd.preview`. Not yet: albedo and normal maps (``--model-view``).
+:mod:`usdahd.preview`.
 """
 
 from __future__ import annotations
@@ -77,6 +81,13 @@ def add_parser(sub):
         "or auto: wgpu, falling back to embree when there is no Vulkan adapter",
     )
     p.add_argument(
+        "--model-view",
+        action="store_true",
+        help="shade as an engine would: the material's albedo (UsdPreviewSurface diffuseColor, "
+        "constant or texture) times the baked irradiance evaluated at the normal-mapped normal "
+        "(inputs:normal connected to a UsdUVTexture); the image is then radiance x pi",
+    )
+    p.add_argument(
         "--atlas",
         action="store_true",
         help="instead of a view: a contact sheet of every lightmap texture (one row per baked "
@@ -120,13 +131,24 @@ def _check(args) -> Path:
     if not Path(args.stage).exists():
         raise StageError(f"{args.stage}: no such file")
     if args.atlas:
-        given = [f for f, v in (("--camera", args.camera), ("--size", args.size),
-                                ("--compare", args.compare or None)) if v is not None]  # fmt: skip
+        flags = (
+            ("--camera", args.camera),
+            ("--size", args.size),
+            ("--compare", args.compare or None),
+            ("--model-view", args.model_view or None),
+        )
+        given = [f for f, v in flags if v is not None]
         if given:
             raise UsageError(
                 f"{given[0]} does not apply to --atlas (a sheet of the textures, not a view); "
                 "drop one of them"
             )
+    if args.compare and args.model_view:
+        raise UsageError(
+            "--compare checks the baked irradiance against a path-traced irradiance; "
+            "--model-view multiplies it by the albedo and bends it with the normal map, which "
+            "the reference does not: drop one of them"
+        )
     if not args.compare:
         given = [
             a
@@ -188,8 +210,15 @@ def run(args) -> int:
     print(f"usdahd preview: {summary}", file=sys.stderr)
     stage, meshes, up = baked_meshes(args.stage)
     viewproj = view_projection(stage, meshes, up, args.camera, w / h)
-    items = draw_items(meshes)
-    image = render_view(stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None)
+    surfaces = None
+    if args.model_view:
+        from usdahd.preview.surface import surfaces as read_surfaces
+
+        surfaces = read_surfaces(stage, meshes)
+    items = draw_items(meshes, surfaces)
+    image = render_view(
+        stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None, surfaces=surfaces
+    )
     ldr, scale = tonemap(image, args.exposure)
     compared = None
     if args.compare:
@@ -221,8 +250,9 @@ def run(args) -> int:
         "camera": args.camera or "auto",
         "adapter": summary,
         "backend": "wgpu" if gpu else "embree",
-        "meshes": len(items),
-        "models": sorted({f"{m}/{r}" for _, m, r, _, _ in items}),
+        "meshes": len(meshes),
+        "models": sorted({f"{it[1]}/{it[2]}" for it in items}),
+        "model_view": bool(args.model_view),
         "exposure_scale": scale,
         **stats(image),
     }
@@ -233,7 +263,7 @@ def run(args) -> int:
     elif not args.quiet:
         lum = report.get("luminance", {})
         print(
-            f"{out}: {w}x{h}, {len(items)} meshes, covered {report['covered_fraction']:.1%}, "
+            f"{out}: {w}x{h}, {len(meshes)} meshes, covered {report['covered_fraction']:.1%}, "
             f"mean irradiance {lum.get('mean', 0.0):.4g} (p99 {lum.get('p99', 0.0):.4g})"
         )
         if compared is not None and compared["relrmse"] is not None:

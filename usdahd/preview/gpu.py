@@ -52,14 +52,16 @@ def device(backend: str = "wgpu"):
             print(f"usdahd preview: {why}; {INSTALL_HINT}; falling back to Embree", file=sys.stderr)
             return None
         raise UsageError(f"{why}; {INSTALL_HINT}")
-    return adapter, adapter.request_device_sync()
+    # float32-filterable: the --model-view material textures keep float32 texels (else half)
+    wanted = [f for f in ("float32-filterable",) if f in adapter.features]
+    return adapter, adapter.request_device_sync(required_features=wanted)
 
 
 _SHADER = """
 struct U {{
     viewproj: mat4x4<f32>,
     f0: vec4<f32>,
-    f1: vec4<f32>,
+    f1: vec4<f32>,{mv_uniform}
 }}
 @group(0) @binding(0) var<uniform> u: U;
 @group(0) @binding(1) var samp: sampler;
@@ -69,13 +71,13 @@ struct VOut {{
     @builtin(position) pos: vec4<f32>,
     @location(0) st: vec2<f32>,
     @location(1) normal: vec3<f32>,
-    @location(2) tangent: vec4<f32>,
+    @location(2) tangent: vec4<f32>,{mv_vout}
 }}
 
 @vertex
 fn vs(@location(0) p: vec3<f32>, @location(1) st: vec2<f32>, @location(2) n: vec3<f32>,
-      @location(3) t: vec4<f32>) -> VOut {{
-    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t);
+      @location(3) t: vec4<f32>{mv_vs_in}) -> VOut {{
+    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t{mv_vs_out});
 }}
 
 @fragment
@@ -87,30 +89,64 @@ fn fs(v: VOut) -> @location(0) vec4<f32> {{
     let l0Scale = u.f1.x;
     let ratioScale = u.f1.y;
     let frame = usdahd_tangent_frame(v.normal, v.tangent);
-    let n = usdahd_to_tangent(frame, frame.n); // the shading normal (no normal map yet)
+{shading}
     let uv = usdahd_lightmap_texcoord(v.st);
 {samples}
     let p = {decode};
-    return vec4<f32>({evaluate}(p, n), 1.0);
+    return vec4<f32>({result}, 1.0);
 }}
 """
 
+#: --model-view additions to _SHADER: the material's texcoord and tangent per vertex, its
+#: albedo (uniform constant x texture) and normal map (usdahd_apply_normal_map in the material
+#: frame, then usdahd_to_tangent in the lightmap frame, docs/schema.md).
+_MODEL_VIEW = {
+    "mv_uniform": "\n    albedo: vec4<f32>,",
+    "mv_vout": "\n    @location(3) mst: vec2<f32>,\n    @location(4) mtangent: vec4<f32>,",
+    "mv_vs_in": ",\n      @location(4) mst: vec2<f32>, @location(5) mt: vec4<f32>",
+    "mv_vs_out": ", mst, mt",
+    "shading": """    let mframe = usdahd_tangent_frame(v.normal, v.mtangent);
+    let mtc = usdahd_lightmap_texcoord(v.mst); // row 0 is v = 1, as for UsdUVTexture
+    let albedo = u.albedo.rgb * textureSample(albedo_tex, albedo_samp, mtc).rgb;
+    let N = usdahd_apply_normal_map(textureSample(normal_tex, normal_samp, mtc).rgb, mframe);
+    let n = usdahd_to_tangent(frame, N);""",
+}
+_FLAT_SHADING = {
+    "mv_uniform": "",
+    "mv_vout": "",
+    "mv_vs_in": "",
+    "mv_vs_out": "",
+    "shading": "    let n = usdahd_to_tangent(frame, frame.n); // the interpolated normal",
+}
 
-def shader_source(model: str, ratio: str, n_textures: int) -> str:
-    """WGSL vertex + fragment shader of one model variant (the shipped decoders)."""
+
+def shader_source(model: str, ratio: str, n_textures: int, model_view: bool = False) -> str:
+    """WGSL vertex + fragment shader of one model variant (the shipped decoders); with
+    ``model_view`` times the albedo, at the normal-mapped normal (bindings 2 + n_textures..:
+    albedo texture, normal texture, their sampler)."""
     from usdahd import shaders
 
     _, call, _, evaluate = shaders.calls(model, ratio)
+    textures = [
+        f"@group(0) @binding({2 + j}) var tex{j}: texture_2d<f32>;" for j in range(n_textures)
+    ]
+    if model_view:
+        b = 2 + n_textures
+        textures += [
+            f"@group(0) @binding({b}) var albedo_tex: texture_2d<f32>;",
+            f"@group(0) @binding({b + 1}) var normal_tex: texture_2d<f32>;",
+            f"@group(0) @binding({b + 2}) var albedo_samp: sampler;",
+            f"@group(0) @binding({b + 3}) var normal_samp: sampler;",
+        ]
     return _SHADER.format(
-        textures="\n".join(
-            f"@group(0) @binding({2 + j}) var tex{j}: texture_2d<f32>;" for j in range(n_textures)
-        ),
+        textures="\n".join(textures),
         samples="\n".join(
             f"    let s{j} = textureSample(tex{j}, samp, uv);" for j in range(n_textures)
         ),
         library=shaders.source("wgsl", model),
         decode=call,
-        evaluate=evaluate,
+        result=f"albedo * {evaluate}(p, n)" if model_view else f"{evaluate}(p, n)",
+        **(_MODEL_VIEW if model_view else _FLAT_SHADING),
     )
 
 
@@ -118,7 +154,11 @@ def _texture(dev, pixels: np.ndarray):
     import wgpu
 
     h, w, c = pixels.shape
-    if pixels.dtype == np.float16:
+    if pixels.dtype == np.float32 and "float32-filterable" not in dev.features:
+        pixels = pixels.astype(np.float16)
+    if pixels.dtype == np.float32:
+        fmt, one = wgpu.TextureFormat.rgba32float, np.float32(1.0)
+    elif pixels.dtype == np.float16:
         fmt, one = wgpu.TextureFormat.rgba16float, np.float16(1.0)
     else:
         fmt, one = wgpu.TextureFormat.rgba8unorm, np.uint8(255)
@@ -138,9 +178,18 @@ def _texture(dev, pixels: np.ndarray):
     return tex
 
 
+#: UsdUVTexture wrap mode -> wgpu address mode ("black" is clamped, as Texture.sample does).
+ADDRESS = {"repeat": "repeat", "mirror": "mirror-repeat", "clamp": "clamp-to-edge",
+           "black": "clamp-to-edge"}  # fmt: skip
+
+
 def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
     """Rasterise [(vertices (3t, 12), model, ratio, textures [(h, w, c)], factors)] ->
-    (H, W, 4) float32: normalized irradiance RGB, alpha 1 where a mesh covers the pixel."""
+    (H, W, 4) float32: normalized irradiance RGB, alpha 1 where a mesh covers the pixel.
+
+    ``--model-view`` items carry a 6th element, a :class:`usdahd.preview.surface.Surface`, and
+    vertices (3t, 18) (:func:`usdahd.preview.meshes.vertex_data` with the material's texcoord
+    and tangent): the image is then albedo x irradiance at the normal-mapped normal."""
     import wgpu
 
     w, h = size
@@ -164,18 +213,29 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
         {"format": wgpu.VertexFormat.float32x3, "offset": 20, "shader_location": 2},
         {"format": wgpu.VertexFormat.float32x4, "offset": 32, "shader_location": 3},
     ]
+    mv_attrs = attrs + [
+        {"format": wgpu.VertexFormat.float32x2, "offset": 48, "shader_location": 4},
+        {"format": wgpu.VertexFormat.float32x4, "offset": 56, "shader_location": 5},
+    ]
     pipelines = {}
     draws = []
-    for verts, model, ratio, textures, factors in items:
-        key = (model, ratio, len(textures))
+    for verts, model, ratio, textures, factors, *rest in items:
+        surf = rest[0] if rest else None
+        key = (model, ratio, len(textures), surf is not None)
         if key not in pipelines:
-            module = dev.create_shader_module(code=shader_source(*key))
+            module = dev.create_shader_module(code=shader_source(*key))  # key[3]: model_view
             pipelines[key] = dev.create_render_pipeline(
                 layout="auto",
                 vertex={
                     "module": module,
                     "entry_point": "vs",
-                    "buffers": [{"array_stride": 48, "step_mode": "vertex", "attributes": attrs}],
+                    "buffers": [
+                        {
+                            "array_stride": 72 if surf is not None else 48,
+                            "step_mode": "vertex",
+                            "attributes": mv_attrs if surf is not None else attrs,
+                        }
+                    ],
                 },
                 primitive={"topology": "triangle-list", "front_face": "ccw", "cull_mode": "back"},
                 depth_stencil={
@@ -190,9 +250,11 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
                 },
             )
         pipe = pipelines[key]
-        uni = np.zeros(24, np.float32)
+        uni = np.zeros(28 if surf is not None else 24, np.float32)
         uni[:16] = viewproj.T.reshape(-1)  # WGSL matrices are column-major
         uni[16:22] = [factors.get(f, 1.0) for f in FACTORS]
+        if surf is not None:
+            uni[24:27] = surf.albedo
         ubuf = dev.create_buffer_with_data(data=uni.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
         vbuf = dev.create_buffer_with_data(
             data=np.ascontiguousarray(verts).tobytes(), usage=wgpu.BufferUsage.VERTEX
@@ -205,6 +267,27 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
             {"binding": 2 + j, "resource": _texture(dev, t).create_view()}
             for j, t in enumerate(textures)
         ]
+        if surf is not None:
+            white = np.ones((1, 1, 3), np.float32)
+            flat = np.array([[[0.5, 0.5, 1.0]]], np.float32)
+            albedo = white if surf.albedo_tex is None else surf.albedo_tex
+            normal = flat if surf.normal_tex is None else surf.normal_tex
+            samplers = [
+                dev.create_sampler(
+                    mag_filter="linear",
+                    min_filter="linear",
+                    address_mode_u=ADDRESS[w[0]],
+                    address_mode_v=ADDRESS[w[1]],
+                )  # fmt: skip
+                for w in (surf.albedo_wrap, surf.normal_wrap)
+            ]
+            b = 2 + len(textures)
+            entries += [
+                {"binding": b, "resource": _texture(dev, albedo).create_view()},
+                {"binding": b + 1, "resource": _texture(dev, normal).create_view()},
+                {"binding": b + 2, "resource": samplers[0]},
+                {"binding": b + 3, "resource": samplers[1]},
+            ]
         group = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=entries)
         draws.append((pipe, group, vbuf, len(verts)))
     enc = dev.create_command_encoder()

@@ -39,46 +39,71 @@ def baked_meshes(layer: str):
     return stage, out, up
 
 
-def vertex_data(mesh, tangent, sign) -> np.ndarray:
-    """Per-corner vertices (3t, 12) float32: position, lightmap st, normal, tangent + sign."""
-    t = len(mesh.triangles)
-    pos = np.asarray(mesh.points, np.float64)[mesh.triangles]
-    v = np.zeros((t, 3, 12), np.float32)
+def vertex_data(mesh, tangent, sign, surface=None) -> np.ndarray:
+    """Per-corner vertices (3t, 12) float32: position, lightmap st, normal, tangent + sign;
+    with a :class:`usdahd.preview.surface.Surface` (--model-view) the group's triangles only,
+    (3k, 18): then also the material's texcoord and tangent + sign."""
+    tris = np.arange(len(mesh.triangles)) if surface is None else surface.tris
+    t = len(tris)
+    pos = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles)[tris]]
+    v = np.zeros((t, 3, 12 if surface is None else 18), np.float32)
     v[..., 0:3] = pos
-    v[..., 3:5] = mesh.uv
-    v[..., 5:8] = mesh.normals
-    v[..., 8:11] = tangent
-    v[..., 11] = np.asarray(sign)[:, None]
-    return v.reshape(-1, 12)
+    v[..., 3:5] = np.asarray(mesh.uv)[tris]
+    v[..., 5:8] = np.asarray(mesh.normals)[tris]
+    v[..., 8:11] = np.asarray(tangent)[tris]
+    v[..., 11] = np.asarray(sign)[tris][:, None]
+    if surface is not None:
+        v[..., 12:14] = surface.st
+        v[..., 14:17] = surface.tangent
+        v[..., 17] = surface.sign[:, None]
+    return v.reshape(-1, v.shape[-1])
 
 
-def draw_items(meshes) -> list:
+def draw_items(meshes, surfaces=None) -> list:
     """[(vertices (3t, 12), model, ratio, textures [(h, w, c) stored pixels], factors)] of
     ``meshes`` (:func:`baked_meshes`), textures in the model's layout order: what
-    :func:`usdahd.preview.gpu.render` draws."""
+    :func:`usdahd.preview.gpu.render` draws. With ``surfaces``
+    (:func:`usdahd.preview.surface.surfaces`, --model-view): one item per mesh and material,
+    the Surface appended."""
     from usdahd import images, models
 
     items = []
-    for mesh, res, tangent, sign in meshes:
+    for k, (mesh, res, tangent, sign) in enumerate(meshes):
         layout = models.get(res.model).layout(res.ratio)
         textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
-        items.append(
-            (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
-        )
+        if surfaces is None:
+            items.append(
+                (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
+            )
+            continue
+        for surf in surfaces[k]:
+            verts = vertex_data(mesh, tangent, sign, surf)
+            items.append((verts, res.model, res.ratio, textures, res.factors, surf))
     return items
 
 
-def render_view(stage, meshes, items, viewproj: np.ndarray, size, dev=None) -> np.ndarray:
-    """The preview image (H, W, 4) float32 of ``items`` (:func:`draw_items` of ``meshes``):
-    rasterised on the wgpu device ``dev``, or with ``dev`` None by the Embree fallback
-    (:mod:`usdahd.preview.raytrace`, the stage's materials)."""
+def render_view(
+    stage, meshes, items, viewproj: np.ndarray, size, dev=None, surfaces=None
+) -> np.ndarray:
+    """The preview image (H, W, 4) float32 of ``items`` (:func:`draw_items` of ``meshes``,
+    with ``surfaces`` for --model-view): rasterised on the wgpu device ``dev``, or with ``dev``
+    None by the Embree fallback (:mod:`usdahd.preview.raytrace`, the stage's materials)."""
     if dev is not None:
         from usdahd.preview.gpu import render
 
         return render(dev, items, viewproj, size)
+    from usdahd import images, models
     from usdahd.preview import raytrace
     from usdahd.usd.reader import load_scene
 
     scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)  # the materials
-    traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
-    return raytrace.render(scene, traced, viewproj, size)
+    if surfaces is None:
+        traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
+        return raytrace.render(scene, traced, viewproj, size)
+    traced = []
+    for mesh, res, *_ in meshes:  # one entry per mesh: the tracer holds each once
+        layout = models.get(res.model).layout(res.ratio)
+        textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+        traced.append((mesh, res.model, res.ratio, textures, res.factors))
+    frames = [(tangent, sign) for _, _, tangent, sign in meshes]
+    return raytrace.render(scene, traced, viewproj, size, surfaces=surfaces, frames=frames)

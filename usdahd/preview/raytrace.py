@@ -87,10 +87,15 @@ def bilinear(pixels: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bot * fy
 
 
-def render(scene, items, viewproj: np.ndarray, size) -> np.ndarray:
+def render(scene, items, viewproj: np.ndarray, size, surfaces=None, frames=None) -> np.ndarray:
     """Embree image (H, W, 4) float32 of ``items`` [(mesh, model, ratio, textures, factors)]:
     linear normalized irradiance, alpha 1 on covered pixels. ``scene`` (a usdahd Scene) supplies
-    the materials; only the items' meshes are traced."""
+    the materials; only the items' meshes are traced.
+
+    --model-view: ``surfaces`` (per item, its :class:`usdahd.preview.surface.Surface` groups)
+    and ``frames`` (per item, the lightmap (tangent (t, 3, 3), sign (t,))): the image is albedo
+    x irradiance at the normal-mapped normal, the numpy transcription of the WGSL fragment
+    (:mod:`usdahd.preview.surface`)."""
     from usdahd import models
     from usdahd.bake.trace import Tracer
 
@@ -119,10 +124,65 @@ def render(scene, items, viewproj: np.ndarray, size) -> np.ndarray:
             for t, px in zip(layout, textures):
                 channels[t.role] = bilinear(px, uv)  # stored scale: decode divides by 255
             params = m.decode(channels, ratio=ratio, factors=factors)
-            n = np.zeros((len(sel), 3))
-            n[:, 2] = 1.0
-            image[sel, :3] = np.asarray(m.evaluate(params, n), np.float32)[:, :3]
+            if surfaces is None:
+                n = np.zeros((len(sel), 3))
+                n[:, 2] = 1.0
+                image[sel, :3] = np.asarray(m.evaluate(params, n), np.float32)[:, :3]
+            else:
+                lm = _at_hits(mesh, frames[k], local, a, b)
+                albedo, n = _model_view(surfaces[k], mesh, local, a, b, lm)
+                irr = np.asarray(m.evaluate(params, n), np.float64)[:, :3]
+                image[sel, :3] = (albedo * irr).astype(np.float32)
             image[sel, 3] = 1.0
     finally:
         tracer.close()
     return image.reshape(h, w, 4)
+
+
+def _at_hits(mesh, frame, local, a, b):
+    """The lightmap tangent frame (numpy ``usdahd_tangent_frame``) at the hits: the corner
+    normals and tangents interpolated with the barycentrics, as the rasteriser does."""
+    from usdahd.preview.surface import tangent_frame
+
+    tangent, sign = frame
+
+    def lerp(x):
+        x = np.asarray(x, np.float64)[local]
+        return (1 - a - b) * x[:, 0] + a * x[:, 1] + b * x[:, 2]
+
+    return lerp(mesh.normals), tangent_frame(
+        lerp(mesh.normals), lerp(tangent), np.asarray(sign)[local]
+    )
+
+
+def _model_view(groups, mesh, local, a, b, lm):
+    """(albedo (m, 3), tangent-space shading normal (m, 3)) at the hits on triangles ``local``
+    of ``mesh``: each hit's material group samples its albedo and normal map at the material
+    texcoord, applies the map in the material frame and expresses it in the lightmap frame."""
+    from usdahd.preview.surface import apply_normal_map, sample, tangent_frame, to_tangent
+
+    normal, frame = lm
+    albedo = np.ones((len(local), 3))
+    n = to_tangent(frame, frame[2])
+    for g in groups:
+        pos = np.full(len(mesh.triangles), -1, np.int64)
+        pos[g.tris] = np.arange(len(g.tris))
+        gi = pos[local]
+        sel = np.nonzero(gi >= 0)[0]
+        if not sel.size:
+            continue
+        w = (1 - a[sel] - b[sel], a[sel], b[sel])
+
+        def lerp(x, sel=sel, gi=gi, w=w):
+            x = np.asarray(x, np.float64)[gi[sel]]
+            return w[0] * x[:, 0] + w[1] * x[:, 1] + w[2] * x[:, 2]
+
+        st = lerp(g.st)
+        albedo[sel] = g.albedo[None, :].astype(np.float64)
+        if g.albedo_tex is not None:
+            albedo[sel] *= sample(g.albedo_tex, st, g.albedo_wrap)
+        if g.normal_tex is not None:
+            mf = tangent_frame(normal[sel], lerp(g.tangent), g.sign[gi[sel]])
+            big = apply_normal_map(sample(g.normal_tex, st, g.normal_wrap), mf)
+            n[sel] = to_tangent(tuple(f[sel] for f in frame), big)
+    return albedo, n

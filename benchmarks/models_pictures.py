@@ -44,7 +44,7 @@ over "World"
             prepend apiSchemas = ["MaterialBindingAPI"]
         )
         {{
-            rel material:binding = </World/Looks/BumpyGround>
+            rel material:binding = </World/Looks/Bumps>
         }}
     }}
 
@@ -60,15 +60,15 @@ over "World"
 
     over "Looks"
     {{
-        def Material "BumpyGround"
+        def Material "Bumps"
         {{
-            token outputs:surface.connect = </World/Looks/BumpyGround/PreviewSurface.outputs:surface>
+            token outputs:surface.connect = </World/Looks/Bumps/PreviewSurface.outputs:surface>
 
             def Shader "PreviewSurface"
             {{
                 uniform token info:id = "UsdPreviewSurface"
                 color3f inputs:diffuseColor = (0.5, 0.5, 0.5)
-                normal3f inputs:normal.connect = </World/Looks/BumpyGround/NormalTexture.outputs:rgb>
+                normal3f inputs:normal.connect = </World/Looks/Bumps/NormalTexture.outputs:rgb>
                 token outputs:surface
             }}
 
@@ -82,7 +82,7 @@ over "World"
             def Shader "Tile"
             {{
                 uniform token info:id = "UsdTransform2d"
-                float2 inputs:in.connect = </World/Looks/BumpyGround/TexCoordReader.outputs:result>
+                float2 inputs:in.connect = </World/Looks/Bumps/TexCoordReader.outputs:result>
                 float2 inputs:scale = ({tiles}, {tiles})
                 float2 outputs:result
             }}
@@ -94,7 +94,7 @@ over "World"
                 asset inputs:file = @{normal_map}@
                 float4 inputs:scale = (2, 2, 2, 1)
                 token inputs:sourceColorSpace = "raw"
-                float2 inputs:st.connect = </World/Looks/BumpyGround/Tile.outputs:result>
+                float2 inputs:st.connect = </World/Looks/Bumps/Tile.outputs:result>
                 token inputs:wrapS = "repeat"
                 token inputs:wrapT = "repeat"
                 float3 outputs:rgb

@@ -106,40 +106,15 @@ def to_tangent(frame, v):
     return np.stack([np.einsum("ij,ij->i", v, f) for f in frame], -1)
 
 
-def _corner_primvar(prim, name: str, mesh, time) -> np.ndarray | None:
-    """(t, 3, 2) float32 values of a float2 primvar at the mesh's triangle corners, or None."""
-    from pxr import UsdGeom
-
-    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
-    if not pv or not pv.HasValue():
-        return None
-    vals = pv.ComputeFlattened(time)
-    if vals is None or len(vals) == 0:
-        return None
-    vals = np.asarray(vals, np.float64).reshape(len(vals), -1)[:, :2]
-    interp = pv.GetInterpolation()
-    corner = np.asarray(mesh.corner, np.int64)
-    if interp == UsdGeom.Tokens.faceVarying:
-        idx = corner
-    elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        fvi = np.asarray(UsdGeom.Mesh(prim).GetFaceVertexIndicesAttr().Get(time), np.int64)
-        idx = fvi[corner]
-    elif interp == UsdGeom.Tokens.uniform:
-        idx = np.repeat(np.asarray(mesh.face, np.int64)[:, None], 3, axis=1)
-    else:
-        idx = np.zeros_like(corner)
-    if idx.max(initial=0) >= len(vals):
-        return None
-    return vals[idx].astype(np.float32)
-
-
 def _coords(texcoords, k, reader, prim, mesh, mat, name: str) -> np.ndarray:
     """(t, 3, 2) float32 texcoords ``name`` of a material on the mesh: the scene reader's, else
     the primvar at the corners (through its UsdTransform2d); StageError when the mesh lacks it."""
+    from usdahd.usd.surface_inputs import corner_primvar
+
     tc = texcoords[k].get(name) if k < len(texcoords) else None
     if tc is None:
         base, a, b = reader.tc_transforms.get(name, (name, None, None))
-        tc = _corner_primvar(prim, base, mesh, reader.ctx.time)
+        tc = corner_primvar(prim, base, mesh, reader.ctx.time)
         if tc is not None and a is not None:
             tc = (tc.astype(np.float64) @ a.T + b).astype(np.float32)
     if tc is None:
@@ -151,27 +126,6 @@ def _coords(texcoords, k, reader, prim, mesh, mat, name: str) -> np.ndarray:
     return np.asarray(tc, np.float32)
 
 
-def _normal_input(reader, stage, material: str):
-    """(constant (3,), Texture or None, texcoord name) of UsdPreviewSurface ``inputs:normal``
-    of the material prim ``material`` (None, None, None: no such shader input)."""
-    from pxr import UsdShade
-
-    prim = stage.GetPrimAtPath(material) if material.startswith("/") else None
-    if prim is None or not prim.IsValid():
-        return None, None, None  # displayColor pseudo-material
-    shader = UsdShade.Material(prim).ComputeSurfaceSource()[0]
-    if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-        return None, None, None
-    names: list[str] = []
-    const, tex = reader._input(shader, "normal", (0.0, 0.0, 1.0), material, names)
-    if tex is not None and len(tex.channels) != 3:
-        raise StageError(
-            f"{material}: UsdPreviewSurface inputs:normal is connected to a one-channel output "
-            f"of {tex.path}; connect the UsdUVTexture's outputs:rgb"
-        )
-    return np.asarray(const, np.float32).reshape(-1)[:3], tex, (names[0] if names else None)
-
-
 def surfaces(stage, meshes) -> list[list[Surface]]:
     """Per entry of ``meshes`` (:func:`usdahd.preview.meshes.baked_meshes`) its
     :class:`Surface` groups, one per bound material. Raises StageError when a material's
@@ -179,6 +133,7 @@ def surfaces(stage, meshes) -> list[list[Surface]]:
     from usdahd.bake import texels as tx
     from usdahd.usd.materials import MaterialReader
     from usdahd.usd.reader import ReadContext, load_scene
+    from usdahd.usd.surface_inputs import normal_input
 
     scenes = {}
     out = []
@@ -195,7 +150,7 @@ def surfaces(stage, meshes) -> list[list[Surface]]:
         for mi in np.unique(np.asarray(mesh.material)):
             mat = sc.materials[int(mi)]
             tris = np.nonzero(np.asarray(mesh.material) == mi)[0]
-            nconst, ntex, nname = _normal_input(reader, stage, mat.name)
+            nconst, ntex, nname = normal_input(reader, stage, mat.name)
 
             def coords(name, ctx=(sc.texcoords, k, reader, prim, mesh, mat)):
                 return _coords(*ctx, name)

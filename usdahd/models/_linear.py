@@ -166,3 +166,45 @@ def hemisphere_fit_matrix(basis_sh: np.ndarray) -> np.ndarray:
     g = hemi.HEMISPHERE_GRAM
     gb = basis_sh @ g @ basis_sh.T
     return np.linalg.solve(gb, basis_sh @ g)
+
+
+def coefficient_model(name: str, basis: tuple[str, ...], ratios: tuple[str, ...], weights):
+    """The evaluate / layout / encode / decode functions of a model that is a plain weighted sum
+    of its ``len(basis)`` RGB coefficient textures (hemisphere-free: ambient_cube, hl2, sh_l2).
+
+    weights : callable, tangent-space unit normals (..., 3) float64 -> basis weights (..., N)
+    float64, so that ``I(n) = sum_k weights(n)_k C_k``. The functions returned are the module's
+    public API (``models/<name>.py`` binds them to its names).
+    """
+    from usdahd.models.base import check_choice
+
+    n_basis = len(basis)
+
+    def _eval(params, n):
+        c = expand(params["coefficients"], n, 2)
+        return np.einsum("...k,...kc->...c", weights(n), c)
+
+    def evaluate(params, normals, *, albedo=None):
+        """Normalized irradiance (..., 3) float32 at tangent-space unit normals (..., 3)."""
+        return with_self_bounce(_eval, params, normals, albedo)
+
+    def layout(ratio="none"):
+        check_choice(name, "ratio", ratio, ratios)
+        return coefficients_layout(basis)
+
+    def encode(params, *, ratio="none"):
+        check_choice(name, "ratio", ratio, ratios)
+        return encode_coefficients(params)
+
+    encode.__doc__ = (
+        f"-> ({{'coefficients0'..'coefficients{n_basis - 1}': float16 (..., 3)}}, "
+        "{'coefficientsScale': s})."
+    )
+
+    def decode(channels, *, ratio="none", factors=None):
+        """Textures -> {coefficients (..., N, 3) float32, invalid (..., 1) float32 (0)}."""
+        check_choice(name, "ratio", ratio, ratios)
+        c = decode_coefficients(channels, factors, n_basis)
+        return {"coefficients": c, "invalid": valid_flag(c.shape[:-2])}
+
+    return evaluate, layout, encode, decode

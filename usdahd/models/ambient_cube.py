@@ -127,28 +127,4 @@ def weights(normals: np.ndarray) -> np.ndarray:
     return w
 
 
-def _eval(params, n):
-    c = _linear.expand(params["coefficients"], n, 2)
-    return np.einsum("...k,...kc->...c", weights(n), c)
-
-
-def evaluate(params, normals, *, albedo=None):
-    """Normalized irradiance (..., 3) float32 at tangent-space unit normals (..., 3)."""
-    return _linear.with_self_bounce(_eval, params, normals, albedo)
-
-
-def layout(ratio="none"):
-    check_choice(NAME, "ratio", ratio, RATIOS)
-    return _linear.coefficients_layout(BASIS)
-
-
-def encode(params, *, ratio="none"):
-    """-> ({"coefficients0".."coefficients5": float16 (..., 3)}, {"coefficientsScale": s})."""
-    check_choice(NAME, "ratio", ratio, RATIOS)
-    return _linear.encode_coefficients(params)
-
-
-def decode(channels, *, ratio="none", factors=None):
-    check_choice(NAME, "ratio", ratio, RATIOS)
-    c = _linear.decode_coefficients(channels, factors, 6)
-    return {"coefficients": c, "invalid": _linear.valid_flag(c.shape[:-2])}
+evaluate, layout, encode, decode = _linear.coefficient_model(NAME, BASIS, RATIOS, weights)

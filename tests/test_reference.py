@@ -166,6 +166,26 @@ def test_emissive_material_and_texture_path(tmp_path):
     assert desc["double_sided"] is False
 
 
+@pytest.mark.parametrize("metallic, spec, want", [(0.75, False, 0.25), (1.0, False, 0.0),
+                                                   (0.75, True, 1.0)])  # fmt: skip
+def test_metallic_reduces_the_exported_diffuse_albedo(tmp_path, metallic, spec, want):
+    """The reference renders the diffuse transport usdahd bakes: diffuseColor x (1 - metallic)
+    in the metallic workflow, diffuseColor in the specular one (classroom's metal chairs were
+    exported white, so the reference was ~20 % brighter than the bake there)."""
+    st = _stage(tmp_path)
+    m = _plane(st)
+    mat = UsdShade.Material.Define(st, "/M")
+    sh = UsdShade.Shader.Define(st, "/M/S")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.4, 0.8, 1.0))
+    sh.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(metallic)
+    sh.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(int(spec))
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
+    desc = _export(st).materials[0]
+    assert desc["albedo"] == pytest.approx([0.4 * want, 0.8 * want, 1.0 * want], rel=REL, abs=1e-9)
+
+
 # -------------------------------------------------------------------------- geometry
 
 

@@ -288,6 +288,20 @@ def _read_material(material, name: str, warn) -> dict:
             warn(f"{name}: diffuseColor is fed by a non-UsdUVTexture shader; fallback used")
     elif dc and dc.Get() is not None:
         out["albedo"] = [float(x) for x in dc.Get()]
+    # The metallic workflow has no diffuse lobe on metal: the diffuse albedo is
+    # diffuseColor x (1 - metallic), as usdahd reads it (docs/usd-semantics.md). The reference
+    # renders the same diffuse transport; the specular bounce off metal is in neither.
+    spec = shader.GetInput("useSpecularWorkflow")
+    met = shader.GetInput("metallic")
+    if not (spec and spec.Get()) and met:
+        if _input_source(met) is not None:
+            warn(f"{name}: textured metallic is not supported by the reference; ignored")
+        elif met.Get() is not None and float(met.Get()) != 0.0:
+            m = min(max(float(met.Get()), 0.0), 1.0)
+            if out["texture"] is not None:
+                warn(f"{name}: metallic {m:g} on a textured diffuseColor ignored by the reference")
+            else:
+                out["albedo"] = [a * (1.0 - m) for a in out["albedo"]]
     ec = shader.GetInput("emissiveColor")
     if _input_source(ec) is not None:
         warn(f"{name}: textured emissiveColor is not supported by the reference; ignored")

@@ -410,6 +410,36 @@ def test_no_lightmaps_also_with_prim_selection(tmp_path, capsys):
         assert codes.count((V.STAGE_RULE.name, "NoAhdLightmapAPI", "/")) == 1, codes
 
 
+def test_no_lightmaps_from_the_python_api(tmp_path):
+    """validate_stage and validate_file (the Python API) give the CLI's NoAhdLightmapAPI error on
+    a stage without AhdLightmapAPI, for the whole stage and for a prim selection (which the
+    UsdValidation stage validator does not run on), exactly once."""
+    from usdahd.usd.stage import open_stage
+    from usdahd.validate.run import validate_file, validate_stage
+
+    src = tmp_path / "source.usda"
+    src.write_text('#usda 1.0\ndef Mesh "Plane" {}\n')
+    for prims in (None, ["/Plane"]):
+        found = validate_stage(open_stage(str(src)), prims)
+        assert [(f.rule, f.code, f.severity, f.prim) for f in found] == [
+            (V.STAGE_RULE.name, "NoAhdLightmapAPI", "error", "/")
+        ], prims
+        assert "no prim of" in found[0].message and "usdahd bake" in found[0].message
+        report = validate_file(str(src), prims)
+        assert [f.code for f in report.findings] == ["NoAhdLightmapAPI"] and report.prims == []
+
+
+def test_lightmapped_stage_has_no_no_lightmaps_finding(assets):
+    from usdahd.usd.stage import open_stage
+    from usdahd.validate.run import validate_stage
+
+    layer = assets["clean"]
+    stage = open_stage(str(layer))
+    prim = str(next(iter(V.schema.prims_with_api(stage))).GetPath())
+    for prims in (None, [prim]):
+        assert not any(f.code == "NoAhdLightmapAPI" for f in validate_stage(stage, prims))
+
+
 def test_module_entry_point_subprocess(assets):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     env.pop("PXR_PLUGINPATH_NAME", None)

@@ -43,10 +43,15 @@ def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False)
     descendants); returns the findings sorted by prim, severity, rule and code.
 
     retrace : also run the opt-in Retrace rule (settings in usdahd.validate.retrace.OPTIONS).
+    Lightmapped is a UsdValidation stage validator, which USD runs on a whole stage only: with
+    ``prims`` on a stage without AhdLightmapAPI its ``NoAhdLightmapAPI`` error is added here,
+    so an API caller pointed at the wrong stage gets the same failure as ``usdahd validate``.
     Raises UsageError for a ``prims`` path that is not on the stage.
     """
     errors = usd_validation.run_context(context(retrace), stage, prims)
     findings = [finding_from_usd(e) for e in errors]
+    if not any(f.code == "NoAhdLightmapAPI" for f in findings):
+        findings = check_lightmapped(stage) + findings
     findings.sort(key=lambda f: (f.prim, SEVERITY_ORDER.get(f.severity, 3), f.rule, f.code))
     return findings
 
@@ -90,16 +95,14 @@ def validate_file(path: str, prims: list[str] | None = None, retrace: bool = Fal
     """Open the stage at ``path`` and validate it (or ``prims``), with USD's C++ diagnostics
     captured instead of interleaved with the findings.
 
-    Lightmapped is a stage validator and runs on a whole stage only: with ``prims`` on a stage
-    without AhdLightmapAPI its error is added here, so a CI job pointed at the wrong file fails
-    either way. Raises StageError (unreadable stage, validators missing) and UsageError.
+    A stage without AhdLightmapAPI gives ``NoAhdLightmapAPI`` (:func:`validate_stage`), with
+    or without ``prims``. Raises StageError (unreadable stage, validators missing) and
+    UsageError.
     """
     with usd_validation.captured_stderr_fd() as lines:
         stage = open_stage(path)
         baked = [str(p.GetPath()) for p in schema.prims_with_api(stage)]
         findings = validate_stage(stage, prims, retrace=retrace)
-        if not baked and not any(f.code == "NoAhdLightmapAPI" for f in findings):
-            findings = check_lightmapped(stage) + findings
     findings = dedupe(findings, Path(path).resolve().parent)
     usd = [ln for ln in lines if usd_validation.is_usd_diagnostic(ln)]
     return Report(

@@ -60,18 +60,9 @@ class Surface:
 
 
 def texels(tex: Texture) -> np.ndarray:
-    """The UsdUVTexture output of every texel (h, w, len(channels)) float32: missing channels
-    padded as :meth:`Texture.sample` pads them, then ``scale * texel + bias``. Bilinear
-    filtering commutes with this affine map, so sampling the result equals ``Texture.sample``."""
-    d = np.asarray(tex.data, np.float32)
-    h, w, c = d.shape
-    if c < 4:
-        pad = np.ones((h, w, 4 - c), np.float32)
-        if c == 1:
-            pad[..., :2] = d[..., :1]
-        d = np.concatenate([d, pad], axis=2)
-    v = d[..., :4] * tex.scale[None, None, :] + tex.bias[None, None, :]
-    return np.ascontiguousarray(v[..., list(tex.channels)], np.float32)
+    """The UsdUVTexture output of every texel (h, w, len(channels)) float32
+    (:meth:`Texture.outputs`); sampling the result equals ``Texture.sample``."""
+    return tex.outputs()
 
 
 def sample(pixels: np.ndarray, st: np.ndarray, wrap) -> np.ndarray:

@@ -71,6 +71,20 @@ class Texture:
     channels: tuple[int, ...]  # output channels selected (rgb -> (0,1,2), a -> (3,), ...)
     wrap: tuple[str, str] = ("repeat", "repeat")
 
+    def outputs(self) -> np.ndarray:
+        """The UsdUVTexture output of every texel (h, w, len(channels)) float32: missing
+        channels padded as :meth:`sample` pads them, then ``scale * texel + bias``. Bilinear
+        filtering commutes with this affine map, so sampling the result equals :meth:`sample`."""
+        d = np.asarray(self.data, np.float32)
+        h, w, c = d.shape
+        if c < 4:
+            pad = np.ones((h, w, 4 - c), np.float32)
+            if c == 1:
+                pad[..., :2] = d[..., :1]
+            d = np.concatenate([d, pad], axis=2)
+        v = d[..., :4] * self.scale[None, None, :] + self.bias[None, None, :]
+        return np.ascontiguousarray(v[..., list(self.channels)], np.float32)
+
     def sample(self, uv: np.ndarray) -> np.ndarray:
         """Bilinear lookup. uv : (m, 2) -> (m, len(channels)) float32 (scale*tex+bias)."""
         h, w, c = self.data.shape

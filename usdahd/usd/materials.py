@@ -129,6 +129,7 @@ class MaterialReader:
         out.albedo, out.albedo_tex = self._input(
             shader, "diffuseColor", DEFAULT_ALBEDO, name, tc_names
         )
+        metal = self._metallic_texture(shader, out, tc_names)
         out.emission, out.emission_tex = self._input(
             shader, "emissiveColor", (0, 0, 0), name, tc_names
         )
@@ -137,7 +138,7 @@ class MaterialReader:
         thr = shader.GetInput("opacityThreshold")
         out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
         self._check_material(out)
-        self._metallic(shader, out)
+        self._metallic(shader, out, *metal)
         self._unhonoured_inputs(shader, name)
         if tc_names:
             out.texcoord = tc_names[0]
@@ -148,21 +149,85 @@ class MaterialReader:
                 )
         return out
 
-    def _metallic(self, shader, out: Material) -> None:
+    def _metallic_texture(self, shader, out: Material, tc_names) -> tuple:
+        """(texture or None, fallback metallic or None): the UsdUVTexture ``inputs:metallic``
+        is connected to, if the bake can apply it:
+        metallic workflow, a readable texture, and the same texcoord (primvar and
+        UsdTransform2d) as the diffuseColor texture when there is one (appended to
+        ``tc_names`` when diffuseColor is a constant). A connection the bake cannot apply is
+        warned (naming the material and the fix); an unreadable texture gives its
+        ``fallback`` (a constant metallic, applied by :meth:`_metallic`); not connected:
+        (None, None)."""
+        wf = shader.GetInput("useSpecularWorkflow")
+        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+            return None, None
+        inp = shader.GetInput("metallic")
+        if not inp or not inp.HasConnectedSource():
+            return None, None
+        name = out.name
+        tcs: list[str] = []
+        m, tex = self._input(shader, "metallic", 0.0, name, tcs)
+        fallback = float(np.ravel(m)[0])
+        if tex is None:
+            return None, fallback
+        src = inp.GetConnectedSources()[0][0]
+        where = f"{src.source.GetPath()}.outputs:{src.sourceName}"
+        if len(tex.channels) != 1:
+            self.warn(
+                f"{name}: inputs:metallic (a float) is connected to {where}, "
+                f"{len(tex.channels)} channels; the bake reads its first channel (r). Fix: "
+                "connect outputs:r, g, b or a"
+            )
+            tex.channels = (tex.channels[0],)
+        q = tex.channels[0]
+        c = tex.data.shape[2]
+        if q >= c and not (c == 1 and q < 3):
+            self.warn(
+                f"{name}: inputs:metallic reads channel '{'rgba'[q]}' of {tex.path}, which has "
+                f"{c} channels: the missing channel reads 1 (fully metallic, no diffuse "
+                "albedo). Fix: connect an output the file has"
+            )
+        tc = tcs[0]
+        if out.albedo_tex is not None:
+            dtc = tc_names[-1]
+            if tc != dtc:
+                self.warn(
+                    f"{name}: the metallic texture {tex.path} reads texcoord '{tc}' but the "
+                    f"diffuseColor texture reads '{dtc}': the bake cannot combine them and "
+                    "does not reduce the diffuse albedo by metallic. Fix: read both textures "
+                    "through the same primvar and UsdTransform2d, or author a constant metallic",
+                    key=f"metallic-texcoord:{name}",
+                )
+                return None, 0.0
+        else:
+            tc_names.append(tc)
+        return tex, None
+
+    def _metallic(
+        self, shader, out: Material, metal_tex: Texture | None = None, fallback=None
+    ) -> None:
         """UsdPreviewSurface metallic workflow: a metal has no diffuse lobe, so the diffuse
-        albedo is diffuseColor x (1 - metallic) (constant metallic; a metallic texture is
-        warned and ignored). The specular workflow (useSpecularWorkflow = 1) ignores metallic."""
+        albedo is diffuseColor x (1 - metallic). The specular workflow
+        (useSpecularWorkflow = 1) ignores metallic.
+
+        A constant metallic scales the diffuseColor constant, or the diffuseColor texture's
+        scale and bias (exact: bilinear filtering commutes with the affine map). A metallic
+        texture (``metal_tex``, :meth:`_metallic_texture`) becomes part of the albedo
+        texture (:func:`albedo_times_metal`); an unreadable one gives its ``fallback``."""
         wf = shader.GetInput("useSpecularWorkflow")
         if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
             return
         inp = shader.GetInput("metallic")
         if not inp:
             return
-        if inp.HasConnectedSource():
-            self.unhonoured.setdefault("metallic (connected)", []).append(out.name)
+        if metal_tex is not None:
+            out.albedo_tex = albedo_times_metal(out, metal_tex, self.warn)
             return
-        m = self.get(inp.GetAttr(), 0.0)
-        m = float(np.ravel(np.asarray(m, np.float64))[0]) if m is not None else 0.0
+        if inp.HasConnectedSource():
+            m = 0.0 if fallback is None else fallback  # unreadable texture, uncombinable: 0
+        else:
+            m = self.get(inp.GetAttr(), 0.0)
+            m = float(np.ravel(np.asarray(m, np.float64))[0]) if m is not None else 0.0
         if not math.isfinite(m):
             raise StageError(f"{out.name}: UsdPreviewSurface inputs:metallic is {m}: fix it")
         if not 0.0 <= m <= 1.0:
@@ -206,12 +271,7 @@ class MaterialReader:
         for what, mats in sorted(self.unhonoured.items()):
             mats = sorted(set(mats))
             more = f" and {len(mats) - 3} more" if len(mats) > 3 else ""
-            fix = (
-                " (the diffuse albedo is not reduced where the texture is metallic; author a "
-                "constant metallic)"
-                if what.startswith("metallic")
-                else " (the bake shades the flat diffuse base layer)"
-            )
+            fix = " (the bake shades the flat diffuse base layer)"
             self.warn(
                 f"UsdPreviewSurface {what} is not honoured by the bake in {len(mats)} "
                 f"materials ({', '.join(mats[:3])}{more}){fix}",
@@ -383,6 +443,90 @@ class MaterialReader:
             data = sanitize_image(data, f"{owner}: {path}", self.warn)
         self._textures[key] = data
         return data
+
+
+def _outputs_on_grid(tex: Texture, h: int, w: int) -> np.ndarray:
+    """The UsdUVTexture output (``Texture.outputs``) of ``tex`` at the texel centres of an
+    h x w grid over [0, 1]^2, (h, w, len(channels)) float32: the texels themselves when the
+    texture is h x w, else its bilinear lookup (``Texture.sample``, its wrap modes)."""
+    if tex.data.shape[:2] == (h, w):
+        return tex.outputs()
+    out = np.empty((h, w, len(tex.channels)), np.float32)
+    u = (np.arange(w, dtype=np.float64) + 0.5) / w
+    rows = max(1, (1 << 20) // w)
+    for r0 in range(0, h, rows):
+        r = np.arange(r0, min(h, r0 + rows), dtype=np.float64)
+        v = 1.0 - (r + 0.5) / h
+        uv = np.stack(np.broadcast_arrays(u[None, :], v[:, None]), axis=-1).reshape(-1, 2)
+        out[r0 : r0 + len(r)] = tex.sample(uv).reshape(len(r), w, -1)
+    return out
+
+
+def albedo_times_metal(mat: Material, metal: Texture, warn) -> Texture:
+    """The albedo texture of a material whose ``inputs:metallic`` is a texture: diffuse
+    albedo = diffuseColor x (1 - metallic), on a common texel grid.
+
+    mat : the material, with its diffuseColor constant (``albedo``) or texture
+    (``albedo_tex``, reading the same texcoord as ``metal``: :meth:`MaterialReader
+    ._metallic_texture`); metal : the metallic UsdUVTexture (one channel selected; its
+    scale, bias, wrap modes and colour space already applied as for any texture).
+
+    Returns a texture with scale 1, bias 0, rgb, whose texels are the product. The grid is
+    the metallic texture's (constant diffuseColor), else per axis the larger of the two
+    resolutions; each texture is evaluated at the grid's texel centres by its own bilinear
+    lookup (its texels when it has the grid's resolution). What is exact and what is not:
+
+    - constant diffuseColor: exact everywhere (c x (1 - m) is affine in m, and bilinear
+      filtering commutes with it), apart from the clamp of metallic to [0, 1], applied per
+      texel rather than after filtering (warned when a texel is outside).
+    - diffuseColor texture: exact at the common grid's texel centres. Between them the
+      kernel filters the product bilinearly where a renderer multiplies two filtered values;
+      the difference is second order (zero where either texture is constant over the
+      texel cell). A texture of lower resolution than the grid is resampled bilinearly.
+    - wrap modes: the diffuse texture's; when the metallic texture's differ, outside
+      [0, 1] metallic follows the diffuse texture's mode (warned).
+    """
+    name = mat.name
+    d = mat.albedo_tex
+    if d is None:
+        h, w = metal.data.shape[:2]
+        wrap = metal.wrap
+    else:
+        h = max(d.data.shape[0], metal.data.shape[0])
+        w = max(d.data.shape[1], metal.data.shape[1])
+        wrap = d.wrap
+        if tuple(metal.wrap) != tuple(d.wrap):
+            warn(
+                f"{name}: the metallic texture {metal.path} wraps {tuple(metal.wrap)} but the "
+                f"diffuseColor texture {d.path} wraps {tuple(d.wrap)}; the combined albedo "
+                "texture uses the diffuse texture's modes (outside [0, 1] metallic follows "
+                "them). Fix: author the same wrapS/wrapT on both"
+            )
+    m = _outputs_on_grid(metal, h, w)[..., 0]
+    bad = ~((m >= 0.0) & (m <= 1.0))
+    if bad.any():
+        warn(
+            f"{name}: {int(bad.sum())} texels of the metallic texture {metal.path} are outside "
+            f"[0, 1] after scale and bias ({float(np.nanmin(m)):g} .. {float(np.nanmax(m)):g}); "
+            "clamped. Fix: the texture's values or its inputs:scale / inputs:bias"
+        )
+        m = np.clip(np.nan_to_num(m, nan=0.0), 0.0, 1.0)
+    k = (np.float32(1.0) - m.astype(np.float32))[..., None]
+    if d is None:
+        data = np.asarray(mat.albedo, np.float32)[None, None, :3] * k
+        path = metal.path
+    else:
+        dv = np.clip(_outputs_on_grid(d, h, w), 0.0, 1.0)
+        data = np.broadcast_to(dv, (h, w, 3)) * k if dv.shape[2] == 1 else dv[..., :3] * k
+        path = d.path
+    return Texture(
+        path,
+        np.ascontiguousarray(data, np.float32),
+        np.ones(4, np.float32),
+        np.zeros(4, np.float32),
+        (0, 1, 2),
+        tuple(wrap),
+    )
 
 
 def sanitize_image(data, label, warn):

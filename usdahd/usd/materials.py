@@ -3,11 +3,12 @@
 :class:`MaterialReader` builds the material table of a stage (:class:`usdahd.scene.types.Material`,
 one per bound material, or one per displayColor for unbound prims): the ``full`` binding
 purpose, else all-purpose (prims and GeomSubsets: :meth:`MaterialReader.face_materials` gives
-the per-face material indices); UsdPreviewSurface ``diffuseColor`` (times ``1 - metallic``),
-``emissiveColor``, ``opacity`` / ``opacityThreshold``, each a constant or a UsdUVTexture
-(:class:`usdahd.scene.types.Texture`: scale, bias, channel, wrap; bilinear lookup in
-``Texture.sample``) reading a primvar, optionally through a UsdTransform2d (then a derived
-texcoord name whose values :mod:`usdahd.usd.geometry` computes per corner).
+the per-face material indices); UsdPreviewSurface ``diffuseColor`` (times ``1 - metallic``,
+a constant or a texture: :func:`albedo_times_metal`), ``emissiveColor``, ``opacity`` /
+``opacityThreshold``, each a constant or a UsdUVTexture (:class:`usdahd.scene.types.Texture`:
+scale, bias, channel, wrap; bilinear lookup in ``Texture.sample``) reading a primvar,
+optionally through a UsdTransform2d (then a derived texcoord name whose values
+:mod:`usdahd.usd.geometry` computes per corner).
 
 Texture files are read through USD's asset resolver (:mod:`usdahd.usd.assets`: usdz
 packages) and OpenImageIO (:mod:`usdahd.images`, the only OpenImageIO user) by

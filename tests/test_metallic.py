@@ -326,3 +326,33 @@ def test_a_metallic_half_bounces_no_light(tmp_path, backend):
     assert _mean_iz(_reflector_stage(tmp_path, "full"), backend) == 0.0
     half = _mean_iz(_reflector_stage(tmp_path, "half"), backend)
     np.testing.assert_allclose(half, 0.5 * diffuse, rtol=0.06)
+
+
+def test_changing_the_metallic_texture_makes_the_bake_stale(tmp_path, capsys):
+    import json
+
+    from usdahd import cli
+
+    src = tmp_path / "scene.usda"
+    st = Usd.Stage.CreateNew(str(src))
+    UsdGeom.SetStageUpAxis(st, "Z")
+    UsdGeom.SetStageMetersPerUnit(st, 1.0)
+    q = _quad(st, "/World/Plane")
+    metal = _texture(st, "/World/M/Metal", _half_metal(tmp_path))
+    _bind(q.GetPrim(), _material(st, "/World/M", metal=metal))
+    UsdLux.DistantLight.Define(st, "/World/Sun").CreateIntensityAttr(1.0)
+    st.GetRootLayer().Save()
+    fast = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
+    assert cli.main(["bake", str(src), *fast]) == 0
+    layer = str(tmp_path / "scene.lightmaps.usda")
+    assert cli.main(["validate", layer]) == 0
+    capsys.readouterr()
+    _png(tmp_path / "metal.png", np.zeros((4, 4), np.uint8))  # no longer metallic anywhere
+    # the in-process scene cache is keyed on the stage's layers, not on texture files (a new
+    # `usdahd validate` process reads the texture afresh)
+    from usdahd.validate import staleness
+
+    staleness._SCENES.clear()
+    assert cli.main(["validate", layer, "--json"]) == 1
+    findings = json.loads(capsys.readouterr().out)["findings"]
+    assert any(f["code"] == "Stale" and "materials" in f["message"] for f in findings), findings

@@ -152,13 +152,12 @@ class MaterialReader:
 
     def _metallic_texture(self, shader, out: Material, tc_names) -> tuple:
         """(texture or None, fallback metallic or None): the UsdUVTexture ``inputs:metallic``
-        is connected to, if the bake can apply it:
-        metallic workflow, a readable texture, and the same texcoord (primvar and
-        UsdTransform2d) as the diffuseColor texture when there is one (appended to
-        ``tc_names`` when diffuseColor is a constant). A connection the bake cannot apply is
-        warned (naming the material and the fix); an unreadable texture gives its
-        ``fallback`` (a constant metallic, applied by :meth:`_metallic`); not connected:
-        (None, None)."""
+        is connected to, if the bake can apply it: metallic workflow, a readable texture, and
+        the same texcoord (primvar and UsdTransform2d) as the diffuseColor texture when there
+        is one (appended to ``tc_names`` when diffuseColor is a constant). A connection the
+        bake cannot apply is warned (naming the material and the fix); an unreadable texture
+        gives its ``fallback`` (a constant metallic, applied by :meth:`_metallic`); not
+        connected: (None, None)."""
         wf = shader.GetInput("useSpecularWorkflow")
         if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
             return None, None
@@ -185,8 +184,8 @@ class MaterialReader:
         if q >= c and not (c == 1 and q < 3):
             self.warn(
                 f"{name}: inputs:metallic reads channel '{'rgba'[q]}' of {tex.path}, which has "
-                f"{c} channels: the missing channel reads 1 (fully metallic, no diffuse "
-                "albedo). Fix: connect an output the file has"
+                f"{c} channels: the missing channel reads 1 before scale and bias (fully "
+                "metallic: no diffuse albedo). Fix: connect an output the file has"
             )
         tc = tcs[0]
         if out.albedo_tex is not None:

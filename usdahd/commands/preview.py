@@ -20,6 +20,10 @@ visible point and writes preview | reference | error heat map side by side
 ``diffuseColor``) times the irradiance evaluated at the material's normal-mapped normal
 (``inputs:normal``), :mod:`usdahd.preview.surface`.
 
+``--ahd-classic`` imports an ahd/hhd/ahd_classic bake as classic AHD textures (C_a, d, C_d at
+the texel centres, filtered independently), the naive import whose lit-to-shadowed overshoot the
+2018 IrradZ paper fixes (:mod:`usdahd.preview.classic`).
+
 This module is the command only (arguments, usage errors, the report); the rendering lives in
 :mod:`usdahd.preview`.
 """
@@ -88,6 +92,14 @@ def add_parser(sub):
         "(inputs:normal connected to a UsdUVTexture); the image is then radiance x pi",
     )
     p.add_argument(
+        "--ahd-classic",
+        action="store_true",
+        help="import the bake as an engine storing classic AHD textures would (ahd, hhd and "
+        "ahd_classic bakes): C_a, the unit direction d and C_d decoded at the texel centres, "
+        "filtered by the sampler independently, d renormalised (the 2018 paper's interpolation "
+        "artefact; default: the IrradZ decode after filtering)",
+    )
+    p.add_argument(
         "--atlas",
         action="store_true",
         help="instead of a view: a contact sheet of every lightmap texture (one row per baked "
@@ -136,6 +148,7 @@ def _check(args) -> Path:
             ("--size", args.size),
             ("--compare", args.compare or None),
             ("--model-view", args.model_view or None),
+            ("--ahd-classic", args.ahd_classic or None),
         )
         given = [f for f, v in flags if v is not None]
         if given:
@@ -215,10 +228,11 @@ def run(args) -> int:
         from usdahd.preview.surface import surfaces as read_surfaces
 
         surfaces = read_surfaces(stage, meshes)
-    items = draw_items(meshes, surfaces)
+    items = draw_items(meshes, surfaces, ahd_classic=args.ahd_classic)
     image = render_view(
-        stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None, surfaces=surfaces
-    )
+        stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None, surfaces=surfaces,
+        ahd_classic=args.ahd_classic,
+    )  # fmt: skip
     ldr, scale = tonemap(image, args.exposure)
     compared = None
     if args.compare:
@@ -251,8 +265,9 @@ def run(args) -> int:
         "adapter": summary,
         "backend": "wgpu" if gpu else "embree",
         "meshes": len(meshes),
-        "models": sorted({f"{it[1]}/{it[2]}" for it in items}),
+        "models": sorted({f"{res.model}/{res.ratio}" for _, res, *_ in meshes}),
         "model_view": bool(args.model_view),
+        "ahd_classic": bool(args.ahd_classic),
         "exposure_scale": scale,
         **stats(image),
     }

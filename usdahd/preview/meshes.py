@@ -59,40 +59,51 @@ def vertex_data(mesh, tangent, sign, surface=None) -> np.ndarray:
     return v.reshape(-1, v.shape[-1])
 
 
-def draw_items(meshes, surfaces=None) -> list:
+def _textures(mesh, res, ahd_classic: bool = False) -> tuple:
+    """(model, ratio, textures, factors) a renderer draws of one baked mesh: its stored textures
+    in the layout order, or with ``ahd_classic`` the classic C_a, d, C_d textures
+    (:func:`usdahd.preview.classic.item`; UsageError for a model it does not apply to)."""
+    from usdahd import images, models
+
+    layout = models.get(res.model).layout(res.ratio)
+    textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+    if not ahd_classic:
+        return res.model, res.ratio, textures, res.factors
+    from usdahd.preview import classic
+
+    classic.check(mesh.path, res.model)
+    return classic.item(res.model, res.ratio, textures, res.factors)
+
+
+def draw_items(meshes, surfaces=None, ahd_classic: bool = False) -> list:
     """[(vertices (3t, 12), model, ratio, textures [(h, w, c) stored pixels], factors)] of
     ``meshes`` (:func:`baked_meshes`), textures in the model's layout order: what
     :func:`usdahd.preview.gpu.render` draws. With ``surfaces``
     (:func:`usdahd.preview.surface.surfaces`, --model-view): one item per mesh and material,
-    the Surface appended."""
-    from usdahd import images, models
-
+    the Surface appended. ``ahd_classic``: the classic AHD textures instead
+    (:mod:`usdahd.preview.classic`)."""
     items = []
     for k, (mesh, res, tangent, sign) in enumerate(meshes):
-        layout = models.get(res.model).layout(res.ratio)
-        textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+        drawn = _textures(mesh, res, ahd_classic)
         if surfaces is None:
-            items.append(
-                (vertex_data(mesh, tangent, sign), res.model, res.ratio, textures, res.factors)
-            )
+            items.append((vertex_data(mesh, tangent, sign), *drawn))
             continue
         for surf in surfaces[k]:
-            verts = vertex_data(mesh, tangent, sign, surf)
-            items.append((verts, res.model, res.ratio, textures, res.factors, surf))
+            items.append((vertex_data(mesh, tangent, sign, surf), *drawn, surf))
     return items
 
 
 def render_view(
-    stage, meshes, items, viewproj: np.ndarray, size, dev=None, surfaces=None
+    stage, meshes, items, viewproj: np.ndarray, size, dev=None, surfaces=None, ahd_classic=False
 ) -> np.ndarray:
     """The preview image (H, W, 4) float32 of ``items`` (:func:`draw_items` of ``meshes``,
     with ``surfaces`` for --model-view): rasterised on the wgpu device ``dev``, or with ``dev``
-    None by the Embree fallback (:mod:`usdahd.preview.raytrace`, the stage's materials)."""
+    None by the Embree fallback (:mod:`usdahd.preview.raytrace`, the stage's materials);
+    ``ahd_classic`` as given to :func:`draw_items`."""
     if dev is not None:
         from usdahd.preview.gpu import render
 
         return render(dev, items, viewproj, size)
-    from usdahd import images, models
     from usdahd.preview import raytrace
     from usdahd.usd.reader import load_scene
 
@@ -102,8 +113,6 @@ def render_view(
         return raytrace.render(scene, traced, viewproj, size)
     traced = []
     for mesh, res, *_ in meshes:  # one entry per mesh: the tracer holds each once
-        layout = models.get(res.model).layout(res.ratio)
-        textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
-        traced.append((mesh, res.model, res.ratio, textures, res.factors))
+        traced.append((mesh, *_textures(mesh, res, ahd_classic)))
     frames = [(tangent, sign) for _, _, tangent, sign in meshes]
     return raytrace.render(scene, traced, viewproj, size, surfaces=surfaces, frames=frames)

@@ -95,9 +95,14 @@ def render(scene, items, viewproj: np.ndarray, size, surfaces=None, frames=None)
     --model-view: ``surfaces`` (per item, its :class:`usdahd.preview.surface.Surface` groups)
     and ``frames`` (per item, the lightmap (tangent (t, 3, 3), sign (t,))): the image is albedo
     x irradiance at the normal-mapped normal, the numpy transcription of the WGSL fragment
-    (:mod:`usdahd.preview.surface`)."""
-    from usdahd import models
+    (:mod:`usdahd.preview.surface`).
+
+    --ahd-classic items (:func:`usdahd.preview.classic.item`: model ``ahd_classic``, a
+    ``usdahd.shaders.FILTERED`` variant, float C_a, d, C_d textures) are filtered as they are
+    and shaded by :func:`usdahd.preview.classic.evaluate`, d renormalised."""
+    from usdahd import models, shaders
     from usdahd.bake.trace import Tracer
+    from usdahd.preview import classic
 
     w, h = size
     sc = copy.copy(scene)
@@ -118,20 +123,27 @@ def render(scene, items, viewproj: np.ndarray, size, surfaces=None, frames=None)
             b = v[sel].astype(np.float64)[:, None]
             st = (1 - a - b) * st[:, 0] + a * st[:, 1] + b * st[:, 2]
             uv = np.stack([st[:, 0], 1.0 - st[:, 1]], -1)
-            m = models.get(model)
-            layout = m.layout(ratio)
-            channels = {}
-            for t, px in zip(layout, textures):
-                channels[t.role] = bilinear(px, uv)  # stored scale: decode divides by 255
-            params = m.decode(channels, ratio=ratio, factors=factors)
+            if model == classic.MODEL and ratio in shaders.FILTERED:  # --ahd-classic
+                params = classic.filtered(*(bilinear(px, uv) for px in textures))
+
+                def evaluate(params, n, ratio=ratio):
+                    return classic.evaluate(ratio, params, n)
+            else:
+                m = models.get(model)
+                layout = m.layout(ratio)
+                channels = {}
+                for t, px in zip(layout, textures):
+                    channels[t.role] = bilinear(px, uv)  # stored scale: decode divides by 255
+                params = m.decode(channels, ratio=ratio, factors=factors)
+                evaluate = m.evaluate
             if surfaces is None:
                 n = np.zeros((len(sel), 3))
                 n[:, 2] = 1.0
-                image[sel, :3] = np.asarray(m.evaluate(params, n), np.float32)[:, :3]
+                image[sel, :3] = np.asarray(evaluate(params, n), np.float32)[:, :3]
             else:
                 lm = _at_hits(mesh, frames[k], local, a, b)
                 albedo, n = _model_view(surfaces[k], mesh, local, a, b, lm)
-                irr = np.asarray(m.evaluate(params, n), np.float64)[:, :3]
+                irr = np.asarray(evaluate(params, n), np.float64)[:, :3]
                 image[sel, :3] = (albedo * irr).astype(np.float32)
             image[sel, 3] = 1.0
     finally:

@@ -35,6 +35,13 @@ MODEL_FILES = {
     "hl2": "hl2",
 }
 COMMON = "common"
+#: ``calls("ahd_classic", variant)`` of ``usdahd preview --ahd-classic``: the textures are
+#: float C_a, unit d, C_d (decoded at the texel centres), filtered, d renormalised; the variant
+#: names the evaluate function (the baked model's: AHD's, or HHD's hemispherical ambient).
+FILTERED = {
+    "filtered": "usdahd_ahd_classic_evaluate",
+    "filtered_hhd": "usdahd_hhd_classic_evaluate",
+}
 
 
 def path(language: str, name: str) -> Path:
@@ -74,6 +81,9 @@ def calls(model: str, ratio: str) -> tuple[str, str, tuple[str, ...], str]:
         extra = ", ratioScale" if model == "hlsh" else ""
         call = f"usdahd_{model}_decode(s0.rgb, s1.rgb, {ratio_arg}, izScale{extra}, {rgb})"
         return "UsdahdIrradZ", call, ("iz", "d", "wa"), f"usdahd_{model}_evaluate"
+    if model == "ahd_classic" and ratio in FILTERED:
+        call = "usdahd_ahd_classic_filtered(s0.rgb, s1.rgb, s2.rgb)"
+        return "UsdahdAhdClassic", call, ("ca", "d", "cd"), FILTERED[ratio]
     if model == "ahd_classic":
         call = "usdahd_ahd_classic_decode(s0.rgb, s1.rgb, s2.rgb, ambientScale, directionalScale)"
         return "UsdahdAhdClassic", call, ("ca", "d", "cd"), "usdahd_ahd_classic_evaluate"

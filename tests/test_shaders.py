@@ -323,15 +323,29 @@ def run_kernel(device, module, textures, inputs: np.ndarray, factors: dict, k: i
 
     n = inputs.shape[0]
     assert n % WORKGROUP == 0
+    # an explicit layout: binding 2 stays when a kernel reads no factor (naga drops it, glslang
+    # keeps it, so "auto" layouts would differ between the languages)
+    stage = wgpu.ShaderStage.COMPUTE
+    layout_entries = [
+        {"binding": b, "visibility": stage, "buffer": {"type": kind}}
+        for b, kind in ((0, "read-only-storage"), (1, "storage"), (2, "read-only-storage"))
+    ]
+    layout_entries.append({"binding": 3, "visibility": stage, "sampler": {"type": "filtering"}})
+    layout_entries += [
+        {"binding": 4 + j, "visibility": stage, "texture": {"sample_type": "float"}}
+        for j in range(len(textures))
+    ]
+    bgl = device.create_bind_group_layout(entries=layout_entries)
     pipe = device.create_compute_pipeline(
-        layout="auto", compute={"module": module, "entry_point": "main"}
+        layout=device.create_pipeline_layout(bind_group_layouts=[bgl]),
+        compute={"module": module, "entry_point": "main"},
     )
     storage = wgpu.BufferUsage.STORAGE
     inb = device.create_buffer_with_data(data=inputs.astype(np.float32).tobytes(), usage=storage)
-    fac = np.array([factors.get(f, 1.0) for f in FACTORS] + [0.0, 0.0], np.float32)
-    facb = device.create_buffer_with_data(data=fac.tobytes(), usage=storage)
     outb = device.create_buffer(size=n * k * 16, usage=storage | wgpu.BufferUsage.COPY_SRC)
     sampler = device.create_sampler(mag_filter="linear", min_filter="linear")
+    fac = np.array([factors.get(f, 1.0) for f in FACTORS] + [0.0, 0.0], np.float32)
+    facb = device.create_buffer_with_data(data=fac.tobytes(), usage=storage)
     entries = [
         {"binding": 0, "resource": {"buffer": inb}},
         {"binding": 1, "resource": {"buffer": outb}},
@@ -677,6 +691,75 @@ def test_common_functions_match_the_baker(device, language, tmp_path):
     np.testing.assert_allclose(
         out[:, 6], mm / np.linalg.norm(mm, axis=-1, keepdims=True), atol=3e-6
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# --ahd-classic: the 2018 paper's Figure 2 through the sampler.
+
+#: Figure 2's highlight tilt from the normal (60 degrees: d_z = 1/2) and the sample positions
+#: between the two texel centres (multiples of 1/16: exact bilinear weights on any GPU).
+FIG2_TILT = np.radians(60.0)
+FIG2_T = np.arange(17) / 16.0
+
+
+def _figure2(device, language, tmp_path, model, ratio, pixels):
+    """Sample a 2 x 1 texture set at FIG2_T between its texel centres, decode + evaluate at the
+    normal (0, 0, 1); returns (fields (17, k, 3), I_z (17, 3)) float64."""
+    module = compile_module(device, language, model, ratio, len(pixels), tmp_path)
+    k = len(_spec(model, ratio)[2]) + 2
+    inp = np.zeros((WORKGROUP, 3, 4), np.float32)
+    inp[:, 0, 0] = 0.25  # the left texel's centre
+    inp[: len(FIG2_T), 0, 0] = 0.25 + 0.5 * FIG2_T
+    inp[:, 0, 1] = 0.5
+    inp[:, 1, 2] = 1.0  # the normal; albedo 0 (no self-bounce)
+    got = run_kernel(device, module, [_texture(device, p) for p in pixels], inp, {}, k)
+    got = got[: len(FIG2_T)].astype(np.float64)
+    return got[:, : k - 2], got[:, k - 2]
+
+
+@pytest.mark.parametrize("language", LANGUAGES)
+def test_figure2_classic_interpolation_overshoots_and_irradz_is_linear(device, language, tmp_path):
+    """2018 Fig. 2: the left texel has a unit directional light tilted 60 degrees to the left,
+    the right one zero light tilted to the right, no ambient. Classic AHD textures (C_a, d, C_d)
+    filtered by the sampler (``usdahd_ahd_classic_filtered``, d renormalised) overshoot the
+    linear I_z between them, C_d(t) d_z'(t) with d_z' = d_z / |d(t)| > d_z; at the midpoint the
+    directions cancel sideways, d' = z and I_z doubles (1/2 instead of 1/4). The IrradZ textures
+    of the same two texels (I_z, d, w_a = 0) give exactly the linear I_z. The numpy twin of the
+    Embree fallback (:mod:`usdahd.preview.classic` on :func:`raytrace.bilinear` samples) agrees."""
+    from usdahd.numerics import encoding
+    from usdahd.preview import classic, raytrace
+
+    s, c = np.sin(FIG2_TILT), np.cos(FIG2_TILT)
+    d = np.array([[[-s, 0.0, c], [s, 0.0, c]]])
+    ca = np.zeros((1, 2, 3), np.float16)
+    cd = np.array([[[1.0] * 3, [0.0] * 3]], np.float16)
+    d16 = d.astype(np.float16)
+    fields, e = _figure2(device, language, tmp_path, "ahd_classic", "filtered", [ca, d16, cd])
+
+    t = FIG2_T[:, None]
+    dl, dr = d16[0].astype(np.float64)
+    dt = (1 - t) * dl + t * dr
+    analytic = (1 - t) * dl[2] / np.linalg.norm(dt, axis=1, keepdims=True)  # C_d(t) d_z'(t)
+    uv = np.stack([0.25 + 0.5 * FIG2_T, np.full(len(FIG2_T), 0.5)], -1)
+    twin = classic.filtered(*(raytrace.bilinear(px, uv) for px in (ca, d16, cd)))
+    z = np.broadcast_to([0.0, 0.0, 1.0], (len(FIG2_T), 3))
+    numpy_e = classic.evaluate("filtered", twin, z)
+    np.testing.assert_allclose(numpy_e, np.repeat(analytic, 3, 1), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(e, numpy_e, rtol=0, atol=2e-3)  # float16 d, GPU filter weights
+    np.testing.assert_allclose(fields[:, 1], twin["direction"], rtol=0, atol=2e-3)
+    linear = (1 - t[:, 0]) * numpy_e[0, 0]  # the left texel's I_z (float16 d renormalised)
+    assert abs(e[0, 0] - numpy_e[0, 0]) < 1e-6 and abs(e[-1, 0]) < 1e-6  # exact at the centres
+    over = e[:, 0] / np.maximum(linear, 1e-30)
+    assert np.all(over[1:-1] > 1.05), over  # 1.10 (t = 15/16) to 2.0 (t = 1/2)
+    np.testing.assert_allclose(e[8], 0.5, atol=2e-3)  # midpoint: d' = z, I_z = C_d = 1/2
+
+    # IrradZ: I_z (half), direction codes + w_a = 0 in the direction's third byte (luminance)
+    iz = np.array([[[c] * 3, [0.0] * 3]], np.float16)
+    codes = encoding.encode_direction_u8(d)
+    direction = np.concatenate([codes, np.zeros((1, 2, 1), np.uint8)], -1)
+    _, e_iz = _figure2(device, language, tmp_path, "ahd", "luminance", [iz, direction])
+    lin16 = (1 - t) * float(iz[0, 0, 0])
+    np.testing.assert_allclose(e_iz, np.repeat(lin16, 3, 1), rtol=1e-5, atol=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------

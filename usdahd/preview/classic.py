@@ -22,7 +22,7 @@ from usdahd.errors import UsageError
 
 #: Baked models the option applies to -> the shader variant (``usdahd.shaders.FILTERED``):
 #: the ones shaded as C_a + max(0, n.d) C_d (AHD; HHD with its (1 + n_z)/2 ambient).
-VARIANTS = {"ahd": "filtered", "ahd_classic": "filtered", "hhd": "filtered_hhd"}
+VARIANTS = {"ahd": "filtered", "ahd_classic": "filtered", "hhd": "filtered_hhd"}  # sorted
 #: The draw items' model name of the filtered parameters (``usdahd.shaders.calls``).
 MODEL = "ahd_classic"
 

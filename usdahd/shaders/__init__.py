@@ -71,7 +71,8 @@ def calls(model: str, ratio: str) -> tuple[str, str, tuple[str, ...], str]:
 
     In the decode call ``s<k>`` is the RGBA sample of the k-th texture of the model's
     ``layout(ratio)`` (``usdahd.models``) and the factor names (``izScale``, ``ratioScale``, ...)
-    are variables holding ``ahdLightmap:baked:<factor>``.
+    are variables holding ``ahdLightmap:baked:<factor>``. ``calls("ahd_classic", v)`` with ``v``
+    a :data:`FILTERED` variant: the preview's ``--ahd-classic`` (``s0..s2``: float C_a, d, C_d).
     """
     if model not in MODEL_FILES:
         raise UsageError(f"no shader for model {model!r}; models: {', '.join(MODEL_FILES)}")

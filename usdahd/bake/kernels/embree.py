@@ -183,6 +183,7 @@ from numba.core import cgutils  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
 from usdahd.bake.kernels import cache  # noqa: E402, F401  (numba cache locators, before any @njit)
+from usdahd.bake.kernels.cache import helper  # noqa: E402
 
 
 def _extern_call(name):
@@ -257,7 +258,7 @@ def new_packet() -> np.ndarray:
     return buf[off : off + PACKET_FLOATS]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     rec[0] = ox
     rec[1] = oy
@@ -274,7 +275,7 @@ def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
     iv[11] = 0  # flags
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """Closest hit. rec : (RAYHIT_FLOATS,) float32 scratch (16-byte aligned).
 
@@ -290,7 +291,7 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     return rec[8], np.int64(iv[17]), rec[15], rec[16]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def hit_normal(rec):
     """Unit geometric normal (Embree's ``Ng``, cross(v1 - v0, v2 - v0) direction) of the hit
     left in ``rec`` by :func:`intersect1` ((0, 0, 1) for a degenerate triangle)."""
@@ -301,7 +302,7 @@ def hit_normal(rec):
     return 0.0, 0.0, 1.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """True when anything lies along the ray in [0, tfar]."""
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)
@@ -339,7 +340,7 @@ def occluded_batch(scene, o, d, tfar, out):
 # packet with fewer than PACKET_MIN rays goes through the single-ray calls with ``rec``.
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _fill_packet(pk, rays, s0, cnt, with_hit):
     W = PACKET
     iv = pk.view(np.uint32)

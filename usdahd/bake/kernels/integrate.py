@@ -16,6 +16,7 @@ from usdahd.bake.kernels import (
     cache,  # noqa: F401  (numba cache locators, before any @njit)
     embree,
 )
+from usdahd.bake.kernels.cache import helper
 from usdahd.bake.kernels.layout import (
     CFG_BOUNCES,
     CFG_EMISSION,
@@ -149,7 +150,7 @@ _INV_4PI = 1.0 / (4.0 * np.pi)
 GRAM_SUMS = 45
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _sh9(Y, x, y, z):
     Y[0] = _C0
     Y[1] = -_C1 * y
@@ -162,7 +163,7 @@ def _sh9(Y, x, y, z):
     Y[8] = _C22 * (x * x - y * y)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
     """``light_sample`` for every kind, including the emissive triangles (``EmissiveTriangles``
     .sample: triangle by power, uniform point, emission looked up in the material tables).
@@ -196,7 +197,7 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
     return dx, dy, dz, dist, r, gg, b, pdf
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _wl(mode, pl, pb):
     """``_w_light`` (mode: index in STRATEGIES)."""
     if mode == MODE_MIS:
@@ -204,7 +205,7 @@ def _wl(mode, pl, pb):
     return 1.0 if mode == MODE_NEE else 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _wb(mode, pb, pl):
     """``_w_bsdf`` (mode: index in STRATEGIES)."""
     if mode == MODE_MIS:
@@ -212,13 +213,13 @@ def _wb(mode, pb, pl):
     return 1.0 if mode == MODE_BSDF else 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _pw(a, b):
     den = a * a + b * b
     return a * a / den if den > 0.0 else 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist):
     """:func:`_shadow` for one ray: returns (dx, dy, dz, tfar)."""
     if not np.isfinite(dist):
@@ -230,7 +231,7 @@ def _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist):
     return wx / ln, wy / ln, wz / ln, ln * (1.0 - SHADOW_SHORTEN)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _set_row(a, j, x0, x1, x2, x3, x4, x5, x6):
     a[j, 0] = x0
     a[j, 1] = x1
@@ -241,7 +242,7 @@ def _set_row(a, j, x0, x1, x2, x3, x4, x5, x6):
     a[j, 6] = x6
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sval, sidx, occ, R):
     """``ReferenceCtx.incoming`` as a wavefront over the ``n`` paths in rows [0, n) of ``ps`` whose
     first hits are ``hits`` (the layout of ``embree.intersect_rays``): each path's
@@ -424,7 +425,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     return traced
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
     """Exact delta-light terms of texel ``i`` (one shadow ray per light). returns rays."""
     kind, par, img, pmf, cdf = lt.kind, lt.par, lt.img, lt.pmf, lt.cdf
@@ -457,7 +458,7 @@ def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
     return rays
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _gram_unpack(gram, i, G):
     """Add the register-fed Gram sums ``G`` (GRAM_SUMS,) to ``gram[i]`` and zero ``G``: slots
     0..7 are sum w Y_a (a = 1..8), 8..43 the upper triangle of sum w Y_a Y_b, 44 sum w, with

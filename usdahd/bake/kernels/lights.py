@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from usdahd.bake.kernels import cache  # noqa: F401  (numba cache locators, before any @njit)
+from usdahd.bake.kernels.cache import helper
 from usdahd.bake.kernels.layout import (
     KIND_CYLINDER,
     KIND_DISK,
@@ -172,7 +172,7 @@ TWO_PI = 2.0 * np.pi
 _INF = np.inf
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_basis_apply(nx, ny, nz, lx, ly, lz):
     """local (lx,ly,lz) in the Duff et al. frame around unit n -> world direction."""
     sign = 1.0 if nz >= 0.0 else -1.0
@@ -187,7 +187,7 @@ def nb_basis_apply(nx, ny, nz, lx, ly, lz):
     )
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _cone(ax, ay, az, omc, u0, u1):
     # numba twin of numerics.sampling.cone_local (the one cone rule), turned onto the axis
     z = 1.0 - u0 * omc
@@ -196,7 +196,7 @@ def _cone(ax, ay, az, omc, u0, u1):
     return nb_basis_apply(ax, ay, az, s * np.cos(phi), s * np.sin(phi), z)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
     cx, cy, cz = ox - p[PAR_CENTER], oy - p[PAR_CENTER + 1], oz - p[PAR_CENTER + 2]
     b = cx * dx + cy * dy + cz * dz
@@ -209,7 +209,7 @@ def _sphere_hit_t(p, ox, oy, oz, dx, dy, dz):
     return _INF
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _sphere_omc(p, x, y, z):
     wx, wy, wz = p[PAR_CENTER] - x, p[PAR_CENTER + 1] - y, p[PAR_CENTER + 2] - z
     d2 = wx * wx + wy * wy + wz * wz
@@ -220,7 +220,7 @@ def _sphere_omc(p, x, y, z):
     return wx, wy, wz, d2, outside, sin2 / (1.0 + cos_max)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
     ax, ay, az = p[PAR_AXIS], p[PAR_AXIS + 1], p[PAR_AXIS + 2]
     cx, cy, cz = ox - p[PAR_CENTER], oy - p[PAR_CENTER + 1], oz - p[PAR_CENTER + 2]
@@ -242,7 +242,7 @@ def _cyl_hit(p, ox, oy, oz, dx, dy, dz):
     return True, t, hx - x * ax, hy - x * ay, hz - x * az
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
     den = dx * p[PAR_PLANE_N] + dy * p[PAR_PLANE_N + 1] + dz * p[PAR_PLANE_N + 2]
     if abs(den) <= 1e-12:
@@ -271,7 +271,7 @@ def _planar_hit(kind, p, ox, oy, oz, dx, dy, dz):
     return False, _INF
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _angle(ax, ay, az, bx, by, bz):
     """Angle between unit vectors (``sampling._angle_between``)."""
     if ax * bx + ay * by + az * bz < 0.0:
@@ -281,13 +281,13 @@ def _angle(ax, ay, az, bx, by, bz):
     return 2.0 * np.arcsin(min(np.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _unit3(x, y, z):
     n = max(np.sqrt(x * x + y * y + z * z), 1e-300)
     return x / n, y / n, z / n
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _sph_rect(p, ox, oy, oz, sample, u0, u1):
     """``sampling.spherical_rectangle`` for one point and a rect light's parameters ``p``.
 
@@ -346,7 +346,7 @@ def _sph_rect(p, ox, oy, oz, sample, u0, u1):
     )
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _rect_candidate(p, ox, oy, oz):
     """``RectLight._solid``'s first test: the solid angle estimated from the centre is large."""
     if p[PAR_RECT_ORTHO] == 0.0:
@@ -359,7 +359,7 @@ def _rect_candidate(p, ox, oy, oz):
     return p[PAR_AREA] * max(cos_l, 0.0) >= SPHERICAL_RECT_MIN_SR * d2
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _rect_solid(p, ox, oy, oz):
     """Solid angle of a rect light when its solid-angle sampler applies at o, else 0."""
     if not _rect_candidate(p, ox, oy, oz):
@@ -370,7 +370,7 @@ def _rect_solid(p, ox, oy, oz):
     return 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _dome_lookup(p, dx, dy, dz):
     lx = p[PAR_DOME_INV_ROT] * dx + p[PAR_DOME_INV_ROT + 1] * dy + p[PAR_DOME_INV_ROT + 2] * dz
     ly = p[PAR_DOME_INV_ROT + 3] * dx + p[PAR_DOME_INV_ROT + 4] * dy + p[PAR_DOME_INV_ROT + 5] * dz
@@ -385,7 +385,7 @@ def _dome_lookup(p, dx, dy, dz):
     return x, y, ly
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def search_right(cdf, base, n, u):
     """``sampling.sample_discrete`` on the block ``cdf[base:base + n]``:
     ``min(searchsorted(block, u, side="right"), n - 1)``."""
@@ -399,7 +399,7 @@ def search_right(cdf, base, n, u):
     return min(lo_i, n - 1)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _area_sample(p, wx, wy, wz, nx, ny, nz):
     """An area light's sample towards the point at offset (wx, wy, wz) from the query, whose
     emitting side has normal n: (dx, dy, dz, dist, r, g, b, pdf) with the area-measure pdf
@@ -414,7 +414,7 @@ def _area_sample(p, wx, wy, wz, nx, ny, nz):
     return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
     if kind == KIND_POINT:
@@ -554,7 +554,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     )
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     """Scalar ``Light.intersect``: returns (hit, t, r, g, b)."""
     if kind == KIND_SPHERE:
@@ -595,7 +595,7 @@ def light_intersect(kind, p, img, ox, oy, oz, dx, dy, dz):
     return False, _INF, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
     """Scalar ``Light.pdf`` (solid angle) of a direction that hit the light at ``t``."""
     if kind == KIND_SPHERE:

@@ -10,12 +10,12 @@ and tests/test_trace.py.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from usdahd.bake.kernels import (
     cache,  # noqa: F401  (numba cache locators, before any @njit)
     embree,
 )
+from usdahd.bake.kernels.cache import helper
 from usdahd.bake.kernels.layout import (
     MAT_ALBEDO,
     MAT_OPACITY,
@@ -33,7 +33,7 @@ from usdahd.bake.trace import MAX_TRANSMIT
 _U64 = np.uint64
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_random(st):
     """Next float64 in [0, 1) from the splitmix64 state ``st[0]`` (advanced in place)."""
     z = st[0] + _U64(0x9E3779B97F4A7C15)
@@ -44,7 +44,7 @@ def nb_random(st):
     return np.float64(z >> _U64(11)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     """:meth:`Tracer.offset` for one ray."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
@@ -52,7 +52,7 @@ def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
     return px + sc * nx, py + sc * ny, pz + sc * nz
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _wrap(i, n, mode):
     if mode == 1:
         return min(max(i, 0), n - 1)
@@ -62,7 +62,7 @@ def _wrap(i, n, mode):
     return i % n
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
     return (
         data[off + (ys0 * w + xs0) * c + ch] * (1 - fx) * (1 - fy)
@@ -72,7 +72,7 @@ def _bilinear(data, off, w, c, ch, xs0, xs1, ys0, ys1, fx, fy):
     )
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_texture(tb, k, s, t):
     """Texture ``k`` at uv (s, t): ((v0, v1, v2, v3), count) the selected channels (bilinear,
     scale/bias, missing channels padded as :meth:`usdahd.scene.types.Texture.sample`)."""
@@ -107,20 +107,20 @@ def nb_texture(tb, k, s, t):
     return out, info[k, 6]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _bary(a, tri, u, v, i):
     """Component ``i`` of per-corner data ``a`` (t, 3, c) at barycentrics (1 - u - v, u, v)."""
     w0 = 1.0 - u - v
     return w0 * a[tri, 0, i] + u * a[tri, 1, i] + v * a[tri, 2, i]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _uv(tb, tri, u, v):
     tc = tb.tri_texcoord
     return _bary(tc, tri, u, v, 0), _bary(tc, tri, u, v, 1)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def _material_rgb(tb, tri, u, v, which):
     # which: TEX_ALBEDO or TEX_EMISSION; its constant rgb starts at column 3 * which
     m = tb.tri_material[tri]
@@ -136,20 +136,20 @@ def _material_rgb(tb, tri, u, v, which):
     return val[0], val[1], val[2]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_albedo(tb, tri, u, v):
     """:meth:`Tracer.albedo_at` for one hit: (r, g, b) clipped to [0, 1]."""
     r, g, b = _material_rgb(tb, tri, u, v, np.int64(TEX_ALBEDO))
     return min(max(r, 0.0), 1.0), min(max(g, 0.0), 1.0), min(max(b, 0.0), 1.0)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_emission(tb, tri, u, v):
     """:meth:`Tracer.emission_at` for one hit: (r, g, b)."""
     return _material_rgb(tb, tri, u, v, np.int64(TEX_EMISSION))
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_transmits(tb, tri, u, v, st):
     """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
     m = tb.tri_material[tri]
@@ -170,13 +170,13 @@ def nb_transmits(tb, tri, u, v, st):
     return False
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_hit_point(tb, tri, u, v):
     w = tb.verts
     return _bary(w, tri, u, v, 0), _bary(w, tri, u, v, 1), _bary(w, tri, u, v, 2)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_shading_normal(tb, tri, u, v):
     cn = tb.corner_normal
     nx, ny, nz = _bary(cn, tri, u, v, 0), _bary(cn, tri, u, v, 1), _bary(cn, tri, u, v, 2)
@@ -187,7 +187,7 @@ def nb_shading_normal(tb, tri, u, v):
     return g[tri, 0], g[tri, 1], g[tri, 2]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
     on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
@@ -220,7 +220,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     return np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
     if not transmission:
@@ -229,7 +229,7 @@ def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, t
     return r[1] >= 0, r[7]
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
     """:meth:`Tracer.intersect` for ``rays[:n]`` into ``hits[:n]`` (the row layouts of
     :func:`usdahd.bake.kernels.embree.intersect_rays`): 16-ray packets, or one ray at a time
@@ -249,7 +249,7 @@ def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
     return total
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@helper
 def nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, out):
     """:meth:`Tracer.occluded` for ``rays[:n]`` into ``out[:n]`` (bool). returns rays traced."""
     if not transmission:

@@ -310,14 +310,19 @@ def occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     return rec[8] == -np.inf
 
 
+_f = np.float64
+
+
 @njit(cache=True, nogil=True)
 def intersect_batch(scene, o, d, tfar, t_out, prim_out, u_out, v_out):
     """Batch of closest hits (float32 arrays; o, d (m,3), tfar (m,)) into the out arrays."""
     rec = scratch()
     for i in range(o.shape[0]):
+        # float64 arguments (exact for float32 input): the specialisation the kernels use
         t, p, u, v = intersect1(
-            scene, rec, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], tfar[i]
-        )
+            scene, rec, _f(o[i, 0]), _f(o[i, 1]), _f(o[i, 2]), _f(d[i, 0]), _f(d[i, 1]),
+            _f(d[i, 2]), _f(tfar[i]),
+        )  # fmt: skip
         t_out[i] = t
         prim_out[i] = p
         u_out[i] = u
@@ -330,8 +335,9 @@ def occluded_batch(scene, o, d, tfar, out):
     rec = scratch()
     for i in range(o.shape[0]):
         out[i] = occluded1(
-            scene, rec, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], tfar[i]
-        )
+            scene, rec, _f(o[i, 0]), _f(o[i, 1]), _f(o[i, 2]), _f(d[i, 0]), _f(d[i, 1]),
+            _f(d[i, 2]), _f(tfar[i]),
+        )  # fmt: skip
 
 
 # ------------------------------------------------------------------ packets

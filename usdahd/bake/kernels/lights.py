@@ -287,6 +287,11 @@ def _unit3(x, y, z):
     return x / n, y / n, z / n
 
 
+#: Flags as np.bool_ values, not literals (a literal True/False is a type of its own: one
+#: specialisation of the helper per literal).
+_NO, _YES = np.bool_(False), np.bool_(True)
+
+
 @helper
 def _sph_rect(p, ox, oy, oz, sample, u0, u1):
     """``sampling.spherical_rectangle`` for one point and a rect light's parameters ``p``.
@@ -364,7 +369,7 @@ def _rect_solid(p, ox, oy, oz):
     """Solid angle of a rect light when its solid-angle sampler applies at o, else 0."""
     if not _rect_candidate(p, ox, oy, oz):
         return 0.0
-    sr, _, _, _ = _sph_rect(p, ox, oy, oz, False, 0.0, 0.0)
+    sr, _, _, _ = _sph_rect(p, ox, oy, oz, _NO, 0.0, 0.0)
     if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
         return sr
     return 0.0
@@ -452,7 +457,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
             )
         return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
     if kind == KIND_RECT and _rect_candidate(p, x, y, z):
-        sr, qx, qy, qz = _sph_rect(p, x, y, z, True, u0, u1)  # one set-up: test, then sample
+        sr, qx, qy, qz = _sph_rect(p, x, y, z, _YES, u0, u1)  # one set-up: test, then sample
         if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
             wx, wy, wz = qx - x, qy - y, qz - z
             dist = np.sqrt(wx * wx + wy * wy + wz * wz)

@@ -107,6 +107,12 @@ def nb_texture(tb, k, s, t):
     return out, info[k, 6]
 
 
+# Component indices as int64 values, not literals: numba compiles a helper once per argument
+# type, and a literal 0 is a type of its own (Literal[int](0)), so each constant index would
+# make another specialisation of the same code.
+_I0, _I1, _I2 = np.int64(0), np.int64(1), np.int64(2)
+
+
 @helper
 def _bary(a, tri, u, v, i):
     """Component ``i`` of per-corner data ``a`` (t, 3, c) at barycentrics (1 - u - v, u, v)."""
@@ -117,7 +123,7 @@ def _bary(a, tri, u, v, i):
 @helper
 def _uv(tb, tri, u, v):
     tc = tb.tri_texcoord
-    return _bary(tc, tri, u, v, 0), _bary(tc, tri, u, v, 1)
+    return _bary(tc, tri, u, v, _I0), _bary(tc, tri, u, v, _I1)
 
 
 @helper
@@ -173,13 +179,14 @@ def nb_transmits(tb, tri, u, v, st):
 @helper
 def nb_hit_point(tb, tri, u, v):
     w = tb.verts
-    return _bary(w, tri, u, v, 0), _bary(w, tri, u, v, 1), _bary(w, tri, u, v, 2)
+    return _bary(w, tri, u, v, _I0), _bary(w, tri, u, v, _I1), _bary(w, tri, u, v, _I2)
 
 
 @helper
 def nb_shading_normal(tb, tri, u, v):
     cn = tb.corner_normal
-    nx, ny, nz = _bary(cn, tri, u, v, 0), _bary(cn, tri, u, v, 1), _bary(cn, tri, u, v, 2)
+    nx, ny = _bary(cn, tri, u, v, _I0), _bary(cn, tri, u, v, _I1)
+    nz = _bary(cn, tri, u, v, _I2)
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)
     if ln > 1e-12:
         return nx / ln, ny / ln, nz / ln
@@ -206,7 +213,9 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     for _ in range(MAX_TRANSMIT):
         if tri < 0 or not nb_transmits(tb, tri, u, v, st):
             break
-        px, py, pz = nb_hit_point(tb, tri, np.float32(u), np.float32(v))
+        # barycentrics rounded to float32 as Embree reports them (float64: one specialisation)
+        uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
+        px, py, pz = nb_hit_point(tb, tri, uf, vf)
         g = tb.geom_normal
         qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
         done = travelled + t

@@ -1,0 +1,186 @@
+"""First-bake start-up (issue 16): time to the first traced texel and numba compile time with a
+fresh numba cache, as on the first ``usdahd bake`` after ``pip install``.
+
+    python -m benchmarks.startup                      # 3 cold runs of samples/cornell_box.usda
+    python -m benchmarks.startup --runs 5 --stop      # stop each run at the first texel
+    python -m benchmarks.startup --json out.json
+
+Each run is a new process with its own empty ``NUMBA_CACHE_DIR`` and a fresh copy of the stage,
+baking with ``usdahd bake -q``. The child records (from numba's ``numba:compile`` events) the
+compile seconds of every dispatcher (outermost compiles and each one's own share without the
+callees it compiled), the specialisations each compiled (``dispatcher.signatures``), and the
+moment the first call of the bake kernel (``native_pass``) returned: the first texels are traced
+then. Times are from the child's launch (interpreter start and imports included). After the
+cold runs one more run reuses the last cache: it must compile nothing (``warm compiles``).
+Reports the median of each figure and the load average (``/proc/loadavg``) before and after:
+on this 2-core machine other work running alongside inflates every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_STAGE = REPO / "samples" / "cornell_box.usda"
+
+
+def _child(stage: str, out: str, stop: bool) -> None:
+    """Bake ``stage`` in this process, record compile events and the first texel into ``out``."""
+    import threading
+
+    from numba.core import event as ev
+
+    launch = float(os.environ["STARTUP_LAUNCH"])
+    local = threading.local()
+    comp: dict = {}
+    lock = threading.Lock()
+
+    class _Listener(ev.Listener):
+        def on_start(self, e):
+            stack = getattr(local, "stack", None)
+            if stack is None:
+                stack = local.stack = []
+            stack.append([time.perf_counter(), 0.0])
+
+        def on_end(self, e):
+            t0, inner = local.stack.pop()
+            dt = time.perf_counter() - t0
+            if local.stack:
+                local.stack[-1][1] += dt
+            f = e.data["dispatcher"].py_func
+            name = f"{f.__module__}.{f.__qualname__}"
+            with lock:
+                r = comp.setdefault(name, {"outer": 0.0, "own": 0.0, "compiles": 0})
+                r["own"] += dt - inner
+                r["compiles"] += 1
+                if not local.stack:
+                    r["outer"] += dt
+
+    ev.register("numba:compile", _Listener())
+
+    import numba
+
+    import usdahd.bake.integrate as integrate
+
+    first: dict = {}
+    kernel = integrate.native_pass
+
+    def dump(rc: int) -> None:
+        sigs = {}
+        for mod in list(sys.modules.values()):
+            if not getattr(mod, "__name__", "").startswith("usdahd"):
+                continue
+            for v in list(vars(mod).values()):
+                if isinstance(v, numba.core.dispatcher.Dispatcher) and v.signatures:
+                    sigs[f"{v.py_func.__module__}.{v.py_func.__qualname__}"] = len(v.signatures)
+        res = {
+            "exit_code": rc,
+            "first_texel": first.get("texel"),
+            "total": time.time() - launch,
+            "cpu": time.process_time(),
+            "compile_total": sum(r["outer"] for r in comp.values()),
+            "compiles": sum(r["compiles"] for r in comp.values()),
+            "compile": comp,
+            "signatures": sigs,
+        }
+        Path(out).write_text(json.dumps(res, indent=1))
+
+    def traced(*args):
+        r = kernel(*args)
+        if "texel" not in first:
+            first["texel"] = time.time() - launch
+            if stop:
+                dump(0)
+                os._exit(0)
+        return r
+
+    integrate.native_pass = traced
+    from usdahd.cli import main
+
+    dump(main(["bake", "-q", stage]))
+
+
+def _loadavg() -> str:
+    try:
+        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    except OSError:
+        return "?"
+
+
+def _run(stage: Path, cache: Path, stop: bool) -> dict:
+    with tempfile.TemporaryDirectory(prefix="usdahd-startup-") as tmp:
+        shutil.copy(stage, Path(tmp) / stage.name)
+        out = Path(tmp) / "result.json"
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), STARTUP_LAUNCH=repr(time.time()))
+        env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
+        load0 = _loadavg()
+        cmd = [sys.executable, "-m", "benchmarks.startup", "--child", str(Path(tmp) / stage.name)]
+        cmd += ["--out", str(out)] + (["--stop"] if stop else [])
+        subprocess.run(cmd, env=env, cwd=REPO, check=True)
+        res = json.loads(out.read_text())
+        res["load"] = (load0, _loadavg())
+        return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=3, help="cold runs (fresh cache each)")
+    ap.add_argument("--stage", default=str(DEFAULT_STAGE))
+    ap.add_argument("--stop", action="store_true", help="end each run at the first texel")
+    ap.add_argument("--json", help="write all runs here")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child:
+        _child(a.child, a.out, a.stop)
+        return 0
+    stage = Path(a.stage).resolve()
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="usdahd-startup-cache-") as caches:
+        for i in range(a.runs):
+            cache = Path(caches) / f"run{i}"
+            runs.append(_run(stage, cache, a.stop))
+            r = runs[-1]
+            print(
+                f"run {i + 1}: first texel {r['first_texel']:.1f}s, compile "
+                f"{r['compile_total']:.1f}s ({r['compiles']} compiles), total {r['total']:.1f}s, "
+                f"cpu {r['cpu']:.1f}s, load {r['load'][0]} -> {r['load'][1]}",
+                file=sys.stderr,
+                flush=True,
+            )
+        warm = _run(stage, cache, a.stop)
+    med = {k: statistics.median(r[k] for r in runs) for k in ("first_texel", "compile_total")}
+    med.update(total=statistics.median(r["total"] for r in runs))
+    top: dict = {}
+    for r in runs:
+        for name, c in r["compile"].items():
+            top.setdefault(name, []).append(c["own"])
+    print(f"{stage.name}: {a.runs} cold runs (median)")
+    print(f"  first texel     {med['first_texel']:6.1f} s")
+    print(f"  compile total   {med['compile_total']:6.1f} s")
+    print(f"  bake total      {med['total']:6.1f} s" + ("  (stopped at first texel)" * a.stop))
+    print(f"  warm compiles   {warm['compiles']:6d}    (second run, same cache: must be 0)")
+    print(f"  warm first texel{warm['first_texel']:6.1f} s")
+    print("  load average    " + ", ".join(f"{r['load'][0]} -> {r['load'][1]}" for r in runs))
+    print("  compile seconds per dispatcher (own share, median; top 8):")
+    for name, secs in sorted(top.items(), key=lambda kv: -statistics.median(kv[1]))[:8]:
+        nsig = runs[-1]["signatures"].get(name, "?")
+        print(f"    {statistics.median(secs):6.2f}  {name}  [{nsig} specialisation(s)]")
+    multi = {k: v for k, v in runs[-1]["signatures"].items() if v > 1}
+    print(f"  dispatchers with several specialisations: {multi or 'none'}")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"runs": runs, "warm": warm}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

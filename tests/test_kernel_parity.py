@@ -323,3 +323,41 @@ def test_search_right_equals_sample_discrete():
     table = np.r_[rng.random(5), cdf, rng.random(4)]  # the block at offset 5
     u = np.r_[rng.random(2000), 0.0, cdf[:5], 1.0 - 1e-16]
     np.testing.assert_array_equal(_nb_search(table, 5, len(cdf), u), sample_discrete(cdf, u))
+
+
+# ----------------------------------------------------------------------------- kernel helpers
+
+
+def test_helper_called_from_python_raises_instead_of_crashing():
+    """Helpers have no Python entry point (``cache.helper``, compile time): a call from Python
+    raises TypeError naming the function and the fix, even once compiled for a numba caller."""
+    from usdahd.bake.kernels.cache import HelperDispatcher
+
+    assert isinstance(KI._pw, HelperDispatcher)
+    with pytest.raises(TypeError, match=r"integrate\._pw is a numba kernel helper .* @njit"):
+        KI._pw(1.0, 2.0)
+
+    @njit(cache=False)
+    def call(a, b):
+        return KI._pw(a, b)
+
+    assert call(1.0, 1.0) == 0.5  # from numba code it works
+    with pytest.raises(TypeError, match="call it from @njit code"):
+        KI._pw(1.0, 1.0)  # now compiled for (float64, float64): still no call from Python
+
+
+def test_helpers_compile_one_specialisation_per_argument_types():
+    """Constant indices are passed as int64 values (``trace._I0``..), not literals (compile
+    time): a literal 1 would compile ``_bary`` for the type ``Literal[int](1)`` of its own."""
+    from usdahd.bake.kernels import trace as T
+
+    tc = np.arange(2 * 3 * 2, dtype=np.float32).reshape(2, 3, 2)
+
+    @njit(cache=False)
+    def second(a, u, v):
+        return T._bary(a, np.int64(1), u, v, T._I1)
+
+    w0 = 1.0 - 0.25 - 0.5
+    assert second(tc, 0.25, 0.5) == w0 * tc[1, 0, 1] + 0.25 * tc[1, 1, 1] + 0.5 * tc[1, 2, 1]
+    assert T._bary.signatures
+    assert [sig for sig in T._bary.signatures if any("Literal" in str(a) for a in sig)] == []

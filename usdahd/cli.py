@@ -31,6 +31,7 @@ COMMANDS = {
     "bench": "usdahd.commands.bench",
     "plugin-path": "usdahd.commands.plugin_path",
     "preview": "usdahd.commands.preview",
+    "warmup": "usdahd.commands.warmup",
 }
 
 

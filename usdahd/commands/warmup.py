@@ -1,0 +1,174 @@
+"""``usdahd warmup``: compile (or load from numba's cache) every kernel a bake needs, once.
+
+numba compiles the bake's kernels on their first use and caches them on disk; the first bake
+after installing usdahd spends a minute or two compiling before its first texel (issue 16,
+``benchmarks/startup.py``). ``usdahd warmup`` does that work up front: it bakes a small built-in
+stage (one quad under a dome light, written to a temporary folder and removed) with the default
+settings, which compiles the tracing, rasterising and encoding kernels, then fits a few SH with
+every registered model, ratio and solver. It prints how many kernels it compiled and how many
+numba's cache already had; run a second time it compiles nothing. Kernels are cached where
+numba caches them (``NUMBA_CACHE_DIR``, else ``__pycache__`` next to the installed sources).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: The warm-up stage: a 1 x 1 quad (y = 0, facing +y, UVs primvars:st) under a uniform dome.
+STAGE = """#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+
+def Xform "World"
+{
+    def Mesh "Quad"
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        normal3f[] normals = [(0, 1, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0)] (
+            interpolation = "vertex"
+        )
+        point3f[] points = [(-0.5, 0, 0.5), (0.5, 0, 0.5), (0.5, 0, -0.5), (-0.5, 0, -0.5)]
+        texCoord2f[] primvars:st = [(0.05, 0.05), (0.95, 0.05), (0.95, 0.95), (0.05, 0.95)] (
+            interpolation = "vertex"
+        )
+        uniform token subdivisionScheme = "none"
+    }
+
+    def DomeLight "Sky"
+    {
+        float inputs:intensity = 1
+    }
+}
+"""
+
+#: Bake settings of the warm-up (small: the point is compiling, not the picture).
+RESOLUTION = 8
+SAMPLES = 8
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "warmup",
+        help="compile every bake kernel now (the first bake after installing then starts fast)",
+        description=(
+            "Compile, or load from numba's on-disk cache, every numba kernel a bake uses: bakes "
+            "a small built-in stage in a temporary folder and fits every model. Run once after "
+            "installing usdahd; the first real bake then shows its first texel within seconds. "
+            "Prints how many kernels were compiled and how many came from the cache."
+        ),
+    )
+    p.set_defaults(func=run)
+    return p
+
+
+def _kernels() -> set[str]:
+    """Names of the usdahd numba dispatchers that have at least one compiled or loaded version."""
+    import sys
+
+    from numba.core.dispatcher import Dispatcher
+
+    out = set()
+    for mod in list(sys.modules.values()):
+        if not getattr(mod, "__name__", "").startswith("usdahd"):
+            continue
+        for value in list(vars(mod).values()):
+            if isinstance(value, Dispatcher) and value.signatures:
+                f = value.py_func
+                out.add(f"{f.__module__}.{f.__qualname__}")
+    return out
+
+
+def _fit_every_model() -> list[str]:
+    """Fit a few fixed SH (float32, as a bake passes them) with every model/ratio/solver."""
+    from usdahd import models
+
+    rng = np.random.default_rng(0)
+    sh = rng.normal(0.0, 0.1, size=(16, 3, 9)).astype(np.float32)
+    sh[:, :, 0] = 1.0  # a bright, mostly uniform sky with some directional structure
+    sh[:, :, 2] += 0.4
+    done = []
+    for name in models.names():
+        mod = models.get(name)
+        for ratio in mod.RATIOS:
+            for solver in mod.SOLVERS:
+                models.fit(sh, name, ratio=ratio, solver=solver)
+                done.append(f"{name}/{ratio}/{solver}")
+    return done
+
+
+def warmup(*, quiet: bool = False) -> dict:
+    """Compile or load every bake kernel; returns the report (kernels compiled / loaded)."""
+    from numba.core import event as ev
+
+    from usdahd.pipeline.run import bake
+    from usdahd.pipeline.settings import BakeOptions
+
+    compiled: set[str] = set()
+
+    class _Listener(ev.Listener):
+        def on_start(self, event):
+            pass
+
+        def on_end(self, event):
+            f = event.data["dispatcher"].py_func
+            compiled.add(f"{f.__module__}.{f.__qualname__}")
+
+    listener = _Listener()
+    ev.register("numba:compile", listener)
+    t0 = time.perf_counter()
+    try:
+        with tempfile.TemporaryDirectory(prefix="usdahd-warmup-") as tmp:
+            stage = Path(tmp) / "warmup.usda"
+            stage.write_text(STAGE)
+            opts = BakeOptions(resolution=RESOLUTION, samples=SAMPLES, quiet=quiet)
+            result = bake(stage, opts)
+            if result.get("exit_code", 0) != 0:
+                from usdahd.errors import BakeError
+
+                raise BakeError(f"warm-up bake failed: {json.dumps(result)[:400]}")
+        fits = _fit_every_model()
+    finally:
+        ev.unregister("numba:compile", listener)
+    ready = _kernels()
+    usd = sorted(k for k in compiled if k.startswith("usdahd"))
+    return {
+        "command": "warmup",
+        "exit_code": 0,
+        "seconds": round(time.perf_counter() - t0, 2),
+        "compiled": usd,
+        "loaded": sorted(ready - set(usd)),
+        "fits": fits,
+    }
+
+
+def run(args) -> int:
+    quiet = bool(getattr(args, "quiet", 0))
+    report = warmup(quiet=quiet)
+    if getattr(args, "json", False):
+        print(json.dumps(report, indent=2))
+        return 0
+    n_c, n_l = len(report["compiled"]), len(report["loaded"])
+    if n_c:
+        msg = (
+            f"usdahd warmup: compiled {n_c} kernels ({n_l} more from the cache) in "
+            f"{report['seconds']:.1f}s; they are cached: bakes now start without compiling"
+        )
+    else:
+        msg = (
+            f"usdahd warmup: all {n_l} kernels loaded from numba's cache in "
+            f"{report['seconds']:.1f}s: nothing to compile"
+        )
+    print(msg)
+    if not quiet:
+        for name in report["compiled"]:
+            print(f"  compiled {name}")
+    return 0

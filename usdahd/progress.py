@@ -4,7 +4,8 @@
   on a non-terminal stderr (CI logs) it prints a plain line at most every 10 s, and ``close``
   always prints the final 100 % line there so logs show every mesh finishing.
 - :class:`CompileNotice`: while numba compiles kernels (the first run after installing), prints
-  ``compiling kernels (first run only)…`` with the elapsed time, and the total when done. Time
+  ``compiling kernels (first run only)…`` with the elapsed time, and the total when done
+  (pointing to ``usdahd warmup``, which compiles them ahead of a first bake). Time
   spent compiling is excluded from every :class:`Progress` rate and ETA.
 """
 
@@ -14,6 +15,8 @@ import sys
 import threading
 import time
 
+#: Said after a compile: the command that compiles every bake kernel ahead of a first bake.
+WARMUP_HINT = "after installing or upgrading usdahd, `usdahd warmup` compiles them ahead"
 #: Seconds numba spent compiling in this process (outermost compile events only).
 _compile = {"seconds": 0.0, "depth": 0, "since": None}
 _lock = threading.Lock()
@@ -207,7 +210,8 @@ class CompileNotice:
         if self.announced and not self.quiet:
             clear_line()
             self.stream.write(
-                f"compiled kernels in {format_seconds(self.seconds())} (cached for later runs)\n"
+                f"compiled kernels in {format_seconds(self.seconds())} (cached for later runs; "
+                f"{WARMUP_HINT})\n"
             )
             self.stream.flush()
 

@@ -34,7 +34,7 @@ def _commands() -> list[str]:
 
 def test_readme_quick_start_is_the_two_commands():
     bake, tests = _commands()[:2]
-    assert bake.endswith("pip install . && usdahd bake samples/cornell_box.usda")
+    assert bake.endswith("pip install . && usdahd warmup && usdahd bake samples/cornell_box.usda")
     assert tests.endswith("pip install '.[test]' && pytest")
 
 

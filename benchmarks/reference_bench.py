@@ -5,7 +5,7 @@ matplotlib from the ``bench`` extra for the plot)::
 
     python benchmarks/reference_bench.py [--stages cornell_box pillar_room floor_lamp]
         [--resolution 32] [--samples 16 64 256 1024] [--truth-spp 4096]
-        [--out docs/benchmarks/reference.md]
+        [--centre pillar_room floor_lamp] [--centre-spp N] [--out docs/benchmarks/reference.md]
 
 For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
 ``--samples`` count with otherwise default settings; Cycles bakes at the same counts; both
@@ -41,9 +41,45 @@ def _log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str):
-    """Rows {"stage", "renderer", "spp", "seconds", "wall", "bias", "rel_rmse"} + truth info."""
-    rows = []
+def net_of_truth_noise(rel_rmse: float, truth_noise: float | None) -> float:
+    """An error against a noisy truth with the truth's own noise taken out (independent noise
+    adds in quadrature: measured^2 = error^2 + truth^2); 0 when the truth's noise dominates."""
+    if truth_noise is None or not math.isfinite(truth_noise):
+        return rel_rmse
+    return math.sqrt(max(rel_rmse**2 - truth_noise**2, 0.0))
+
+
+def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
+    """A centre-sampled truth (Cycles at k x the resolution, the centre sub-texel kept: the
+    quantity usdahd estimates, docs/texels.md) and its own relRMSE noise.
+
+    Two independent halves (seeds 1 and 2, ``spp // 2`` each, cached) are averaged; the noise
+    of the mean is rms(A - B) / 2 relative to the mean (var(A - B) = 2 s^2, var((A+B)/2) = s^2/2).
+    Returns ({mesh index: (h, w, 3)}, noise) with noise measured on the compared texels.
+    """
+    half = max(1, spp // 2)
+    _, a, _ = runner.cached_cycles(scene, sf, half, seed=compare.TRUTH_SEED, bpy=bpy,
+                                   oversample=k)  # fmt: skip
+    _, b, _ = runner.cached_cycles(scene, sf, half, seed=compare.TRUTH_SEED + 1, bpy=bpy,
+                                   oversample=k)  # fmt: skip
+    truth = {i: 0.5 * (a[i] + b[i]) for i in a if i in b}
+    res = compare.compare_images(scene.meshes, a, b, {}, half, 0)
+    diff = res["overall"].get("cycles", {}).get("rel_rmse")
+    return truth, (None if diff is None else 0.5 * diff)
+
+
+def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
+                centre: int = 1, centre_spp: int | None = None):  # fmt: skip
+    """Rows {"stage", "renderer", "spp", "seconds", "wall", "bias", "rel_rmse",
+    "rel_rmse_net", "truth", "truth_noise"}.
+
+    Each renderer is compared with the converged value of the quantity it estimates: Cycles
+    with its own box-filtered truth (``truth_spp``); usdahd with that truth too when
+    ``centre`` is 1, else with :func:`centre_truth` (oversample ``centre``, ``centre_spp``
+    samples, default ``truth_spp``). ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
+    """
+    rows, box_usdahd = [], []
+    ctruth = cnoise = None
     with tempfile.TemporaryDirectory(prefix="usdahd-refbench-") as tmp:
         tmp = Path(tmp)
         scene = sf = truth = None
@@ -60,34 +96,55 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 t_info, truth, hit = runner.cached_cycles(
                     scene, sf, truth_spp, seed=compare.TRUTH_SEED, bpy=bpy
                 )
+                if centre > 1:
+                    cs = centre_spp or truth_spp
+                    _log(f"{stage.name}: centre-sampled truth {cs} spp, oversample {centre}")
+                    ctruth, cnoise = centre_truth(scene, sf, cs, centre, bpy)
             ours = {}
             for k, m in enumerate(scene.meshes):
                 r = results.get(m["path"])
                 if m["baked"] and r and r.get("sidecar"):
                     ours[k] = compare.usdahd_iz(r["sidecar"])
-            res = compare.compare_images(scene.meshes, truth, {}, ours, n, truth_spp)
+            res = compare.compare_images(scene.meshes, ctruth or truth, {}, ours, n, truth_spp)
             ov = res["overall"].get("usdahd", {})
             secs = float(baked["report"].get("seconds", baked["seconds"]))
             rows.append(
                 {"stage": stage.stem, "renderer": "usdahd", "spp": n, "seconds": secs,
-                 "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"]}
+                 "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"],
+                 "truth": f"centre x{centre}" if ctruth else "box", "truth_noise": cnoise}
             )  # fmt: skip
+            if ctruth is None:
+                box_usdahd.append(rows[-1])  # its truth noise is known after Cycles' runs
+            else:
+                rows[-1]["rel_rmse_net"] = net_of_truth_noise(ov.get("rel_rmse", math.nan), cnoise)
             _log(f"{stage.name}: usdahd {n} spp {secs:.1f}s relRMSE {ov.get('rel_rmse', 0):.4f}")
         for n in samples:
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
             res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp)
             ov = res["overall"].get("cycles", {})
+            tn = res["overall"].get("truth_noise")
+            net = net_of_truth_noise(ov.get("rel_rmse", math.nan), tn)
             rows.append({"stage": stage.stem, "renderer": "cycles", "spp": n,
                          "seconds": info["bake_seconds"], "wall": info["wall_seconds"], **ov,
-                         "texels": res["overall"]["compared"],
-                         "truth_noise": res["overall"].get("truth_noise")})  # fmt: skip
+                         "texels": res["overall"]["compared"], "truth": "box",
+                         "truth_noise": tn, "rel_rmse_net": net})  # fmt: skip
             _log(f"{stage.name}: cycles {n} spp {info['bake_seconds']:.1f}s "
                  f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
+    box_noise = [r["truth_noise"] for r in rows if r["renderer"] == "cycles" and r["truth_noise"]]
+    for r in box_usdahd:  # the box truth's noise: its lowest estimate over Cycles' runs
+        r["truth_noise"] = min(box_noise) if box_noise else None
+        r["rel_rmse_net"] = net_of_truth_noise(r.get("rel_rmse", math.nan), r["truth_noise"])
     return rows
 
 
+def _err(r: dict) -> float:
+    """The error a row is judged by: net of its truth's noise when known."""
+    return r.get("rel_rmse_net", r.get("rel_rmse"))
+
+
 def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
-    """Per stage: the wall time each renderer needs to reach Cycles' error at ``target_spp``.
+    """Per stage: the wall time each renderer needs to reach Cycles' error at ``target_spp``
+    (errors net of the truth's noise where the rows have ``rel_rmse_net``).
 
     usdahd's time is interpolated between its two measured runs that bracket the target error,
     linearly in log(time) against log(relRMSE) (both fall as a power law in the samples);
@@ -100,9 +157,9 @@ def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
         ref = next((r for r in cyc if r["spp"] == target_spp and "rel_rmse" in r), None)
         if ref is None:
             continue
-        target = ref["rel_rmse"]
+        target = _err(ref)
         ours = sorted(
-            (r["seconds"], r["rel_rmse"])
+            (r["seconds"], _err(r))
             for r in rows
             if r["stage"] == stage and r["renderer"] == "usdahd" and "rel_rmse" in r
         )
@@ -134,31 +191,48 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     for r in rows:
         if r["renderer"] == "cycles" and r.get("truth_noise") is not None:
             noise.setdefault(r["stage"], []).append(r["truth_noise"])
+    centred = {r["stage"]: r for r in rows if str(r.get("truth", "")).startswith("centre")}
+    cmd = (
+        f"python benchmarks/reference_bench.py --resolution {args.resolution} "
+        f"--samples {' '.join(map(str, args.samples))} --truth-spp {args.truth_spp}"
+    )
+    if centred:
+        cmd += f" --centre {' '.join(sorted(centred))}"
     lines = [
         "## usdahd vs Cycles: error against a converged truth vs time",
         "",
-        f"Generated by `python benchmarks/reference_bench.py --resolution {args.resolution} "
-        f"--samples {' '.join(map(str, args.samples))} --truth-spp {args.truth_spp}` "
-        f"({time.strftime('%Y-%m-%d')}). Both renderers bake the same stages at "
-        f"{args.resolution}² per mesh; usdahd with default settings except `--samples`. Truth: "
-        f"Cycles at {args.truth_spp} spp (seed 1, cached); its own noise (relRMSE): "
+        f"Generated by `{cmd}` ({time.strftime('%Y-%m-%d')}). Both renderers bake the same "
+        f"stages at {args.resolution}² per mesh; usdahd with default settings except "
+        f"`--samples`. Truth: Cycles at {args.truth_spp} spp (seed 1, cached); its own noise "
+        "(relRMSE): "
         + ", ".join(f"{s} {100 * min(v):.2f} %" for s, v in noise.items())
         + ". Errors: Rec. 709 luminance of I_z on interior texels the truth lights "
-        "(benchmarks/reference/compare.py); relRMSE includes the truth's noise. Time: usdahd's "
-        "bake (its report) and Cycles' bake call, both on the same 2 shared cores. "
-        "Texel convention: usdahd samples each texel at its centre (docs/texels.md), Cycles "
-        "jitters over the texel (a box filter), so at a small light's hotspot or a hard shadow "
-        "edge the two differ by construction and usdahd's error against this truth stops "
-        "falling with more samples; `python -m benchmarks.reference compare STAGE "
-        "--oversample 5` compares against a centre-sampled truth instead.",
+        "(benchmarks/reference/compare.py); *relRMSE* includes the truth's noise, *net* has it "
+        "taken out in quadrature. Time: usdahd's bake (its report) and Cycles' bake call, both "
+        "on the same 2 shared cores. Texel convention: usdahd samples each texel at its centre "
+        "(docs/texels.md), Cycles jitters over the texel (a box filter), so at a small light's "
+        "hotspot or a hard shadow edge the two estimate different quantities and usdahd's "
+        "error against Cycles' truth stops falling with more samples. Each renderer is "
+        "therefore judged against the converged value of what it estimates: Cycles against "
+        "its box-filtered truth, usdahd on the stages marked *centre* against a centre-sampled "
+        "Cycles truth (Cycles at 3x the resolution keeping each texel's centre sub-texel, two "
+        "independent halves whose difference gives its noise: "
+        + (
+            ", ".join(
+                f"{s} {100 * (r.get('truth_noise') or math.nan):.2f} %" for s, r in centred.items()
+            )  # fmt: skip
+            or "none here"
+        )
+        + ").",
         "",
-        "| stage | renderer | spp | time (s) | bias | relRMSE |",
-        "|---|---|---|---|---|---|",
+        "| stage | renderer | truth | spp | time (s) | bias | relRMSE | net |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['stage']} | {r['renderer']} | {r['spp']} | {r['seconds']:.1f} | "
-            f"{100 * r.get('bias', math.nan):+.2f} % | {100 * r.get('rel_rmse', math.nan):.2f} % |"
+            f"| {r['stage']} | {r['renderer']} | {r.get('truth', 'box')} | {r['spp']} | "
+            f"{r['seconds']:.1f} | {100 * r.get('bias', math.nan):+.2f} % | "
+            f"{100 * r.get('rel_rmse', math.nan):.2f} % | {100 * _err(r):.2f} % |"
         )
     if plot_name:
         lines += ["", f"![relRMSE vs time]({plot_name})"]
@@ -168,10 +242,10 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
             "",
             "### Time to Cycles' 1024-spp error",
             "",
-            "Wall time each renderer needs to reach the error Cycles reaches at 1024 spp "
-            '(usdahd\'s interpolated in log-log between its measured runs; "not reached" when '
-            "no run of it gets there: bias-limited or more samples needed). Issue 16's target "
-            "is a ratio <= 0.2.",
+            "Wall time each renderer needs to reach the error (net of the truth's noise) Cycles "
+            "reaches at 1024 spp (usdahd's interpolated in log-log between its measured runs; "
+            '"not reached" when no run of it gets there: bias-limited or more samples needed). '
+            "Issue 16's target is a ratio <= 0.2.",
             "",
             "| stage | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio |",
             "|---|---|---|---|---|",
@@ -224,6 +298,11 @@ SECTION_PLANS = {
     "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024},
 }
 SECTION_STAGES = ("cornell_box", "pillar_room", "floor_lamp")
+#: Stages whose usdahd error is judged against a centre-sampled truth (oversample CENTRE): a
+#: light's hotspot or hard shadows vary within a texel there, so the box-filtered truth is a
+#: different quantity (benchmarks/reference/README.md, "The reference's texel footprint").
+CENTRE_STAGES = ("pillar_room", "floor_lamp")
+CENTRE = 3
 
 
 def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) -> dict:
@@ -240,7 +319,8 @@ def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) 
     rows = []
     for name in SECTION_STAGES:
         rows += bench_stage(REPO / "samples" / f"{name}.usda", cfg["resolution"],
-                            cfg["samples"], cfg["truth_spp"], bpy)  # fmt: skip
+                            cfg["samples"], cfg["truth_spp"], bpy,
+                            centre=CENTRE if name in CENTRE_STAGES else 1)  # fmt: skip
     plots_dir.mkdir(parents=True, exist_ok=True)
     png = plots_dir / "reference_time_error.png"
     return {"rows": rows, "args": dict(cfg), "plot": png.name if plot(rows, png) else None}
@@ -263,6 +343,12 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", type=int, default=32)
     p.add_argument("--samples", type=int, nargs="+", default=[16, 64, 256, 1024])
     p.add_argument("--truth-spp", type=int, default=4096)
+    p.add_argument("--centre", nargs="*", default=list(CENTRE_STAGES), metavar="STAGE",
+                   help="stages whose usdahd error is judged against a centre-sampled truth "
+                        f"(oversample {CENTRE}; default: {' '.join(CENTRE_STAGES)}; none: "
+                        "--centre with no stage)")  # fmt: skip
+    p.add_argument("--centre-spp", type=int, help="samples of the centre-sampled truth "
+                   "(default: --truth-spp)")  # fmt: skip
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -289,7 +375,8 @@ def main(argv=None) -> int:
         stages.append(path)
     rows = []
     for st in stages:
-        rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy)
+        centre = CENTRE if st.stem in a.centre else 1
+        rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     png = a.out.with_name("reference_time_error.png")
     has_plot = plot(rows, png)

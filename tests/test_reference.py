@@ -486,6 +486,25 @@ def test_time_to_quality_interpolates_in_log_log_and_says_not_reached():
     assert "| b | 1.00 % | 10.0 | not reached | - |" in md
 
 
+def test_time_to_quality_judges_errors_net_of_the_truths_noise():
+    from benchmarks import reference_bench as rb
+
+    # independent noise adds in quadrature: 5 % measured against a truth with 3 % noise is 4 %
+    assert rb.net_of_truth_noise(0.05, 0.03) == pytest.approx(0.04)
+    assert rb.net_of_truth_noise(0.02, 0.03) == 0.0  # the truth's noise dominates
+    assert rb.net_of_truth_noise(0.05, None) == 0.05
+
+    def row(ren, spp, secs, err, net):
+        return {"stage": "s", "renderer": ren, "spp": spp, "seconds": secs, "rel_rmse": err,
+                "rel_rmse_net": net}  # fmt: skip
+
+    # raw errors never reach Cycles' 0.02 (usdahd's against a noisier centre truth), net ones do
+    rows = [row("cycles", 1024, 40.0, 0.021, 0.02), row("usdahd", 256, 1.0, 0.05, 0.04)]
+    rows += [row("usdahd", 1024, 16.0, 0.025, 0.01)]
+    (got,) = rb.time_to_quality(rows)
+    assert got["target"] == 0.02 and got["usdahd_seconds"] == pytest.approx(4.0)
+
+
 def test_run_section_without_bpy_says_how_to_set_it_up(monkeypatch, tmp_path):
     from benchmarks import reference_bench as rb
 

@@ -160,6 +160,41 @@ def test_push_fires_exactly_on_texels_whose_footprint_crosses_a_wall():
     np.testing.assert_array_equal(pushed.frame, texels.frame)
 
 
+def test_push_leaves_texels_outside_a_single_sided_shell_alone():
+    """The same box with its faces wound inward (a room modelled from the inside, like the
+    shared classroom's walls): from the ground around it the probes hit back faces too, but
+    those points are outside, in front of nothing, and the points inside see front faces only.
+    Nothing may move (before the rule asked which side is inside, the outside texels whose
+    footprint crosses a wall were moved into the room: on the classroom 4.2 m, black where
+    Cycles has them sunlit)."""
+    st = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(st, "Z")
+    _ground(st)
+    room = _solid(st, "/room", BOX, BOX, 1.0)
+    room.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)  # normals inward
+    UsdLux.DomeLight.Define(st, "/sky")
+    scene, tracer = _tracer(st)
+    ground = _mesh_of(scene, "/ground")
+    texels = rasterize(ground, (RES, RES))
+    # the probes do see back faces from outside: the situation the rule must tell apart
+    p0 = texels.position.astype(np.float64)
+    x0, x1, y0, y1 = BOX
+    outside = (p0[:, 0] < x0) | (p0[:, 0] > x1) | (p0[:, 1] < y0) | (p0[:, 1] > y1)
+    near = outside & (p0[:, 0] > x0 - HALF) & (p0[:, 0] < x1 + HALF)
+    near &= (p0[:, 1] > y0 - HALF) & (p0[:, 1] < y1 + HALF)
+    assert near.sum() >= 8
+    o = tracer.offset(p0[near], texels.geom_normal[near], texels.geom_normal[near])
+    backs = 0
+    for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)):
+        dd = np.tile(np.array(d, np.float64), (len(o), 1))
+        hit = tracer.intersect(o, dd, np.full(len(o), HALF))
+        hn = tracer.geom_normal[np.maximum(hit["tri"], 0)]
+        backs += int(((hit["tri"] >= 0) & (np.einsum("ij,ij->i", dd, hn) > 0)).sum())
+    assert backs >= near.sum()  # every near texel's footprint crosses a wall seen from behind
+    pushed, invalid = push_off_contacts(texels, ground, tracer)
+    assert pushed is texels and not invalid.any()
+
+
 def test_push_leaves_texels_without_contacts_alone():
     """The box's own texels touch the ground only with front faces (or not at all), and a ground
     without anything on it has no contact: the same object comes back."""

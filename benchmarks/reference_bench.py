@@ -5,7 +5,8 @@ matplotlib from the ``bench`` extra for the plot)::
 
     python benchmarks/reference_bench.py [--stages cornell_box pillar_room floor_lamp]
         [--resolution 32] [--samples 16 64 256 1024] [--truth-spp 4096]
-        [--centre pillar_room floor_lamp] [--centre-spp N] [--out docs/benchmarks/reference.md]
+        [--centre pillar_room floor_lamp] [--centre-spp N] [--variant=--denoise ...]
+        [--out docs/benchmarks/reference.md]
 
 For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
 ``--samples`` count with otherwise default settings; Cycles bakes at the same counts; both
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import sys
 import tempfile
 import time
@@ -63,13 +65,14 @@ def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
     _, b, _ = runner.cached_cycles(scene, sf, half, seed=compare.TRUTH_SEED + 1, bpy=bpy,
                                    oversample=k)  # fmt: skip
     truth = {i: 0.5 * (a[i] + b[i]) for i in a if i in b}
-    res = compare.compare_images(scene.meshes, a, b, {}, half, 0)
+    res = compare.compare_images(scene.meshes, a, b, {}, half, half)  # (its truth_noise unused)
     diff = res["overall"].get("cycles", {}).get("rel_rmse")
     return truth, (None if diff is None else 0.5 * diff)
 
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
-                centre: int = 1, centre_spp: int | None = None):  # fmt: skip
+                centre: int = 1, centre_spp: int | None = None,
+                variants: list[str] = ()):  # fmt: skip
     """Rows {"stage", "renderer", "spp", "seconds", "wall", "bias", "rel_rmse",
     "rel_rmse_net", "truth", "truth_noise"}.
 
@@ -77,17 +80,21 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     with its own box-filtered truth (``truth_spp``); usdahd with that truth too when
     ``centre`` is 1, else with :func:`centre_truth` (oversample ``centre``, ``centre_spp``
     samples, default ``truth_spp``). ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
+    ``variants``: more usdahd runs at every sample count, each with these extra bake flags (a
+    lever, e.g. ``"--denoise"``); their renderer is ``"usdahd <flags>"``.
     """
     rows, box_usdahd = [], []
     ctruth = cnoise = None
     with tempfile.TemporaryDirectory(prefix="usdahd-refbench-") as tmp:
         tmp = Path(tmp)
         scene = sf = truth = None
-        for n in samples:
-            out = tmp / f"usdahd{n}"
+        runs = [("usdahd", [], n) for n in samples]
+        runs += [(f"usdahd {v}", shlex.split(v), n) for v in variants for n in samples]
+        for i, (renderer, extra, n) in enumerate(runs):
+            out = tmp / f"usdahd{i}"
             out.mkdir()
-            baked = compare.bake_usdahd(stage, out, resolution, None, ["--samples", str(n)],
-                                        quiet=True)  # fmt: skip
+            baked = compare.bake_usdahd(stage, out, resolution, None,
+                                        ["--samples", str(n), *extra], quiet=True)  # fmt: skip
             results = compare.usdahd_results(baked["layer"])
             if scene is None:
                 scene = export.export_stage(baked["layer"], baked=results)
@@ -109,7 +116,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
             ov = res["overall"].get("usdahd", {})
             secs = float(baked["report"].get("seconds", baked["seconds"]))
             rows.append(
-                {"stage": stage.stem, "renderer": "usdahd", "spp": n, "seconds": secs,
+                {"stage": stage.stem, "renderer": renderer, "spp": n, "seconds": secs,
                  "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"],
                  "truth": f"centre x{centre}" if ctruth else "box", "truth_noise": cnoise}
             )  # fmt: skip
@@ -117,7 +124,8 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 box_usdahd.append(rows[-1])  # its truth noise is known after Cycles' runs
             else:
                 rows[-1]["rel_rmse_net"] = net_of_truth_noise(ov.get("rel_rmse", math.nan), cnoise)
-            _log(f"{stage.name}: usdahd {n} spp {secs:.1f}s relRMSE {ov.get('rel_rmse', 0):.4f}")
+            _log(f"{stage.name}: {renderer} {n} spp {secs:.1f}s "
+                 f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
         for n in samples:
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
             res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp)
@@ -149,7 +157,8 @@ def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
     usdahd's time is interpolated between its two measured runs that bracket the target error,
     linearly in log(time) against log(relRMSE) (both fall as a power law in the samples);
     ``None`` when none of its runs reaches the target (bias-limited, or more samples needed).
-    Returns [{"stage", "target", "cycles_seconds", "usdahd_seconds", "ratio"}].
+    Returns [{"stage", "renderer", "target", "cycles_seconds", "usdahd_seconds", "ratio"}], one
+    per stage and usdahd renderer (``"usdahd"`` and each variant).
     """
     out = []
     for stage in dict.fromkeys(r["stage"] for r in rows):
@@ -158,32 +167,42 @@ def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
         if ref is None:
             continue
         target = _err(ref)
-        ours = sorted(
-            (r["seconds"], _err(r))
-            for r in rows
-            if r["stage"] == stage and r["renderer"] == "usdahd" and "rel_rmse" in r
-        )
-        t_reach = None
-        for (t0, e0), (t1, e1) in zip(ours, ours[1:], strict=False):
-            if e0 <= target:
-                t_reach = t0
-                break
-            if e1 <= target < e0 and t1 > 0 and t0 > 0 and e1 > 0:
-                f = (math.log(e0) - math.log(target)) / (math.log(e0) - math.log(e1))
-                t_reach = math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0)))
-                break
-        if t_reach is None and ours and ours[-1][1] <= target:
-            t_reach = ours[-1][0]
-        out.append(
-            {
-                "stage": stage,
-                "target": target,
-                "cycles_seconds": ref["seconds"],
-                "usdahd_seconds": t_reach,
-                "ratio": None if t_reach is None else t_reach / ref["seconds"],
-            }
-        )
+        renderers = dict.fromkeys(
+            r["renderer"] for r in rows
+            if r["stage"] == stage and r["renderer"].startswith("usdahd")
+        )  # fmt: skip
+        for renderer in renderers:
+            out.append(_reach(rows, stage, renderer, target, ref["seconds"]))
     return out
+
+
+def _reach(rows: list[dict], stage: str, renderer: str, target: float, cycles_s: float) -> dict:
+    """One row of :func:`time_to_quality`: when ``renderer``'s runs on ``stage`` reach
+    ``target`` (runs in order of samples: timings on a shared machine are noisier)."""
+    ours = [
+        (r["seconds"], _err(r))
+        for r in sorted(rows, key=lambda r: r["spp"])
+        if r["stage"] == stage and r["renderer"] == renderer and "rel_rmse" in r
+    ]
+    t_reach = None
+    for (t0, e0), (t1, e1) in zip(ours, ours[1:], strict=False):
+        if e0 <= target:
+            t_reach = t0
+            break
+        if e1 <= target < e0 and t1 > 0 and t0 > 0 and e1 > 0:
+            f = (math.log(e0) - math.log(target)) / (math.log(e0) - math.log(e1))
+            t_reach = math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0)))
+            break
+    if t_reach is None and ours and ours[-1][1] <= target:
+        t_reach = ours[-1][0]
+    return {
+        "stage": stage,
+        "renderer": renderer,
+        "target": target,
+        "cycles_seconds": cycles_s,
+        "usdahd_seconds": t_reach,
+        "ratio": None if t_reach is None else t_reach / cycles_s,
+    }
 
 
 def markdown(rows: list[dict], args, plot_name: str | None) -> str:
@@ -198,6 +217,9 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     )
     if centred:
         cmd += f" --centre {' '.join(sorted(centred))}"
+    for ren in dict.fromkeys(r["renderer"] for r in rows):
+        if ren.startswith("usdahd "):
+            cmd += f" --variant={ren.removeprefix('usdahd ')}"
     lines = [
         "## usdahd vs Cycles: error against a converged truth vs time",
         "",
@@ -247,15 +269,16 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
             '"not reached" when no run of it gets there: bias-limited or more samples needed). '
             "Issue 16's target is a ratio <= 0.2.",
             "",
-            "| stage | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio |",
-            "|---|---|---|---|---|",
+            "| stage | usdahd | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio |",
+            "|---|---|---|---|---|---|",
         ]
         for t in ttq:
             ours = "not reached" if t["usdahd_seconds"] is None else f"{t['usdahd_seconds']:.1f}"
             ratio = "-" if t["ratio"] is None else f"{t['ratio']:.2f}"
+            flags = t["renderer"].removeprefix("usdahd").strip() or "defaults"
             lines.append(
-                f"| {t['stage']} | {100 * t['target']:.2f} % | {t['cycles_seconds']:.1f} | "
-                f"{ours} | {ratio} |"
+                f"| {t['stage']} | {flags} | {100 * t['target']:.2f} % | "
+                f"{t['cycles_seconds']:.1f} | {ours} | {ratio} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -272,7 +295,10 @@ def plot(rows: list[dict], path: Path) -> bool:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     stages = sorted({r["stage"] for r in rows})
     for i, s in enumerate(stages):
-        for ren, mk in (("usdahd", "o-"), ("cycles", "s--")):
+        present = dict.fromkeys(r["renderer"] for r in rows if r["stage"] == s)
+        marks = ["s--" if ren == "cycles" else ("o-" if ren == "usdahd" else "^:")
+                 for ren in present]  # fmt: skip
+        for ren, mk in zip(present, marks, strict=True):
             pts = [
                 (r["seconds"], r["rel_rmse"])
                 for r in sorted(rows, key=lambda r: r["spp"])
@@ -294,8 +320,13 @@ def plot(rows: list[dict], path: Path) -> bool:
 
 #: The stages and sample counts of the ``reference`` section of benchmarks/run.py, per plan.
 SECTION_PLANS = {
-    "full": {"resolution": 32, "samples": [16, 64, 256, 1024], "truth_spp": 4096},
-    "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024},
+    "full": {
+        "resolution": 32,
+        "samples": [16, 64, 256, 1024],
+        "truth_spp": 4096,
+        "variants": ["--denoise"],
+    },
+    "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024, "variants": []},
 }
 SECTION_STAGES = ("cornell_box", "pillar_room", "floor_lamp")
 #: Stages whose usdahd error is judged against a centre-sampled truth (oversample CENTRE): a
@@ -320,7 +351,8 @@ def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) 
     for name in SECTION_STAGES:
         rows += bench_stage(REPO / "samples" / f"{name}.usda", cfg["resolution"],
                             cfg["samples"], cfg["truth_spp"], bpy,
-                            centre=CENTRE if name in CENTRE_STAGES else 1)  # fmt: skip
+                            centre=CENTRE if name in CENTRE_STAGES else 1,
+                            variants=cfg["variants"])  # fmt: skip
     plots_dir.mkdir(parents=True, exist_ok=True)
     png = plots_dir / "reference_time_error.png"
     return {"rows": rows, "args": dict(cfg), "plot": png.name if plot(rows, png) else None}
@@ -349,6 +381,9 @@ def main(argv=None) -> int:
                         "--centre with no stage)")  # fmt: skip
     p.add_argument("--centre-spp", type=int, help="samples of the centre-sampled truth "
                    "(default: --truth-spp)")  # fmt: skip
+    p.add_argument("--variant", action="append", default=[], metavar="FLAGS",
+                   help="more usdahd runs with these bake flags (a lever), e.g. "
+                        "--variant=--denoise; repeatable")  # fmt: skip
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -376,7 +411,8 @@ def main(argv=None) -> int:
     rows = []
     for st in stages:
         centre = CENTRE if st.stem in a.centre else 1
-        rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp)
+        rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp,
+                            a.variant)  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
     png = a.out.with_name("reference_time_error.png")
     has_plot = plot(rows, png)

@@ -483,7 +483,12 @@ def test_time_to_quality_interpolates_in_log_log_and_says_not_reached():
     assert got["s"]["ratio"] == pytest.approx(0.1)
     assert got["b"]["usdahd_seconds"] is None and got["b"]["ratio"] is None
     md = rb.markdown(rows, type("A", (), {"resolution": 8, "samples": [16], "truth_spp": 64}), None)
-    assert "| b | 1.00 % | 10.0 | not reached | - |" in md
+    assert "| b | defaults | 1.00 % | 10.0 | not reached | - |" in md
+    # a lever (a variant's flags) gets its own row
+    rows += [dict(row("usdahd", 1024, 2.0, 0.008, "b"), renderer="usdahd --denoise")]
+    got = [t for t in rb.time_to_quality(rows) if t["stage"] == "b"]
+    assert [t["renderer"] for t in got] == ["usdahd", "usdahd --denoise"]
+    assert got[1]["usdahd_seconds"] == 2.0 and got[1]["ratio"] == pytest.approx(0.2)
 
 
 def test_time_to_quality_judges_errors_net_of_the_truths_noise():

@@ -211,6 +211,49 @@ def bake_texels(
     return out, _stats(tracer, rays0, t0, invalid, backfrac, used, saved)
 
 
+def iz_batches(
+    scene,
+    tracer,
+    texels,
+    *,
+    batches: int,
+    samples: int,
+    bounces: int,
+    seed: int,
+    stream: int,
+    mesh: int | None = None,
+):
+    """Independent plain Monte Carlo estimates of Iz at ``texels`` (the re-estimates of
+    ``validate --retrace`` and ``preview --compare``): ``batches`` runs of :func:`bake_texels`
+    with ``samples`` each, ``estimator="mc"``, random streams ``stream .. stream + batches - 1``.
+
+    Returns (iz, backface, rays): iz (batches, n, 3) float64, one estimate per batch (the mean
+    over axis 0 is the estimate, its variance / batches the variance of that mean);
+    backface (n,) float64, the mean back-face fraction of the batches; rays (int) traced.
+    """
+    from usdahd.numerics import sh as shm
+
+    iz = np.empty((batches, len(texels), 3))
+    backface = np.zeros(len(texels))
+    rays = 0
+    for j in range(batches):
+        sh, st = bake_texels(
+            scene,
+            tracer,
+            texels,
+            samples=samples,
+            bounces=bounces,
+            seed=seed,
+            stream=stream + j,
+            estimator="mc",
+            mesh=mesh,
+        )
+        iz[j] = shm.iz(sh.astype(np.float64))
+        backface += np.asarray(st["backface_fraction"], np.float64) / batches
+        rays += int(st["rays"])
+    return iz, backface, rays
+
+
 def _passes(samples: int, adaptive: bool) -> tuple[int, int]:
     """(passes, samples per pass) of the sample budget."""
     passes = ADAPTIVE_PASSES if adaptive and samples >= 4 * ADAPTIVE_PASSES else 1

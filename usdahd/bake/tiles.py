@@ -67,15 +67,7 @@ def split(n: int, chunk: int, target: int = TILE_TEXELS) -> list[tuple[int, int]
 
 def slice_texels(texels: Texels, a: int, b: int) -> Texels:
     """Texels ``[a, b)`` as their own :class:`Texels` (copies, so a tile pickles small)."""
-    return Texels(
-        resolution=texels.resolution,
-        xy=texels.xy[a:b].copy(),
-        position=texels.position[a:b].copy(),
-        geom_normal=texels.geom_normal[a:b].copy(),
-        frame=texels.frame[a:b].copy(),
-        triangle=texels.triangle[a:b].copy(),
-        center_inside=texels.center_inside[a:b].copy(),
-    )
+    return texels.take(slice(a, b))
 
 
 def tracer_for(key, scene, backend: str, threads: int):

@@ -44,3 +44,16 @@ class Texels:
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
+
+    def take(self, index) -> Texels:
+        """The texels ``index`` selects (a slice, an int index array or a bool mask) as their own
+        :class:`Texels`: copied arrays (a tile pickles small), same resolution, empty stats."""
+        return Texels(
+            resolution=self.resolution,
+            xy=self.xy[index].copy(),
+            position=self.position[index].copy(),
+            geom_normal=self.geom_normal[index].copy(),
+            frame=self.frame[index].copy(),
+            triangle=self.triangle[index].copy(),
+            center_inside=self.center_inside[index].copy(),
+        )

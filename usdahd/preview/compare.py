@@ -166,7 +166,6 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
     """
     from usdahd.bake import integrate
     from usdahd.bake.trace import Tracer
-    from usdahd.numerics import sh as shm
     from usdahd.scene.hashing import is_dark
     from usdahd.usd.reader import load_scene
 
@@ -207,26 +206,22 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
             sel = np.nonzero(which == mk)[0]
             if not sel.size:
                 continue
-            sub = copy.copy(texels)
-            for name in ("xy", "position", "geom_normal", "frame", "triangle", "center_inside"):
-                setattr(sub, name, getattr(texels, name)[sel])
             if progress:
                 progress(f"reference {mesh.path}: {len(sel)} points x {k * s} samples")
-            for j in range(k):
-                sh, st = integrate.bake_texels(
-                    scene,
-                    tracer,
-                    sub,
-                    samples=s,
-                    bounces=bounces,
-                    seed=rseed,
-                    stream=1 + j + k * mk,
-                    estimator="mc",
-                    mesh=index.get(mesh.path),
-                )
-                batches[j, sel] = shm.iz(sh.astype(np.float64))
-                backface[sel] += np.asarray(st["backface_fraction"], np.float64) / k
-                info["rays"] += int(st["rays"])
+            iz, bf, rays = integrate.iz_batches(
+                scene,
+                tracer,
+                texels.take(sel),
+                batches=k,
+                samples=s,
+                bounces=bounces,
+                seed=rseed,
+                stream=1 + k * mk,
+                mesh=index.get(mesh.path),
+            )
+            batches[:, sel] = iz
+            backface[sel] = bf
+            info["rays"] += rays
     finally:
         tracer.close()
     info["inside_geometry"] = int((backface > 0.25).sum())

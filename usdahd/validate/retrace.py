@@ -57,7 +57,7 @@ import math
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -444,7 +444,6 @@ def _check(prim, opt: RetraceOptions) -> list:
     from usdahd.bake import integrate
     from usdahd.bake.texels import chart_ids, push_off_contacts, rasterize
     from usdahd.errors import UsdAhdError
-    from usdahd.numerics import sh as shm
 
     def skipped(why):
         return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]
@@ -494,16 +493,7 @@ def _check(prim, opt: RetraceOptions) -> list:
     pick = pick_texels(candidates, int(opt.texels), seed)
     charts = chart_ids(mesh)[texels.triangle]
     interior = interior_mask(texels.xy, charts, (w, h))[pick]
-    sub = replace(
-        texels,
-        xy=texels.xy[pick],
-        position=texels.position[pick],
-        geom_normal=texels.geom_normal[pick],
-        frame=texels.frame[pick],
-        triangle=texels.triangle[pick],
-        center_inside=texels.center_inside[pick],
-        stats={},
-    )
+    sub = texels.take(pick)
     baked = _baked_iz(bake, rows[pick])
     settings = res.settings or {}
     bake_samples = int(settings.get("samples") or 256)
@@ -512,29 +502,22 @@ def _check(prim, opt: RetraceOptions) -> list:
     if opt.progress:
         opt.progress(f"retrace {path}: {len(pick)} texels x {k * s} samples ({k} batches)")
     dark = tracer is None
-    if dark:
+    if dark:  # nothing emits: the exact answer is 0
         batches = np.zeros((k, len(pick), 3))
         backface = np.zeros(len(pick))
         rays = 0
     else:
-        batches = np.empty((k, len(pick), 3))
-        backface = np.zeros(len(pick))
-        rays = 0
-        for j in range(k):
-            sh, st = integrate.bake_texels(
-                scene,
-                tracer,
-                sub,
-                samples=s,
-                bounces=int(opt.bounces),
-                seed=seed,
-                stream=1 + j,
-                estimator="mc",
-                mesh=next((i for i, m in enumerate(scene.meshes) if m is mesh), None),
-            )
-            batches[j] = shm.iz(sh.astype(np.float64))
-            backface += np.asarray(st["backface_fraction"], np.float64) / k
-            rays += int(st["rays"])
+        batches, backface, rays = integrate.iz_batches(
+            scene,
+            tracer,
+            sub,
+            batches=k,
+            samples=s,
+            bounces=int(opt.bounces),
+            seed=seed,
+            stream=1,
+            mesh=next((i for i, m in enumerate(scene.meshes) if m is mesh), None),
+        )
     seconds = time.perf_counter() - t0
     inside = backface > _backface_threshold()
     finite = np.isfinite(baked).all(axis=1) & np.isfinite(batches).all(axis=(0, 2))

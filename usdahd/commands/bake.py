@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 from usdahd import models
+from usdahd.commands.output import emit
 from usdahd.errors import UsageError
 
 
@@ -143,11 +143,8 @@ def run(args) -> int:
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)
-    if args.json:
-        print(json.dumps(report, indent=2))
-    elif not quiet:
-        _print_report(report)
-    elif quiet < 2:
+    emit(args, report, lambda: _print_report(report))
+    if not args.json and quiet == 1:
         # --quiet hides progress and the per-prim lines, not warnings: they go to stderr
         # (-qq hides them too).
         for w in _all_warnings(report):

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import sys
 from pathlib import Path
 
+from usdahd.commands.output import emit
 from usdahd.errors import UsageError
 
 #: The checkout's root, when usdahd is imported from one (``<root>/usdahd/commands/bench.py``).
@@ -93,8 +93,5 @@ def run(args) -> int:
         quiet=bool(args.quiet or args.json),
     )
     out = runner.run(ns)
-    if args.json:
-        print(json.dumps({"report": str(out), "exit_code": 0}, indent=2))
-    elif not args.quiet:
-        print(out)
+    emit(args, {"report": str(out), "exit_code": 0}, lambda: print(out))
     return 0

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import zipfile
@@ -11,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import models
+from usdahd.commands.output import emit
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh as shmod
 
@@ -268,9 +268,8 @@ def run(args) -> int:
 
         atomic_write_npz(args.output, **params)
         report["output"] = args.output
-    if args.json:
-        print(json.dumps(report, indent=2))
-    elif not args.quiet:
+
+    def human():
         print(
             f"{report['texels']} texels  model={fitted.model} ratio={fitted.ratio} "
             f"solver={fitted.solver}  hemispherical relative RMSE mean "
@@ -280,4 +279,6 @@ def run(args) -> int:
             print(f"  {k}: shape {v}")
         if args.output:
             print(f"wrote {args.output}", file=sys.stderr)
+
+    emit(args, report, human)
     return 0

@@ -30,10 +30,10 @@ This module is the command only (arguments, usage errors, the report); the rende
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from usdahd.commands.output import emit
 from usdahd.errors import StageError, UsageError
 from usdahd.preview.camera import auto_camera, usd_camera, view_projection
 from usdahd.preview.gpu import device, render, request_adapter
@@ -201,13 +201,14 @@ def run_atlas(args, out: Path) -> int:
         "meshes": len(meshes),
         **info,
     }
-    if args.json:
-        print(json.dumps(report, indent=2))
-    elif not args.quiet:
+
+    def human():
         print(
             f"{out}: {img.shape[1]}x{img.shape[0]} contact sheet, {len(meshes)} prims, "
             f"{len(info['tiles'])} textures, {len(info['flagged'])} texel(s) flagged by validate"
         )
+
+    emit(args, report, human)
     return 0
 
 
@@ -273,9 +274,8 @@ def run(args) -> int:
     }
     if compared is not None:
         report["compare"] = compared
-    if args.json:
-        print(json.dumps(report, indent=2))
-    elif not args.quiet:
+
+    def human():
         lum = report.get("luminance", {})
         print(
             f"{out}: {w}x{h}, {len(meshes)} meshes, covered {report['covered_fraction']:.1%}, "
@@ -287,4 +287,6 @@ def run(args) -> int:
                 f"{compared['bounces']} bounces): relRMSE {compared['relrmse']:.2%}, bias "
                 f"{compared['bias']:+.2%}, reference noise {compared['reference_noise']:.2%}"
             )
+
+    emit(args, report, human)
     return 0

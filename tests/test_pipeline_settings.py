@@ -78,3 +78,37 @@ def test_one_setting_name_map_for_the_baker_and_the_staleness_rule():
         "ahdLightmap:uvPrimvar ('st' -> 'lm')",
         "ahdLightmap:samples (256 -> 32)",
     ]
+
+
+def test_settings_drift_reads_a_hand_edited_record_of_the_wrong_type():
+    """A settings record edited by hand (resolution stored as a plain int, a density as a
+    string) is compared, not a TypeError/ValueError: an int resolution equal to the authored
+    one is no drift; a value that cannot be the input's reads as drift naming that value."""
+    from pxr import Usd, UsdGeom
+
+    from usdahd.pipeline.settings import _authored_inputs
+    from usdahd.usd import schema
+    from usdahd.validate.staleness import settings_drift
+
+    stage = Usd.Stage.CreateInMemory()
+    prim = UsdGeom.Mesh.Define(stage, "/Quad").GetPrim()
+    schema.apply(prim)
+    schema.write_inputs(prim, resolution=64, samples=32)
+    settings = resolve_settings(BakeOptions(), _authored_inputs(prim))
+    settings["resolution"] = 64
+    assert settings_drift(prim, settings) == []
+    settings["resolution"] = "64x64"
+    settings["samples"] = None
+    assert sorted(settings_drift(prim, settings)) == [
+        "ahdLightmap:resolution ('64x64' -> 64)",
+        "ahdLightmap:samples (None -> 32)",
+    ]
+
+    dense = UsdGeom.Mesh.Define(stage, "/Dense").GetPrim()
+    schema.apply(dense)
+    schema.write_inputs(dense, texel_density=8.0)
+    settings = resolve_settings(BakeOptions(), _authored_inputs(dense))
+    settings["texel_density"] = "eight"
+    assert settings_drift(dense, settings) == ["ahdLightmap:texelDensity ('eight' -> 8.0)"]
+    settings["texel_density"] = [8.0]
+    assert settings_drift(dense, settings) == ["ahdLightmap:texelDensity ([8.0] -> 8.0)"]

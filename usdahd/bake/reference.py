@@ -41,7 +41,8 @@ ALL_LIGHTS_MAX = 8
 #: Offset of light j's copy of the texel's light-sample points (golden ratio conjugate, both
 #: coordinates), so the lights do not share one point pattern.
 LIGHT_SHIFT = 0.6180339887498949
-G_HEMI = shmod.hemispherical_gram()
+#: The hemispherical Gram matrix (9, 9) float64 (one copy: usdahd.numerics.sh).
+G_HEMI = shmod.HEMISPHERICAL_GRAM
 
 
 class LightGroups:

@@ -88,25 +88,30 @@ def settings_drift(prim, settings: dict) -> list[str]:
         if f not in authored or key not in settings:
             continue
         v, old = getattr(inputs, f), settings[key]
-        if f == "resolution":
-            if v == 0:
+        try:
+            if f == "resolution":
+                if v == 0:
+                    continue
+                same = old == v or (isinstance(old, list | tuple) and list(old) == [v, v])
+            elif f == "texel_density":
+                if "resolution" in authored and inputs.resolution:
+                    continue
+                same = old is not None and math.isclose(float(old), float(v), rel_tol=1e-6)
+            elif f == "ratio":
+                try:
+                    if v not in models.get(inputs.model).RATIOS:
+                        continue  # ignored by the bake for models without that ratio type
+                except Exception:
+                    continue
+                same = v == old
+            elif f == "solver" and v == "":
                 continue
-            same = list(old or []) == [v, v] or old == v
-        elif f == "texel_density":
-            if "resolution" in authored and inputs.resolution:
-                continue
-            same = old is not None and math.isclose(float(old), float(v), rel_tol=1e-6)
-        elif f == "ratio":
-            try:
-                if v not in models.get(inputs.model).RATIOS:
-                    continue  # ignored by the bake for models without that ratio type
-            except Exception:
-                continue
-            same = v == old
-        elif f == "solver" and v == "":
-            continue
-        else:
-            same = v == old
+            else:
+                same = v == old
+        except (TypeError, ValueError):
+            # A hand-edited record with a value of the wrong type (a string density, ...):
+            # it cannot be what this input gave, so it reads as drift, naming the value.
+            same = False
         if not same:
             out.append(f"{schema.property_name(schema.INPUT_KEYS[f])} ({old!r} -> {v!r})")
     return out

@@ -26,7 +26,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
+import statistics
 import sys
 import tempfile
 import time
@@ -72,9 +74,9 @@ def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
                 centre: int = 1, centre_spp: int | None = None,
-                variants: list[str] = ()):  # fmt: skip
-    """Rows {"stage", "renderer", "spp", "seconds", "wall", "bias", "rel_rmse",
-    "rel_rmse_net", "truth", "truth_noise"}.
+                variants: list[str] = (), repeats: int = 1):  # fmt: skip
+    """Rows {"stage", "renderer", "spp", "seconds", "seconds_runs", "load", "wall", "bias",
+    "rel_rmse", "rel_rmse_net", "truth", "truth_noise"}.
 
     Each renderer is compared with the converged value of the quantity it estimates: Cycles
     with its own box-filtered truth (``truth_spp``); usdahd with that truth too when
@@ -82,6 +84,11 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     samples, default ``truth_spp``). ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
     ``variants``: more usdahd runs at every sample count, each with these extra bake flags (a
     lever, e.g. ``"--denoise"``); their renderer is ``"usdahd <flags>"``.
+    ``repeats``: every run is timed this many times, the repeats after the first interleaved
+    (usdahd and Cycles in turn at each sample count, so a load change hits both);
+    ``seconds_runs`` holds each repeat's time, ``seconds`` their median, ``load`` the 1-minute
+    load average before each. Errors come from the first repeat (each renderer is seeded, so
+    a repeat gives the same estimate).
     """
     rows, box_usdahd = [], []
     ctruth = cnoise = None
@@ -93,6 +100,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
         for i, (renderer, extra, n) in enumerate(runs):
             out = tmp / f"usdahd{i}"
             out.mkdir()
+            load = os.getloadavg()[0]
             baked = compare.bake_usdahd(stage, out, resolution, None,
                                         ["--samples", str(n), *extra], quiet=True)  # fmt: skip
             results = compare.usdahd_results(baked["layer"])
@@ -117,6 +125,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
             secs = float(baked["report"].get("seconds", baked["seconds"]))
             rows.append(
                 {"stage": stage.stem, "renderer": renderer, "spp": n, "seconds": secs,
+                 "seconds_runs": [secs], "load": [load], "flags": extra,
                  "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"],
                  "truth": f"centre x{centre}" if ctruth else "box", "truth_noise": cnoise}
             )  # fmt: skip
@@ -127,17 +136,23 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
             _log(f"{stage.name}: {renderer} {n} spp {secs:.1f}s "
                  f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
         for n in samples:
+            load = os.getloadavg()[0]
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
             res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp)
             ov = res["overall"].get("cycles", {})
             tn = res["overall"].get("truth_noise")
             net = net_of_truth_noise(ov.get("rel_rmse", math.nan), tn)
             rows.append({"stage": stage.stem, "renderer": "cycles", "spp": n,
-                         "seconds": info["bake_seconds"], "wall": info["wall_seconds"], **ov,
+                         "seconds": info["bake_seconds"], "seconds_runs": [info["bake_seconds"]],
+                         "load": [load], "wall": info["wall_seconds"], **ov,
                          "texels": res["overall"]["compared"], "truth": "box",
                          "truth_noise": tn, "rel_rmse_net": net})  # fmt: skip
             _log(f"{stage.name}: cycles {n} spp {info['bake_seconds']:.1f}s "
                  f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
+        for rep in range(1, repeats):
+            _retime(rows, stage, resolution, sf, bpy, tmp / f"repeat{rep}", rep)
+    for r in rows:
+        r["seconds"] = statistics.median(r["seconds_runs"])
     box_noise = [r["truth_noise"] for r in rows if r["renderer"] == "cycles" and r["truth_noise"]]
     for r in box_usdahd:  # the box truth's noise: its lowest estimate over Cycles' runs
         r["truth_noise"] = min(box_noise) if box_noise else None
@@ -145,21 +160,49 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     return rows
 
 
+def _retime(rows: list[dict], stage: Path, resolution: int, sf, bpy: str, tmp: Path, rep: int):
+    """One more timing of every run in ``rows`` (one stage), interleaved by sample count:
+    at each count usdahd's runs, then Cycles'; appends to ``seconds_runs`` and ``load``."""
+    tmp.mkdir()
+    for n in sorted({r["spp"] for r in rows}):
+        for i, r in enumerate(x for x in rows if x["spp"] == n):
+            load = os.getloadavg()[0]
+            if r["renderer"] == "cycles":
+                info, _ = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
+                secs = float(info["bake_seconds"])
+            else:
+                out = tmp / f"n{n}-{i}"
+                out.mkdir()
+                flags = ["--samples", str(n), *r["flags"]]
+                baked = compare.bake_usdahd(stage, out, resolution, None, flags, quiet=True)
+                secs = float(baked["report"].get("seconds", baked["seconds"]))
+            r["seconds_runs"].append(secs)
+            r["load"].append(load)
+            _log(f"{stage.name}: repeat {rep + 1} {r['renderer']} {n} spp {secs:.1f}s "
+                 f"(load {load:.1f})")  # fmt: skip
+
+
 def _err(r: dict) -> float:
     """The error a row is judged by: net of its truth's noise when known."""
     return r.get("rel_rmse_net", r.get("rel_rmse"))
 
 
-def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
+def time_to_quality(rows: list[dict], target_spp: int = 1024, repeat: int | None = None
+                    ) -> list[dict]:  # fmt: skip
     """Per stage: the wall time each renderer needs to reach Cycles' error at ``target_spp``
     (errors net of the truth's noise where the rows have ``rel_rmse_net``).
 
     usdahd's time is interpolated between its two measured runs that bracket the target error,
     linearly in log(time) against log(relRMSE) (both fall as a power law in the samples);
     ``None`` when none of its runs reaches the target (bias-limited, or more samples needed).
-    Returns [{"stage", "renderer", "target", "cycles_seconds", "usdahd_seconds", "ratio"}], one
-    per stage and usdahd renderer (``"usdahd"`` and each variant).
+    Returns [{"stage", "renderer", "target", "cycles_seconds", "usdahd_seconds", "ratio",
+    "ratios"}], one per stage and usdahd renderer (``"usdahd"`` and each variant). Times are
+    the rows' ``seconds`` (the median over repeats), or with ``repeat`` = k that repeat's own
+    (``seconds_runs[k]``); ``ratios`` lists the ratio of every repeat (same-repeat times of
+    both renderers, so its spread is the ratio's own over the run).
     """
+    if repeat is not None:
+        rows = [dict(r, seconds=r["seconds_runs"][repeat]) for r in rows]
     out = []
     for stage in dict.fromkeys(r["stage"] for r in rows):
         cyc = [r for r in rows if r["stage"] == stage and r["renderer"] == "cycles"]
@@ -173,6 +216,14 @@ def time_to_quality(rows: list[dict], target_spp: int = 1024) -> list[dict]:
         )  # fmt: skip
         for renderer in renderers:
             out.append(_reach(rows, stage, renderer, target, ref["seconds"]))
+    if repeat is None:
+        n_rep = min((len(r.get("seconds_runs") or [0]) for r in rows), default=1)
+        per = [time_to_quality(rows, target_spp, k) for k in range(n_rep)] if n_rep > 1 else []
+        for t in out:
+            t["ratios"] = [
+                x["ratio"] for p in per for x in p
+                if x["stage"] == t["stage"] and x["renderer"] == t["renderer"]
+            ]  # fmt: skip
     return out
 
 
@@ -211,15 +262,26 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         if r["renderer"] == "cycles" and r.get("truth_noise") is not None:
             noise.setdefault(r["stage"], []).append(r["truth_noise"])
     centred = {r["stage"]: r for r in rows if str(r.get("truth", "")).startswith("centre")}
+    n_rep = min((len(r.get("seconds_runs") or [0]) for r in rows), default=1)
     cmd = (
         f"python benchmarks/reference_bench.py --resolution {args.resolution} "
         f"--samples {' '.join(map(str, args.samples))} --truth-spp {args.truth_spp}"
     )
     if centred:
         cmd += f" --centre {' '.join(sorted(centred))}"
+    if n_rep > 1:
+        cmd += f" --repeats {n_rep}"
     for ren in dict.fromkeys(r["renderer"] for r in rows):
         if ren.startswith("usdahd "):
             cmd += f" --variant={ren.removeprefix('usdahd ')}"
+    loads = [x for r in rows for x in r.get("load") or []]
+    timing = (
+        f" Times are the median of {n_rep} repeats, interleaved (usdahd and Cycles in turn at "
+        "each sample count)" if n_rep > 1 else " Times are one run each"
+    ) + (
+        f"; 1-minute load average before the runs: median {statistics.median(loads):.1f} "
+        f"(range {min(loads):.1f}-{max(loads):.1f})." if loads else "."
+    )  # fmt: skip
     lines = [
         "## usdahd vs Cycles: error against a converged truth vs time",
         "",
@@ -245,7 +307,8 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
             )  # fmt: skip
             or "none here"
         )
-        + ").",
+        + ")."
+        + timing,
         "",
         "| stage | renderer | truth | spp | time (s) | bias | relRMSE | net |",
         "|---|---|---|---|---|---|---|---|",
@@ -269,16 +332,18 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
             '"not reached" when no run of it gets there: bias-limited or more samples needed). '
             "Issue 16's target is a ratio <= 0.2.",
             "",
-            "| stage | usdahd | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio |",
-            "|---|---|---|---|---|---|",
+            "| stage | usdahd | Cycles 1024-spp relRMSE | Cycles (s) | usdahd (s) | ratio | "
+            "ratio per repeat |",
+            "|---|---|---|---|---|---|---|",
         ]
         for t in ttq:
             ours = "not reached" if t["usdahd_seconds"] is None else f"{t['usdahd_seconds']:.1f}"
             ratio = "-" if t["ratio"] is None else f"{t['ratio']:.2f}"
+            reps = ", ".join("-" if x is None else f"{x:.2f}" for x in t.get("ratios") or [])
             flags = t["renderer"].removeprefix("usdahd").strip() or "defaults"
             lines.append(
                 f"| {t['stage']} | {flags} | {100 * t['target']:.2f} % | "
-                f"{t['cycles_seconds']:.1f} | {ours} | {ratio} |"
+                f"{t['cycles_seconds']:.1f} | {ours} | {ratio} | {reps or '-'} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -325,6 +390,7 @@ SECTION_PLANS = {
         "samples": [16, 64, 256, 1024],
         "truth_spp": 4096,
         "variants": ["--denoise"],
+        "repeats": 3,
     },
     "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024, "variants": []},
 }
@@ -352,7 +418,8 @@ def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) 
         rows += bench_stage(REPO / "samples" / f"{name}.usda", cfg["resolution"],
                             cfg["samples"], cfg["truth_spp"], bpy,
                             centre=CENTRE if name in CENTRE_STAGES else 1,
-                            variants=cfg["variants"])  # fmt: skip
+                            variants=cfg["variants"],
+                            repeats=cfg.get("repeats", 1))  # fmt: skip
     plots_dir.mkdir(parents=True, exist_ok=True)
     png = plots_dir / "reference_time_error.png"
     return {"rows": rows, "args": dict(cfg), "plot": png.name if plot(rows, png) else None}
@@ -384,6 +451,12 @@ def main(argv=None) -> int:
     p.add_argument("--variant", action="append", default=[], metavar="FLAGS",
                    help="more usdahd runs with these bake flags (a lever), e.g. "
                         "--variant=--denoise; repeatable")  # fmt: skip
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="time every run this many times, interleaved (medians and spreads)",
+    )
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -412,7 +485,7 @@ def main(argv=None) -> int:
     for st in stages:
         centre = CENTRE if st.stem in a.centre else 1
         rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp,
-                            a.variant)  # fmt: skip
+                            a.variant, a.repeats)  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
     png = a.out.with_name("reference_time_error.png")
     has_plot = plot(rows, png)

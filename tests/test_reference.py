@@ -510,6 +510,29 @@ def test_time_to_quality_judges_errors_net_of_the_truths_noise():
     assert got["target"] == 0.02 and got["usdahd_seconds"] == pytest.approx(4.0)
 
 
+def test_time_to_quality_gives_the_ratio_of_every_repeat():
+    """Repeated timings: the ratio uses the median times; ``ratios`` has one per repeat, from
+    that repeat's times of both renderers (so a load change during one repeat shows)."""
+    from benchmarks import reference_bench as rb
+
+    def row(ren, spp, runs, err):
+        return {"stage": "s", "renderer": ren, "spp": spp, "seconds": sorted(runs)[1],
+                "seconds_runs": runs, "rel_rmse": err}  # fmt: skip
+
+    rows = [
+        row("cycles", 1024, [40.0, 20.0, 80.0], 0.02),
+        row("usdahd", 256, [1.0, 1.0, 1.0], 0.04),
+    ]
+    rows += [row("usdahd", 1024, [16.0, 16.0, 8.0], 0.01)]
+    (got,) = rb.time_to_quality(rows)
+    # medians: usdahd 1 s and 16 s bracket the error -> 4 s; Cycles 40 s
+    assert got["ratio"] == pytest.approx(0.1)
+    # repeat 0: 4 / 40; repeat 1: 4 / 20; repeat 2: sqrt(1 * 8) / 80
+    assert got["ratios"] == pytest.approx([0.1, 0.2, 8**0.5 / 80])
+    md = rb.markdown(rows, type("A", (), {"resolution": 8, "samples": [16], "truth_spp": 64}), None)
+    assert "median of 3 repeats" in md and "0.10, 0.20, 0.04 |" in md
+
+
 def test_run_section_without_bpy_says_how_to_set_it_up(monkeypatch, tmp_path):
     from benchmarks import reference_bench as rb
 

@@ -486,6 +486,9 @@ def main(argv=None) -> int:
         centre = CENTRE if st.stem in a.centre else 1
         rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp,
                             a.variant, a.repeats)  # fmt: skip
+        # rows so far, so an interrupted run keeps its finished stages (--from-json redraws)
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.with_name("reference_bench.json").write_text(json.dumps(rows, indent=1))
     a.out.parent.mkdir(parents=True, exist_ok=True)
     png = a.out.with_name("reference_time_error.png")
     has_plot = plot(rows, png)

@@ -394,11 +394,26 @@ SECTION_PLANS = {
     },
     "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024, "variants": []},
 }
-SECTION_STAGES = ("cornell_box", "pillar_room", "floor_lamp")
+#: Issue 16 judges every lit stage of samples/ (open_plane is lit by a uniform dome, exact for
+#: both renderers) and the shared Cornell boxes (``../shared/scenes``, skipped when absent).
+SECTION_STAGES = (
+    "cornell_box",
+    "pillar_room",
+    "floor_lamp",
+    "exterior_sun_sky",
+    "emissive_only",
+    "indirect_ceiling",
+    "normal_wall",
+    "stretched_boxes",
+)
+SHARED_STAGES = (
+    "scenes/cornell_box/cornell-box.usda",
+    "scenes/cornell_box/cornell-box_rectlight.usda",
+)
 #: Stages whose usdahd error is judged against a centre-sampled truth (oversample CENTRE): a
 #: light's hotspot or hard shadows vary within a texel there, so the box-filtered truth is a
 #: different quantity (benchmarks/reference/README.md, "The reference's texel footprint").
-CENTRE_STAGES = ("pillar_room", "floor_lamp")
+CENTRE_STAGES = ("pillar_room", "floor_lamp", "exterior_sun_sky")
 CENTRE = 3
 
 
@@ -414,10 +429,12 @@ def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) 
         return {"skipped": str(exc)}
     cfg = SECTION_PLANS[plan_name]
     rows = []
-    for name in SECTION_STAGES:
-        rows += bench_stage(REPO / "samples" / f"{name}.usda", cfg["resolution"],
+    stages = [REPO / "samples" / f"{name}.usda" for name in SECTION_STAGES]
+    stages += [p for p in (REPO.parent / "shared" / s for s in SHARED_STAGES) if p.is_file()]
+    for path in stages:
+        rows += bench_stage(path, cfg["resolution"],
                             cfg["samples"], cfg["truth_spp"], bpy,
-                            centre=CENTRE if name in CENTRE_STAGES else 1,
+                            centre=CENTRE if path.stem in CENTRE_STAGES else 1,
                             variants=cfg["variants"],
                             repeats=cfg.get("repeats", 1))  # fmt: skip
     plots_dir.mkdir(parents=True, exist_ok=True)

@@ -166,6 +166,68 @@ def test_emissive_material_and_texture_path(tmp_path):
     assert desc["double_sided"] is False
 
 
+def _cutout_stage(tmp_path, alpha: float, name="cut.usda"):
+    """A lit plane under a uniform dome with a quad 0.5 above it whose material's opacity is
+    the alpha of its diffuse texture (``alpha`` everywhere), threshold 0.5: alpha 0 is a
+    fully cut-out occluder, alpha 1 an opaque one."""
+    import OpenImageIO as oiio
+
+    png = tmp_path / f"alpha{alpha:g}.png"
+    img = np.zeros((4, 4, 4), np.float32)
+    img[..., :3], img[..., 3] = 0.5, alpha
+    out = oiio.ImageOutput.create(str(png))
+    out.open(str(png), oiio.ImageSpec(4, 4, 4, oiio.UINT8))
+    out.write_image(img)
+    out.close()
+    st = _stage(tmp_path, name)
+    _plane(st)
+    occ = _plane(st, "/World/Occluder")
+    occ.AddTranslateOp().Set(Gf.Vec3d(0, 0.5, 0))
+    mat = UsdShade.Material.Define(st, "/Cut")
+    sh = UsdShade.Shader.Define(st, "/Cut/S")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    rd = UsdShade.Shader.Define(st, "/Cut/St")
+    rd.CreateIdAttr("UsdPrimvarReader_float2")
+    rd.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    tx = UsdShade.Shader.Define(st, "/Cut/Tex")
+    tx.CreateIdAttr("UsdUVTexture")
+    tx.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(png))
+    tx.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(rd.ConnectableAPI(), "result")
+    tx.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    tx.CreateOutput("a", Sdf.ValueTypeNames.Float)
+    sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+        tx.ConnectableAPI(), "rgb"
+    )
+    sh.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tx.ConnectableAPI(), "a")
+    sh.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(occ.GetPrim()).Bind(mat)
+    _light(st, UsdLux.DomeLight, "/World/Dome", 1.0)
+    st.GetRootLayer().Save()
+    return st
+
+
+def test_opacity_cutouts_and_constant_opacity_are_exported(tmp_path):
+    """opacity fed by the diffuse texture's alpha with a threshold, and a constant opacity,
+    reach the reference as usdahd reads them (usdahd/bake/kernels/trace.py nb_transmits)."""
+    st = _cutout_stage(tmp_path, 0.0)
+    sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
+    occ = next(i for i, m in enumerate(sc.meshes) if m["path"] == "/World/Occluder")
+    desc = sc.materials[sc.tri_mat[sc.tri_mesh == occ][0]]
+    assert Path(desc["opacity_texture"]).name == "alpha0.png"
+    assert desc["opacity_channel"] == "a" and desc["opacity_threshold"] == pytest.approx(0.5)
+    assert desc["texture_uv"] == "st"
+    sh = UsdShade.Shader(st.GetPrimAtPath("/Cut/S"))
+    sh.GetInput("opacity").DisconnectSource()
+    sh.GetInput("opacity").Set(0.25)
+    sh.GetInput("opacityThreshold").Set(0.0)
+    st.GetRootLayer().Save()
+    sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
+    desc = sc.materials[sc.tri_mat[sc.tri_mesh == occ][0]]
+    assert desc["opacity"] == pytest.approx(0.25) and desc["opacity_texture"] is None
+    assert desc["opacity_threshold"] == 0.0
+
+
 @pytest.mark.parametrize("metallic, spec, want", [(0.75, False, 0.25), (1.0, False, 0.0),
                                                    (0.75, True, 1.0)])  # fmt: skip
 def test_metallic_reduces_the_exported_diffuse_albedo(tmp_path, metallic, spec, want):
@@ -438,6 +500,23 @@ def test_smoke_oversampled_bake_keeps_texel_centres(tmp_path, bpy_python):
     info, images = runner.run_cycles(sf, 2, bpy=bpy_python, quiet=True, oversample=3)
     assert images[0].shape == (4, 4, 3) and info["oversample"] == 3
     assert np.allclose(images[0], 1.0, atol=1e-5)
+
+
+def test_smoke_cycles_sees_through_cutouts(tmp_path, bpy_python):
+    """A fully cut-out occluder (alpha 0 < threshold 0.5) leaves the uniform dome's I_z = 1 on
+    the plane below (Cycles' transparent bounces consume no randomness: exact); the same
+    occluder opaque (alpha 1) darkens it."""
+    for alpha, name in ((0.0, "clear.usda"), (1.0, "opaque.usda")):
+        st = _cutout_stage(tmp_path, alpha, name)
+        sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
+        plane = next(i for i, m in enumerate(sc.meshes) if m["path"] == "/World/Plane")
+        sf = export.save_scene(sc, tmp_path / f"{name}.npz")
+        _, images = runner.run_cycles(sf, 16, bpy=bpy_python, quiet=True)
+        iz = images[plane]
+        if alpha == 0.0:
+            assert np.allclose(iz, 1.0, atol=1e-4)
+        else:
+            assert iz.mean() < 0.8
 
 
 def test_smoke_calibration_sphere_case(bpy_python):

@@ -80,6 +80,62 @@ def _scaled_color(rgb):
     return tuple(float(c) / m for c in rgb), m
 
 
+def _opacity(bpy, nt, desc: dict, shader, baked: bool):
+    """``shader`` mixed with a Transparent BSDF by the material's opacity, as usdahd traces it
+    (usdahd/bake/kernels/trace.py ``nb_transmits``): a cut-out where opacity < threshold when
+    the threshold is > 0, else transmission with probability 1 - opacity. On a baked object
+    the baked point itself stays opaque (Light Path "Is Camera Ray"): usdahd bakes every
+    covered texel as a surface point; only rays arriving at a cut-out pass through."""
+    texture = desc.get("opacity_texture")
+    if not texture and float(desc.get("opacity", 1.0)) >= 1.0:
+        return shader
+    if texture:
+        img = bpy.data.images.load(texture, check_existing=False)
+        img.colorspace_settings.name = "Non-Color"  # alpha/mask values are linear
+        tex = nt.nodes.new("ShaderNodeTexImage")
+        tex.image = img
+        tex.extension = "REPEAT"
+        tex.interpolation = "Linear"
+        uvn = nt.nodes.new("ShaderNodeUVMap")
+        uvn.uv_map = "tex"
+        nt.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+        ch = desc.get("opacity_channel", "a")
+        if ch == "a":
+            op = tex.outputs["Alpha"]
+        else:
+            sep = nt.nodes.new("ShaderNodeSeparateColor")
+            nt.links.new(tex.outputs["Color"], sep.inputs["Color"])
+            op = sep.outputs[{"r": "Red", "g": "Green", "b": "Blue"}[ch]]
+    else:
+        val = nt.nodes.new("ShaderNodeValue")
+        val.outputs[0].default_value = float(desc["opacity"])
+        op = val.outputs[0]
+    thr = float(desc.get("opacity_threshold", 0.0))
+    if thr > 0:  # opaque where opacity >= threshold: 1 - (opacity < threshold)
+        less = nt.nodes.new("ShaderNodeMath")
+        less.operation = "LESS_THAN"
+        less.inputs[1].default_value = thr
+        nt.links.new(op, less.inputs[0])
+        keep = nt.nodes.new("ShaderNodeMath")
+        keep.operation = "SUBTRACT"
+        keep.inputs[0].default_value = 1.0
+        nt.links.new(less.outputs[0], keep.inputs[1])
+        op = keep.outputs[0]
+    if baked:
+        path = nt.nodes.new("ShaderNodeLightPath")
+        top = nt.nodes.new("ShaderNodeMath")
+        top.operation = "MAXIMUM"
+        nt.links.new(op, top.inputs[0])
+        nt.links.new(path.outputs["Is Camera Ray"], top.inputs[1])
+        op = top.outputs[0]
+    clear = nt.nodes.new("ShaderNodeBsdfTransparent")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(op, mix.inputs["Fac"])
+    nt.links.new(clear.outputs["BSDF"], mix.inputs[1])
+    nt.links.new(shader, mix.inputs[2])
+    return mix.outputs["Shader"]
+
+
 def _material(bpy, desc: dict, name: str, bake_image=None):
     """A Cycles material: Diffuse BSDF (+ one-sided emission) [+ active bake image node].
 
@@ -139,6 +195,7 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
             nt.links.new(add.outputs["Shader"], mix.inputs[1])
             nt.links.new(diff.outputs["BSDF"], mix.inputs[2])
             shader = mix.outputs["Shader"]
+    shader = _opacity(bpy, nt, desc, shader, bake_image is not None)
     nt.links.new(shader, out.inputs["Surface"])
     if bake_image is not None:
         node = nt.nodes.new("ShaderNodeTexImage")

@@ -108,9 +108,9 @@ class Scene:
         meta.pop("warnings")
         meta.pop("source")
         for m in meta["materials"]:  # a texture's content, not its path
-            if m.get("texture"):
-                m = dict(m)
-                h.update(Path(m["texture"]).read_bytes())
+            for key in ("texture", "opacity_texture"):
+                if m.get(key):
+                    h.update(Path(m[key]).read_bytes())
         h.update(json.dumps(meta, sort_keys=True).encode())
         return h.hexdigest()
 
@@ -227,9 +227,67 @@ def _input_source(inp):
     return src[0].GetPrim(), str(src[1])
 
 
+def _uv_texture(tex) -> tuple[str, bool, str]:
+    """(resolved file, sRGB?, UV primvar name) of a UsdUVTexture shader; ExportError when the
+    file does not resolve or its ``st`` is not read from a named primvar."""
+    from pxr import Sdf, UsdShade
+
+    f = tex.GetInput("file")
+    asset = f.Get() if f else None
+    path = asset.resolvedPath if isinstance(asset, Sdf.AssetPath) else ""
+    if not path or not os.path.isfile(path):
+        raise ExportError(
+            f"{tex.GetPath()}: texture file {asset} does not resolve; fix inputs:file"
+        )
+    cs = tex.GetInput("sourceColorSpace")
+    cs = str(cs.Get()) if cs and cs.Get() else "auto"
+    srgb = cs == "sRGB" or (cs == "auto" and Path(path).suffix.lower() in (".png", ".jpg"))
+    st = _input_source(tex.GetInput("st"))
+    varname = None
+    if st is not None:
+        reader = UsdShade.Shader(st[0])
+        vn = reader.GetInput("varname") if reader else None
+        varname = str(vn.Get()) if vn and vn.Get() is not None else None
+    if varname is None:
+        raise ExportError(
+            f"{tex.GetPath()}: inputs:st is not fed by a UsdPrimvarReader_float2 with a "
+            "varname; the reference needs the texture's UV primvar"
+        )
+    return path, bool(srgb), varname
+
+
+def _read_opacity(shader, out: dict, name: str, warn) -> None:
+    """UsdPreviewSurface ``opacity`` / ``opacityThreshold`` into ``out`` as usdahd reads them
+    (usdahd/bake/kernels/trace.py ``nb_transmits``): with a threshold > 0 a hit whose opacity
+    is below it is a cut-out (rays pass), else a hit transmits with probability 1 - opacity.
+    A texture must use the diffuse texture's UV primvar (the reference has one per material)."""
+    from pxr import UsdShade
+
+    thr = shader.GetInput("opacityThreshold")
+    out["opacity_threshold"] = float(thr.Get()) if thr and thr.Get() is not None else 0.0
+    op = shader.GetInput("opacity")
+    src = _input_source(op)
+    if src is None:
+        if op and op.Get() is not None:
+            out["opacity"] = min(max(float(op.Get()), 0.0), 1.0)
+        return
+    tex = UsdShade.Shader(src[0])
+    channel = str(src[1])
+    if not (tex and tex.GetIdAttr().Get() == "UsdUVTexture") or channel not in "rgba":
+        warn(f"{name}: opacity is fed by {src[0].GetPath()}.{channel}, not a UsdUVTexture "
+             "channel; ignored by the reference")  # fmt: skip
+        return
+    path, _srgb, varname = _uv_texture(tex)
+    if out["texture_uv"] not in (None, varname):
+        warn(f"{name}: opacity texture reads primvar {varname!r}, the diffuse texture "
+             f"{out['texture_uv']!r}; opacity ignored by the reference")  # fmt: skip
+        return
+    out.update(opacity_texture=path, opacity_channel=channel, texture_uv=varname)
+
+
 def _read_material(material, name: str, warn) -> dict:
     """UsdPreviewSurface parameters of a material as plain data."""
-    from pxr import Sdf, UsdShade
+    from pxr import UsdShade
 
     out = {
         "name": name,
@@ -239,6 +297,10 @@ def _read_material(material, name: str, warn) -> dict:
         "texture_srgb": True,
         "texture_uv": None,
         "double_sided": False,
+        "opacity": 1.0,
+        "opacity_texture": None,
+        "opacity_channel": "a",
+        "opacity_threshold": 0.0,
     }
     surface = material.ComputeSurfaceSource()
     shader = surface[0] if surface else None
@@ -254,27 +316,7 @@ def _read_material(material, name: str, warn) -> dict:
     if src is not None:
         tex = UsdShade.Shader(src[0])
         if tex and tex.GetIdAttr().Get() == "UsdUVTexture":
-            f = tex.GetInput("file")
-            asset = f.Get() if f else None
-            path = asset.resolvedPath if isinstance(asset, Sdf.AssetPath) else ""
-            if not path or not os.path.isfile(path):
-                raise ExportError(
-                    f"{tex.GetPath()}: texture file {asset} does not resolve; fix inputs:file"
-                )
-            cs = tex.GetInput("sourceColorSpace")
-            cs = str(cs.Get()) if cs and cs.Get() else "auto"
-            srgb = cs == "sRGB" or (cs == "auto" and Path(path).suffix.lower() in (".png", ".jpg"))
-            st = _input_source(tex.GetInput("st"))
-            varname = None
-            if st is not None:
-                reader = UsdShade.Shader(st[0])
-                vn = reader.GetInput("varname") if reader else None
-                varname = str(vn.Get()) if vn and vn.Get() is not None else None
-            if varname is None:
-                raise ExportError(
-                    f"{tex.GetPath()}: inputs:st is not fed by a UsdPrimvarReader_float2 with a "
-                    "varname; the reference needs the texture's UV primvar"
-                )
+            path, srgb, varname = _uv_texture(tex)
             for k in ("scale", "bias"):
                 i = tex.GetInput(k)
                 if (
@@ -302,6 +344,7 @@ def _read_material(material, name: str, warn) -> dict:
                 warn(f"{name}: metallic {m:g} on a textured diffuseColor ignored by the reference")
             else:
                 out["albedo"] = [a * (1.0 - m) for a in out["albedo"]]
+    _read_opacity(shader, out, name, warn)
     ec = shader.GetInput("emissiveColor")
     if _input_source(ec) is not None:
         warn(f"{name}: textured emissiveColor is not supported by the reference; ignored")

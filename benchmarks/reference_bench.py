@@ -354,29 +354,39 @@ def plot(rows: list[dict], path: Path) -> bool:
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import NullFormatter
     except ImportError:
         _log("matplotlib not installed (pip install -e '.[bench]'): no plot")
         return False
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    stages = sorted({r["stage"] for r in rows})
-    for i, s in enumerate(stages):
+    stages = list(dict.fromkeys(r["stage"] for r in rows))
+    cols = min(len(stages), 4) or 1
+    nrow = math.ceil(len(stages) / cols) or 1
+    fig, axes = plt.subplots(nrow, cols, figsize=(3.2 * cols, 2.7 * nrow), squeeze=False)
+    style = {"cycles": ("s--", "C0"), "usdahd": ("o-", "C1")}
+    for ax, s in zip(axes.ravel(), stages, strict=False):
         present = dict.fromkeys(r["renderer"] for r in rows if r["stage"] == s)
-        marks = ["s--" if ren == "cycles" else ("o-" if ren == "usdahd" else "^:")
-                 for ren in present]  # fmt: skip
-        for ren, mk in zip(present, marks, strict=True):
+        for j, ren in enumerate(present):
+            mk, col = style.get(ren, ("^:", f"C{2 + j}"))
             pts = [
-                (r["seconds"], r["rel_rmse"])
+                (r["seconds"], _err(r))
                 for r in sorted(rows, key=lambda r: r["spp"])
                 if r["stage"] == s and r["renderer"] == ren and "rel_rmse" in r
             ]
+            pts = [(t, e) for t, e in pts if t > 0 and e > 0]
             if pts:
-                ax.plot(*zip(*pts), mk, color=f"C{i}", label=f"{s} {ren}")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("bake time (s, 2 shared cores; points: 16, 64, 256, 1024 spp)")
-    ax.set_ylabel("relRMSE of I_z vs truth")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+                ax.plot(*zip(*pts), mk, color=col, label=ren, markersize=4)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(s, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    for ax in axes.ravel()[len(stages) :]:
+        ax.axis("off")
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel("bake time (s, 2 shared cores; points: 16, 64, 256, 1024 spp)", fontsize=9)
+    fig.supylabel("relRMSE of I_z vs truth (net of its noise)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

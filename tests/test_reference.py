@@ -149,6 +149,22 @@ def test_dome_colour_and_texture_orientation(tmp_path):
     assert np.all(res[d[:, 1] > 0.2, 0] > 0.99) and np.all(res[d[:, 1] < -0.2, 0] < 0.01)
 
 
+def test_an_8bit_dome_texture_is_srgb_decoded(tmp_path):
+    """Hydra's rule for a texture without a colour space: an 8-bit RGB image is sRGB. Code 128
+    is 128/255 = 0.50196 encoded, ((0.50196 + 0.055) / 1.055)^2.4 = 0.21586 linear; a float
+    EXR is read as it is."""
+    import OpenImageIO as oiio
+
+    for name, fmt, value, want in (("sky.png", oiio.UINT8, 128 / 255, 0.21586),
+                                   ("sky.exr", oiio.FLOAT, 0.5, 0.5)):  # fmt: skip
+        path = tmp_path / name
+        out = oiio.ImageOutput.create(str(path))
+        out.open(str(path), oiio.ImageSpec(8, 4, 3, fmt))
+        out.write_image(np.full((4, 8, 3), value, np.float32))
+        out.close()
+        assert export._read_image(str(path)) == pytest.approx(np.full((4, 8, 3), want), abs=2e-5)
+
+
 def test_emissive_material_and_texture_path(tmp_path):
     st = _stage(tmp_path)
     m = _plane(st)

@@ -491,7 +491,12 @@ def _lights(stage, xf, warn) -> tuple[list, np.ndarray | None, list | None]:
 
 
 def _read_image(path: str) -> np.ndarray:
-    """(h, w, 3) float32 linear pixels, row 0 at the top (OpenImageIO)."""
+    """(h, w, 3) float32 linear pixels, row 0 at the top (OpenImageIO).
+
+    A DomeLight texture has no colour-space input: Hydra's rule (HioImage) decides, so an
+    8-bit image with 3 or 4 channels is sRGB and decoded here with the sRGB transfer
+    function (IEC 61966-2-1); 1-2 channel, 16-bit and float images are linear. (McUsd's
+    8-bit PNG sky was read as linear values before: 2-3x too bright a sky.)"""
     import OpenImageIO as oiio
 
     buf = oiio.ImageBuf(path)
@@ -499,6 +504,11 @@ def _read_image(path: str) -> np.ndarray:
     if px is None or px.size == 0:
         raise ExportError(f"{path}: cannot read image ({oiio.geterror()})")
     px = np.asarray(px, np.float32)
+    spec = buf.spec()
+    if spec.format == oiio.UINT8 and spec.nchannels in (3, 4):
+        c = px[..., :3]
+        px = px.copy()
+        px[..., :3] = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
     if px.ndim == 2:
         px = px[..., None]
     if px.shape[-1] == 1:

@@ -223,6 +223,34 @@ def _cutout_stage(tmp_path, alpha: float, name="cut.usda"):
     return st
 
 
+def test_textured_metallic_and_emission_are_exported(tmp_path):
+    """A metallic fed by a texture's channel scales the diffuse albedo by (1 - metallic) in the
+    reference as usdahd reads it; a textured emissiveColor is exported as that texture; a
+    constant metallic on a textured diffuseColor scales the texture."""
+    st = _cutout_stage(tmp_path, 1.0)
+    sh = UsdShade.Shader(st.GetPrimAtPath("/Cut/S"))
+    tx = UsdShade.Shader(st.GetPrimAtPath("/Cut/Tex"))
+    tx.CreateOutput("b", Sdf.ValueTypeNames.Float)
+    sh.CreateInput("metallic", Sdf.ValueTypeNames.Float).ConnectToSource(tx.ConnectableAPI(), "b")
+    sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+        tx.ConnectableAPI(), "rgb"
+    )
+    st.GetRootLayer().Save()
+    sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
+    occ = next(i for i, m in enumerate(sc.meshes) if m["path"] == "/World/Occluder")
+    desc = sc.materials[sc.tri_mat[sc.tri_mesh == occ][0]]
+    assert Path(desc["metallic_texture"]).name == "alpha1.png"
+    assert desc["metallic_channel"] == "b" and desc["metallic_srgb"] is True  # 8-bit PNG: auto
+    assert Path(desc["emission_texture"]).name == "alpha1.png"
+    assert not [w for w in sc.warnings if "not supported" in w]
+    sh.GetInput("metallic").DisconnectSource()
+    sh.GetInput("metallic").Set(0.75)
+    st.GetRootLayer().Save()
+    sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
+    desc = sc.materials[sc.tri_mat[sc.tri_mesh == occ][0]]
+    assert desc["albedo_scale"] == pytest.approx(0.25) and "metallic_texture" not in desc
+
+
 def test_opacity_cutouts_and_constant_opacity_are_exported(tmp_path):
     """opacity fed by the diffuse texture's alpha with a threshold, and a constant opacity,
     reach the reference as usdahd reads them (usdahd/bake/kernels/trace.py nb_transmits)."""

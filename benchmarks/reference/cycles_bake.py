@@ -80,6 +80,29 @@ def _scaled_color(rgb):
     return tuple(float(c) / m for c in rgb), m
 
 
+def _tex_node(bpy, nt, path: str, srgb: bool):
+    """An Image Texture node reading ``path`` through the material's texture UV map ("tex")."""
+    img = bpy.data.images.load(path, check_existing=False)
+    img.colorspace_settings.name = "sRGB" if srgb else "Non-Color"
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    tex.extension = "REPEAT"
+    tex.interpolation = "Linear"
+    uvn = nt.nodes.new("ShaderNodeUVMap")
+    uvn.uv_map = "tex"
+    nt.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+    return tex
+
+
+def _channel(nt, tex, ch: str):
+    """The float socket of one channel ("r", "g", "b", "a") of an Image Texture node."""
+    if ch == "a":
+        return tex.outputs["Alpha"]
+    sep = nt.nodes.new("ShaderNodeSeparateColor")
+    nt.links.new(tex.outputs["Color"], sep.inputs["Color"])
+    return sep.outputs[{"r": "Red", "g": "Green", "b": "Blue"}[ch]]
+
+
 def _opacity(bpy, nt, desc: dict, shader, baked: bool):
     """``shader`` mixed with a Transparent BSDF by the material's opacity, as usdahd traces it
     (usdahd/bake/kernels/trace.py ``nb_transmits``): a cut-out where opacity < threshold when
@@ -90,22 +113,8 @@ def _opacity(bpy, nt, desc: dict, shader, baked: bool):
     if not texture and float(desc.get("opacity", 1.0)) >= 1.0:
         return shader
     if texture:
-        img = bpy.data.images.load(texture, check_existing=False)
-        img.colorspace_settings.name = "Non-Color"  # alpha/mask values are linear
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = img
-        tex.extension = "REPEAT"
-        tex.interpolation = "Linear"
-        uvn = nt.nodes.new("ShaderNodeUVMap")
-        uvn.uv_map = "tex"
-        nt.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-        ch = desc.get("opacity_channel", "a")
-        if ch == "a":
-            op = tex.outputs["Alpha"]
-        else:
-            sep = nt.nodes.new("ShaderNodeSeparateColor")
-            nt.links.new(tex.outputs["Color"], sep.inputs["Color"])
-            op = sep.outputs[{"r": "Red", "g": "Green", "b": "Blue"}[ch]]
+        tex = _tex_node(bpy, nt, texture, False)  # alpha/mask values are linear
+        op = _channel(nt, tex, desc.get("opacity_channel", "a"))
     else:
         val = nt.nodes.new("ShaderNodeValue")
         val.outputs[0].default_value = float(desc["opacity"])
@@ -169,6 +178,28 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
         floor.inputs[1].default_value = (MIN_ALBEDO,) * 3
         nt.links.new(tex.outputs["Color"], floor.inputs[0])
         albedo = floor.outputs["Vector"]
+    if desc.get("metallic_texture") or float(desc.get("albedo_scale", 1.0)) != 1.0:
+        # metallic workflow: diffuse albedo x (1 - metallic) (export._read_metallic)
+        if desc.get("metallic_texture"):
+            mt = _tex_node(bpy, nt, desc["metallic_texture"], bool(desc.get("metallic_srgb")))
+            one_minus = nt.nodes.new("ShaderNodeMath")
+            one_minus.operation = "SUBTRACT"
+            one_minus.inputs[0].default_value = 1.0
+            nt.links.new(_channel(nt, mt, desc.get("metallic_channel", "r")), one_minus.inputs[1])
+            k = one_minus.outputs[0]
+        else:
+            kv = nt.nodes.new("ShaderNodeValue")
+            kv.outputs[0].default_value = float(desc["albedo_scale"])
+            k = kv.outputs[0]
+        scale = nt.nodes.new("ShaderNodeVectorMath")
+        scale.operation = "SCALE"
+        nt.links.new(albedo, scale.inputs[0])
+        nt.links.new(k, scale.inputs["Scale"])
+        top = nt.nodes.new("ShaderNodeVectorMath")
+        top.operation = "MAXIMUM"
+        top.inputs[1].default_value = (MIN_ALBEDO,) * 3
+        nt.links.new(scale.outputs["Vector"], top.inputs[0])
+        albedo = top.outputs["Vector"]
     if bake_image is not None:
         path = nt.nodes.new("ShaderNodeLightPath")
         mix = nt.nodes.new("ShaderNodeMix")
@@ -180,10 +211,15 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
     nt.links.new(albedo, diff.inputs["Color"])
     shader = diff.outputs["BSDF"]
     color, strength = _scaled_color(desc["emission"])
+    if desc.get("emission_texture"):
+        strength = 1.0
     if strength > 0:
         em = nt.nodes.new("ShaderNodeEmission")
         em.inputs["Color"].default_value = (*color, 1.0)
         em.inputs["Strength"].default_value = strength
+        if desc.get("emission_texture"):
+            et = _tex_node(bpy, nt, desc["emission_texture"], bool(desc.get("emission_srgb")))
+            nt.links.new(et.outputs["Color"], em.inputs["Color"])
         add = nt.nodes.new("ShaderNodeAddShader")
         nt.links.new(diff.outputs["BSDF"], add.inputs[0])
         nt.links.new(em.outputs["Emission"], add.inputs[1])

@@ -108,7 +108,7 @@ class Scene:
         meta.pop("warnings")
         meta.pop("source")
         for m in meta["materials"]:  # a texture's content, not its path
-            for key in ("texture", "opacity_texture"):
+            for key in ("texture", "opacity_texture", "metallic_texture", "emission_texture"):
                 if m.get(key):
                     h.update(Path(m[key]).read_bytes())
         h.update(json.dumps(meta, sort_keys=True).encode())
@@ -256,33 +256,71 @@ def _uv_texture(tex) -> tuple[str, bool, str]:
     return path, bool(srgb), varname
 
 
+def _channel_texture(inp, out: dict, name: str, what: str, warn):
+    """(file, channel, sRGB?) of a UsdUVTexture output feeding ``inp``, or None (with a
+    warning naming ``what`` when it cannot be used: not a UsdUVTexture, or another UV primvar
+    than the material's other textures, since the reference has one texture UV per material)."""
+    from pxr import UsdShade
+
+    src = _input_source(inp)
+    if src is None:
+        return None
+    tex = UsdShade.Shader(src[0])
+    channel = str(src[1])
+    if not (tex and tex.GetIdAttr().Get() == "UsdUVTexture") or channel not in (
+        "r",
+        "g",
+        "b",
+        "a",
+        "rgb",
+    ):
+        warn(f"{name}: {what} is fed by {src[0].GetPath()}.{channel}, not a UsdUVTexture "
+             "output; ignored by the reference")  # fmt: skip
+        return None
+    path, srgb, varname = _uv_texture(tex)
+    if out["texture_uv"] not in (None, varname):
+        warn(f"{name}: {what} texture reads primvar {varname!r}, another texture of the "
+             f"material {out['texture_uv']!r}; {what} ignored by the reference")  # fmt: skip
+        return None
+    out["texture_uv"] = varname
+    return path, channel, srgb
+
+
 def _read_opacity(shader, out: dict, name: str, warn) -> None:
     """UsdPreviewSurface ``opacity`` / ``opacityThreshold`` into ``out`` as usdahd reads them
     (usdahd/bake/kernels/trace.py ``nb_transmits``): with a threshold > 0 a hit whose opacity
-    is below it is a cut-out (rays pass), else a hit transmits with probability 1 - opacity.
-    A texture must use the diffuse texture's UV primvar (the reference has one per material)."""
-    from pxr import UsdShade
-
+    is below it is a cut-out (rays pass), else a hit transmits with probability 1 - opacity."""
     thr = shader.GetInput("opacityThreshold")
     out["opacity_threshold"] = float(thr.Get()) if thr and thr.Get() is not None else 0.0
     op = shader.GetInput("opacity")
-    src = _input_source(op)
-    if src is None:
+    if _input_source(op) is None:
         if op and op.Get() is not None:
             out["opacity"] = min(max(float(op.Get()), 0.0), 1.0)
         return
-    tex = UsdShade.Shader(src[0])
-    channel = str(src[1])
-    if not (tex and tex.GetIdAttr().Get() == "UsdUVTexture") or channel not in "rgba":
-        warn(f"{name}: opacity is fed by {src[0].GetPath()}.{channel}, not a UsdUVTexture "
-             "channel; ignored by the reference")  # fmt: skip
+    got = _channel_texture(op, out, name, "opacity", warn)
+    if got is not None:
+        out.update(opacity_texture=got[0], opacity_channel=got[1])
+
+
+def _read_metallic(shader, out: dict, name: str, warn) -> None:
+    """The metallic workflow has no diffuse lobe on metal: the diffuse albedo is
+    diffuseColor x (1 - metallic), as usdahd reads it (docs/usd-semantics.md), constant or
+    textured. The reference renders the same diffuse transport; the specular bounce off
+    metal is in neither."""
+    spec = shader.GetInput("useSpecularWorkflow")
+    met = shader.GetInput("metallic")
+    if (spec and spec.Get()) or not met:
         return
-    path, _srgb, varname = _uv_texture(tex)
-    if out["texture_uv"] not in (None, varname):
-        warn(f"{name}: opacity texture reads primvar {varname!r}, the diffuse texture "
-             f"{out['texture_uv']!r}; opacity ignored by the reference")  # fmt: skip
-        return
-    out.update(opacity_texture=path, opacity_channel=channel, texture_uv=varname)
+    if _input_source(met) is not None:
+        got = _channel_texture(met, out, name, "metallic", warn)
+        if got is not None:
+            out.update(metallic_texture=got[0], metallic_channel=got[1], metallic_srgb=got[2])
+    elif met.Get() is not None and float(met.Get()) != 0.0:
+        m = min(max(float(met.Get()), 0.0), 1.0)
+        if out["texture"] is not None:
+            out["albedo_scale"] = 1.0 - m  # applied to the texture in the Cycles material
+        else:
+            out["albedo"] = [a * (1.0 - m) for a in out["albedo"]]
 
 
 def _read_material(material, name: str, warn) -> dict:
@@ -330,24 +368,16 @@ def _read_material(material, name: str, warn) -> dict:
             warn(f"{name}: diffuseColor is fed by a non-UsdUVTexture shader; fallback used")
     elif dc and dc.Get() is not None:
         out["albedo"] = [float(x) for x in dc.Get()]
-    # The metallic workflow has no diffuse lobe on metal: the diffuse albedo is
-    # diffuseColor x (1 - metallic), as usdahd reads it (docs/usd-semantics.md). The reference
-    # renders the same diffuse transport; the specular bounce off metal is in neither.
-    spec = shader.GetInput("useSpecularWorkflow")
-    met = shader.GetInput("metallic")
-    if not (spec and spec.Get()) and met:
-        if _input_source(met) is not None:
-            warn(f"{name}: textured metallic is not supported by the reference; ignored")
-        elif met.Get() is not None and float(met.Get()) != 0.0:
-            m = min(max(float(met.Get()), 0.0), 1.0)
-            if out["texture"] is not None:
-                warn(f"{name}: metallic {m:g} on a textured diffuseColor ignored by the reference")
-            else:
-                out["albedo"] = [a * (1.0 - m) for a in out["albedo"]]
+    _read_metallic(shader, out, name, warn)
     _read_opacity(shader, out, name, warn)
     ec = shader.GetInput("emissiveColor")
     if _input_source(ec) is not None:
-        warn(f"{name}: textured emissiveColor is not supported by the reference; ignored")
+        got = _channel_texture(ec, out, name, "emissiveColor", warn)
+        if got is not None and got[1] != "rgb":
+            warn(f"{name}: emissiveColor fed by a single channel ({got[1]}); ignored by the "
+                 "reference")  # fmt: skip
+        elif got is not None:
+            out.update(emission_texture=got[0], emission_srgb=got[2])
     elif ec and ec.Get() is not None:
         out["emission"] = [float(x) for x in ec.Get()]
     return out

@@ -254,6 +254,31 @@ def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
     assert cli.main(["validate", str(layer), "--quiet"]) == 0
 
 
+def test_denoise_trusts_the_integrators_own_variance(tmp_path, capsys, monkeypatch):
+    """--denoise gets each texel's noise from the integrator (stats iz_variance through
+    denoise.sh_variance), not from second differences, which a shadow edge inflates (that
+    estimate multiplied exterior_sun_sky's error by 2.5, docs/time-to-quality.md)."""
+    pytest.importorskip("pyoidn")
+    from usdahd.bake import denoise
+
+    seen = []
+    real = denoise.denoise_sh
+
+    def spy(sh, texels, **kw):
+        seen.append(kw.get("variance"))
+        return real(sh, texels, **kw)
+
+    monkeypatch.setattr(denoise, "denoise_sh", spy)
+    stage = copy_sample(tmp_path, "open_plane.usda")
+    code, out = _bake(
+        [str(stage), "--denoise", "--resolution", "16", "--samples", "8", "--quiet"], capsys
+    )
+    assert code == 0, out.err
+    (var,) = seen
+    assert var is not None and var.ndim == 3 and var.shape[1:] == (3, 9)
+    assert np.isfinite(var).all() and (var > 0).any()
+
+
 def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
     from pxr import Sdf, Usd, UsdGeom
 

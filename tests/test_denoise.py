@@ -183,6 +183,32 @@ def test_given_variance_is_used():
     assert rms_iz(out, clean) < 0.5 * rms_iz(noisy, clean)
 
 
+def test_sh_variance_from_the_integrators_iz_variance():
+    """var(c10) = var(I_z) / IZ_FROM_L10^2 in luminance, each channel scaled by its share of
+    the luminance (c00 of the channel / c00 luminance), the same for every coefficient."""
+    x = np.zeros((2, 3, 9))
+    x[0, :, 0] = [1.0, 1.0, 1.0]  # grey: every channel's share is 1
+    x[1, :, 0] = [2.0, 0.0, 0.0]  # red only: luminance 0.2126 * 2
+    var = denoise.sh_variance(x, np.array([0.5, 0.1]))
+    assert var.shape == (2, 3, 9)
+    np.testing.assert_allclose(var[0], 0.5 / sh.IZ_FROM_L10**2)
+    np.testing.assert_allclose(var[1, 0], 0.1 / sh.IZ_FROM_L10**2 / 0.2126**2)
+    np.testing.assert_allclose(var[1, 1:], 0.0)
+
+
+def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate():
+    """variance_bound=True: an unbounded figure changes nothing against the second-difference
+    estimate alone; a zero bound keeps the input (nothing is trusted as noise)."""
+    mesh, t = full_quad()
+    _clean, noisy = noisy_field(t, 0.3, seed=5)
+    charts = charts_of(mesh, t)
+    est = denoise.denoise_sh(noisy, t, charts=charts)
+    loose = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
+    np.testing.assert_array_equal(loose, est)
+    none = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0, variance_bound=True)
+    np.testing.assert_array_equal(none, noisy)
+
+
 # ------------------------------------------------------------------------------ noise estimate
 
 

@@ -340,6 +340,26 @@ def blend_weights(
 # public
 
 
+def sh_variance(sh: np.ndarray, iz_variance: np.ndarray) -> np.ndarray:
+    """Per-coefficient noise variance (n, 3, 9) float64 of radiance SH ``sh (n, 3, 9)`` from
+    the integrator's per-texel variance of luminance I_z ``iz_variance (n,)``
+    (``bake_texels``' stats), for :func:`denoise_sh`'s blend.
+
+    I_z = IZ_FROM_L10 c10, so var(c10) = var(I_z) / IZ_FROM_L10^2 in luminance; a channel's
+    noise scales with its share of the luminance (c00 of that channel / c00 luminance); every
+    coefficient is given c10's variance (all are Monte Carlo estimates of the same samples
+    weighted by a basis function of the same order of magnitude). Unlike the
+    second-difference estimate, a shadow edge or a hotspot does not read as noise here."""
+    from usdahd.numerics import sh as shm
+
+    sh = np.asarray(sh, np.float64)
+    c00 = np.maximum(sh[:, :, 0], 0.0)
+    lum = c00 @ np.asarray(shm.LUMINANCE, np.float64)
+    share = np.where(lum[:, None] > 0, c00 / np.where(lum > 0, lum, 1.0)[:, None], 1.0)
+    var = np.asarray(iz_variance, np.float64)[:, None] / shm.IZ_FROM_L10**2 * share**2
+    return np.repeat(var[:, :, None], 9, axis=2)
+
+
 def denoise_sh(
     sh: np.ndarray,
     texels: Texels,
@@ -351,6 +371,7 @@ def denoise_sh(
     quality: str = "high",
     variance: np.ndarray | None = None,
     blend: bool = True,
+    variance_bound: bool = False,
 ) -> np.ndarray:
     """Denoised copy of radiance SH ``(n, 3, 9)`` (float32), chart by chart.
 
@@ -360,6 +381,10 @@ def denoise_sh(
     variance : noise variance of ``sh``, broadcastable to (n, 3, 9) (e.g. the integrator's
         per-texel sample variance divided by the sample count); None: :func:`noise_variance`.
     blend : False returns OIDN's output as it is (no noise-weighted blend; for comparisons).
+    variance_bound : ``variance`` is an upper bound of the noise (the integrator's s^2 / S
+        under stratified sampling): each texel uses the smaller of it and the
+        second-difference estimate, so neither an edge (which inflates the estimate) nor the
+        bound's slack lets the denoiser change signal.
     Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
     returned unchanged without running OIDN.
     Raises UsageError if pyoidn is not installed or an option is unknown, InputError on
@@ -390,7 +415,7 @@ def denoise_sh(
             x = sh[sel].astype(np.float64)  # (m, 3, 9)
             cv = _Canvas(texels.xy[sel])
             # canvases are built one coefficient (3 channels) at a time to bound memory
-            if variance is None:
+            if variance is None or variance_bound:
                 var = np.stack(
                     [
                         cv.gather(_canvas_noise(cv.image(x[:, :, k], fill=False), cv.mask))
@@ -398,6 +423,8 @@ def denoise_sh(
                     ],
                     axis=2,
                 )
+                if variance is not None:
+                    var = np.minimum(var, variance[sel])
             else:
                 var = variance[sel]
             if blend and not (var > 0).any():

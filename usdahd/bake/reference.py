@@ -88,6 +88,16 @@ class Accum:
         floor = ADAPTIVE_FLOOR * (level.max() if len(level) else 0.0)
         return se <= tol * np.maximum(level, floor)
 
+    def iz_variance(self):
+        """(n,) float64 variance of each texel's mean per-sample luminance I_z estimate (the
+        hemisphere and light-sample terms; delta lights are exact): the unbiased sample
+        variance over the count, s^2 / count (0 below 2 samples)."""
+        c = self.count.astype(np.float64)
+        safe = np.maximum(c, 2.0)
+        mean = self.y_sum / np.maximum(c, 1.0)
+        s2 = np.maximum(self.y_sq - c * mean * mean, 0.0) / (safe - 1.0)
+        return np.where(c >= 2, s2 / safe, 0.0)
+
     def result(self, estimator):
         c = np.maximum(self.count, 1).astype(np.float64)
         b = self.hemi / c[:, None, None]

@@ -189,7 +189,11 @@ def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
         from usdahd.bake import denoise
 
         for job in ok:
-            job.sh = denoise.denoise_sh(job.sh, job.texels, charts=job.charts)
+            iz_var = job.stats.get("iz_variance")
+            var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
+            job.sh = denoise.denoise_sh(
+                job.sh, job.texels, charts=job.charts, variance=var, variance_bound=True
+            )
     if ok:
         t0 = time.perf_counter()
         seams = post.find_seams([j.mesh for j in ok], [j.texels.resolution for j in ok])

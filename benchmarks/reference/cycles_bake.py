@@ -80,9 +80,11 @@ def _scaled_color(rgb):
     return tuple(float(c) / m for c in rgb), m
 
 
-def _tex_node(bpy, nt, path: str, srgb: bool):
-    """An Image Texture node reading ``path`` through the material's texture UV map ("tex")."""
-    img = bpy.data.images.load(path, check_existing=False)
+def _tex_node(bpy, nt, path: str, srgb: bool, reuse: bool = False):
+    """An Image Texture node reading ``path`` through the material's texture UV map ("tex").
+    reuse: share an image datablock already loaded from ``path`` (a diffuse texture; masks
+    and metallic channels load their own, since the colour space is set per datablock)."""
+    img = bpy.data.images.load(path, check_existing=reuse)
     img.colorspace_settings.name = "sRGB" if srgb else "Non-Color"
     tex = nt.nodes.new("ShaderNodeTexImage")
     tex.image = img
@@ -164,15 +166,7 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
     rgb.outputs[0].default_value = (*[max(float(c), MIN_ALBEDO) for c in desc["albedo"]], 1)
     albedo = rgb.outputs[0]
     if desc.get("texture"):
-        img = bpy.data.images.load(desc["texture"], check_existing=True)
-        img.colorspace_settings.name = "sRGB" if desc.get("texture_srgb") else "Non-Color"
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = img
-        tex.extension = "REPEAT"
-        tex.interpolation = "Linear"
-        uvn = nt.nodes.new("ShaderNodeUVMap")
-        uvn.uv_map = "tex"
-        nt.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+        tex = _tex_node(bpy, nt, desc["texture"], bool(desc.get("texture_srgb")), reuse=True)
         floor = nt.nodes.new("ShaderNodeVectorMath")
         floor.operation = "MAXIMUM"
         floor.inputs[1].default_value = (MIN_ALBEDO,) * 3

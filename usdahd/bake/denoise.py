@@ -384,7 +384,8 @@ def denoise_sh(
     variance_bound : ``variance`` is an upper bound of the noise (the integrator's s^2 / S
         under stratified sampling): each texel uses the smaller of it and the
         second-difference estimate, so neither an edge (which inflates the estimate) nor the
-        bound's slack lets the denoiser change signal.
+        bound's slack lets the denoiser change signal; each chart's summed c10 per channel is
+        then kept equal to the input's (:func:`_keep_chart_energy`).
     Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
     returned unchanged without running OIDN.
     Raises UsageError if pyoidn is not installed or an option is unknown, InputError on
@@ -441,11 +442,27 @@ def denoise_sh(
                         pointwise=np.full(3, k in _RATIO_COEFFS),
                     )
                     d[:, :, k] = x[:, :, k] + cv.gather(w) * (d[:, :, k] - x[:, :, k])
+                if variance_bound:
+                    d = _keep_chart_energy(x, d)
             out[sel] = d.astype(np.float32)
     finally:
         if den is not None:
             den.close()
     return out
+
+
+def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``d (m, 3, 9)`` scaled per colour channel so the chart's summed c10 (the coefficient
+    proportional to I_z) equals the input's ``x (m, 3, 9)``: an unbiased input's chart sum is
+    an unbiased estimate of the true sum, and a partial blend need not keep it. OIDN moves
+    energy out of a light's hotspot into its surroundings; where the per-texel variance is
+    high (the hotspot) the blend keeps the move, where it is low (the surroundings) it keeps
+    less, so without this the chart lost energy (pillar_room, 256 spp: -1.02 % overall)."""
+    s_in = x[:, :, 2].sum(axis=0)
+    s_out = d[:, :, 2].sum(axis=0)
+    ok = (s_out > 0) & (s_in > 0)
+    scale = np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
+    return d * scale[None, :, None]
 
 
 def _denoise_chart(den, cv: _Canvas, x, sel, filter, albedo, normal) -> np.ndarray:

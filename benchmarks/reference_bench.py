@@ -5,7 +5,7 @@ matplotlib from the ``bench`` extra for the plot)::
 
     python benchmarks/reference_bench.py [--stages cornell_box pillar_room floor_lamp]
         [--resolution 32] [--samples 16 64 256 1024] [--truth-spp 4096]
-        [--centre pillar_room floor_lamp] [--centre-spp N] [--variant=--denoise ...]
+        [--centre STAGE ...] [--centre-spp N] [--variant=--denoise ...]
         [--out docs/benchmarks/reference.md]
 
 For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
@@ -53,9 +53,10 @@ def net_of_truth_noise(rel_rmse: float, truth_noise: float | None) -> float:
     return math.sqrt(max(rel_rmse**2 - truth_noise**2, 0.0))
 
 
-def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
-    """A centre-sampled truth (Cycles at k x the resolution, the centre sub-texel kept: the
-    quantity usdahd estimates, docs/texels.md) and its own relRMSE noise.
+def centre_truth(scene, sf, spp: int, bpy: str) -> tuple[dict, float]:
+    """A point-sampled truth (Cycles at each texel's centre point through the probes of
+    benchmarks/reference/probes.py: the quantity usdahd estimates, docs/texels.md) and its own
+    relRMSE noise.
 
     Two independent halves (seeds 1 and 2, ``spp // 2`` each, cached) are averaged; the noise
     of the mean is rms(A - B) / 2 relative to the mean (var(A - B) = 2 s^2, var((A+B)/2) = s^2/2).
@@ -63,9 +64,9 @@ def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
     """
     half = max(1, spp // 2)
     _, a, _ = runner.cached_cycles(scene, sf, half, seed=compare.TRUTH_SEED, bpy=bpy,
-                                   oversample=k)  # fmt: skip
+                                   point=True)  # fmt: skip
     _, b, _ = runner.cached_cycles(scene, sf, half, seed=compare.TRUTH_SEED + 1, bpy=bpy,
-                                   oversample=k)  # fmt: skip
+                                   point=True)  # fmt: skip
     truth = {i: 0.5 * (a[i] + b[i]) for i in a if i in b}
     res = compare.compare_images(scene.meshes, a, b, {}, half, half)  # (its truth_noise unused)
     diff = res["overall"].get("cycles", {}).get("rel_rmse")
@@ -73,15 +74,15 @@ def centre_truth(scene, sf, spp: int, k: int, bpy: str) -> tuple[dict, float]:
 
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
-                centre: int = 1, centre_spp: int | None = None,
+                centre: bool = True, centre_spp: int | None = None,
                 variants: list[str] = (), repeats: int = 1):  # fmt: skip
     """Rows {"stage", "renderer", "spp", "seconds", "seconds_runs", "load", "wall", "bias",
     "rel_rmse", "rel_rmse_net", "truth", "truth_noise"}.
 
     Each renderer is compared with the converged value of the quantity it estimates: Cycles
-    with its own box-filtered truth (``truth_spp``); usdahd with that truth too when
-    ``centre`` is 1, else with :func:`centre_truth` (oversample ``centre``, ``centre_spp``
-    samples, default ``truth_spp``). ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
+    with its own box-filtered truth (``truth_spp``); usdahd with :func:`centre_truth` (the
+    point-sampled truth, ``centre_spp`` samples, default ``truth_spp``), or with the box truth
+    too when ``centre`` is False. ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
     ``variants``: more usdahd runs at every sample count, each with these extra bake flags (a
     lever, e.g. ``"--denoise"``); their renderer is ``"usdahd <flags>"``.
     ``repeats``: every run is timed this many times, the repeats after the first interleaved
@@ -111,10 +112,10 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 t_info, truth, hit = runner.cached_cycles(
                     scene, sf, truth_spp, seed=compare.TRUTH_SEED, bpy=bpy
                 )
-                if centre > 1:
+                if centre:
                     cs = centre_spp or truth_spp
-                    _log(f"{stage.name}: centre-sampled truth {cs} spp, oversample {centre}")
-                    ctruth, cnoise = centre_truth(scene, sf, cs, centre, bpy)
+                    _log(f"{stage.name}: point-sampled truth {cs} spp")
+                    ctruth, cnoise = centre_truth(scene, sf, cs, bpy)
             ours = {}
             for k, m in enumerate(scene.meshes):
                 r = results.get(m["path"])
@@ -127,7 +128,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 {"stage": stage.stem, "renderer": renderer, "spp": n, "seconds": secs,
                  "seconds_runs": [secs], "load": [load], "flags": extra,
                  "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"],
-                 "truth": f"centre x{centre}" if ctruth else "box", "truth_noise": cnoise}
+                 "truth": "point" if ctruth else "box", "truth_noise": cnoise}
             )  # fmt: skip
             if ctruth is None:
                 box_usdahd.append(rows[-1])  # its truth noise is known after Cycles' runs
@@ -261,14 +262,15 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     for r in rows:
         if r["renderer"] == "cycles" and r.get("truth_noise") is not None:
             noise.setdefault(r["stage"], []).append(r["truth_noise"])
-    centred = {r["stage"]: r for r in rows if str(r.get("truth", "")).startswith("centre")}
+    centred = {r["stage"]: r for r in rows if r.get("truth") == "point"}
+    boxed = sorted({r["stage"] for r in rows if r["renderer"] != "cycles"} - set(centred))
     n_rep = min((len(r.get("seconds_runs") or [0]) for r in rows), default=1)
     cmd = (
         f"python benchmarks/reference_bench.py --resolution {args.resolution} "
         f"--samples {' '.join(map(str, args.samples))} --truth-spp {args.truth_spp}"
     )
-    if centred:
-        cmd += f" --centre {' '.join(sorted(centred))}"
+    if boxed:  # the default judges every stage against the point truth
+        cmd += " --centre" + "".join(f" {s}" for s in sorted(centred))
     if n_rep > 1:
         cmd += f" --repeats {n_rep}"
     for ren in dict.fromkeys(r["renderer"] for r in rows):
@@ -296,10 +298,11 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         "on the same 2 shared cores. Texel convention: usdahd samples each texel at its centre "
         "(docs/texels.md), Cycles jitters over the texel (a box filter), so at a small light's "
         "hotspot or a hard shadow edge the two estimate different quantities and usdahd's "
-        "error against Cycles' truth stops falling with more samples. Each renderer is "
+        "error against Cycles' box truth stops falling with more samples. Each renderer is "
         "therefore judged against the converged value of what it estimates: Cycles against "
-        "its box-filtered truth, usdahd on the stages marked *centre* against a centre-sampled "
-        "Cycles truth (Cycles at 3x the resolution keeping each texel's centre sub-texel, two "
+        "its box-filtered truth, usdahd against a point-sampled Cycles truth (Cycles bakes a "
+        "probe triangle 1/100 texel wide at each texel's centre point, "
+        "benchmarks/reference/probes.py; calibrated to 0.02 % on the analytic cases; two "
         "independent halves whose difference gives its noise: "
         + (
             ", ".join(
@@ -420,11 +423,6 @@ SHARED_STAGES = (
     "scenes/cornell_box/cornell-box.usda",
     "scenes/cornell_box/cornell-box_rectlight.usda",
 )
-#: Stages whose usdahd error is judged against a centre-sampled truth (oversample CENTRE): a
-#: light's hotspot or hard shadows vary within a texel there, so the box-filtered truth is a
-#: different quantity (benchmarks/reference/README.md, "The reference's texel footprint").
-CENTRE_STAGES = ("pillar_room", "floor_lamp", "exterior_sun_sky")
-CENTRE = 3
 
 
 def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) -> dict:
@@ -444,7 +442,6 @@ def run_section(plan_name: str, plots_dir: Path, bpy_python: str | None = None) 
     for path in stages:
         rows += bench_stage(path, cfg["resolution"],
                             cfg["samples"], cfg["truth_spp"], bpy,
-                            centre=CENTRE if path.stem in CENTRE_STAGES else 1,
                             variants=cfg["variants"],
                             repeats=cfg.get("repeats", 1))  # fmt: skip
     plots_dir.mkdir(parents=True, exist_ok=True)
@@ -469,11 +466,11 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", type=int, default=32)
     p.add_argument("--samples", type=int, nargs="+", default=[16, 64, 256, 1024])
     p.add_argument("--truth-spp", type=int, default=4096)
-    p.add_argument("--centre", nargs="*", default=list(CENTRE_STAGES), metavar="STAGE",
-                   help="stages whose usdahd error is judged against a centre-sampled truth "
-                        f"(oversample {CENTRE}; default: {' '.join(CENTRE_STAGES)}; none: "
+    p.add_argument("--centre", nargs="*", metavar="STAGE",
+                   help="only these stages judge usdahd against the point-sampled truth, the "
+                        "others against Cycles' box truth (default: every stage; none: "
                         "--centre with no stage)")  # fmt: skip
-    p.add_argument("--centre-spp", type=int, help="samples of the centre-sampled truth "
+    p.add_argument("--centre-spp", type=int, help="samples of the point-sampled truth "
                    "(default: --truth-spp)")  # fmt: skip
     p.add_argument("--variant", action="append", default=[], metavar="FLAGS",
                    help="more usdahd runs with these bake flags (a lever), e.g. "
@@ -510,7 +507,7 @@ def main(argv=None) -> int:
         stages.append(path)
     rows = []
     for st in stages:
-        centre = CENTRE if st.stem in a.centre else 1
+        centre = a.centre is None or st.stem in a.centre
         rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp,
                             a.variant, a.repeats)  # fmt: skip
         # rows so far, so an interrupted run keeps its finished stages (--from-json redraws)

@@ -299,8 +299,10 @@ def cases() -> list[dict]:
     return out
 
 
-def run(spp: int = 4096, bpy: str | None = None, names=None, quiet=False) -> list[dict]:
-    """Bake every case (or those whose name contains one of ``names``); one row per case."""
+def run(spp: int = 4096, bpy: str | None = None, names=None, quiet=False,
+        point: bool = False) -> list[dict]:  # fmt: skip
+    """Bake every case (or those whose name contains one of ``names``); one row per case.
+    ``point``: Cycles samples the texel centres through probes (probes.py)."""
     from benchmarks.reference import export, runner
 
     bpy = runner.find_bpy(bpy)
@@ -315,12 +317,13 @@ def run(spp: int = 4096, bpy: str | None = None, names=None, quiet=False) -> lis
             _plane_stage(stage, case["build"])
             scene = export.export_stage(stage, resolution=RES)
             sf = export.save_scene(scene, folder / "scene.npz")
-            info, images = runner.run_cycles(sf, spp, bpy=bpy, quiet=True)
+            info, images = runner.run_cycles(sf, spp, bpy=bpy, quiet=True, point=point)
             k_plane = [i for i, m in enumerate(scene.meshes) if m["path"] == "/World/Plane"][0]
             got = images[k_plane].reshape(-1, 3)
             exact = case["exact"]
             ok = np.isfinite(got[:, 0])
             row = {"case": case["name"], "texels": int(ok.sum()), "spp": spp,
+                   "footprint": "point" if point else "box",
                    "seconds": info["wall_seconds"]}  # fmt: skip
             if np.all(exact[ok] == 0):
                 row.update(mean_abs=float(np.abs(got[ok]).max()), ratio_m1=None, stderr=None)
@@ -359,12 +362,14 @@ def main(argv=None) -> int:
     p.add_argument("--spp", type=int, default=4096)
     p.add_argument("--bpy-python")
     p.add_argument("--case", action="append", help="only cases whose name contains this")
+    p.add_argument("--point", action="store_true",
+                   help="Cycles samples each texel's centre point (probes.py)")  # fmt: skip
     p.add_argument("--json", action="store_true")
     a = p.parse_args(argv)
     from benchmarks.reference import runner
 
     try:
-        rows = run(a.spp, a.bpy_python, a.case)
+        rows = run(a.spp, a.bpy_python, a.case, point=a.point)
     except runner.ReferenceUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -306,7 +306,8 @@ def summary(results: list[dict]) -> str:
 def run_compare(stage, *, resolution: int | None, uv: str | None = None,
                 usdahd_args: str = "", spp: int | None = None, truth_spp: int = 4096,
                 bpy: str | None = None, use_cache: bool = True, keep: str | None = None,
-                threads: int = 0, quiet: bool = False, oversample: int = 1) -> dict:  # fmt: skip
+                threads: int = 0, quiet: bool = False, oversample: int = 1,
+                point: bool = False) -> dict:  # fmt: skip
     stage = Path(stage).resolve()
     if not stage.is_file():
         raise CompareError(f"{stage}: no such file")
@@ -314,6 +315,8 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
         raise CompareError("--spp and --truth-spp must be >= 1")
     if oversample < 1 or oversample % 2 == 0:
         raise CompareError(f"--oversample must be odd and >= 1, got {oversample}")
+    if point and oversample != 1:
+        raise CompareError("--point samples texel centres; drop --oversample")
     bpy = runner.find_bpy(bpy)  # fail before any long work
     extra = shlex.split(usdahd_args)
     tmp_ctx = None
@@ -336,12 +339,12 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
         _log(f"Cycles truth: {truth_spp} spp", quiet)
         t_info, truth, hit = runner.cached_cycles(
             scene, sf, truth_spp, seed=TRUTH_SEED, bpy=bpy, use_cache=use_cache,
-            threads=threads, quiet=quiet, oversample=oversample,
+            threads=threads, quiet=quiet, oversample=oversample, point=point,
         )  # fmt: skip
         _log(f"Cycles at equal spp: {spp_eq}", quiet)
         e_info, equal, _ = runner.cached_cycles(
             scene, sf, spp_eq, seed=EQUAL_SEED, bpy=bpy, use_cache=False, threads=threads,
-            quiet=quiet, oversample=oversample,
+            quiet=quiet, oversample=oversample, point=point,
         )  # fmt: skip
         ours = {}
         for k, m in enumerate(scene.meshes):
@@ -360,6 +363,7 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
             spp=spp_eq,
             truth_spp=truth_spp,
             oversample=oversample,
+            footprint="point" if point else "box",
             seconds={
                 "usdahd": baked["seconds"],
                 "cycles": e_info["wall_seconds"],
@@ -410,6 +414,9 @@ def main(argv=None) -> int:
     c.add_argument("--threads", type=int, default=0, help="Cycles threads (0: all)")
     c.add_argument("--oversample", type=int, default=1,
                    help="Cycles bakes at k x resolution (odd) and keeps texel centres")  # fmt: skip
+    c.add_argument("--point", action="store_true",
+                   help="Cycles samples each texel's centre point (probes.py), as usdahd does, "
+                        "for the truth and the equal-spp run")  # fmt: skip
     c.add_argument("--json", action="store_true")
     c.add_argument("--quiet", action="store_true")
     b = sub.add_parser("bake", help="Cycles I_z per mesh of a stage with lightmap UVs")
@@ -452,6 +459,7 @@ def main(argv=None) -> int:
                 stage, resolution=a.resolution, uv=a.uv, usdahd_args=a.usdahd_args, spp=a.spp,
                 truth_spp=a.truth_spp, bpy=a.bpy_python, use_cache=not a.no_cache,
                 keep=a.keep, threads=a.threads, quiet=a.quiet, oversample=a.oversample,
+                point=a.point,
             )  # fmt: skip
             results.append(res)
             if not a.json:

@@ -321,15 +321,69 @@ def _world(bpy, scene, meta: dict, dome):
     scene.world = world
 
 
+def _probe_material(bpy, name: str, bake_image):
+    """A white Diffuse BSDF with ``bake_image`` as the active node (probes.py: the DIFFUSE
+    pass without COLOR divides the albedo out, so any albedo > 0 gives the same I_z)."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diff.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    diff.inputs["Roughness"].default_value = 0.0
+    nt.links.new(diff.outputs["BSDF"], out.inputs["Surface"])
+    node = nt.nodes.new("ShaderNodeTexImage")
+    node.image = bake_image
+    for n in nt.nodes:
+        n.select = False
+    node.select = True
+    nt.nodes.active = node
+    return mat
+
+
+def _probe_object(bpy, coll, k: int, p, n, uv, bake_image):
+    """Mesh k's probe triangles (probes.py) as an object no bounce or shadow ray sees, baked
+    into bake_image."""
+    t = len(p)
+    me = bpy.data.meshes.new(f"probe{k}")
+    me.from_pydata(p.reshape(-1, 3).tolist(), [], np.arange(3 * t).reshape(t, 3).tolist())
+    me.validate(clean_customdata=False)
+    if len(me.polygons) != t:
+        raise SystemExit(f"cycles_bake: mesh {k}: Blender dropped probe triangles")
+    lm = me.uv_layers.new(name="lightmap")
+    lm.data.foreach_set("uv", uv.reshape(-1, 2).astype(np.float32).ravel())
+    me.uv_layers.active = lm
+    lm.active_render = True
+    me.polygons.foreach_set("use_smooth", np.ones(t, bool))
+    me.normals_split_custom_set(np.repeat(n, 3, axis=0).tolist())
+    me.materials.append(_probe_material(bpy, f"probe{k}", bake_image))
+    obj = bpy.data.objects.new(f"probe{k}", me)
+    # camera visibility stays on: the bake's primary evaluation is a camera ray (with it off
+    # every probe bakes 0); a bake has no camera, so no other camera ray can see a probe
+    for flag in ("visible_diffuse", "visible_glossy", "visible_transmission",
+                 "visible_volume_scatter", "visible_shadow"):  # fmt: skip
+        setattr(obj, flag, False)
+    coll.objects.link(obj)
+    return obj
+
+
 def bake(
-    scene_file: str, out_file: str, spp: int, seed: int = 0, threads: int = 0, oversample: int = 1
-) -> dict:
+    scene_file: str, out_file: str, spp: int, seed: int = 0, threads: int = 0,
+    oversample: int = 1, probes: str | None = None,
+) -> dict:  # fmt: skip
     """Bake every baked mesh; ``oversample`` k (odd) bakes at k x the resolution and keeps the
     centre sub-texel of each texel (same centre and coverage rule, a k x smaller footprint of
-    Cycles' in-texel jitter: for steep gradients such as a lamp near a floor)."""
+    Cycles' in-texel jitter: for steep gradients such as a lamp near a floor). ``probes`` (a
+    probes.py file) bakes each mesh's probe triangles instead: the value at each texel's
+    centre point, Cycles' jitter confined to 1/100 of a texel."""
     if oversample < 1 or oversample % 2 == 0:
         raise SystemExit(f"cycles_bake: --oversample must be odd and >= 1, got {oversample}")
+    if probes is not None and oversample != 1:
+        raise SystemExit("cycles_bake: --probes samples texel centres; it takes no --oversample")
     import bpy
+
+    probe_data = np.load(probes, allow_pickle=False) if probes else None
 
     t0 = time.perf_counter()
     data = np.load(scene_file, allow_pickle=False)
@@ -372,7 +426,19 @@ def bake(
         used = np.unique(tri_mat[sel])
         slot = {int(mi): j for j, mi in enumerate(used)}
         bake_img = None
-        if m["baked"]:
+        if m["baked"] and probe_data is not None:
+            if f"p_{k}" not in probe_data.files:
+                raise SystemExit(f"cycles_bake: {m['path']}: no probes for mesh {k}")
+            w, h = (int(r) for r in m["resolution"])
+            img = bpy.data.images.new(f"bake{k}", w, h, float_buffer=True, alpha=True)
+            img.colorspace_settings.name = "Non-Color"
+            init = np.zeros((h, w, 4), np.float32)
+            init[..., :3] = SENTINEL
+            img.pixels.foreach_set(init.ravel())
+            images[k] = img
+            p, n, uv = (probe_data[f"{a}_{k}"] for a in ("p", "n", "uv"))
+            baked_objs.append(_probe_object(bpy, coll, k, p, n, uv, img))
+        elif m["baked"]:
             w, h = (int(r) * oversample for r in m["resolution"])
             bake_img = bpy.data.images.new(f"bake{k}", w, h, float_buffer=True, alpha=True)
             bake_img.colorspace_settings.name = "Non-Color"
@@ -430,6 +496,7 @@ def bake(
         "spp": int(spp),
         "seed": int(seed),
         "oversample": int(oversample),
+        "footprint": "point" if probes else "box",
         "setup_seconds": t_setup,
         "bake_seconds": t_bake,
         "blender": bpy.app.version_string,
@@ -455,11 +522,12 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0)
     p.add_argument("--oversample", type=int, default=1)
+    p.add_argument("--probes", help="probes.py file: bake texel centres (point footprint)")
     a = p.parse_args(argv)
     if a.spp < 1:
         print("cycles_bake: --spp must be >= 1", file=sys.stderr)
         return 2
-    info = bake(a.scene, a.out, a.spp, a.seed, a.threads, a.oversample)
+    info = bake(a.scene, a.out, a.spp, a.seed, a.threads, a.oversample, a.probes)
     print(json.dumps(info))
     return 0
 

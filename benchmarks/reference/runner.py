@@ -20,8 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.reference.probes import write_probes
+
 HERE = Path(__file__).resolve().parent
 SCRIPT = HERE / "cycles_bake.py"
+PROBES = HERE / "probes.py"
 ENV_VAR = "USDAHD_BPY_PYTHON"
 CACHE_VAR = "USDAHD_REFERENCE_CACHE"
 HOW_TO = (
@@ -65,17 +68,22 @@ def _script_hash() -> str:
     return hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16]
 
 
-def cache_key(digest: str, spp: int, seed: int, oversample: int = 1) -> str:
+def cache_key(digest: str, spp: int, seed: int, oversample: int = 1, point: bool = False) -> str:
     extra = "" if oversample == 1 else f":os{oversample}"
+    if point:  # the probe geometry is part of the key through probes.py's own hash
+        extra += ":point:" + hashlib.sha256(PROBES.read_bytes()).hexdigest()[:16]
     key = f"{digest}:{spp}:{seed}:{_script_hash()}{extra}"
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
 def run_cycles(
     scene_file, spp: int, *, seed: int = 0, bpy: str, threads: int = 0, quiet: bool = False,
-    oversample: int = 1,
+    oversample: int = 1, point: bool = False,
 ) -> tuple[dict, dict]:  # fmt: skip
     """Bake ``scene_file`` with Cycles; returns (info, {mesh index: iz (h, w, 3) float32}).
+
+    ``point``: Cycles samples each texel's centre point through probe triangles (probes.py)
+    instead of jittering over the texel's box.
 
     info has the per-mesh paths, ``bake_seconds`` (Cycles' bake call) and ``wall_seconds``
     (the whole subprocess, Blender start-up and scene set-up included).
@@ -85,6 +93,9 @@ def run_cycles(
         cmd = [bpy, str(SCRIPT), str(scene_file), str(out), "--spp", str(int(spp))]
         cmd += ["--seed", str(int(seed)), "--threads", str(int(threads))]
         cmd += ["--oversample", str(int(oversample))]
+        if point:
+            write_probes(scene_file, Path(tmp) / "probes.npz")
+            cmd += ["--probes", str(Path(tmp) / "probes.npz")]
         t0 = time.perf_counter()
         r = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -103,10 +114,10 @@ def run_cycles(
 
 def cached_cycles(
     scene, scene_file, spp: int, *, seed: int = 0, bpy: str | None, use_cache: bool = True,
-    threads: int = 0, quiet: bool = False, oversample: int = 1,
+    threads: int = 0, quiet: bool = False, oversample: int = 1, point: bool = False,
 ) -> tuple[dict, dict, bool]:  # fmt: skip
     """Like :func:`run_cycles`, through the on-disk cache; returns (info, images, hit)."""
-    key = cache_key(scene.digest(), spp, seed, oversample)
+    key = cache_key(scene.digest(), spp, seed, oversample, point)
     path = cache_dir() / f"{key}.npz"
     if use_cache and path.is_file():
         data = np.load(path, allow_pickle=False)
@@ -117,8 +128,9 @@ def cached_cycles(
     if bpy is None:
         raise ReferenceUnavailable(f"Cycles result not cached and no bpy interpreter; {HOW_TO}")
     info, images = run_cycles(
-        scene_file, spp, seed=seed, bpy=bpy, threads=threads, quiet=quiet, oversample=oversample
-    )
+        scene_file, spp, seed=seed, bpy=bpy, threads=threads, quiet=quiet, oversample=oversample,
+        point=point,
+    )  # fmt: skip
     if use_cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f"iz_{k}": v for k, v in images.items()}

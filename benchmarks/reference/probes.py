@@ -45,9 +45,13 @@ SIZE = 0.01
 #: (its rays would hit the mesh at t ~ 0). 1/1000 of a texel moves the irradiance by far less
 #: than the truth's noise.
 LIFT = 0.001
-#: Both lengths are at least this many float32 ulps of the point's magnitude (Cycles stores
-#: positions in float32): keeps the probe's face normal within ~1e-3 rad of the intended one.
-MIN_ULPS = 512.0
+#: Floors in float32 ulps of the point's magnitude (Cycles stores positions in float32): the
+#: size keeps the probe's face normal (it only orients ray offsets; shading uses the custom
+#: normal) within ~1/256 rad; the lift keeps the probe off the mesh's plane after rounding. The
+#: lift's floor is small on purpose: on a lamp h above a floor the irradiance moves by
+#: 2 lift / h (32 ulps at |p| = 2 m, h = 0.15 m: 0.01 %).
+SIZE_ULPS = 256.0
+LIFT_ULPS = 32.0
 #: Probe circumradius in bake-image pixels: Blender's bake lattice samples each pixel at
 #: (x + 0.501, y + 0.502) (RE_bake_pixels_populate), well inside 0.3 px (inradius 0.15 px);
 #: no neighbouring pixel's sample point is within 0.5 px.
@@ -87,9 +91,9 @@ def mesh_probes(tri_p, tri_n, tri_uv, resolution) -> dict:
         - (puv[:, 2, 0] - puv[:, 0, 0]) * (puv[:, 1, 1] - puv[:, 0, 1])
     )
     width = np.sqrt(area3 / np.maximum(area_px, 1e-300))  # metres per texel
-    floor = MIN_ULPS * np.finfo(np.float32).eps * np.maximum(np.abs(p).max(axis=1), 1.0)
-    size = np.maximum(SIZE * width, floor)
-    lift = np.maximum(LIFT * width, floor)
+    ulp = np.finfo(np.float32).eps * np.maximum(np.abs(p).max(axis=1), 1.0)
+    size = np.maximum(SIZE * width, SIZE_ULPS * ulp)
+    lift = np.maximum(LIFT * width, LIFT_ULPS * ulp)
     centre = p + lift[:, None] * ng
     # tangent frame about the shading normal: t x b = n
     a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])

@@ -213,6 +213,21 @@ def test_push_leaves_texels_without_contacts_alone():
     assert push_off_contacts(texels, ground, tracer)[0] is texels
 
 
+def test_push_leaves_texels_next_to_double_sided_walls_alone():
+    """The box of the first test with ``doubleSided`` walls: both sides are surfaces, so a
+    ground footprint crossing a wall is not behind anything and no texel moves (the same walls
+    one-sided move texels: test_push_fires_exactly_on_texels_whose_footprint_crosses_a_wall)."""
+    st = _box_stage()
+    UsdGeom.Mesh(st.GetPrimAtPath("/box")).CreateDoubleSidedAttr(True)
+    scene, tracer = _tracer(st)
+    ground = _mesh_of(scene, "/ground")
+    texels = rasterize(ground, (RES, RES))
+    pushed, invalid = push_off_contacts(texels, ground, tracer)
+    assert pushed is texels and not invalid.any()
+    one_sided = push_off_contacts(texels, ground, _tracer(_box_stage())[1])[0]
+    assert one_sided is not texels  # the control: one-sided walls do move texels
+
+
 def _side_row(texels, mesh):
     """Texels of the frustum's first side (triangles of face 0) whose sample point lies on
     the ground (the contact row) and the side's unit normal."""

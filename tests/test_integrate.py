@@ -339,6 +339,31 @@ def test_white_furnace_at_default_settings(rho):
     _check_mc(sh.iz(out2)[:, 0], le / (1 - rho))
 
 
+@pytest.mark.parametrize("double_sided", [False, True])
+def test_back_of_a_double_sided_card_is_a_surface_not_inside(double_sided):
+    """A texel under a card (a quad facing up, 0.5 above the ground) sees the card's back in
+    most of its hemisphere: one-sided, that reads as inside geometry (invalid, then filled by
+    dilation, which lit a sun shadow under McUsd's doubleSided plant cards); with doubleSided
+    the back is a surface: the texel is valid and in the card's shadow (the sun's term is
+    exact: I_z = 0 under the card, E/pi beside it)."""
+    st = _stage()
+    _ground(st)
+    card = _quad(st, "/card", [(-2, -2, 0.5), (2, -2, 0.5), (2, 2, 0.5), (-2, 2, 0.5)])
+    if double_sided:
+        card.CreateDoubleSidedAttr(True)
+    sun = UsdLux.DistantLight.Define(st, "/sun")
+    sun.CreateIntensityAttr(2.0)
+    sun.CreateAngleAttr(0.0)
+    pts = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0]], np.float32)
+    out, stats = _bake(st, _texels(pts), samples=64)
+    assert stats["invalid"].tolist() == [not double_sided, False]
+    if double_sided:
+        assert stats["backface_fraction"][0] == 0.0
+        np.testing.assert_allclose(sh.iz(out)[:, 0], [0.0, 2.0 / np.pi], atol=1e-4)
+    else:
+        assert stats["backface_fraction"][0] > 0.5
+
+
 def test_texels_inside_geometry_flagged_invalid():
     st = _stage()
     _ground(st)

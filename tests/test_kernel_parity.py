@@ -147,7 +147,7 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
         (wrap, wrap),
     )
     uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = NativeTables(*(None,) * 7, *pack_textures([tex]))
+    tb = NativeTables(*(None,) * 8, *pack_textures([tex]))
     got = _nb_tex(tb, 0, uv)[:, : len(channels)]
     np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
 

@@ -164,9 +164,8 @@ class ReferenceCtx:
             o = self.tr.offset(Pf[idx], NGf[idx], d[idx])
             hits = self.tr.intersect(o, d[idx], rng=rng)
             tri = hits["tri"]
-            hit = tri >= 0
-            gn = self.tr.geom_normal[np.where(hit, tri, 0)]
-            back[idx] = hit & (np.einsum("ij,ij->i", d[idx], gn) > 0)
+            gn = self.tr.geom_normal[np.where(tri >= 0, tri, 0)]
+            back[idx] = self.tr.back_face(tri, d[idx], gn)
             src = np.full(len(idx), self.texel_mesh)
             radiance[idx] = self.incoming(
                 o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng, src

@@ -475,7 +475,7 @@ def _enclosed(origin: np.ndarray, g: np.ndarray, tracer) -> np.ndarray:
     hit = tracer.intersect(np.repeat(origin, CONTACT_ENCLOSURE_RAYS, axis=0), dirs)
     tri = hit["tri"]
     hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
-    back = (tri >= 0) & (np.einsum("ij,ij->i", dirs, hn) > 0.0)
+    back = tracer.back_face(tri, dirs, hn)
     return back.reshape(m, CONTACT_ENCLOSURE_RAYS).mean(axis=1) > CONTACT_ENCLOSED
 
 
@@ -591,7 +591,7 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
         tri = hit["tri"]
         hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
         cos = np.einsum("ij,ij->i", d, hn)
-        back0 = (tri >= 0) & (tfar > 0) & (hit["t"] < tfar) & (cos > 0.0)
+        back0 = (tfar > 0) & (hit["t"] < tfar) & tracer.back_face(tri, d, hn)
         back = back0.copy()
         if rnd == 0 and back.any():  # only points really behind a surface (docstring)
             back &= _crossed_by_offset(p, o, d, hit["t"], hn, k)

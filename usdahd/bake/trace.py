@@ -53,7 +53,9 @@ class Tracer:
     """One BVH over ``scene.meshes``.
 
     Attributes (T = total triangles): ``tri_mesh`` (T,) int32, ``tri_local`` (T,) int32,
-    ``tri_material`` (T,) int32, ``geom_normal`` (T,3) float32 unit, ``corner_normal``
+    ``tri_material`` (T,) int32, ``tri_one_sided`` (T,) bool (False on ``doubleSided``
+    meshes, whose back faces are surfaces, not the inside of geometry: :meth:`back_face`),
+    ``geom_normal`` (T,3) float32 unit, ``corner_normal``
     (T,3,3) float32, ``verts`` (T,3,3) float64, ``offset_eps`` float, ``build_time`` s,
     ``rays_traced`` int (a running count).
     """
@@ -69,7 +71,7 @@ class Tracer:
         self.backend = backend
         self.scene = scene
         self.threads = max(1, int(threads))
-        pts, tris, mesh_id, local, mats, normals, tex = [], [], [], [], [], [], []
+        pts, tris, mesh_id, local, mats, normals, tex, one = [], [], [], [], [], [], [], []
         base = 0
         for i, m in enumerate(scene.meshes):
             pts.append(m.points)
@@ -79,6 +81,7 @@ class Tracer:
             mesh_id.append(np.full(n, i, np.int32))
             local.append(np.arange(n, dtype=np.int32))
             mats.append(m.material.astype(np.int32))
+            one.append(np.full(n, not getattr(m, "double_sided", False)))
             normals.append(m.normals.astype(np.float32))
             tc = np.zeros((n, 3, 2), np.float32)
             tcs = scene.texcoords[i] if i < len(scene.texcoords) else {}
@@ -93,6 +96,7 @@ class Tracer:
         self.tri_mesh = np.concatenate(mesh_id)
         self.tri_local = np.concatenate(local)
         self.tri_material = np.concatenate(mats)
+        self.tri_one_sided = np.concatenate(one).astype(bool)
         self.corner_normal = np.concatenate(normals)
         self.tri_texcoord = np.concatenate(tex)
         self.verts = points[self.triangles]  # (T,3,3) float64
@@ -356,12 +360,24 @@ class Tracer:
             self.geom_normal.astype(np.float64),
             np.ascontiguousarray(self.corner_normal, np.float32),
             self.tri_material.astype(np.int32),
+            self.tri_one_sided.astype(np.uint8),
             self.tri_texcoord.astype(np.float64),
             mat_const,
             mat_tex,
             *pack_textures(textures),
         )
         return self._tables
+
+    def back_face(self, tri: np.ndarray, d: np.ndarray, ng: np.ndarray) -> np.ndarray:
+        """(n,) bool: hits on the back of a one-sided triangle, the sign that a ray's origin
+        is inside geometry (``dot(d, ng) > 0``; misses and ``doubleSided`` meshes: False).
+
+        tri : (n,) int triangle ids (-1: miss); d : (n, 3) ray directions; ng : (n, 3) the
+        hit triangles' geometric normals."""
+        tri = np.asarray(tri)
+        hit = tri >= 0
+        one = self.tri_one_sided[np.where(hit, tri, 0)]
+        return hit & one & (np.einsum("ij,ij->i", d, ng) > 0)
 
     @property
     def native_handle(self) -> int:

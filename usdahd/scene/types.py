@@ -45,6 +45,8 @@ class MeshData:
         faceVertexIndices (so per-corner data such as an unwrapped UV set can be authored back
         as a faceVarying primvar).
     bake : whether this mesh receives a lightmap (False: occluder only).
+    double_sided : UsdGeomGprim ``doubleSided``: both sides are surfaces, so a ray reaching
+        its back is not inside geometry (cards, leaves, single-wall props).
     """
 
     path: str
@@ -58,6 +60,7 @@ class MeshData:
     corner: np.ndarray
     bake: bool = True
     warnings: list[str] = field(default_factory=list)
+    double_sided: bool = False
 
 
 @dataclass

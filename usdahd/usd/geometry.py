@@ -307,6 +307,7 @@ class GeometryReader:
             face=face.astype(np.int32),
             corner=corners.astype(np.int32),
             bake=bake and not instanced and not implicit,
+            double_sided=bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()),
         )
         self.meshes.append(md)
         self.link_paths.append(self.instancer or str(prim.GetPath()))

@@ -546,7 +546,8 @@ def native_pass(
         if m:
             traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, m, hits)
             for j in range(m):
-                if hits[j, HIT_TRI] >= 0.0:
+                # a back face of a one-sided triangle: the texel may be inside geometry
+                if hits[j, HIT_TRI] >= 0.0 and tb.tri_one_sided[int(hits[j, HIT_TRI])] != 0:
                     if (
                         ps[j, PATH_D] * hits[j, HIT_NG]
                         + ps[j, PATH_D + 1] * hits[j, HIT_NG + 1]

@@ -107,6 +107,7 @@ class NativeTables(NamedTuple):
 
     ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f32,
     ``tri_material`` (T,) i32 (narrow: read once per hit, where cache misses dominate),
+    ``tri_one_sided`` (T,) u8 (0 on doubleSided meshes: their back faces are surfaces),
     ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64 (``MAT_*`` columns), ``mat_tex``
     (M,3) i64 (``TEX_*`` columns), ``tex_data`` (D,) f32 texels, ``tex_info`` (K,8) i64
     (``TI_*`` columns), ``tex_chan`` (K,4) i64 selected channels, ``tex_sb`` (K,8) f64 scale
@@ -116,6 +117,7 @@ class NativeTables(NamedTuple):
     geom_normal: np.ndarray
     corner_normal: np.ndarray
     tri_material: np.ndarray
+    tri_one_sided: np.ndarray
     tri_texcoord: np.ndarray
     mat_const: np.ndarray
     mat_tex: np.ndarray

@@ -170,3 +170,24 @@ def test_same_pixels_give_the_same_bytes(tmp_path, monkeypatch, ext):
     images.write(a, px, color_space="raw", channels=("R", "G", "B"))
     if ext == ".exr":
         assert oiio.ImageInput.open(str(a)).spec().getattribute("DateTime") == "2023:11:14 22:13:20"
+
+
+def test_read_texels_keeps_straight_colour_under_alpha(tmp_path):
+    """A PNG stores straight (unassociated) colour: read_texels returns it as stored, not
+    multiplied by alpha (OpenImageIO's default would give 0.8 x alpha: a cut-out's albedo dark
+    at its edges and 0 where it is transparent)."""
+    oiio = pytest.importorskip("OpenImageIO")
+    img = np.zeros((2, 2, 4), np.float32)
+    img[..., :3] = 0.8
+    img[..., 3] = [[0.5, 0.0], [1.0, 0.25]]
+    spec = oiio.ImageSpec(2, 2, 4, oiio.UINT8)
+    spec.attribute("oiio:UnassociatedAlpha", 1)
+    path = tmp_path / "cut.png"
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), spec)
+    out.write_image(img)
+    out.close()
+    data, fmt = images.read_texels(path)
+    assert fmt == "uint8"
+    np.testing.assert_allclose(data[..., :3], 0.8, atol=1 / 255)
+    np.testing.assert_allclose(data[..., 3], img[..., 3], atol=1 / 255)

@@ -59,7 +59,9 @@ def _write_png(path, pixels, fmt="uint8"):
     h, w = pixels.shape[:2]
     c = 1 if pixels.ndim == 2 else pixels.shape[2]
     out = oiio.ImageOutput.create(str(path))
-    assert out.open(str(path), oiio.ImageSpec(w, h, c, fmt)), oiio.geterror()
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    spec.attribute("oiio:UnassociatedAlpha", 1)  # store the pixels as given (straight alpha)
+    assert out.open(str(path), spec), oiio.geterror()
     assert out.write_image(pixels.reshape(h, w, c))
     out.close()
 

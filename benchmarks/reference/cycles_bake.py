@@ -25,12 +25,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
-import tempfile
 import time
 
 import numpy as np
+from npzio import save_npz  # this script's folder is on sys.path (run as a script by bpy)
 
 #: Value written into bake images before baking: texels Cycles does not cover keep it.
 SENTINEL = -1.0
@@ -261,12 +260,7 @@ def _material(bpy, desc: dict, name: str, bake_image=None):
     shader = _opacity(bpy, nt, desc, shader, bake_image is not None)
     nt.links.new(shader, out.inputs["Surface"])
     if bake_image is not None:
-        node = nt.nodes.new("ShaderNodeTexImage")
-        node.image = bake_image
-        for n in nt.nodes:
-            n.select = False
-        node.select = True
-        nt.nodes.active = node
+        _bake_target(nt, bake_image)
     return mat
 
 
@@ -354,25 +348,30 @@ def _world(bpy, scene, meta: dict, dome):
     scene.world = world
 
 
-def _probe_material(bpy, name: str, bake_image):
-    """A white Diffuse BSDF with ``bake_image`` as the active node (probes.py: the DIFFUSE
-    pass without COLOR divides the albedo out, so any albedo > 0 gives the same I_z)."""
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
-    diff.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    diff.inputs["Roughness"].default_value = 0.0
-    nt.links.new(diff.outputs["BSDF"], out.inputs["Surface"])
+def _bake_image(bpy, k: int, w: int, h: int):
+    """A (w, h) float bake image for mesh k, filled with SENTINEL (texels Cycles does not bake
+    keep it)."""
+    img = bpy.data.images.new(f"bake{k}", w, h, float_buffer=True, alpha=True)
+    img.colorspace_settings.name = "Non-Color"
+    init = np.zeros((h, w, 4), np.float32)
+    init[..., :3] = SENTINEL
+    img.pixels.foreach_set(init.ravel())
+    return img
+
+
+def _bake_target(nt, bake_image) -> None:
+    """An Image Texture node of ``bake_image``, selected and active: where Blender bakes to."""
     node = nt.nodes.new("ShaderNodeTexImage")
     node.image = bake_image
     for n in nt.nodes:
         n.select = False
     node.select = True
     nt.nodes.active = node
-    return mat
+
+
+#: The probes' material (probes.py): white, no emission; the DIFFUSE pass without COLOR
+#: divides the albedo out, so any albedo > 0 gives the same I_z.
+PROBE_MATERIAL = {"albedo": [1.0, 1.0, 1.0], "emission": [0.0, 0.0, 0.0]}
 
 
 def _probe_object(bpy, coll, k: int, p, n, uv, bake_image):
@@ -390,7 +389,7 @@ def _probe_object(bpy, coll, k: int, p, n, uv, bake_image):
     lm.active_render = True
     me.polygons.foreach_set("use_smooth", np.ones(t, bool))
     me.normals_split_custom_set(np.repeat(n, 3, axis=0).tolist())
-    me.materials.append(_probe_material(bpy, f"probe{k}", bake_image))
+    me.materials.append(_material(bpy, PROBE_MATERIAL, f"probe{k}", bake_image))
     obj = bpy.data.objects.new(f"probe{k}", me)
     # camera visibility stays on: the bake's primary evaluation is a camera ray (with it off
     # every probe bakes 0); a bake has no camera, so no other camera ray can see a probe
@@ -462,24 +461,13 @@ def bake(
         if m["baked"] and probe_data is not None:
             if f"p_{k}" not in probe_data.files:
                 raise SystemExit(f"cycles_bake: {m['path']}: no probes for mesh {k}")
-            w, h = (int(r) for r in m["resolution"])
-            img = bpy.data.images.new(f"bake{k}", w, h, float_buffer=True, alpha=True)
-            img.colorspace_settings.name = "Non-Color"
-            init = np.zeros((h, w, 4), np.float32)
-            init[..., :3] = SENTINEL
-            img.pixels.foreach_set(init.ravel())
-            images[k] = img
+            img = images[k] = _bake_image(bpy, k, *(int(r) for r in m["resolution"]))
             p, n, uv = (probe_data[f"{a}_{k}"] for a in ("p", "n", "uv"))
             if len(p):  # a mesh no texel centre falls in (all edge texels) stays all NaN
                 baked_objs.append(_probe_object(bpy, coll, k, p, n, uv, img))
         elif m["baked"]:
             w, h = (int(r) * oversample for r in m["resolution"])
-            bake_img = bpy.data.images.new(f"bake{k}", w, h, float_buffer=True, alpha=True)
-            bake_img.colorspace_settings.name = "Non-Color"
-            init = np.zeros((h, w, 4), np.float32)
-            init[..., :3] = SENTINEL
-            bake_img.pixels.foreach_set(init.ravel())
-            images[k] = bake_img
+            bake_img = images[k] = _bake_image(bpy, k, w, h)
             baked_objs.append(obj)
         for mi in used:
             desc = materials[int(mi)]
@@ -536,15 +524,7 @@ def bake(
         "blender": bpy.app.version_string,
     }
     arrays["meta"] = np.array(json.dumps(info))
-    d = os.path.dirname(os.path.abspath(out_file))
-    fd, tmp = tempfile.mkstemp(prefix=".cycles.", suffix=".npz", dir=d)
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, out_file)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_npz(out_file, arrays, prefix=".cycles.")
     return info
 
 

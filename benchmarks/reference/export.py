@@ -36,11 +36,12 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.reference.npzio import save_npz
 
 #: Crease angle (degrees) for meshes without authored normals and subdivisionScheme "none".
 CREASE_DEG = 30.0
@@ -808,12 +809,5 @@ def save_scene(scene: Scene, path) -> Path:
     }
     if scene.dome is not None:
         arrays["dome"] = scene.dome
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_npz(path, arrays, prefix=f".{path.stem}.")
     return path

@@ -30,11 +30,10 @@ file it writes).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 
 import numpy as np
 
+from benchmarks.reference.npzio import save_npz
 from usdahd.numerics.raster import rasterize_uv
 
 #: Probe triangle size, in texel widths (its circumradius is SIZE / 2): bounds how far Cycles'
@@ -134,13 +133,5 @@ def write_probes(scene_file, out_file) -> dict:
                          m["resolution"])  # fmt: skip
         arrays.update({f"p_{k}": pr["p"], f"n_{k}": pr["n"], f"uv_{k}": pr["uv"]})
         counts[k] = len(pr["ids"])
-    d = os.path.dirname(os.path.abspath(out_file))
-    fd, tmp = tempfile.mkstemp(prefix=".probes.", suffix=".npz", dir=d)
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, out_file)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_npz(out_file, arrays, prefix=".probes.")
     return counts

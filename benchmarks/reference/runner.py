@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.reference.npzio import save_npz
 from benchmarks.reference.probes import write_probes
 
 HERE = Path(__file__).resolve().parent
@@ -135,12 +136,5 @@ def cached_cycles(
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f"iz_{k}": v for k, v in images.items()}
         arrays["meta"] = np.array(json.dumps(info))
-        fd, tmp = tempfile.mkstemp(prefix=".ref.", suffix=".npz", dir=path.parent)
-        os.close(fd)
-        try:
-            np.savez(tmp, **arrays)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        save_npz(path, arrays, prefix=".ref.")
     return info, images, False

@@ -81,7 +81,7 @@ class Tracer:
             mesh_id.append(np.full(n, i, np.int32))
             local.append(np.arange(n, dtype=np.int32))
             mats.append(m.material.astype(np.int32))
-            one.append(np.full(n, not getattr(m, "double_sided", False)))
+            one.append(np.full(n, not m.double_sided))
             normals.append(m.normals.astype(np.float32))
             tc = np.zeros((n, 3, 2), np.float32)
             tcs = scene.texcoords[i] if i < len(scene.texcoords) else {}

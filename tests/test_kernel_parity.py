@@ -361,3 +361,75 @@ def test_helpers_compile_one_specialisation_per_argument_types():
     assert second(tc, 0.25, 0.5) == w0 * tc[1, 0, 1] + 0.25 * tc[1, 1, 1] + 0.5 * tc[1, 2, 1]
     assert T._bary.signatures
     assert [sig for sig in T._bary.signatures if any("Literal" in str(a) for a in sig)] == []
+
+
+# ----------------------------------------------------------------------------- light selection
+
+
+@njit(cache=False)
+def _nb_importance(par, p):
+    out = np.zeros(p.shape[0])
+    for i in range(p.shape[0]):
+        out[i] = K.light_importance(par, p[i, 0], p[i, 1], p[i, 2])
+    return out
+
+
+def _emissive_light():
+    """Two emissive triangles of different power, as ``EmissiveTriangles`` (no tracer)."""
+    v = np.array([[[0, 0, 2.0], [1, 0, 2], [0, 1, 2]], [[3, 0, 0.0], [3, 1, 0], [3, 0, 1]]])
+    area = np.full(2, 0.5)
+    lum = np.array([4.0, 0.5])
+    return L.EmissiveTriangles("<emissive triangles>", np.ones(3), tri=np.arange(2), verts=v,
+                               area=area, lum=lum)  # fmt: skip
+
+
+@pytest.mark.parametrize("light", _all_lights() + [_emissive_light()], ids=lambda lt: lt.path)
+def test_numba_light_importance_equals_bound(light):
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-2, 2, (2000, 3))
+    b = light.bound()
+    par = np.zeros(K.N_PAR)
+    par[K.PAR_IMP_FALLOFF], par[K.PAR_IMP_SCALE], par[K.PAR_IMP_R2] = b.falloff, b.scale, b.r2
+    par[K.PAR_IMP_CAP] = b.cap
+    par[K.PAR_IMP_CENTER : K.PAR_IMP_CENTER + 3] = b.center
+    par[K.PAR_IMP_NORMAL : K.PAR_IMP_NORMAL + 3] = b.normal
+    if not isinstance(light, L.EmissiveTriangles):  # pack_lights writes the same slots
+        np.testing.assert_array_equal(
+            K.pack_lights([light]).par[0],
+            np.where(np.arange(K.N_PAR) >= K.PAR_IMP_FALLOFF, par, K.pack_lights([light]).par[0]),
+        )
+    np.testing.assert_allclose(_nb_importance(par, p), b.importance(p), rtol=REL)
+    assert np.all(b.importance(p) >= 0)
+
+
+@njit(cache=False)
+def _nb_selection(par, nee_idx, p, u):
+    m, n = p.shape[0], nee_idx.shape[0]
+    q = np.zeros(m, np.int64)
+    ps = np.zeros(m)
+    sel = np.zeros((m, n))
+    for i in range(m):
+        q[i], ps[i] = KI._nee_pick(par, nee_idx, p[i, 0], p[i, 1], p[i, 2], u[i])
+        for j in range(n):
+            sel[i, j] = KI._nee_sel(par, nee_idx, nee_idx[j], p[i, 0], p[i, 1], p[i, 2])
+    return q, ps, sel
+
+
+def test_vertex_light_selection_equals_selection_pmf():
+    """The kernel's pick and MIS selection pdf at a vertex are ``scene.lights.selection_pmf``:
+    the same probabilities, the pick an inverse-CDF draw of them (so NEE and the MIS weight
+    of a BSDF ray that hits the light use one distribution)."""
+    lights = _all_lights()
+    tab = K.pack_lights(lights)
+    nee_idx = np.array([3, 0, 7, 8, 6, 1], np.int64)  # any subset, in any order
+    rng = np.random.default_rng(4)
+    p = rng.uniform(-2, 2, (4000, 3))
+    u = rng.random(len(p))
+    pmf = L.selection_pmf([lights[k].bound() for k in nee_idx], p, R.LIGHT_SELECTION_FLOOR)
+    q, ps, sel = _nb_selection(tab.par, nee_idx, p, u)
+    np.testing.assert_allclose(sel, pmf, rtol=REL)
+    np.testing.assert_allclose(pmf.sum(axis=1), 1.0, rtol=1e-12)
+    assert pmf.min() >= R.LIGHT_SELECTION_FLOOR / len(nee_idx) * (1 - 1e-12)
+    col = np.minimum((u[:, None] >= np.cumsum(pmf, axis=1)).sum(axis=1), len(nee_idx) - 1)
+    np.testing.assert_array_equal(q, nee_idx[col])
+    np.testing.assert_allclose(ps, pmf[np.arange(len(p)), col], rtol=REL)

@@ -237,3 +237,45 @@ def test_unsupported_features_warn_once_each():
     for word in ("shaping", "IES", "filters", "portals"):
         assert word in text, (word, sc.warnings)
     assert len(sc.warnings) == len(set(sc.warnings))
+
+
+# ----------------------------------------------------------------------------- light selection
+
+
+def test_selection_favours_the_light_that_dominates_here():
+    """``selection_pmf`` (which light a path vertex samples): near a small lamp the lamp, far
+    from it the sun; behind a one-sided rect only the rect's floor share; every light keeps
+    at least floor / n; a point light's bound is its exact irradiance at normal incidence."""
+    lamp = L.SphereLight("/lamp", np.full(3, 50.0), center=np.array([0, 0, 0.5]), radius=0.05)
+    sun = L.DistantLight("/sun", np.full(3, 3.0))  # delta: 3 lux at normal incidence
+    rect = L.RectLight("/rect", np.full(3, 10.0), center=np.array([0, 0, 3.0]),
+                       normal=np.array([0, 0, -1.0]))  # fmt: skip
+    b = [lamp.bound(), sun.bound(), rect.bound()]
+    p = np.array([[0, 0, 0.4], [20.0, 0, 0], [0, 0, 4.0]])
+    pmf = L.selection_pmf(b, p, 0.1)
+    assert pmf[0].argmax() == 0 and pmf[0, 0] > 0.8  # under the lamp
+    assert pmf[1].argmax() == 1 and pmf[1, 1] > 0.8  # far away: the sun
+    assert pmf[2, 2] == pytest.approx(0.1 / 3)  # behind the rect's emitting side
+    assert np.all(pmf >= 0.1 / 3 - 1e-15) and np.allclose(pmf.sum(axis=1), 1.0)
+    # the sphere's far field is its irradiance at normal incidence, pi r^2 L / d^2
+    far = np.array([[0, 0, 10.5]])
+    assert lamp.bound().importance(far)[0] == pytest.approx(np.pi * 0.05**2 * 50 / 100)
+    pt = L.PointLight("/pt", np.full(3, 2.0), center=np.zeros(3))
+    assert pt.bound().importance(np.array([[0, 0, 2.0]]))[0] == pytest.approx(0.5)
+    # close to an emitter the bound stops at the irradiance of a hemisphere of it, pi L
+    assert lamp.bound().importance(np.array([[0, 0, 0.5]]))[0] == pytest.approx(np.pi * 50)
+    # no light has any importance here: uniform
+    dark = L.SphereLight("/dark", np.zeros(3), center=np.zeros(3), radius=1.0)
+    assert np.allclose(L.selection_pmf([dark.bound()] * 2, p, 0.1), 0.5)
+
+
+def test_dome_bound_is_its_mean_irradiance():
+    """A textured dome's bound: pi x its radiance x the image's mean luminance over the
+    sphere (latlong rows weighted by sin theta), checked against brute-force quadrature."""
+    rng = np.random.default_rng(2)
+    img = rng.random((16, 32, 3)).astype(np.float32)
+    dome = L.DomeLight("/dome", np.array([2.0, 2.0, 2.0]), image=img)
+    d = rng.normal(size=(400000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    mean = (dome.eval(d) @ sh.LUMINANCE).mean()
+    assert dome.bound().cap == pytest.approx(np.pi * mean, rel=5e-3)

@@ -51,6 +51,62 @@ def _norm(v):
     return np.sqrt(np.einsum("...i,...i->...", v, v))
 
 
+# ----------------------------------------------------------------------------- light selection
+#: How a light's :class:`Bound` varies with the receiving point: the same everywhere (distant
+#: and dome lights), inverse square from ``center`` (spheres, points, cylinders, emissive
+#: triangles), or inverse square on the emitting side of ``center``'s plane and 0 behind it
+#: (one-sided rect and disk lights).
+FALLOFF_CONSTANT, FALLOFF_ISOTROPIC, FALLOFF_FRONT = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Bound:
+    """A cheap estimate of the luminance irradiance a light can deliver at a point p (no
+    visibility, no receiver orientation), for choosing which light a path vertex samples:
+    ``importance(p) = min(cap, scale / max(|p - center|^2, r2))`` (``cap`` alone for
+    FALLOFF_CONSTANT; 0 behind the plane for FALLOFF_FRONT). ``scale`` is luminance x area
+    (the far field), ``r2`` a squared radius inside which the light is "close" (its size),
+    ``cap`` the irradiance of the light filling the hemisphere (pi L) or, for distant and dome
+    lights, their irradiance at normal incidence. center, normal : (3,) float64."""
+
+    falloff: int
+    scale: float = 0.0
+    r2: float = 0.0
+    cap: float = np.inf
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def importance(self, p: np.ndarray) -> np.ndarray:
+        """(m,) float64 importance at points ``p`` (m, 3) float64 (the numba twin is
+        ``usdahd.bake.kernels.lights.light_importance``)."""
+        p = np.asarray(p, np.float64)
+        if self.falloff == FALLOFF_CONSTANT:
+            return np.full(len(p), float(self.cap))
+        w = p - self.center
+        d2 = np.maximum(np.maximum(np.einsum("ij,ij->i", w, w), self.r2), 1e-300)
+        out = np.minimum(self.cap, self.scale / d2)
+        if self.falloff == FALLOFF_FRONT:
+            out = np.where(w @ self.normal > 0.0, out, 0.0)
+        return out
+
+
+def selection_pmf(bounds, p: np.ndarray, floor: float) -> np.ndarray:
+    """(m, n) float64 probabilities of choosing each light, by the n :class:`Bound` ``bounds``
+    of the lights (``Light.bound()``), at points ``p`` (m, 3):
+    ``floor / n + (1 - floor) * importance / sum(importance)`` (uniform where every importance
+    is 0), so every light keeps at least ``floor / n`` and its sample weight stays bounded.
+    The numba twin is ``usdahd.bake.kernels.integrate._nee_pick`` / ``_nee_sel``."""
+    n = len(bounds)
+    imp = np.stack([b.importance(p) for b in bounds], axis=1)
+    tot = imp.sum(axis=1, keepdims=True)
+    share = np.where(tot > 0.0, imp / np.where(tot > 0.0, tot, 1.0), 1.0 / n)
+    return floor / n + (1.0 - floor) * share
+
+
+def _lum(rgb) -> float:
+    return float(np.asarray(rgb, np.float64)[:3] @ LUMINANCE)
+
+
 def _cone_dirs(axis, one_minus_cos_max, u):
     """Uniform cone sampling (numerics.sampling.cone_local) around per-query unit ``axis``
     (m, 3)."""
@@ -69,8 +125,9 @@ class Light:
     #: hemisphere sampling alone).
     sampled = True
 
-    def power_hint(self) -> float:  # pragma: no cover - informational
-        return float(np.mean(self.radiance))
+    def bound(self) -> Bound:
+        """The light's :class:`Bound` (which light a path vertex samples)."""
+        raise NotImplementedError
 
 
 @dataclass
@@ -89,6 +146,13 @@ class SphereLight(Light):
         cos_max = np.sqrt(np.clip(1.0 - sin2, 0.0, None))
         omc = sin2 / (1.0 + cos_max)  # 1 - cos_max without cancellation
         return w, d2, outside, omc
+
+    def bound(self) -> Bound:
+        L = _lum(self.radiance)
+        r2 = float(self.radius) ** 2
+        return Bound(
+            FALLOFF_ISOTROPIC, np.pi * r2 * L, r2, np.pi * L, np.asarray(self.center, float)
+        )
 
     def sample(self, p, u):
         w, d2, outside, omc = self._omc(p)
@@ -130,6 +194,11 @@ class PointLight(Light):
 
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     delta = True
+
+    def bound(self) -> Bound:
+        return Bound(
+            FALLOFF_ISOTROPIC, _lum(self.radiance), 0.0, np.inf, np.asarray(self.center, float)
+        )
 
     def sample(self, p, u):
         w = self.center - p
@@ -173,6 +242,11 @@ class _PlanarLight(Light):
 
     def _inside(self, a, b):
         raise NotImplementedError
+
+    def bound(self) -> Bound:
+        L, a = _lum(self.radiance), self.area
+        c, n = np.asarray(self.center, float), np.asarray(self.normal, float)
+        return Bound(FALLOFF_FRONT, L * a, a / np.pi, np.pi * L, c, n)
 
     def sample(self, p, u):
         ab = self._unit(u)
@@ -303,6 +377,14 @@ class CylinderLight(Light):
     def area(self) -> float:
         return float(TWO_PI * self.radius * 2.0 * self.half_length)
 
+    def bound(self) -> Bound:
+        # far field of a side-emitting cylinder ~ its power pi * area * L spread over 4 pi
+        L = _lum(self.radiance)
+        r2 = float(self.radius) ** 2 + float(self.half_length) ** 2
+        return Bound(
+            FALLOFF_ISOTROPIC, 0.25 * self.area * L, r2, np.pi * L, np.asarray(self.center, float)
+        )
+
     def sample(self, p, u):
         x = (2.0 * u[:, 0] - 1.0) * self.half_length
         phi = TWO_PI * u[:, 1]
@@ -359,6 +441,12 @@ class DistantLight(Light):
         s = np.sin(self.half_angle / 2.0)
         self._omc = 2.0 * s * s  # 1 - cos(half_angle)
         self._cos_max = 1.0 - self._omc
+
+    def bound(self) -> Bound:
+        L = _lum(self.radiance)  # delta: already the illuminance at normal incidence
+        if not self.delta:
+            L *= np.pi * (1.0 - self._cos_max**2)  # a disc of radiance L: pi sin^2(half angle)
+        return Bound(FALLOFF_CONSTANT, cap=L)
 
     def sample(self, p, u):
         n = len(p)
@@ -435,6 +523,15 @@ class DomeLight(Light):
         x, y = self._lookup(d)
         return self._img[y, x, :3] * self.radiance[None, :]
 
+    def bound(self) -> Bound:
+        m = 1.0
+        if self.image is not None:  # the image's mean luminance over the sphere
+            h = self._img.shape[0]
+            sin = np.sin(np.pi * (np.arange(h) + 0.5) / h)
+            lum = np.maximum(self._img[..., :3] @ LUMINANCE, 0.0).mean(axis=1)
+            m = float((lum * sin).sum() / sin.sum())
+        return Bound(FALLOFF_CONSTANT, cap=np.pi * _lum(self.radiance) * m)
+
     def sample(self, p, u):
         n = len(p)
         h, w = self._img.shape[:2]
@@ -478,6 +575,7 @@ class EmissiveTriangles(Light):
     tri : (E,) int64 global triangle ids; verts : (E, 3, 3) float64; normal : (E, 3) float64
     unit front normals; area : (E,) float64; pmf, cdf : (E,) float64; pdf_area : (T,) float64
     probability per unit area of every global triangle (0 where not emissive), for MIS at hits;
+    lum : (E,) float64 the emitted luminance estimate each triangle is chosen by;
     emission_at : callable(tri (m,), u (m,), v (m,)) -> (m, 3) emitted radiance (Embree
     barycentrics: p = (1-u-v) v0 + u v1 + v v2). ``radiance`` is unused (ones).
     """
@@ -489,6 +587,7 @@ class EmissiveTriangles(Light):
     pmf: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cdf: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pdf_area: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lum: np.ndarray = field(default_factory=lambda: np.zeros(0))
     emission_at: object = None
 
     @classmethod
@@ -530,6 +629,7 @@ class EmissiveTriangles(Light):
             pmf=pmf,
             cdf=cdf,
             pdf_area=pdf_area,
+            lum=lum,
             emission_at=tracer.emission_at,
         )
 
@@ -540,6 +640,15 @@ class EmissiveTriangles(Light):
         u0 = np.clip((u[:, 0] - lo) / np.maximum(self.pmf[k], 1e-300), 0.0, 1.0)
         su = np.sqrt(u0)
         return k, 1.0 - su, u[:, 1] * su
+
+    def bound(self) -> Bound:
+        # every emitter as one isotropic source at their power-weighted centroid, "close"
+        # within the sphere around it that holds every emitting vertex
+        power = self.area * self.lum
+        tot = float(power.sum())
+        c = (power @ self.verts.mean(axis=1)) / tot if tot > 0 else self.verts.mean(axis=(0, 1))
+        r2 = float(np.max(np.einsum("ijk,ijk->ij", self.verts - c, self.verts - c)))
+        return Bound(FALLOFF_ISOTROPIC, tot, r2, np.pi * float(self.lum.max()), c)
 
     def sample(self, p, u):
         k, bu, bv = self._pick(u)

@@ -55,10 +55,12 @@ from usdahd.bake.kernels.layout import (
     PATH_PDF,
     PATH_SAMPLE,
     PATH_SEL,
+    PATH_X,
     TEX_ALBEDO,
     TEX_EMISSION,
 )
 from usdahd.bake.kernels.lights import (
+    light_importance,
     light_intersect,
     light_pdf,
     light_sample,
@@ -76,7 +78,14 @@ from usdahd.bake.kernels.trace import (
     nb_shading_normal,
     nb_trace_rays,
 )
-from usdahd.bake.reference import ALL_LIGHTS_MAX, G_HEMI, LIGHT_SHIFT, RR_DEPTH, SHADOW_SHORTEN
+from usdahd.bake.reference import (
+    ALL_LIGHTS_MAX,
+    G_HEMI,
+    LIGHT_SELECTION_FLOOR,
+    LIGHT_SHIFT,
+    RR_DEPTH,
+    SHADOW_SHORTEN,
+)
 from usdahd.numerics import sh as shmod
 
 
@@ -243,6 +252,42 @@ def _set_row(a, j, x0, x1, x2, x3, x4, x5, x6):
 
 
 @helper
+def _nee_pick(par, nee_idx, x, y, z, u):
+    """``scene.lights.selection_pmf`` at the vertex (x, y, z), sampled with ``u`` in [0, 1):
+    returns (light index q, its selection probability)."""
+    n = nee_idx.shape[0]
+    tot = 0.0
+    for j in range(n):
+        tot += light_importance(par[nee_idx[j]], x, y, z)
+    uni = LIGHT_SELECTION_FLOOR / n
+    keep = (1.0 - LIGHT_SELECTION_FLOOR) / tot if tot > 0.0 else 0.0
+    if keep == 0.0:
+        uni = 1.0 / n
+    acc = 0.0
+    for j in range(n):
+        q = nee_idx[j]
+        pj = uni + keep * light_importance(par[q], x, y, z)
+        acc += pj
+        if u < acc or j == n - 1:
+            return q, pj
+    return nee_idx[n - 1], uni  # not reached (n >= 1)
+
+
+@helper
+def _nee_sel(par, nee_idx, q, x, y, z):
+    """The probability :func:`_nee_pick` at (x, y, z) chooses light ``q`` (for MIS at hits)."""
+    n = nee_idx.shape[0]
+    tot = 0.0
+    for j in range(n):
+        tot += light_importance(par[nee_idx[j]], x, y, z)
+    if not (tot > 0.0):
+        return 1.0 / n
+    return LIGHT_SELECTION_FLOOR / n + (1.0 - LIGHT_SELECTION_FLOOR) * (
+        light_importance(par[q], x, y, z) / tot
+    )
+
+
+@helper
 def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sval, sidx, occ, R):
     """``ReferenceCtx.incoming`` as a wavefront over the ``n`` paths in rows [0, n) of ``ps`` whose
     first hits are ``hits`` (the layout of ``embree.intersect_rays``): each path's
@@ -261,7 +306,6 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     em_pdf = int(par[em_q, PAR_EM_PDF_AREA]) if em_q >= 0 else 0
     n_nee = nee_idx.shape[0]
     n_vis = visible_idx.shape[0]
-    sel_next = 1.0 / max(1, n_nee)
     traced = 0
     while n > 0:
         nn = np.int64(0)  # live paths kept (nn <= j: row j is read before row nn is written)
@@ -308,7 +352,11 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 if (miss if linf[q] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
                     w = 1.0
                     if lsampled[q]:
-                        pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sel
+                        sq = sel
+                        if sel < 0.0:  # chosen at the vertex the ray left
+                            sq = _nee_sel(par, nee_idx, q, ps[j, PATH_X], ps[j, PATH_X + 1],
+                                          ps[j, PATH_X + 2])  # fmt: skip
+                        pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sq
                         w = _wb(mode, pdf_dir, pl)
                     Lr += br * w * r
                     Lg += bg * w * g
@@ -327,7 +375,11 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         er, eg, eb = nb_emission(tb, tri, u, v)
                     w = 1.0
                     if em_q >= 0:  # MIS against the emitter's light samples
-                        pe = sel * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300)
+                        sq = sel
+                        if sel < 0.0:
+                            sq = _nee_sel(par, nee_idx, em_q, ps[j, PATH_X], ps[j, PATH_X + 1],
+                                          ps[j, PATH_X + 2])  # fmt: skip
+                        pe = sq * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300)
                         w = _wb(mode, pdf_dir, pe)
                     Lr += br * er * w
                     Lg += bg * eg * w
@@ -356,9 +408,10 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     nx, ny, nz = gx, gy, gz
                 br, bg, bb = br * ar, bg * ag, bb * ab
                 depth += 1
-                # next-event estimation: one light chosen uniformly, its shadow ray queued
+                # next-event estimation: one light chosen by its importance here
+                # (scene.lights.selection_pmf), its shadow ray queued
                 if n_nee:
-                    q = nee_idx[min(int(nb_random(st) * n_nee), n_nee - 1)]
+                    q, psel = _nee_pick(par, nee_idx, px, py, pz, nb_random(st))
                     u0 = nb_random(st)
                     u1 = nb_random(st)
                     lx, ly, lz, dist, r, g, b, pdf = _nee_sample(
@@ -372,9 +425,9 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         and (r > 0.0 or g > 0.0 or b > 0.0)
                     ):
                         if ldelta[q]:
-                            f = cos / np.pi * n_nee
+                            f = cos / np.pi / psel
                         else:
-                            pl = pdf / n_nee
+                            pl = pdf * psel
                             f = _wl(mode, pl, cos / np.pi) * cos / np.pi / pl
                         qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
                         sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, lx, ly, lz, dist)
@@ -404,7 +457,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 ps[nn, PATH_BETA + 1] = bg
                 ps[nn, PATH_BETA + 2] = bb
                 ps[nn, PATH_PDF] = cz / np.pi
-                ps[nn, PATH_SEL] = sel_next
+                ps[nn, PATH_SEL] = -1.0  # the selection of this vertex, at PATH_X
+                ps[nn, PATH_X], ps[nn, PATH_X + 1], ps[nn, PATH_X + 2] = px, py, pz
                 ps[nn, PATH_DEPTH] = depth
                 ps[nn, PATH_SAMPLE] = k
                 nn += 1

@@ -30,6 +30,8 @@ PAR_DOME_*                       dome: textured flag, pmf/cdf offset, pixel offs
                                  (9), inverse rotation (9), image height, width
 PAR_EM_*                  1      emissive triangles: pmf/cdf block offset, pdf_area offset,
                                  global triangle id offset, emitter count
+PAR_IMP_*                        all: the light's selection bound (scene.lights.Bound):
+                                 falloff, scale, r2, cap (1 each), center (3), normal (3)
 ========================  =====  ===============================================================
 """
 
@@ -62,8 +64,11 @@ PAR_DOME_H, PAR_DOME_W = 46, 47
 #: global-triangle ``pdf_area`` block (T entries, in ``pmf``), offset of the global triangle ids
 #: (E entries, float64 in ``pmf``), E.
 PAR_EM_TABLE, PAR_EM_PDF_AREA, PAR_EM_TRI, PAR_EM_COUNT = 26, 27, 28, 29
+#: the selection bound (usdahd.scene.lights.Bound) of every light
+PAR_IMP_FALLOFF, PAR_IMP_SCALE, PAR_IMP_R2, PAR_IMP_CAP = 48, 49, 50, 51
+PAR_IMP_CENTER, PAR_IMP_NORMAL = 52, 55
 #: Parameters per light (float64).
-N_PAR = 48
+N_PAR = 58
 
 
 class LightArrays(NamedTuple):
@@ -139,9 +144,11 @@ MODE_MIS, MODE_BSDF, MODE_NEE = 0, 1, 2
 
 #: Columns of the per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin
 #: (3), direction (3), throughput (3), pdf of the direction, selection probability of the NEE
-#: light it is paired with, reflections so far, sample index.
+#: light it is paired with (-1: the vertex selection of ``_nee_pick`` at the surface point the
+#: ray left, PATH_X (3)), reflections so far, sample index.
 PATH_O, PATH_D, PATH_BETA, PATH_PDF, PATH_SEL, PATH_DEPTH, PATH_SAMPLE = 0, 3, 6, 9, 10, 11, 12
-PATH_COLS = 13
+PATH_X = 13
+PATH_COLS = 16
 #: Columns of the hit rows ``hits`` (s, 7) f64 of :func:`usdahd.bake.kernels.embree
 #: .intersect_rays`: t, triangle (-1: miss), u, v, geometric normal (3). (Ray rows are origin,
 #: direction, tfar, written positionally by ``kernels.integrate._set_row``.)

@@ -47,6 +47,12 @@ from usdahd.bake.kernels.layout import (
     PAR_EY,
     PAR_GINV,
     PAR_HALF_LENGTH,
+    PAR_IMP_CAP,
+    PAR_IMP_CENTER,
+    PAR_IMP_FALLOFF,
+    PAR_IMP_NORMAL,
+    PAR_IMP_R2,
+    PAR_IMP_SCALE,
     PAR_NORMAL,
     PAR_OMC,
     PAR_PLANE_N,
@@ -56,6 +62,8 @@ from usdahd.bake.kernels.layout import (
 )
 from usdahd.numerics.sampling import SPHERICAL_RECT_MAX_SR, SPHERICAL_RECT_MIN_SR
 from usdahd.scene.lights import (
+    FALLOFF_CONSTANT,
+    FALLOFF_FRONT,
     CylinderLight,
     DistantLight,
     DomeLight,
@@ -98,6 +106,11 @@ def pack_lights(lights) -> LightTable:
     for i, lt in enumerate(lights):
         p = par[i]
         p[PAR_RADIANCE : PAR_RADIANCE + 3] = lt.radiance
+        bd = lt.bound()
+        p[PAR_IMP_FALLOFF], p[PAR_IMP_SCALE], p[PAR_IMP_R2] = bd.falloff, bd.scale, bd.r2
+        p[PAR_IMP_CAP] = bd.cap
+        p[PAR_IMP_CENTER : PAR_IMP_CENTER + 3] = bd.center
+        p[PAR_IMP_NORMAL : PAR_IMP_NORMAL + 3] = bd.normal
         if isinstance(lt, PointLight):
             kind[i] = KIND_POINT
             p[PAR_CENTER : PAR_CENTER + 3] = lt.center
@@ -639,3 +652,19 @@ def light_pdf(kind, p, pmf, ox, oy, oz, dx, dy, dz, t):
             / (2.0 * np.pi * np.pi * max(sin_t, 1e-12))
         )
     return 0.0
+
+
+@helper
+def light_importance(p, x, y, z):
+    """Scalar ``Bound.importance`` (usdahd.scene.lights) of the light with parameters ``p`` at
+    the point (x, y, z): the irradiance bound that chooses which light a vertex samples."""
+    f = p[PAR_IMP_FALLOFF]
+    if f == FALLOFF_CONSTANT:
+        return p[PAR_IMP_CAP]
+    wx, wy, wz = x - p[PAR_IMP_CENTER], y - p[PAR_IMP_CENTER + 1], z - p[PAR_IMP_CENTER + 2]
+    if f == FALLOFF_FRONT and not (
+        wx * p[PAR_IMP_NORMAL] + wy * p[PAR_IMP_NORMAL + 1] + wz * p[PAR_IMP_NORMAL + 2] > 0.0
+    ):
+        return 0.0
+    d2 = max(wx * wx + wy * wy + wz * wz, p[PAR_IMP_R2], 1e-300)
+    return min(p[PAR_IMP_CAP], p[PAR_IMP_SCALE] / d2)

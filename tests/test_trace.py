@@ -12,11 +12,13 @@
 
 import numpy as np
 import pytest
+from numba import njit
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from stats import assert_same_mean
 
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.kernels import embree
+from usdahd.bake.kernels.trace import nb_transmittance_rays
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
 from usdahd.errors import UsageError
@@ -282,3 +284,101 @@ def test_kernel_cache_tracks_every_inlined_source():
     names = {s[0] for s in loc.get_source_stamp()}
     assert {"trace.py", "lights.py", "integrate.py", "embree.py", "reference.py"} <= names
     assert {"layout.py", "sampling.py", "sh.py"} <= names
+
+
+# ----------------------------------------------------------------------------- shadow rays
+
+
+def _veiled_scene():
+    """A ground with, above it, a veil of constant opacity 0.3 (z = 1), a cut-out checker
+    (threshold 0.5, z = 2) over x < 0 and an opaque roof over y > 2 (z = 3)."""
+    st = _stage()
+    _quad(st, "/ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], _material(st, "/m/g"))
+    _quad(st, "/veil", [(-4, -4, 1), (4, -4, 1), (4, 4, 1), (-4, 4, 1)], _material(st, "/m/veil"))
+    _quad(st, "/cut", [(-4, -4, 2), (0, -4, 2), (0, 4, 2), (-4, 4, 2)], _material(st, "/m/cut"),
+          st_uv=[(0, 0), (1, 0), (1, 1), (0, 1)])  # fmt: skip
+    _quad(st, "/roof", [(-4, 2, 3), (4, 2, 3), (4, 4, 3), (-4, 4, 3)], _material(st, "/m/roof"))
+    sun = UsdLux.DistantLight.Define(st, "/sun")  # overhead, a delta light of 2 lux
+    sun.CreateIntensityAttr(2.0)
+    sun.CreateAngleAttr(0.0)
+    scene = load_scene(st)
+    names = [m.name for m in scene.materials]
+    mat = {n.rsplit("/", 1)[-1]: scene.materials[i] for i, n in enumerate(names)}
+    mat["veil"].opacity = 0.3
+    checker = np.kron((np.indices((4, 4)).sum(0) % 2), np.ones((4, 4)))[..., None]
+    one = np.ones(4)
+    mat["cut"].opacity_tex = Texture("a.exr", checker.astype(np.float32), one, 0 * one, (0,))
+    mat["cut"].opacity_threshold = 0.5
+    k = next(i for i, m in enumerate(scene.meshes) if m.path == "/cut")
+    w = scene.meshes[k].points[scene.meshes[k].triangles]  # (t, 3, 3) corners
+    while len(scene.texcoords) <= k:
+        scene.texcoords.append({})
+    scene.texcoords[k]["st"] = np.stack([(w[..., 0] + 4) / 4, (w[..., 1] + 4) / 8], -1).astype(
+        np.float32
+    )
+    return scene
+
+
+def _expected_transmittance(o):
+    """Straight-up rays from points o (m, 3) at z = 0.5: 0.7 through the veil, times the
+    checker's hole (1) or card (0) for x < 0, 0 under the roof."""
+    x, y = o[:, 0], o[:, 1]
+    s, t = (x + 4) / 4, (y + 4) / 8  # the cut-out's texcoords (image row 0 at t = 1)
+    card = (np.floor(s * 16).astype(int) // 4 + np.floor((1 - t) * 16).astype(int) // 4) % 2
+    hole = np.where(x < 0, card == 0, True)
+    return np.where(y > 2, 0.0, 0.7 * hole)
+
+
+@njit(cache=False)
+def _nb_transmittance(scene, pk, rec, tb, eps, rays):
+    out = np.zeros(rays.shape[0])
+    nb_transmittance_rays(scene, pk, rec, tb, eps, True, rays, rays.shape[0], out)
+    return out
+
+
+def test_shadow_rays_carry_the_transmittance_of_what_they_cross():
+    """Tracer.transmittance: the product of 1 - opacity over fractional-opacity surfaces, 1
+    through cut-out holes, 0 behind cards and opaque surfaces; both backends alike; the
+    expectation of the stochastic pass-through (Tracer.occluded) it replaces."""
+    scene = _veiled_scene()
+    rng = np.random.default_rng(0)
+    # keep clear of the checker's cell edges (texture filtering is nearest: 1/16 cells)
+    x = (rng.integers(0, 32, 2000) + rng.uniform(0.2, 0.8, 2000)) / 4 - 4
+    y = (rng.integers(0, 32, 2000) + rng.uniform(0.2, 0.8, 2000)) / 4 - 4
+    o = np.c_[x, y, np.full(2000, 0.5)]
+    d = np.tile([0.0, 0, 1], (2000, 1))
+    want = _expected_transmittance(o)
+    assert 0.1 < (want == 0.7).mean() < 0.9 and (want == 0).any()
+    for backend in ("native", "embreex"):
+        tr = Tracer(scene, backend=backend)
+        got = tr.transmittance(o, d, np.full(2000, np.inf))
+        np.testing.assert_allclose(got, want, atol=1e-6)
+        # a light below the veil: nothing in between
+        np.testing.assert_array_equal(tr.transmittance(o, d, np.full(2000, 0.4)), 1.0)
+        if backend == "native":
+            tb = tr.native_tables()
+            rays = np.c_[o, d, np.full(2000, np.inf)]
+            pk, rec = embree.new_packet(), embree.new_scratch()
+            nb = _nb_transmittance(tr.native_handle, pk, rec, tb, tr.offset_eps, rays)
+            np.testing.assert_allclose(nb, got, rtol=REL, atol=1e-12)
+        tr.close()
+    # the stochastic pass-through it replaces has the same mean (the numpy path draws from
+    # ``rng``; 200 draws: 5 sigma of a Bernoulli(0.7) mean)
+    tr = Tracer(scene, backend="embreex")
+    occ = np.mean([~tr.occluded(o, d, np.full(2000, np.inf), rng=np.random.default_rng(k))
+                   for k in range(200)], axis=0)  # fmt: skip
+    assert np.abs(occ - want).max() < 5 * np.sqrt(0.7 * 0.3 / 200)
+    tr.close()
+
+
+def test_a_veiled_sun_bakes_its_exact_attenuated_irradiance():
+    """Delta sun through a 0.3-opacity veil: I_z is exactly 0.7 x 2 / pi on the open ground
+    (a deterministic shadow ray: no coin-flip noise), on both backends."""
+    scene = _veiled_scene()
+    pts = np.c_[np.random.default_rng(1).uniform(0.5, 3.5, (64, 2)) * [1, 0.4], np.zeros(64)]
+    tex = _texels(pts)
+    for backend in ("native", "embreex"):
+        tr = Tracer(scene, backend=backend)
+        res, _ = bake_texels(scene, tr, tex, samples=16, bounces=0, seed=2)
+        tr.close()
+        np.testing.assert_allclose(sh.iz(res)[:, 1], 0.7 * 2.0 / np.pi, rtol=1e-5)

@@ -151,9 +151,11 @@ class ReferenceCtx:
                 continue
             idx = np.nonzero(ok)[0]
             o = self.tr.offset(P[idx], NG[idx], d[idx])
-            occ = self._occluded(lt, o, *_shadow(o, P[idx], d[idx], dist[idx]))
-            idx = idx[~occ]
-            acc.delta[idx] += np.einsum("nc,nk->nck", val[idx], shmod.basis(loc[idx]))
+            tr = self._visibility(lt, o, *_shadow(o, P[idx], d[idx], dist[idx]))
+            keep = tr > 0
+            idx, tr = idx[keep], tr[keep]
+            f = val[idx] * tr[:, None]
+            acc.delta[idx] += np.einsum("nc,nk->nck", f, shmod.basis(loc[idx]))
 
     def hemisphere_pass(self, P, NG, F, s, offset, rng, acc, active):
         n = len(P)
@@ -227,8 +229,9 @@ class ReferenceCtx:
             if len(idx) == 0:
                 continue
             o = self.tr.offset(Pf[idx], NGf[idx], d)
-            vis = ~self._occluded(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
-            idx, val, pdf, loc = idx[vis], val[vis], pdf[vis], loc[vis]
+            tr = self._visibility(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
+            vis = tr > 0
+            idx, val, pdf, loc = idx[vis], val[vis] * tr[vis, None], pdf[vis], loc[vis]
             pl = pdf * self.texel_sel
             w = _w_light(self.strategy, pl, texel_hemisphere_pdf(loc[:, 2]))
             f = val * (w / pl)[:, None]
@@ -331,7 +334,9 @@ class ReferenceCtx:
                 if len(idx) == 0:
                     continue
                 o = self.tr.offset(p[idx], gn[idx], d)
-                vis = ~self._occluded(lt, o, *_shadow(o, p[idx], d, dist), rng=rng)
+                tr = self._visibility(lt, o, *_shadow(o, p[idx], d, dist), rng=rng)
+                vis = tr > 0
+                val = val * tr[:, None]
                 ps = sel[idx, j]
                 if lt.delta:
                     f = val * (cos / np.pi / ps)[:, None]
@@ -368,6 +373,14 @@ class ReferenceCtx:
         if mask is None:
             return np.ones(len(mesh), bool)
         return np.where(mesh >= 0, mask[np.maximum(mesh, 0)], True)
+
+    def _visibility(self, lt, o, d, tfar, rng=None):
+        """(m,) float64 fraction of a shadow ray's light that arrives: the tracer's
+        transmittance (fractional opacity attenuates), or 0 / 1 for a shadow-linked light
+        (:meth:`_occluded`, whose pass-through of non-casters stays stochastic)."""
+        if self.cast.get(id(lt)) is None:
+            return self.tr.transmittance(o, d, tfar)
+        return np.where(self._occluded(lt, o, d, tfar, rng=rng), 0.0, 1.0)
 
     def _occluded(self, lt, o, d, tfar, rng=None):
         """Shadow rays of light ``lt``: only meshes its shadowLink collection includes cast

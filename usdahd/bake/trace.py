@@ -12,8 +12,12 @@ the constructor because it is not thread-safe. ``robust=False`` (measured 13-50 
 :meth:`Tracer.run_parallel` spreads numba kernels over the same threads.
 
 Alpha cut-outs (UsdPreviewSurface opacity/opacityThreshold) and stochastic opacity are handled
-by re-tracing rays from the transmissive hit, at most ``MAX_TRANSMIT`` times; shadow rays use the
-same loop only when the scene has transmissive materials (plain OCCLUDED otherwise).
+by re-tracing rays from the transmissive hit, at most ``MAX_TRANSMIT`` times. Path rays pass a
+surface of fractional opacity ``op`` (no threshold) with probability ``1 - op``; shadow rays
+(:meth:`Tracer.transmittance`) carry the product of ``1 - op`` over the surfaces they cross
+instead (the same expectation, without the coin flip's noise: McUsd's rail in the shadow of
+its stained-glass block). Both loops run only when the scene has transmissive materials
+(plain OCCLUDED otherwise).
 
 Backends (``backend=``): ``"native"`` calls the libembree4 shipped in the embreex wheel directly
 (:mod:`usdahd.bake.kernels.embree`; queries from numba without the GIL, and the integrator's
@@ -229,11 +233,10 @@ class Tracer:
         t = np.where(tri >= 0, t, np.inf).astype(np.float32)
         if self.has_transmission:
             travelled = np.zeros(m, np.float64)
+            idx = np.nonzero(tri >= 0)[0]  # rays still moving: each surface is decided once
             for _ in range(MAX_TRANSMIT):
-                hit = tri >= 0
-                if not np.any(hit):
+                if len(idx) == 0:
                     break
-                idx = np.nonzero(hit)[0]
                 passes = self._transmits(tri[idx], u[idx], v[idx], rng)
                 idx = idx[passes]
                 if len(idx) == 0:
@@ -249,8 +252,47 @@ class Tracer:
                 travelled[idx] = done
                 tri[idx], u[idx], v[idx] = tri2, u2, v2
                 t[idx] = np.where(tri2 >= 0, t2, np.inf)
+                idx = idx[tri2 >= 0]
             t = np.where(tri >= 0, travelled + t, np.inf).astype(np.float32)
         return {"t": t, "tri": tri, "u": u, "v": v}
+
+    def transmittance(self, o, d, tfar):
+        """Shadow rays: (m,) float64 fraction of light that passes between ``o`` and ``o + tfar
+        d``: 0 behind an opaque surface (or a cut-out texel at or above its threshold, or
+        beyond ``MAX_TRANSMIT`` crossings), else the product of ``1 - opacity`` over the
+        fractional-opacity surfaces crossed (1 through cut-out holes). Deterministic: the
+        expectation of :meth:`occluded`'s stochastic pass-through.
+        o, d : (m, 3); tfar : (m,) distance to the light (inf for distant/dome)."""
+        o32 = np.ascontiguousarray(o, np.float32)
+        d32 = np.ascontiguousarray(d, np.float32)
+        tf = np.ascontiguousarray(tfar, np.float32).copy()
+        if not self.has_transmission:
+            return np.where(self._raw_occluded(o32, d32, tf.copy()), 0.0, 1.0)
+        m = len(o32)
+        T = np.ones(m)
+        t, tri, u, v = self._raw_intersect(o32, d32, tf.copy())
+        travelled = np.zeros(m)
+        todo = np.nonzero(tri >= 0)[0]
+        for _ in range(MAX_TRANSMIT):
+            if len(todo) == 0:
+                break
+            T[todo] *= self._transmission(tri[todo], u[todo], v[todo])
+            todo = todo[T[todo] > 0.0]
+            if len(todo) == 0:
+                break
+            p = self.hit_points(tri[todo], u[todo], v[todo])
+            ng = self.geom_normal[tri[todo]].astype(np.float64)
+            no = self.offset(p, ng, d[todo])
+            done = travelled[todo] + t[todo]
+            rem = tf[todo] - done
+            t2, tri2, u2, v2 = self._raw_intersect(
+                np.ascontiguousarray(no, np.float32), d32[todo], rem.astype(np.float32)
+            )
+            travelled[todo] = done
+            tri[todo], u[todo], v[todo], t[todo] = tri2, u2, v2, t2
+            todo = todo[tri2 >= 0]
+        T[todo] = 0.0  # still blocked after MAX_TRANSMIT crossings
+        return T
 
     def occluded(self, o, d, tfar, rng=None):
         """Shadow rays. tfar : (m,) distance to the light (inf for distant/dome).
@@ -311,18 +353,22 @@ class Tracer:
         """(m,3) float32 emitted radiance at hits (front faces; caller checks facing)."""
         return self._per_material(tri, u, v, "emission_tex", self.emission)
 
-    def _transmits(self, tri, u, v, rng):
+    def _opacity(self, tri, u, v):
+        """(op, threshold) (k,) float32 of the transmissive-material hits among ``tri`` (m,),
+        and their indices (k,) into it (other hits are opaque)."""
         mat = self.tri_material[tri]
-        cand = self.transmissive_materials[mat]
-        out = np.zeros(len(tri), bool)
-        if not np.any(cand):
-            return out
-        idx = np.nonzero(cand)[0]
+        idx = np.nonzero(self.transmissive_materials[mat])[0]
         ops = np.array([m.opacity for m in self.scene.materials], np.float32)
         thr = np.array([m.opacity_threshold for m in self.scene.materials], np.float32)
         op = self._per_material(tri[idx], u[idx], v[idx], "opacity_tex", ops)
         op = np.asarray(op, np.float32).reshape(len(idx))
-        th = thr[mat[idx]]
+        return op, thr[mat[idx]], idx
+
+    def _transmits(self, tri, u, v, rng):
+        out = np.zeros(len(tri), bool)
+        op, th, idx = self._opacity(tri, u, v)
+        if len(idx) == 0:
+            return out
         cut = th > 0
         res = np.where(cut, op < th, False)
         stoch = ~cut & (op < 1.0)
@@ -330,6 +376,15 @@ class Tracer:
             r = (rng or np.random.default_rng(0)).random(int(stoch.sum()))
             res[stoch] = r >= op[stoch]
         out[idx] = res
+        return out
+
+    def _transmission(self, tri, u, v):
+        """(m,) float64 fraction of light passing each hit: 1 - opacity (fractional opacity),
+        1 / 0 below / at or above a cut-out threshold, 0 on opaque materials."""
+        out = np.zeros(len(tri))
+        op, th, idx = self._opacity(tri, u, v)
+        frac = np.clip(1.0 - op.astype(np.float64), 0.0, 1.0)
+        out[idx] = np.where(th > 0, np.where(op < th, 1.0, 0.0), frac)
         return out
 
     # ------------------------------------------------------------------ native tables

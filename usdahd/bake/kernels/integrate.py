@@ -71,12 +71,12 @@ from usdahd.bake.kernels.trace import (
     nb_albedo,
     nb_emission,
     nb_hit_point,
-    nb_occluded,
-    nb_occluded_rays,
     nb_offset,
     nb_random,
     nb_shading_normal,
     nb_trace_rays,
+    nb_transmittance,
+    nb_transmittance_rays,
 )
 from usdahd.bake.reference import (
     ALL_LIGHTS_MAX,
@@ -466,13 +466,14 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
             R[k, 1] += Lg
             R[k, 2] += Lb
         if ns:
-            traced += nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, srays, ns, occ)
+            traced += nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, srays, ns, occ)
             for q in range(ns):
-                if not occ[q]:
+                tr = occ[q]  # the fraction of the light's sample that arrives
+                if tr > 0.0:
                     k = sidx[q]
-                    R[k, 0] += sval[q, 0]
-                    R[k, 1] += sval[q, 1]
-                    R[k, 2] += sval[q, 2]
+                    R[k, 0] += tr * sval[q, 0]
+                    R[k, 1] += tr * sval[q, 1]
+                    R[k, 2] += tr * sval[q, 2]
         if nn:
             traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, nn, hits)
         n = nn
@@ -498,10 +499,11 @@ def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
             continue
         qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
         sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, dx, dy, dz, dist)
-        occ, k = nb_occluded(scene, rec, tb, eps, transmission, st, qx, qy, qz, sx, sy, sz, tf)
+        tr, k = nb_transmittance(scene, rec, tb, eps, transmission, qx, qy, qz, sx, sy, sz, tf)
         rays += k
-        if occ:
+        if not (tr > 0.0):
             continue
+        r, g, b = tr * r, tr * g, tr * b
         lx = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz
         ly = f[1, 0] * dx + f[1, 1] * dy + f[1, 2] * dz
         _sh9(Y, lx, ly, lz)
@@ -651,14 +653,15 @@ def native_pass(
                     sidx[ns] = k
                     ns += 1
             if ns:
-                traced += nb_occluded_rays(
-                    scene, pk, rec, tb, eps, transmission, st, srays, ns, occ
+                traced += nb_transmittance_rays(
+                    scene, pk, rec, tb, eps, transmission, srays, ns, occ
                 )
                 for q in range(ns):
-                    if occ[q]:
+                    tr = occ[q]
+                    if not (tr > 0.0):
                         continue
                     _sh9(Y, sval[q, 3], sval[q, 4], sval[q, 5])
-                    r, g, b = sval[q, 0], sval[q, 1], sval[q, 2]
+                    r, g, b = tr * sval[q, 0], tr * sval[q, 1], tr * sval[q, 2]
                     for c9 in range(9):
                         nee[i, 0, c9] += r * Y[c9]
                         nee[i, 1, c9] += g * Y[c9]
@@ -765,7 +768,7 @@ def native_work(s):
         np.zeros((s, 7)),
         np.zeros((s, 6)),
         np.zeros(s, np.int64),
-        np.zeros(s, np.bool_),
+        np.zeros(s),  # shadow-ray transmittance
         np.zeros((s, 3)),
         np.zeros((s, 3)),
         np.zeros(s),

@@ -156,8 +156,8 @@ def nb_emission(tb, tri, u, v):
 
 
 @helper
-def nb_transmits(tb, tri, u, v, st):
-    """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
+def _opacity(tb, tri, u, v):
+    """:meth:`Tracer._opacity` for one hit: (opacity, threshold) as float32."""
     m = tb.tri_material[tri]
     mc = tb.mat_const
     k = tb.mat_tex[m, TEX_OPACITY]
@@ -165,15 +165,27 @@ def nb_transmits(tb, tri, u, v, st):
     if k >= 0:
         s, t = _uv(tb, tri, u, v)
         op = nb_texture(tb, k, s, t)[0][0]
-    elif op >= 1.0:
-        return False
-    th = np.float32(mc[m, MAT_THRESHOLD])
-    op = np.float32(op)
+    return np.float32(op), np.float32(mc[m, MAT_THRESHOLD])
+
+
+@helper
+def nb_transmits(tb, tri, u, v, st):
+    """:meth:`Tracer._transmits` for one hit (consumes a random number when stochastic)."""
+    op, th = _opacity(tb, tri, u, v)
     if th > 0:
         return op < th
     if op < 1.0:
         return nb_random(st) >= op
     return False
+
+
+@helper
+def nb_transmission(tb, tri, u, v):
+    """:meth:`Tracer._transmission` for one hit: the fraction of light passing it."""
+    op, th = _opacity(tb, tri, u, v)
+    if th > 0:
+        return 1.0 if op < th else 0.0
+    return min(max(1.0 - np.float64(op), 0.0), 1.0)
 
 
 @helper
@@ -230,12 +242,51 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
 
 
 @helper
-def nb_occluded(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
-    """:meth:`Tracer.occluded` for one ray: (blocked, rays traced)."""
+def nb_transmittance(scene, rec, tb, eps, transmission, ox, oy, oz, dx, dy, dz, tfar):
+    """:meth:`Tracer.transmittance` for one shadow ray: (fraction passing, rays traced)."""
     if not transmission:
-        return embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar), 1
-    r = nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar)
-    return r[1] >= 0, r[7]
+        return (0.0 if embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar) else 1.0), 1
+    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    rays = 1
+    t, u, v = np.float64(t), np.float64(u), np.float64(v)
+    T = 1.0
+    travelled = 0.0
+    for _ in range(MAX_TRANSMIT):
+        if tri < 0:
+            return T, rays
+        T *= nb_transmission(tb, tri, u, v)
+        if not (T > 0.0):
+            return 0.0, rays
+        uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
+        px, py, pz = nb_hit_point(tb, tri, uf, vf)
+        g = tb.geom_normal
+        qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
+        done = travelled + t
+        t2, tri, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+        rays += 1
+        travelled = done
+        t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
+    return (T if tri < 0 else 0.0), rays
+
+
+@helper
+def nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, rays, n, out):
+    """:meth:`Tracer.transmittance` for ``rays[:n]`` into ``out[:n]`` (float64). returns rays
+    traced (16-ray OCCLUDED packets when nothing in the scene transmits)."""
+    if not transmission:
+        embree.occluded_rays(scene, pk, rec, rays, n, out)
+        for r in range(n):
+            out[r] = 0.0 if out[r] else 1.0
+        return n
+    total = 0
+    for r in range(n):
+        tr, k = nb_transmittance(
+            scene, rec, tb, eps, transmission, rays[r, 0], rays[r, 1], rays[r, 2],
+            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        )  # fmt: skip
+        out[r] = tr
+        total += k
+    return total
 
 
 @helper
@@ -254,22 +305,5 @@ def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
         )  # fmt: skip
         hits[r, 0], hits[r, 1], hits[r, 2], hits[r, 3] = t, tri, u, v
         hits[r, 4], hits[r, 5], hits[r, 6] = gx, gy, gz
-        total += k
-    return total
-
-
-@helper
-def nb_occluded_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, out):
-    """:meth:`Tracer.occluded` for ``rays[:n]`` into ``out[:n]`` (bool). returns rays traced."""
-    if not transmission:
-        embree.occluded_rays(scene, pk, rec, rays, n, out)
-        return n
-    total = 0
-    for r in range(n):
-        occ, k = nb_occluded(
-            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
-            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
-        )  # fmt: skip
-        out[r] = occ
         total += k
     return total

@@ -107,7 +107,67 @@ def test_a_wedged_xatlas_child_is_stopped_with_an_error_naming_the_prim(monkeypa
     # A limit far below the child's interpreter start-up stands in for a child that never ends.
     from usdahd.bake import unwrap as unwrap_mod
 
+    unwrap_mod._stop_worker()  # the next request waits for a fresh worker's start-up
     monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_S", 0.01)
     monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_PER_TRIANGLE_S", 0.0)
     with pytest.raises(BakeError, match=r"/box: xatlas did not finish .* within 0 s.*--uv"):
         unwrap(box_mesh(), texels_per_unit=20.0)
+    monkeypatch.undo()
+    assert unwrap(box_mesh(), texels_per_unit=20.0)[1]  # a new worker takes the next mesh
+
+
+def test_one_worker_unwraps_mesh_after_mesh_and_survives_a_crash(monkeypatch):
+    """The xatlas child is started once and reused; when it dies on a mesh (xatlas can
+    segfault) that prim fails with a message naming it and the fix, and the next mesh gets a
+    new worker; a worker that died between meshes is replaced without failing anyone."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    unwrap_mod._stop_worker()
+    a = unwrap(box_mesh(), texels_per_unit=20.0)
+    pid = unwrap_mod._worker.proc.pid
+    b = unwrap(box_mesh(), texels_per_unit=20.0)
+    assert unwrap_mod._worker.proc.pid == pid and np.array_equal(a[0], b[0])
+    unwrap_mod._worker.proc.kill()  # dies between two meshes
+    unwrap_mod._worker.proc.wait()
+    assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], a[0])
+    assert unwrap_mod._worker.proc.pid != pid
+    # a worker that dies while unwrapping (stands in for xatlas's segfault)
+    unwrap_mod._stop_worker()
+    crash = (
+        "import os, sys; sys.stdin.buffer.read(8); "
+        "sys.stderr.write('Segmentation fault\\n'); sys.stderr.flush(); os._exit(139)"
+    )
+    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", crash)
+    with pytest.raises(BakeError, match=r"/box: xatlas crashed .*Segmentation fault.*--uv"):
+        unwrap(box_mesh(), texels_per_unit=20.0)
+    monkeypatch.undo()
+    assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], a[0])
+
+
+def test_too_many_charts_for_the_resolution_fail_at_once():
+    """A mesh xatlas cuts into more charts than the lightmap can hold with their padding
+    fails after one xatlas run (not MAX_ATTEMPTS), saying how many texels it needs."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    m = trimesh.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(3)
+    v = m.vertices * (1.0 + 0.25 * rng.random((len(m.vertices), 1)))
+    mesh = tx.mesh_from_arrays(v, m.faces, path="/bumpy")
+    runs = []
+    real = unwrap_mod._run_xatlas
+
+    def counted(*a):
+        runs.append(1)
+        return real(*a)
+
+    unwrap_mod._run_xatlas, saved = counted, unwrap_mod._run_xatlas
+    try:
+        with pytest.raises(
+            BakeError,
+            match=r"/bumpy: xatlas cut this mesh into \d+ charts, "
+            r"which need at least \d+x\d+ texels .* 8x8: raise --resolution",
+        ):
+            unwrap(mesh, resolution=8, isolate=False)
+    finally:
+        unwrap_mod._run_xatlas = saved
+    assert len(runs) == 1

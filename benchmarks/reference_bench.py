@@ -5,8 +5,8 @@ matplotlib from the ``bench`` extra for the plot)::
 
     python benchmarks/reference_bench.py [--stages cornell_box pillar_room floor_lamp]
         [--resolution 32] [--samples 16 64 256 1024] [--truth-spp 4096]
-        [--centre STAGE ...] [--centre-spp N] [--variant=--denoise ...]
-        [--out docs/benchmarks/reference.md]
+        [--centre STAGE ...] [--centre-spp N] [--variant=--denoise ...] [--repeats N]
+        [--warm] [--out docs/benchmarks/reference.md]
 
 For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
 ``--samples`` count with otherwise default settings; Cycles bakes at the same counts; both
@@ -75,7 +75,7 @@ def centre_truth(scene, sf, spp: int, bpy: str) -> tuple[dict, float]:
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
                 centre: bool = True, centre_spp: int | None = None,
-                variants: list[str] = (), repeats: int = 1):  # fmt: skip
+                variants: list[str] = (), repeats: int = 1, warm=None):  # fmt: skip
     """Rows {"stage", "renderer", "spp", "seconds", "seconds_runs", "load", "wall", "bias",
     "rel_rmse", "rel_rmse_net", "truth", "truth_noise"}.
 
@@ -90,6 +90,9 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     ``seconds_runs`` holds each repeat's time, ``seconds`` their median, ``load`` the 1-minute
     load average before each. Errors come from the first repeat (each renderer is seeded, so
     a repeat gives the same estimate).
+    ``warm``: a :class:`benchmarks.reference.warm.WarmBaker`; every usdahd run is also timed
+    as a bake call in that running process (renderer ``"<renderer> (warm)"``, ``"timing":
+    "warm"``, the same errors: same code and seed), after one untimed bake of the stage.
     """
     rows, box_usdahd = [], []
     ctruth = cnoise = None
@@ -136,6 +139,15 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 rows[-1]["rel_rmse_net"] = net_of_truth_noise(ov.get("rel_rmse", math.nan), cnoise)
             _log(f"{stage.name}: {renderer} {n} spp {secs:.1f}s "
                  f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
+            if warm is not None:
+                if i == 0:  # loads this stage's kernels and caches into the process
+                    (tmp / "warmup").mkdir()
+                    warm.bake(stage, tmp / "warmup" / "w.usda", resolution, ["--samples", "4"])
+                secs_w = _warm_seconds(warm, stage, tmp / f"warm{i}", resolution,
+                                       ["--samples", str(n), *extra])  # fmt: skip
+                rows.append(dict(rows[-1], renderer=f"{renderer} (warm)", timing="warm",
+                                 seconds=secs_w, seconds_runs=[secs_w], load=[load]))  # fmt: skip
+                _log(f"{stage.name}: {renderer} (warm) {n} spp {secs_w:.2f}s")
         for n in samples:
             load = os.getloadavg()[0]
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
@@ -151,7 +163,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
             _log(f"{stage.name}: cycles {n} spp {info['bake_seconds']:.1f}s "
                  f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
         for rep in range(1, repeats):
-            _retime(rows, stage, resolution, sf, bpy, tmp / f"repeat{rep}", rep)
+            _retime(rows, stage, resolution, sf, bpy, tmp / f"repeat{rep}", rep, warm)
     for r in rows:
         r["seconds"] = statistics.median(r["seconds_runs"])
     box_noise = [r["truth_noise"] for r in rows if r["renderer"] == "cycles" and r["truth_noise"]]
@@ -161,7 +173,15 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     return rows
 
 
-def _retime(rows: list[dict], stage: Path, resolution: int, sf, bpy: str, tmp: Path, rep: int):
+def _warm_seconds(warm, stage: Path, out: Path, resolution: int, flags: list[str]) -> float:
+    """One bake in the warm process: its report's seconds."""
+    out.mkdir()
+    baked = warm.bake(stage, out / f"{stage.stem}.lightmaps.usda", resolution, flags)
+    return float(baked["report"].get("seconds", baked["seconds"]))
+
+
+def _retime(rows: list[dict], stage: Path, resolution: int, sf, bpy: str, tmp: Path, rep: int,
+            warm=None):  # fmt: skip
     """One more timing of every run in ``rows`` (one stage), interleaved by sample count:
     at each count usdahd's runs, then Cycles'; appends to ``seconds_runs`` and ``load``."""
     tmp.mkdir()
@@ -171,6 +191,9 @@ def _retime(rows: list[dict], stage: Path, resolution: int, sf, bpy: str, tmp: P
             if r["renderer"] == "cycles":
                 info, _ = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
                 secs = float(info["bake_seconds"])
+            elif r.get("timing") == "warm":
+                flags = ["--samples", str(n), *r["flags"]]
+                secs = _warm_seconds(warm, stage, tmp / f"w{n}-{i}", resolution, flags)
             else:
                 out = tmp / f"n{n}-{i}"
                 out.mkdir()
@@ -257,6 +280,11 @@ def _reach(rows: list[dict], stage: str, renderer: str, target: float, cycles_s:
     }
 
 
+def _secs(x: float) -> str:
+    """Seconds with two significant decimals below 10 s (warm bakes take 0.1-1 s)."""
+    return f"{x:.2f}" if x < 10 else f"{x:.1f}"
+
+
 def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     noise = {}
     for r in rows:
@@ -274,8 +302,10 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     if n_rep > 1:
         cmd += f" --repeats {n_rep}"
     for ren in dict.fromkeys(r["renderer"] for r in rows):
-        if ren.startswith("usdahd "):
+        if ren.startswith("usdahd ") and not ren.endswith("(warm)"):
             cmd += f" --variant={ren.removeprefix('usdahd ')}"
+    if any(r.get("timing") == "warm" for r in rows):
+        cmd += " --warm"
     loads = [x for r in rows for x in r.get("load") or []]
     timing = (
         f" Times are the median of {n_rep} repeats, interleaved (usdahd and Cycles in turn at "
@@ -295,7 +325,11 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         + ". Errors: Rec. 709 luminance of I_z on interior texels the truth lights "
         "(benchmarks/reference/compare.py); *relRMSE* includes the truth's noise, *net* has it "
         "taken out in quadrature. Time: usdahd's bake (its report) and Cycles' bake call, both "
-        "on the same 2 shared cores. Texel convention: usdahd samples each texel at its centre "
+        "on the same 2 shared cores; *(warm)* rows time the same usdahd bake as a call in a "
+        "running process (benchmarks/reference/warm.py: imports and numba kernel loading, "
+        "about 0.5-0.9 s per `usdahd bake` process, excluded as Blender's start-up is for "
+        "Cycles), the others the `usdahd bake` command. Texel convention: usdahd samples "
+        "each texel at its centre "
         "(docs/texels.md), Cycles jitters over the texel (a box filter), so at a small light's "
         "hotspot or a hard shadow edge the two estimate different quantities and usdahd's "
         "error against Cycles' box truth stops falling with more samples. Each renderer is "
@@ -319,7 +353,7 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     for r in rows:
         lines.append(
             f"| {r['stage']} | {r['renderer']} | {r.get('truth', 'box')} | {r['spp']} | "
-            f"{r['seconds']:.1f} | {100 * r.get('bias', math.nan):+.2f} % | "
+            f"{_secs(r['seconds'])} | {100 * r.get('bias', math.nan):+.2f} % | "
             f"{100 * r.get('rel_rmse', math.nan):.2f} % | {100 * _err(r):.2f} % |"
         )
     if plot_name:
@@ -340,13 +374,13 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for t in ttq:
-            ours = "not reached" if t["usdahd_seconds"] is None else f"{t['usdahd_seconds']:.1f}"
+            ours = "not reached" if t["usdahd_seconds"] is None else _secs(t["usdahd_seconds"])
             ratio = "-" if t["ratio"] is None else f"{t['ratio']:.2f}"
             reps = ", ".join("-" if x is None else f"{x:.2f}" for x in t.get("ratios") or [])
             flags = t["renderer"].removeprefix("usdahd").strip() or "defaults"
             lines.append(
                 f"| {t['stage']} | {flags} | {100 * t['target']:.2f} % | "
-                f"{t['cycles_seconds']:.1f} | {ours} | {ratio} | {reps or '-'} |"
+                f"{_secs(t['cycles_seconds'])} | {ours} | {ratio} | {reps or '-'} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -481,6 +515,9 @@ def main(argv=None) -> int:
         default=1,
         help="time every run this many times, interleaved (medians and spreads)",
     )
+    p.add_argument("--warm", action="store_true",
+                   help="also time every usdahd run as a bake call in a running process "
+                        "(benchmarks/reference/warm.py), as Cycles' bake is timed")  # fmt: skip
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -506,13 +543,20 @@ def main(argv=None) -> int:
             return 2
         stages.append(path)
     rows = []
-    for st in stages:
-        centre = a.centre is None or st.stem in a.centre
-        rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre, a.centre_spp,
-                            a.variant, a.repeats)  # fmt: skip
-        # rows so far, so an interrupted run keeps its finished stages (--from-json redraws)
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.with_name("reference_bench.json").write_text(json.dumps(rows, indent=1))
+    from benchmarks.reference.warm import WarmBaker
+
+    warm = WarmBaker() if a.warm else None
+    try:
+        for st in stages:
+            centre = a.centre is None or st.stem in a.centre
+            rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre,
+                                a.centre_spp, a.variant, a.repeats, warm)  # fmt: skip
+            # rows so far, so an interrupted run keeps its finished stages (--from-json redraws)
+            a.out.parent.mkdir(parents=True, exist_ok=True)
+            a.out.with_name("reference_bench.json").write_text(json.dumps(rows, indent=1))
+    finally:
+        if warm is not None:
+            warm.close()
     a.out.parent.mkdir(parents=True, exist_ok=True)
     png = a.out.with_name("reference_time_error.png")
     has_plot = plot(rows, png)

@@ -733,3 +733,30 @@ def test_run_section_without_bpy_says_how_to_set_it_up(monkeypatch, tmp_path):
     got = rb.run_section("quick", tmp_path)
     assert "skipped" in got
     assert "Not run: no bpy interpreter configured" in rb.section(got)
+
+
+def test_warm_baker_bakes_what_the_cli_bakes(tmp_path):
+    """benchmarks/reference/warm.py runs ``usdahd bake`` in one long-lived process: the same
+    textures as the ``usdahd bake`` command (same code, same seed), a report per call, and a
+    usage error comes back as exit code 2 instead of killing the process."""
+    from benchmarks.reference.warm import WarmBaker
+
+    stage = ROOT / "samples" / "open_plane.usda"
+    args = ["--samples", "8", "--resolution", "8"]
+    (tmp_path / "cli").mkdir()
+    cli = compare.bake_usdahd(stage, tmp_path / "cli", 8, None, ["--samples", "8"], quiet=True)
+    with WarmBaker() as wb:
+        (tmp_path / "w").mkdir()
+        a = wb.bake(stage, tmp_path / "w" / "open_plane.lightmaps.usda", None, args)
+        assert wb.run(["bake", "--no-such-flag"])["code"] == 2
+        (tmp_path / "w2").mkdir()
+        b = wb.bake(stage, tmp_path / "w2" / "open_plane.lightmaps.usda", None, args)
+    for r in (a, b):
+        assert r["report"]["exit_code"] == 0 and r["report"]["seconds"] > 0
+    ours = compare.usdahd_results(b["layer"])
+    theirs = compare.usdahd_results(cli["layer"])
+    assert ours.keys() == theirs.keys()
+    for p in ours:
+        np.testing.assert_array_equal(
+            compare.usdahd_iz(ours[p]["sidecar"])[0], compare.usdahd_iz(theirs[p]["sidecar"])[0]
+        )

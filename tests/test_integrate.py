@@ -258,6 +258,24 @@ def test_emissive_quad_and_back_facing():
     assert np.all(out2 == 0)
 
 
+@pytest.mark.parametrize("strategy", ["mis", "nee", "bsdf"])
+def test_double_sided_emitter_lights_both_sides(strategy):
+    """A doubleSided emissive quad emits from both faces (the reference renderer's rule for
+    doubleSided surfaces): with its front turned away, the texel below gets Lambert's polygon
+    irradiance all the same, by light samples, by BSDF hits and by their MIS; the same quad
+    without doubleSided leaves it dark (test above)."""
+    st = _stage()
+    _ground(st)
+    mat = _material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    verts = [(-0.5, -0.5, 1.0), (0.5, -0.5, 1.0), (0.5, 0.5, 1.0), (-0.5, 0.5, 1.0)]  # faces up
+    _quad(st, "/emitter", verts, mat).CreateDoubleSidedAttr(True)
+    p = np.array([0.2, 0.0, 0.0])
+    out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=64, strategy=strategy)
+    exact = _polygon_iz(p, verts, 1.0)
+    for c, le in enumerate((2.0, 1.0, 0.5)):
+        _check_mc(sh.iz(out)[:, c], le * exact)
+
+
 def test_emissive_quad_is_light_sampled_no_black_texels():
     """Emissive triangles are sampled by NEE (power-proportional): at 4 spp every texel under a
     small emitter is lit (hemisphere rays alone hit its 0.6 % of the hemisphere at 4 spp in

@@ -5,10 +5,12 @@ texel's upper hemisphere (zero below the horizon), in the frame ``texels.frame``
 bitangent, normal; z = normal), with the basis/sign conventions of :mod:`usdahd.sh`.
 ``usdahd.sh.iz(sh)`` is the normalized irradiance (uniform sky of radiance 1 -> 1).
 
-Light transport (Lambertian surfaces, material albedo, emission on front faces):
+Light transport (Lambertian surfaces, material albedo, emission on front faces; both faces
+on doubleSided meshes):
 
 - Texel hemisphere: ``samples`` directions per texel from the R2 low-discrepancy set with a
-  per-texel Cranley-Patterson rotation, mapped uniformly onto the hemisphere (pdf 1/2pi).
+  per-texel Cranley-Patterson rotation, warped to the uniform/cosine mixture of
+  ``numerics.sampling.texel_hemisphere`` (pdf (1 + 2z)/4pi).
 - Direct light: delta lights (treatAsPoint spheres, zero-angle distant lights) get one exact
   shadow ray per texel; area/cone/textured-dome lights get ``samples`` light samples per texel
   (light chosen uniformly), combined with the hemisphere rays that hit them by the power

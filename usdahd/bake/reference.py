@@ -288,7 +288,8 @@ class ReferenceCtx:
                 pl = self.lights.emissive.pdf_hit(tri_s, t[surf], cos_abs)
                 pl = pl * self._sel(sel_area, self.lights.emissive, surf)
                 em = em * _w_bsdf(self.strategy, pdf_dir[surf], pl)[:, None]
-            L[surf] += np.where(front[:, None], em, 0.0)
+            emits = front | ~self.tr.tri_one_sided[tri_s]  # doubleSided: both faces
+            L[surf] += np.where(emits[:, None], em, 0.0)
         if depth + 1 > self.bounces:
             return L
         albedo = self.tr.albedo_at(tri_s, u, v).astype(np.float64)

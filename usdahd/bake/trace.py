@@ -350,7 +350,8 @@ class Tracer:
         return np.clip(self._per_material(tri, u, v, "albedo_tex", self.albedo), 0.0, 1.0)
 
     def emission_at(self, tri, u, v):
-        """(m,3) float32 emitted radiance at hits (front faces; caller checks facing)."""
+        """(m,3) float32 emitted radiance at hits (front faces, both on doubleSided meshes; caller
+        checks facing)."""
         return self._per_material(tri, u, v, "emission_tex", self.emission)
 
     def _opacity(self, tri, u, v):

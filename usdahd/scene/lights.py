@@ -567,15 +567,18 @@ class DomeLight(Light):
 @dataclass
 class EmissiveTriangles(Light):
     """Every emissive triangle of the scene as one light (UsdPreviewSurface ``emissiveColor``;
-    front faces emit). Sampled by power: a triangle with probability proportional to its area
-    times the luminance of its emission (textured emission: estimated at four points, floored so
-    that no emissive triangle has probability 0), then a uniform point on it. Built by the
+    front faces emit, both faces on ``doubleSided`` meshes). Sampled by power: a triangle with
+    probability proportional to its area times the luminance of its emission (textured
+    emission: estimated at four points, floored so that no emissive triangle has probability
+    0), then a uniform point on it. Built by the
     integrator from its tracer (:meth:`from_tracer`), since emission is looked up at the sample.
 
     tri : (E,) int64 global triangle ids; verts : (E, 3, 3) float64; normal : (E, 3) float64
     unit front normals; area : (E,) float64; pmf, cdf : (E,) float64; pdf_area : (T,) float64
     probability per unit area of every global triangle (0 where not emissive), for MIS at hits;
-    lum : (E,) float64 the emitted luminance estimate each triangle is chosen by;
+    lum : (E,) float64 the emitted luminance estimate each triangle is chosen by (doubled
+    for two-sided ones); two_sided : (E,) bool, triangles of ``doubleSided`` meshes, which
+    emit from both faces (None: none);
     emission_at : callable(tri (m,), u (m,), v (m,)) -> (m, 3) emitted radiance (Embree
     barycentrics: p = (1-u-v) v0 + u v1 + v v2). ``radiance`` is unused (ones).
     """
@@ -588,6 +591,7 @@ class EmissiveTriangles(Light):
     cdf: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pdf_area: np.ndarray = field(default_factory=lambda: np.zeros(0))
     lum: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    two_sided: np.ndarray | None = None
     emission_at: object = None
 
     @classmethod
@@ -613,6 +617,8 @@ class EmissiveTriangles(Light):
         if not np.any(lum > 0):
             lum = np.ones(len(tri))
         lum = np.maximum(lum, 1e-3 * lum.max())  # every emissive triangle can be chosen
+        two = ~np.asarray(tracer.tri_one_sided, bool)[tri]  # doubleSided: both faces emit
+        lum = lum * np.where(two, 2.0, 1.0)  # (its power: both hemispheres)
         power = area * lum
         pmf = power / power.sum()
         cdf = np.cumsum(pmf)
@@ -630,6 +636,7 @@ class EmissiveTriangles(Light):
             cdf=cdf,
             pdf_area=pdf_area,
             lum=lum,
+            two_sided=two,
             emission_at=tracer.emission_at,
         )
 
@@ -658,6 +665,8 @@ class EmissiveTriangles(Light):
         dist = _norm(w)
         dirs = w / np.maximum(dist, 1e-300)[:, None]
         cos_l = -np.einsum("ij,ij->i", dirs, self.normal[k])
+        if self.two_sided is not None:
+            cos_l = np.where(self.two_sided[k], np.abs(cos_l), cos_l)
         front = cos_l > 0
         pdf = np.where(
             front, self.pmf[k] / self.area[k] * dist * dist / np.where(front, cos_l, 1.0), 0.0

@@ -194,6 +194,8 @@ def _nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):
     dx, dy, dz = wx * inv, wy * inv, wz * inv
     g = tb.geom_normal
     cos_l = -(dx * g[tri, 0] + dy * g[tri, 1] + dz * g[tri, 2])
+    if tb.tri_one_sided[tri] == 0:  # doubleSided: both faces emit
+        cos_l = abs(cos_l)
     if not cos_l > 0.0:
         return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
     pdf = pmf[int(p[PAR_EM_PDF_AREA]) + tri] * dist * dist / cos_l
@@ -366,7 +368,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     break
                 cos_in = dx * gx + dy * gy + dz * gz
                 mq = tri_mat[tri]  # constant materials inline, textured ones called
-                if has_em and cos_in < 0.0:
+                if has_em and (cos_in < 0.0 or tb.tri_one_sided[tri] == 0):
                     if mat_tex[mq, TEX_EMISSION] < 0:
                         er = mat_const[mq, MAT_EMISSION]
                         eg = mat_const[mq, MAT_EMISSION + 1]
@@ -379,7 +381,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         if sel < 0.0:
                             sq = _nee_sel(par, nee_idx, em_q, ps[j, PATH_X], ps[j, PATH_X + 1],
                                           ps[j, PATH_X + 2])  # fmt: skip
-                        pe = sq * pmf[em_pdf + tri] * t * t / max(-cos_in, 1e-300)
+                        pe = sq * pmf[em_pdf + tri] * t * t / max(abs(cos_in), 1e-300)
                         w = _wb(mode, pdf_dir, pe)
                     Lr += br * er * w
                     Lg += bg * eg * w

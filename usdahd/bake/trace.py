@@ -241,20 +241,25 @@ class Tracer:
                 idx = idx[passes]
                 if len(idx) == 0:
                     break
-                p = self.hit_points(tri[idx], u[idx], v[idx])
-                ng = self.geom_normal[tri[idx]].astype(np.float64)
-                no = self.offset(p, ng, d[idx])
-                done = travelled[idx] + t[idx]
-                rem = tf[idx] - done
-                t2, tri2, u2, v2 = self._raw_intersect(
-                    np.ascontiguousarray(no, np.float32), d32[idx], rem.astype(np.float32)
-                )
-                travelled[idx] = done
-                tri[idx], u[idx], v[idx] = tri2, u2, v2
-                t[idx] = np.where(tri2 >= 0, t2, np.inf)
-                idx = idx[tri2 >= 0]
+                idx = self._pass_through(idx, d, d32, tf, t, tri, u, v, travelled)
             t = np.where(tri >= 0, travelled + t, np.inf).astype(np.float32)
         return {"t": t, "tri": tri, "u": u, "v": v}
+
+    def _pass_through(self, idx, d, d32, tf, t, tri, u, v, travelled):
+        """Continue rays ``idx`` past their current hits (t, tri, u, v updated in place, the
+        distance before them added to ``travelled``); returns the rays that hit again."""
+        p = self.hit_points(tri[idx], u[idx], v[idx])
+        ng = self.geom_normal[tri[idx]].astype(np.float64)
+        no = self.offset(p, ng, d[idx])
+        done = travelled[idx] + t[idx]
+        rem = tf[idx] - done
+        t2, tri2, u2, v2 = self._raw_intersect(
+            np.ascontiguousarray(no, np.float32), d32[idx], rem.astype(np.float32)
+        )
+        travelled[idx] = done
+        tri[idx], u[idx], v[idx] = tri2, u2, v2
+        t[idx] = np.where(tri2 >= 0, t2, np.inf)
+        return idx[tri2 >= 0]
 
     def transmittance(self, o, d, tfar):
         """Shadow rays: (m,) float64 fraction of light that passes between ``o`` and ``o + tfar
@@ -280,17 +285,7 @@ class Tracer:
             todo = todo[T[todo] > 0.0]
             if len(todo) == 0:
                 break
-            p = self.hit_points(tri[todo], u[todo], v[todo])
-            ng = self.geom_normal[tri[todo]].astype(np.float64)
-            no = self.offset(p, ng, d[todo])
-            done = travelled[todo] + t[todo]
-            rem = tf[todo] - done
-            t2, tri2, u2, v2 = self._raw_intersect(
-                np.ascontiguousarray(no, np.float32), d32[todo], rem.astype(np.float32)
-            )
-            travelled[todo] = done
-            tri[todo], u[todo], v[todo], t[todo] = tri2, u2, v2, t2
-            todo = todo[tri2 >= 0]
+            todo = self._pass_through(todo, d, d32, tf, t, tri, u, v, travelled)
         T[todo] = 0.0  # still blocked after MAX_TRANSMIT crossings
         return T
 

@@ -207,6 +207,20 @@ def nb_shading_normal(tb, tri, u, v):
 
 
 @helper
+def _pass_through(scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t):
+    """Continue a ray past its hit on ``tri`` at barycentrics (u, v), ``t`` beyond the
+    ``travelled`` distance: (t, tri, u, v, travelled) of its next hit (tri -1: none)."""
+    # barycentrics rounded to float32 as Embree reports them (float64: one specialisation)
+    uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
+    px, py, pz = nb_hit_point(tb, tri, uf, vf)
+    g = tb.geom_normal
+    qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
+    done = travelled + t
+    t2, tri2, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+    return np.float64(t2), tri2, np.float64(u2), np.float64(v2), done
+
+
+@helper
 def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
     on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
@@ -225,16 +239,10 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
     for _ in range(MAX_TRANSMIT):
         if tri < 0 or not nb_transmits(tb, tri, u, v, st):
             break
-        # barycentrics rounded to float32 as Embree reports them (float64: one specialisation)
-        uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
-        px, py, pz = nb_hit_point(tb, tri, uf, vf)
-        g = tb.geom_normal
-        qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
-        done = travelled + t
-        t2, tri, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+        t, tri, u, v, travelled = _pass_through(
+            scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t
+        )
         rays += 1
-        travelled = done
-        t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
     if tri < 0:
         return np.inf, tri, u, v, 0.0, 0.0, 1.0, rays
     gx, gy, gz = embree.hit_normal(rec)
@@ -257,15 +265,10 @@ def nb_transmittance(scene, rec, tb, eps, transmission, ox, oy, oz, dx, dy, dz, 
         T *= nb_transmission(tb, tri, u, v)
         if not (T > 0.0):
             return 0.0, rays
-        uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
-        px, py, pz = nb_hit_point(tb, tri, uf, vf)
-        g = tb.geom_normal
-        qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
-        done = travelled + t
-        t2, tri, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+        t, tri, u, v, travelled = _pass_through(
+            scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t
+        )
         rays += 1
-        travelled = done
-        t, u, v = np.float64(t2), np.float64(u2), np.float64(v2)
     return (T if tri < 0 else 0.0), rays
 
 

@@ -196,6 +196,34 @@ def test_sphere_light(normalize, point):
         _check_mc(sh.iz(out)[:, 0], exact)
 
 
+@pytest.mark.parametrize("strategy", ["mis", "nee", "bsdf"])
+def test_many_sphere_lights_are_chosen_by_their_bound_at_the_texel(strategy):
+    """More sampled lights than ALL_LIGHTS_MAX: each texel light sample picks one by the
+    bound at the texel (scene.lights.selection_pmf); light samples, BSDF rays and their MIS
+    all give the sum of the 12 spheres' exact irradiance, L r^2 cos / d^2 each."""
+    from usdahd.bake.reference import ALL_LIGHTS_MAX
+
+    st = _stage()
+    _ground(st)
+    rng = np.random.default_rng(7)
+    n = 12
+    assert n > ALL_LIGHTS_MAX
+    c = np.c_[rng.uniform(-3, 3, (n, 2)), rng.uniform(1.0, 2.5, n)]
+    rad = rng.uniform(0.15, 0.35, n)
+    L = rng.uniform(1.0, 20.0, n)
+    for i in range(n):
+        lt = UsdLux.SphereLight.Define(st, f"/lamp{i}")
+        lt.CreateRadiusAttr(float(rad[i]))
+        lt.CreateIntensityAttr(float(L[i]))
+        UsdGeom.Xformable(lt).AddTranslateOp().Set(Gf.Vec3d(*c[i]))
+    p = np.array([0.3, -0.2, 0.0])
+    w = c - p
+    d = np.linalg.norm(w, axis=1)
+    exact = float(np.sum(L * rad**2 * (w[:, 2] / d) / d**2))
+    out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=64, strategy=strategy)
+    _check_mc(sh.iz(out)[:, 0], exact)
+
+
 def _polygon_iz(p, verts, radiance):
     """Lambert's polygon formula, normalized: Iz = L/(2 pi) sum_i gamma_i n . unit(vi x vi+1)."""
     v = np.asarray(verts, np.float64) - p

@@ -133,8 +133,8 @@ class ReferenceCtx:
             id(lt): _mesh_mask(getattr(lt, "shadow_meshes", None), nm) for lt in scene.lights
         }
         self.texel_mesh = -1 if mesh is None else int(mesh)
-        self.texel_sel = _texel_selection(len(self.lights.area))
         self.nee_bounds = [lt.bound() for lt in self.lights.nee]
+        self.area_bounds = [lt.bound() for lt in self.lights.area]
         self.estimator = estimator
         # rays per hemisphere sample, for the rays_saved estimate
         self.rays_per_sample = 1 + (1 if self.lights.area else 0) + 3 * bounces
@@ -169,6 +169,7 @@ class ReferenceCtx:
         radiance = np.zeros((n * s, 3))
         back = np.zeros(n * s, bool)
         idx = np.nonzero(above)[0]
+        texel_sel = self._texel_selection(P)
         if len(idx):
             o = self.tr.offset(Pf[idx], NGf[idx], d[idx])
             hits = self.tr.intersect(o, d[idx], rng=rng)
@@ -176,9 +177,10 @@ class ReferenceCtx:
             gn = self.tr.geom_normal[np.where(tri >= 0, tri, 0)]
             back[idx] = self.tr.back_face(tri, d[idx], gn)
             src = np.full(len(idx), self.texel_mesh)
-            radiance[idx] = self.incoming(
-                o, d[idx], hits, pdf_h.reshape(-1)[idx], self.texel_sel, 0, rng, src
-            )
+            sel = texel_sel
+            if np.ndim(texel_sel):  # (n, m) per texel -> the rays' rows
+                sel = (np.repeat(texel_sel, s, axis=0)[idx], self.lights.area)
+            radiance[idx] = self.incoming(o, d[idx], hits, pdf_h.reshape(-1)[idx], sel, 0, rng, src)
         Y = shmod.basis(loc).reshape(n, s, 9)
         R = radiance.reshape(n, s, 3)
         Ywt = (Y / pdf_h[..., None]).transpose(0, 2, 1)  # Y / p
@@ -189,24 +191,36 @@ class ReferenceCtx:
         acc.count[active] += s
         ylum = shmod.IZ_FROM_L10 * (R @ shmod.LUMINANCE) * Y[..., 2] / pdf_h
         if self.lights.area:
-            nee_c, nee_y = self.texel_nee(P, NG, F, s, offset, rng)
+            nee_c, nee_y = self.texel_nee(P, NG, F, s, offset, rng, texel_sel)
             acc.nee[active] += nee_c
             ylum = ylum + nee_y
         acc.y_sum[active] += ylum.sum(axis=1)
         acc.y_sq[active] += (ylum * ylum).sum(axis=1)
 
-    def texel_nee(self, P, NG, F, s, offset, rng):
+    def _texel_selection(self, P):
+        """Selection probability of each sampled light in the texels' light samples: 1 when
+        there are at most ALL_LIGHTS_MAX (every light gets every sample), else (n, m) float64,
+        ``selection_pmf`` of the area lights at the texels ``P`` (n, 3)."""
+        if len(self.lights.area) <= ALL_LIGHTS_MAX:
+            return 1.0
+        return selection_pmf(self.area_bounds, P, LIGHT_SELECTION_FLOOR)
+
+    def texel_nee(self, P, NG, F, s, offset, rng, texel_sel=None):
         """Light samples at the texel (MIS with the texel hemisphere); returns sums
         (c (n,3,9), per-sample luminance Iz (n,s)). With at most ALL_LIGHTS_MAX sampled lights
         every light gets every sample (no light-selection noise; ``texel_sel`` = 1), else each
-        sample picks one light uniformly (``texel_sel`` = 1/m)."""
+        sample picks one light by ``texel_sel`` (n, m) (:meth:`_texel_selection`)."""
         n = len(P)
         m = len(self.lights.area)
         u = np.mod(r2_sequence(s, offset + 7919)[None] + rng.random((n, 1, 2)), 1.0)
         u = u.reshape(-1, 2)
         every = m <= ALL_LIGHTS_MAX
+        if texel_sel is None:
+            texel_sel = self._texel_selection(P)
         if not every:
-            pick = (rng.random(n * s) * m).astype(np.int64)
+            sel_rows = np.repeat(texel_sel, s, axis=0)  # (n s, m)
+            cdf = np.cumsum(sel_rows, axis=1)
+            pick = np.minimum((rng.random(n * s)[:, None] >= cdf).sum(axis=1), m - 1)
         Pf = np.repeat(P, s, axis=0)
         NGf = np.repeat(NG, s, axis=0)
         Ff = np.repeat(F, s, axis=0)
@@ -232,7 +246,7 @@ class ReferenceCtx:
             tr = self._visibility(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
             vis = tr > 0
             idx, val, pdf, loc = idx[vis], val[vis] * tr[vis, None], pdf[vis], loc[vis]
-            pl = pdf * self.texel_sel
+            pl = pdf * (1.0 if every else sel_rows[idx, j])
             w = _w_light(self.strategy, pl, texel_hemisphere_pdf(loc[:, 2]))
             f = val * (w / pl)[:, None]
             Yb = shmod.basis(loc)
@@ -246,8 +260,9 @@ class ReferenceCtx:
 
         pdf_dir : (m,) solid-angle pdf the direction was sampled with; sel_area : selection
         probability of an area light in the NEE the direction is paired with (a scalar, the
-        same for every light), or (m, n_nee) float64 per ray and light of ``lights.nee`` (the
-        vertex selection of :meth:`reflect`); depth :
+        same for every light), or (matrix (m, k) float64 per ray and light, the k lights it
+        chose among: ``lights.nee`` at a vertex (:meth:`reflect`), ``lights.area`` at a texel
+        with many lights); depth :
         reflections already made along the path; src : (m,) int mesh index of the surface
         the rays leave (the receiver, for light linking; -1: unknown, lit by every light).
         """
@@ -355,17 +370,20 @@ class ReferenceCtx:
             if len(idx):
                 o = self.tr.offset(p[idx], gn[idx], d[idx])
                 hits = self.tr.intersect(o, d[idx], rng=rng)
-                s_idx = sel[idx] if n_nee else 1.0
+                s_idx = (sel[idx], nee) if n_nee else 1.0
                 out[idx] += self.incoming(o, d[idx], hits, pdf[idx], s_idx, depth, rng, mesh[idx])
         return out
 
-    def _sel(self, sel, lt, rows):
+    @staticmethod
+    def _sel(sel, lt, rows):
         """Selection probability of light ``lt`` for the rays ``rows`` (index or mask) of an
-        :meth:`incoming` call: ``sel`` itself when scalar, else its column of ``lt``."""
-        if np.ndim(sel) == 0:
+        :meth:`incoming` call: ``sel`` itself when scalar, else ``sel = (matrix (m, k),
+        lights (k))`` and the column of ``lt``."""
+        if np.isscalar(sel):
             return sel
-        col = next(j for j, x in enumerate(self.lights.nee) if x is lt)
-        return sel[rows, col]
+        mat, lights = sel
+        col = next(j for j, x in enumerate(lights) if x is lt)
+        return mat[rows, col]
 
     # ------------------------------------------------------------------ light linking
     def _lit(self, lt, mesh):
@@ -426,11 +444,6 @@ def has_light_linking(lights) -> bool:
         or getattr(lt, "shadow_meshes", None) is not None
         for lt in lights
     )
-
-
-def _texel_selection(m):
-    """Selection probability of one sampled light in the texel's light samples."""
-    return 1.0 if m <= ALL_LIGHTS_MAX else 1.0 / m
 
 
 def _power(pa, pb):

@@ -299,7 +299,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     Hit points are o + t d (no vertex fetch; error ~1e-7 t, far below the ray offset).
     returns : rays traced."""
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
-    nee_idx, visible_idx = lists.nee, lists.visible
+    nee_idx, visible_idx, area_idx = lists.nee, lists.visible, lists.area
     tri_mat, mat_const, mat_tex = tb.tri_material, tb.mat_const, tb.mat_tex
     bounces, eps = int(cfg[CFG_BOUNCES]), cfg[CFG_EPS]
     transmission, has_em = cfg[CFG_TRANSMISSION] != 0.0, cfg[CFG_EMISSION] != 0.0
@@ -355,8 +355,9 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     w = 1.0
                     if lsampled[q]:
                         sq = sel
-                        if sel < 0.0:  # chosen at the vertex the ray left
-                            sq = _nee_sel(par, nee_idx, q, ps[j, PATH_X], ps[j, PATH_X + 1],
+                        if sel < 0.0:  # chosen at the vertex (or texel) the ray left
+                            sq = _nee_sel(par, nee_idx if sel > -1.5 else area_idx, q,
+                                          ps[j, PATH_X], ps[j, PATH_X + 1],
                                           ps[j, PATH_X + 2])  # fmt: skip
                         pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sq
                         w = _wb(mode, pdf_dir, pl)
@@ -379,7 +380,8 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     if em_q >= 0:  # MIS against the emitter's light samples
                         sq = sel
                         if sel < 0.0:
-                            sq = _nee_sel(par, nee_idx, em_q, ps[j, PATH_X], ps[j, PATH_X + 1],
+                            sq = _nee_sel(par, nee_idx if sel > -1.5 else area_idx, em_q,
+                                          ps[j, PATH_X], ps[j, PATH_X + 1],
                                           ps[j, PATH_X + 2])  # fmt: skip
                         pe = sq * pmf[em_pdf + tri] * t * t / max(abs(cos_in), 1e-300)
                         w = _wb(mode, pdf_dir, pe)
@@ -560,7 +562,9 @@ def native_pass(
     mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
     every = n_area <= ALL_LIGHTS_MAX  # every light gets every texel light sample
-    sel_area = 1.0 if every else 1.0 / n_area
+    # else each sample picks one by the bound at the texel (PATH_SEL -2: _nee_pick over
+    # ``lists.area`` at PATH_X, for the MIS of the hemisphere rays)
+    sel_area = 1.0 if every else -2.0
     rec, pk, st, Y, G, H, ps, rays, hits, srays, sval, sidx, occ, R, loc, yl = work
     traced = 0
     for ii in range(ids.shape[0]):
@@ -597,6 +601,7 @@ def native_pass(
                 ps[m, PATH_BETA + 1] = ps[m, PATH_BETA + 2] = 1.0
                 ps[m, PATH_PDF] = (1.0 + 2.0 * lz) * _INV_4PI
                 ps[m, PATH_SEL] = sel_area
+                ps[m, PATH_X], ps[m, PATH_X + 1], ps[m, PATH_X + 2] = px, py, pz
                 ps[m, PATH_DEPTH] = 0.0
                 ps[m, PATH_SAMPLE] = k
                 m += 1
@@ -629,10 +634,11 @@ def native_pass(
                 u0 = u0 - np.floor(u0)
                 u1 = r2n[k, 1] + cn1 + rd * LIGHT_SHIFT
                 u1 = u1 - np.floor(u1)
+                psel = 1.0
                 if every:
                     j = area_idx[rd]
                 else:
-                    j = area_idx[min(int(nb_random(st) * n_area), n_area - 1)]
+                    j, psel = _nee_pick(par, area_idx, px, py, pz, nb_random(st))
                 dx, dy, dz, dist, r, g, b, pdf = _nee_sample(
                     kind[j], par[j], img, pmf, cdf, tb, px, py, pz, u0, u1
                 )
@@ -646,7 +652,7 @@ def native_pass(
                     ox, oy, oz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
                     sx, sy, sz, tf = _shadow1(ox, oy, oz, px, py, pz, dx, dy, dz, dist)
                     _set_row(srays, ns, ox, oy, oz, sx, sy, sz, tf)
-                    pl = pdf * sel_area
+                    pl = pdf * psel
                     wgt = _wl(mode, pl, (1.0 + 2.0 * lz) * _INV_4PI) / pl
                     sval[ns, 0], sval[ns, 1], sval[ns, 2] = r * wgt, g * wgt, b * wgt
                     sval[ns, 3] = f[0, 0] * dx + f[0, 1] * dy + f[0, 2] * dz

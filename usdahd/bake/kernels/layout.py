@@ -144,8 +144,9 @@ MODE_MIS, MODE_BSDF, MODE_NEE = 0, 1, 2
 
 #: Columns of the per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin
 #: (3), direction (3), throughput (3), pdf of the direction, selection probability of the NEE
-#: light it is paired with (-1: the vertex selection of ``_nee_pick`` at the surface point the
-#: ray left, PATH_X (3)), reflections so far, sample index.
+#: light it is paired with (-1: the vertex selection of ``_nee_pick`` over ``lists.nee`` at the
+#: surface point the ray left, PATH_X (3); -2: the texel's, over ``lists.area``, when it has
+#: more than ALL_LIGHTS_MAX lights), reflections so far, sample index.
 PATH_O, PATH_D, PATH_BETA, PATH_PDF, PATH_SEL, PATH_DEPTH, PATH_SAMPLE = 0, 3, 6, 9, 10, 11, 12
 PATH_X = 13
 PATH_COLS = 16

@@ -138,17 +138,21 @@ class _Worker:
         import os
         import subprocess
         import sys
+        import tempfile
 
         import usdahd
 
         root = os.path.dirname(os.path.dirname(os.path.abspath(usdahd.__file__)))
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        # stderr to a file, not a pipe: a child that writes warnings mesh after mesh must not
+        # block on a full pipe nobody reads until it dies
+        self.err = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(
             [sys.executable, "-c", _CHILD_CODE],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stderr=self.err,
             env=env,
         )
 
@@ -197,7 +201,8 @@ class _Worker:
         """The dead worker's last stderr line or its exit code."""
         try:
             self.proc.wait(timeout=5)
-            err = self.proc.stderr.read().decode(errors="replace").strip().splitlines()
+            self.err.seek(0)
+            err = self.err.read().decode(errors="replace").strip().splitlines()
         except Exception:  # noqa: BLE001 - best effort: the message only
             err = []
         return err[-1] if err else f"exit code {self.proc.returncode}"
@@ -209,7 +214,7 @@ class _Worker:
             self.proc.wait(timeout=5)
         except Exception:  # noqa: BLE001 - nothing more to do for a stuck child
             pass
-        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+        for f in (self.proc.stdin, self.proc.stdout, self.err):
             try:
                 f.close()
             except OSError:

@@ -290,6 +290,18 @@ def _nee_sel(par, nee_idx, q, x, y, z):
 
 
 @helper
+def _ray_sel(par, nee_idx, area_idx, ps, j, sel, q):
+    """Selection probability of light ``q`` in the NEE that path row ``j``'s ray is paired
+    with (for the MIS weight when the ray hits ``q``): ``sel`` itself when >= 0, else the
+    choice made at the point the ray left (PATH_X): over ``nee_idx`` at a vertex (-1), over
+    ``area_idx`` at a texel with many lights (-2)."""
+    if sel >= 0.0:
+        return sel
+    lst = nee_idx if sel > -1.5 else area_idx
+    return _nee_sel(par, lst, q, ps[j, PATH_X], ps[j, PATH_X + 1], ps[j, PATH_X + 2])
+
+
+@helper
 def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sval, sidx, occ, R):
     """``ReferenceCtx.incoming`` as a wavefront over the ``n`` paths in rows [0, n) of ``ps`` whose
     first hits are ``hits`` (the layout of ``embree.intersect_rays``): each path's
@@ -354,11 +366,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 if (miss if linf[q] else tl < t) and (r != 0.0 or g != 0.0 or b != 0.0):
                     w = 1.0
                     if lsampled[q]:
-                        sq = sel
-                        if sel < 0.0:  # chosen at the vertex (or texel) the ray left
-                            sq = _nee_sel(par, nee_idx if sel > -1.5 else area_idx, q,
-                                          ps[j, PATH_X], ps[j, PATH_X + 1],
-                                          ps[j, PATH_X + 2])  # fmt: skip
+                        sq = _ray_sel(par, nee_idx, area_idx, ps, j, sel, q)
                         pl = light_pdf(kind[q], par[q], pmf, ox, oy, oz, dx, dy, dz, tl) * sq
                         w = _wb(mode, pdf_dir, pl)
                     Lr += br * w * r
@@ -378,11 +386,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         er, eg, eb = nb_emission(tb, tri, u, v)
                     w = 1.0
                     if em_q >= 0:  # MIS against the emitter's light samples
-                        sq = sel
-                        if sel < 0.0:
-                            sq = _nee_sel(par, nee_idx if sel > -1.5 else area_idx, em_q,
-                                          ps[j, PATH_X], ps[j, PATH_X + 1],
-                                          ps[j, PATH_X + 2])  # fmt: skip
+                        sq = _ray_sel(par, nee_idx, area_idx, ps, j, sel, em_q)
                         pe = sq * pmf[em_pdf + tri] * t * t / max(abs(cos_in), 1e-300)
                         w = _wb(mode, pdf_dir, pe)
                     Lr += br * er * w

@@ -255,9 +255,11 @@ def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
 
 
 def test_denoise_trusts_the_integrators_own_variance(tmp_path, capsys, monkeypatch):
-    """--denoise gets each texel's noise from the integrator (stats iz_variance through
-    denoise.sh_variance), not from second differences, which a shadow edge inflates (that
-    estimate multiplied exterior_sun_sky's error by 2.5, docs/time-to-quality.md)."""
+    """--denoise gets each texel's noise from the integrator (the smaller of stats
+    iz_variance and iz_variance_halves, denoise.integrator_iz_variance, through
+    denoise.sh_variance, pooled over VARIANCE_POOL), not from second differences, which a
+    shadow edge inflates (that estimate multiplied exterior_sun_sky's error by 2.5,
+    docs/time-to-quality.md)."""
     pytest.importorskip("pyoidn")
     from usdahd.bake import denoise
 
@@ -266,6 +268,7 @@ def test_denoise_trusts_the_integrators_own_variance(tmp_path, capsys, monkeypat
 
     def spy(sh, texels, **kw):
         seen.append(kw.get("variance"))
+        assert kw.get("variance_bound") and kw.get("variance_pool") == denoise.VARIANCE_POOL
         return real(sh, texels, **kw)
 
     monkeypatch.setattr(denoise, "denoise_sh", spy)

@@ -196,20 +196,54 @@ def test_sh_variance_from_the_integrators_iz_variance():
     np.testing.assert_allclose(var[1, 1:], 0.0)
 
 
-def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate():
-    """variance_bound=True: an unbounded figure gives the second-difference estimate's result,
-    then each chart's summed c10 per channel is put back to the input's; a zero bound keeps
-    the input (nothing is trusted as noise)."""
+def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
+    """variance_bound=True: an unbounded figure gives the second-difference estimate's result
+    (blended with VARIANCE_BOUND_GAIN), then each chart's summed c10 per channel is put back
+    to the input's; a zero bound keeps the input (nothing is trusted as noise)."""
     mesh, t = full_quad()
     _clean, noisy = noisy_field(t, 0.3, seed=5)
     charts = charts_of(mesh, t)
-    est = denoise.denoise_sh(noisy, t, charts=charts)
+    with monkeypatch.context() as m:
+        m.setattr(denoise, "BLEND_GAIN", denoise.VARIANCE_BOUND_GAIN)
+        est = denoise.denoise_sh(noisy, t, charts=charts)
     loose = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
     kept = denoise._keep_chart_energy(noisy.astype(np.float64), est.astype(np.float64))
     np.testing.assert_allclose(loose, kept, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(loose[:, :, 2].sum(axis=0), noisy[:, :, 2].sum(axis=0), rtol=1e-5)
     none = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0, variance_bound=True)
     np.testing.assert_array_equal(none, noisy)
+
+
+def test_integrator_variance_is_the_smaller_of_its_two_bounds():
+    stats = {"iz_variance": np.array([1.0, 2.0, 0.5]),
+             "iz_variance_halves": np.array([3.0, 0.25, 0.5])}  # fmt: skip
+    np.testing.assert_array_equal(denoise.integrator_iz_variance(stats), [1.0, 0.25, 0.5])
+    only = denoise.integrator_iz_variance({"iz_variance": np.array([2.0])})
+    np.testing.assert_array_equal(only, [2.0])
+    assert denoise.integrator_iz_variance({"rays": 0}) is None  # a refit: no variance
+
+
+def test_variance_pool_averages_within_the_chart_only():
+    """variance_pool=r: each texel gets the mean over the chart texels within Chebyshev radius
+    r (the two-halves estimate has one degree of freedom per texel): texels outside the
+    chart do not count (a spike on the chart's border), and radius 0 is the identity."""
+    mesh, t = two_chart_plane()
+    charts = charts_of(mesh, t)
+    v = np.zeros((len(t), 3, 9))
+    first = np.nonzero(charts == 0)[0]
+    spike = first[np.argmax(t.xy[first, 0])]  # on chart 0's right border
+    v[spike] = 9.0
+    cv = denoise._Canvas(t.xy[first])
+    np.testing.assert_array_equal(denoise._pooled(cv, v[first], 0), v[first])
+    pooled = denoise._pooled(cv, v[first], 1)
+    near = np.max(np.abs(t.xy[first] - t.xy[spike]), axis=1) <= 1
+    assert (pooled[~near] == 0).all() and (pooled[near] > 0).all()
+    # an interior neighbour of the spike averages 9 texels of which one is the spike
+    x, y = t.xy[spike]
+    inner = np.nonzero((t.xy[first, 0] == x - 1) & (t.xy[first, 1] == y))[0]
+    for i in inner:
+        window = np.max(np.abs(t.xy[first] - t.xy[first][i]), axis=1) <= 1
+        np.testing.assert_allclose(pooled[i], 9.0 / window.sum(), rtol=1e-6)
 
 
 # ------------------------------------------------------------------------------ noise estimate

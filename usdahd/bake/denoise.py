@@ -28,8 +28,9 @@ stages per chart:
    the mean of ``(d - x)^2`` over nearby chart texels. If the denoiser only removed noise,
    ``change ~ var`` and ``w = 1``; where it changed the signal by ``b >> noise``,
    ``w ~ g var / b^2`` keeps the input; a noise-free input (``var = 0``) comes back exactly.
-   ``var`` is passed in (``variance``, e.g. the integrator's per-texel sample variance) or
-   estimated by :func:`noise_variance` from second differences of neighbouring texels.
+   ``var`` is passed in (``variance``; a bake passes the integrator's own,
+   :func:`integrator_iz_variance`, averaged over ``VARIANCE_POOL``) or estimated by
+   :func:`noise_variance` from second differences of neighbouring texels.
 
 Charts are never mixed: each chart is denoised on its own, only its texels are written back.
 """
@@ -73,6 +74,19 @@ BIAS_RADIUS = 2
 #: OIDN removed (pillar_room at 16 spp: error 0.29 -> 0.38), at 4 it costs nothing measurable
 #: on the samples and still returns noise-free inputs unchanged.
 BLEND_GAIN = 4.0
+#: The gain with the integrator's variance (``variance_bound``: the per-texel minimum of its
+#: two upper bounds, s^2 / S and the two-halves estimate, pooled over ``VARIANCE_POOL``, and
+#: of the second-difference estimate). The weight minimising the blend's expected squared
+#: error is var / change (gain 1: ``change`` = b^2 + var for a denoiser that moved the signal
+#: by b); the margin covers the scatter of a minimum of noisy estimates. Measured against
+#: the 4096-spp point truth (10 stages x 16-1024 spp x 2 seeds, net relRMSE with --denoise /
+#: without): gain 1 / 1.5 / 2 gave exterior_sun_sky's sun shadows 0.66-0.88 / 0.82-0.88 /
+#: 0.92-0.97, the shared Cornell box at 16 spp 0.37 / 0.24 / 0.21 (docs/time-to-quality.md).
+VARIANCE_BOUND_GAIN = 1.5
+#: Chebyshev radius (texels) over which the integrator's variance is averaged within a chart
+#: (``variance_pool``): the two-halves estimate has one degree of freedom per texel; 2 (a
+#: 5 x 5 window, the window of ``change``, BIAS_RADIUS) measured as well as 1 or 3.
+VARIANCE_POOL = 2
 #: The noise estimate (a mean of squared second differences, so fireflies count as noise) is
 #: capped at ROBUST_CAP x the robust one (median, converted for Gaussian noise), so a bright
 #: hotspot's curvature does not pass for noise: without it the blend let OIDN's directional
@@ -317,13 +331,14 @@ def blend_weights(
     variance: np.ndarray,
     mask: np.ndarray,
     pointwise: np.ndarray | None = None,
+    gain: float = BLEND_GAIN,
 ) -> np.ndarray:
     """Weight ``w (h, w, c)`` of the denoised image in ``noisy + w (denoised - noisy)``.
 
     noisy, denoised, variance : (h, w, c) canvases (values outside ``mask`` ignored);
     mask : (h, w) bool, the chart's texels; pointwise : (c,) bool, channels whose change is
     also judged texel by texel.
-    ``w = min(1, g var / change)`` with ``g = BLEND_GAIN`` and ``change`` the mean of
+    ``w = min(1, g var / change)`` with ``g = gain`` and ``change`` the mean of
     ``(d - x)^2`` over the chart texels within ``BIAS_RADIUS`` (for ``pointwise`` channels the
     larger of that and the texel's own ``(d - x)^2``, so no single texel moves by more than
     ``sqrt(g)`` noise deviations); 0 where var = 0 (a noise-free input is kept).
@@ -332,12 +347,27 @@ def blend_weights(
     change = _box_mean(diff**2, mask, BIAS_RADIUS)
     if pointwise is not None:
         change = np.where(np.asarray(pointwise, bool), np.maximum(change, diff**2), change)
-    var = BLEND_GAIN * np.nan_to_num(np.asarray(variance, np.float64))
+    var = gain * np.nan_to_num(np.asarray(variance, np.float64))
     return np.where(var > 0, var / np.maximum(np.maximum(change, var), 1e-300), 0.0)
 
 
 # --------------------------------------------------------------------------------------------
 # public
+
+
+def integrator_iz_variance(stats: dict) -> np.ndarray | None:
+    """(n,) float64 per-texel variance of the mean luminance I_z from ``bake_texels``' stats,
+    or None when it has none (e.g. a refit from a sidecar): the smaller of its two upper
+    bounds, ``iz_variance`` (s^2 / S, tight for a smooth integrand) and
+    ``iz_variance_halves`` (the two interleaved halves, tight where stratification pays
+    most: a penumbra's s^2 / S is ~8x the real variance, the halves' ~3.5x;
+    tests/test_integrate.py)."""
+    s2 = stats.get("iz_variance")
+    if s2 is None:
+        return None
+    halves = stats.get("iz_variance_halves")
+    s2 = np.asarray(s2, np.float64)
+    return s2 if halves is None else np.minimum(s2, np.asarray(halves, np.float64))
 
 
 def sh_variance(sh: np.ndarray, iz_variance: np.ndarray) -> np.ndarray:
@@ -372,6 +402,7 @@ def denoise_sh(
     variance: np.ndarray | None = None,
     blend: bool = True,
     variance_bound: bool = False,
+    variance_pool: int = 0,
 ) -> np.ndarray:
     """Denoised copy of radiance SH ``(n, 3, 9)`` (float32), chart by chart.
 
@@ -381,11 +412,15 @@ def denoise_sh(
     variance : noise variance of ``sh``, broadcastable to (n, 3, 9) (e.g. the integrator's
         per-texel sample variance divided by the sample count); None: :func:`noise_variance`.
     blend : False returns OIDN's output as it is (no noise-weighted blend; for comparisons).
-    variance_bound : ``variance`` is an upper bound of the noise (the integrator's s^2 / S
-        under stratified sampling): each texel uses the smaller of it and the
+    variance_pool : average ``variance`` over the chart's texels within this Chebyshev radius
+        first (1: 3 x 3), for per-texel estimates with few degrees of freedom (the
+        integrator's two-halves estimate has one).
+    variance_bound : ``variance`` is an upper bound of the noise (the integrator's, from
+        :func:`integrator_iz_variance`): each texel uses the smaller of it and the
         second-difference estimate, so neither an edge (which inflates the estimate) nor the
-        bound's slack lets the denoiser change signal; each chart's summed c10 per channel is
-        then kept equal to the input's (:func:`_keep_chart_energy`).
+        bound's slack lets the denoiser change signal, and the blend's gain is
+        ``VARIANCE_BOUND_GAIN``; each chart's summed c10 per channel is then kept equal to
+        the input's (:func:`_keep_chart_energy`).
     Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
     returned unchanged without running OIDN.
     Raises UsageError if pyoidn is not installed or an option is unknown, InputError on
@@ -416,6 +451,7 @@ def denoise_sh(
             x = sh[sel].astype(np.float64)  # (m, 3, 9)
             cv = _Canvas(texels.xy[sel])
             # canvases are built one coefficient (3 channels) at a time to bound memory
+            vsel = None if variance is None else _pooled(cv, variance[sel], variance_pool)
             if variance is None or variance_bound:
                 var = np.stack(
                     [
@@ -425,9 +461,9 @@ def denoise_sh(
                     axis=2,
                 )
                 if variance is not None:
-                    var = np.minimum(var, variance[sel])
+                    var = np.minimum(var, vsel)
             else:
-                var = variance[sel]
+                var = vsel
             if blend and not (var > 0).any():
                 continue  # noise free (or too small to tell): nothing to remove
             den = den or _Denoiser(quality)
@@ -440,6 +476,7 @@ def denoise_sh(
                         cv.image(var[:, :, k], fill=False),
                         cv.mask,
                         pointwise=np.full(3, k in _RATIO_COEFFS),
+                        gain=VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN,
                     )
                     d[:, :, k] = x[:, :, k] + cv.gather(w) * (d[:, :, k] - x[:, :, k])
                 if variance_bound:
@@ -449,6 +486,16 @@ def denoise_sh(
         if den is not None:
             den.close()
     return out
+
+
+def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
+    """Per-texel ``v (m, 3, 9)`` averaged over the chart texels within ``radius`` (Chebyshev)
+    of each texel; ``v`` itself for radius 0."""
+    if radius <= 0:
+        return v
+    flat = v.reshape(len(v), -1)
+    img = np.nan_to_num(cv.image(flat, fill=False).astype(np.float64))
+    return cv.gather(_box_mean(img, cv.mask, radius)).reshape(v.shape)
 
 
 def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:

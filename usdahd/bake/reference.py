@@ -85,6 +85,10 @@ class Accum:
         self.back = np.zeros(n, np.int64)
         self.y_sum = np.zeros(n)  # per-sample luminance Iz estimates (for adaptivity)
         self.y_sq = np.zeros(n)
+        # the even-numbered samples of every pass (sample k of a pass, k even): their sum and
+        # count, for the two-halves variance estimate (iz_variance_halves)
+        self.y_half = np.zeros(n)
+        self.n_half = np.zeros(n, np.int32)
 
     def converged(self, active, tol):
         c = self.count[active].astype(np.float64)
@@ -105,6 +109,24 @@ class Accum:
         mean = self.y_sum / np.maximum(c, 1.0)
         s2 = np.maximum(self.y_sq - c * mean * mean, 0.0) / (safe - 1.0)
         return np.where(c >= 2, s2 / safe, 0.0)
+
+    def iz_variance_halves(self):
+        """(n,) float64 estimate of the variance of each texel's mean I_z estimate from its
+        two interleaved halves (even- and odd-numbered samples of every pass): with A, B the
+        halves' means over a, b samples (a + b = count), ``(A - B)^2 a b / count^2``, unbiased
+        for independent samples, and still an upper bound when the halves are anticorrelated,
+        as two interleaved halves of one stratified R2 pattern are (each fills the other's
+        gaps). It measures the error of the stratified estimate itself, where s^2 / count
+        (``iz_variance``) measures that of independent samples: a texel across a sharp shadow
+        edge has a large s^2 but a small stratified error. One degree of freedom per texel,
+        so pool it over neighbours before use (``usdahd.bake.denoise``). 0 below 2 samples."""
+        n = self.count.astype(np.float64)
+        a = self.n_half.astype(np.float64)
+        b = n - a
+        ok = (a > 0) & (b > 0)
+        mean_a = self.y_half / np.where(ok, a, 1.0)
+        mean_b = (self.y_sum - self.y_half) / np.where(ok, b, 1.0)
+        return np.where(ok, (mean_a - mean_b) ** 2 * a * b / np.where(ok, n * n, 1.0), 0.0)
 
     def result(self, estimator):
         c = np.maximum(self.count, 1).astype(np.float64)
@@ -198,6 +220,7 @@ class ReferenceCtx:
             ylum = ylum + nee_y
         acc.y_sum[active] += ylum.sum(axis=1)
         acc.y_sq[active] += (ylum * ylum).sum(axis=1)
+        acc.y_half[active] += ylum[:, ::2].sum(axis=1)
 
     def _texel_selection(self, P):
         """Selection probability of each sampled light in the texels' light samples: 1 when

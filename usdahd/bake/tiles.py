@@ -92,9 +92,8 @@ def trace_tile(key, scene, tile: Tile, backend: str, threads: int | None = None)
 
     threads: tracer threads (None: every core this process may use). Returns the tile's
     ``first``, ``sh`` (n, 3, 9), ``invalid``, ``backface_fraction``, ``samples``,
-    ``iz_variance``, the sample
-    ``position`` after the contact push, ``contact_texels``/``contact_invalid`` counts,
-    ``rays``, ``rays_saved`` and ``seconds``."""
+    ``iz_variance``, ``iz_variance_halves``, the sample ``position`` after the contact push,
+    ``contact_texels``/``contact_invalid`` counts, ``rays``, ``rays_saved`` and ``seconds``."""
     from usdahd.bake.integrate import bake_texels
     from usdahd.bake.texels import push_off_contacts
 
@@ -123,6 +122,7 @@ def trace_tile(key, scene, tile: Tile, backend: str, threads: int | None = None)
         "backface_fraction": stats["backface_fraction"],
         "samples": stats["samples"],
         "iz_variance": stats["iz_variance"],
+        "iz_variance_halves": stats["iz_variance_halves"],
         "position": texels.position,
         "contact_texels": int(texels.stats.get("contact_texels", 0)),
         "contact_invalid": int(texels.stats.get("contact_invalid", 0)),
@@ -142,12 +142,14 @@ def gather(texels: Texels, results: list[dict]) -> tuple[Texels, np.ndarray, dic
     backfrac = np.zeros(n, np.float32)
     used = np.zeros(n, np.int32)
     iz_var = np.zeros(n)
+    iz_halves = np.zeros(n)
     position = texels.position.copy()
     covered = 0
     for r in results:
         sl = slice(r["first"], r["first"] + len(r["sh"]))
         sh[sl], invalid[sl], backfrac[sl] = r["sh"], r["invalid"], r["backface_fraction"]
         used[sl], position[sl], iz_var[sl] = r["samples"], r["position"], r["iz_variance"]
+        iz_halves[sl] = r["iz_variance_halves"]
         covered += len(r["sh"])
     if covered != n:
         raise ValueError(f"tiles cover {covered} of {n} texels")
@@ -163,6 +165,7 @@ def gather(texels: Texels, results: list[dict]) -> tuple[Texels, np.ndarray, dic
         "backface_fraction": backfrac,
         "samples": used,
         "iz_variance": iz_var,
+        "iz_variance_halves": iz_halves,
         "rays_saved": sum(r["rays_saved"] for r in results),
     }
     return texels, sh, stats

@@ -189,10 +189,15 @@ def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
         from usdahd.bake import denoise
 
         for job in ok:
-            iz_var = job.stats.get("iz_variance")
+            iz_var = denoise.integrator_iz_variance(job.stats)
             var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
             job.sh = denoise.denoise_sh(
-                job.sh, job.texels, charts=job.charts, variance=var, variance_bound=True
+                job.sh,
+                job.texels,
+                charts=job.charts,
+                variance=var,
+                variance_bound=True,
+                variance_pool=denoise.VARIANCE_POOL,
             )
     if ok:
         t0 = time.perf_counter()

@@ -551,7 +551,7 @@ def native_pass(
 
     P, NG : (n,3) f64; F : (n,3,3) f64; r2h : (s,4) R2 points for the hemisphere with
     cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
-    samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq) of ``Accum``;
+    samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq, y_half) of ``Accum``;
     work : per-thread scratch from :func:`native_work` (RTCRayHit record, packet, (1,) uint64
     random state, (9,) basis, (GRAM_SUMS,) zeroed Gram sums, (27,) zeroed hemisphere sums, the
     per-sample wavefront arrays). Compiled without the NRT (``_nrt=False``): no allocation
@@ -560,7 +560,7 @@ def native_pass(
     """
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
     delta_idx, area_idx = lists.delta, lists.area
-    gram, hemi, nee, delta, count, back, y_sum, y_sq = acc
+    gram, hemi, nee, delta, count, back, y_sum, y_sq, y_half = acc
     eps, transmission = cfg[CFG_EPS], cfg[CFG_TRANSMISSION] != 0.0
     regression = cfg[CFG_REGRESSION] != 0.0
     mode = int(cfg[CFG_STRATEGY])
@@ -682,6 +682,7 @@ def native_pass(
         # SH sums of the hemisphere samples (weights 1/p, p = sampling.texel_hemisphere_pdf)
         ys = 0.0
         ys2 = 0.0
+        yh = 0.0  # the even-numbered samples' share (Accum.iz_variance_halves)
         for k in range(s):
             x, y, z = loc[k, 0], loc[k, 1], loc[k, 2]
             y1, y2, y3 = -_C1 * y, _C1 * z, -_C1 * x
@@ -751,12 +752,15 @@ def native_pass(
             ylum = wp * _IZ * lum * y2 + yl[k]
             ys += ylum
             ys2 += ylum * ylum
+            if k % 2 == 0:
+                yh += ylum
         for c in range(3):
             for c9 in range(9):
                 hemi[i, c, c9] += H[9 * c + c9]
                 H[9 * c + c9] = 0.0
         y_sum[i] += ys
         y_sq[i] += ys2
+        y_half[i] += yh
         back[i] += n_back
         count[i] += s
         rng_state[i] = st[0]

@@ -485,6 +485,31 @@ def test_compare_cli_usage_errors(tmp_path, capsys):
     assert "--oversample must be odd and >= 1, got 2" in capsys.readouterr().err
 
 
+def test_denoise_gain_ratios_table_and_usage_errors(tmp_path, capsys):
+    """benchmarks/reference/denoise_gain.py: the ratio is denoised / plain relRMSE overall and
+    per mesh (worst named), the table averages seeds; a missing stage or bpy exits 2 first."""
+    from benchmarks.reference import denoise_gain as dg
+
+    def figs(overall, *meshes):
+        return {"overall": {"usdahd": {"rel_rmse": overall}},
+                "meshes": [{"path": p, "usdahd": {"rel_rmse": r}} for p, r in meshes]}  # fmt: skip
+
+    row = {"plain": figs(0.02, ("/a", 0.02), ("/b", 0.01)),
+           "denoised": figs(0.01, ("/a", 0.005), ("/b", 0.015))}  # fmt: skip
+    ratio, worst, where = dg.ratios(row)
+    assert ratio == pytest.approx(0.5) and worst == pytest.approx(1.5) and where == "/b"
+    rows = [{"stage": "/x/st.usda", "spp": 16, "ratio": r, "worst": w, "worst_mesh": "/m"}
+            for r, w in ((0.4, 0.9), (0.6, 1.2))]  # fmt: skip
+    text = dg.table(rows, [16, 64])
+    assert "| st | 0.50 |  | 1.20 m (16) |" in text
+    assert dg.stage_path("cornell_box") == ROOT / "samples" / "cornell_box.usda"
+    assert dg.main(["--stages", str(tmp_path / "none.usda")]) == 2
+    assert "no such stage" in capsys.readouterr().err
+    stage = str(ROOT / "samples" / "open_plane.usda")
+    assert dg.main(["--stages", stage, "--bpy-python", str(tmp_path / "nope")]) == 2
+    assert "bpy interpreter" in capsys.readouterr().err
+
+
 def test_new_samples_regenerate_identically(tmp_path):
     spec = importlib.util.spec_from_file_location(
         "make_samples_ref", ROOT / "samples" / "make_samples.py"

@@ -295,6 +295,32 @@ def test_blend_weights():
     assert (denoise.blend_weights(x, x + 1.0, 0 * var, mask) == 0).all()
 
 
+def test_blend_judges_edges_texel_by_texel():
+    """edges=True (the integrator's variance): where the denoised image has an edge (squared
+    gradient > EDGE_CONTRAST x var), a texel's weight is at most var / (d - x)^2, so a blurred
+    one-texel-wide step is held back although its 5 x 5 window's mean change is small;
+    flat texels and the plain rule are unchanged."""
+    n = 16
+    mask = np.ones((n, n), bool)
+    var = np.full((n, n, 1), 1e-4)
+    x = np.zeros((n, n, 1))
+    x[:, n // 2 :] = 1.0  # a sharp step (a sun-shadow edge), noise-free for clarity
+    d = x.copy()
+    d[:, n // 2 - 1] += 0.05  # the denoiser blurred it by 0.05 on both sides (5 sigma)
+    d[:, n // 2] -= 0.05
+    d[2:-2, 3] += 0.005  # and moved a flat column by half a sigma
+    plain = denoise.blend_weights(x, d, var, mask, gain=1.5)
+    edge = denoise.blend_weights(x, d, var, mask, gain=1.5, edges=True)
+    # plain rule: the 5 x 5 mean of (d - x)^2 is 2/5 x 0.05^2 = 1e-3 > 1.5 var: partly trusted
+    np.testing.assert_allclose(plain[8, n // 2], 1.5e-4 / 1e-3, rtol=1e-9)
+    np.testing.assert_allclose(edge[8, n // 2 - 1 : n // 2 + 1], 1e-4 / 0.05**2, rtol=1e-9)
+    np.testing.assert_array_equal(edge[:, :5], plain[:, :5])  # flat: no edge, same weights
+    assert (edge[:, :5] == 1.0).all()
+    edges = denoise._edge_texels(d, mask, var)[..., 0]
+    assert edges[:, n // 2 - 1 : n // 2 + 1].all()  # the two texels either side of the step
+    assert not edges[:, : n // 2 - 1].any() and not edges[:, n // 2 + 1 :].any()
+
+
 # ------------------------------------------------------------------------------ errors
 
 

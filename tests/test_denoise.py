@@ -246,6 +246,31 @@ def test_variance_pool_averages_within_the_chart_only():
         np.testing.assert_allclose(pooled[i], 9.0 / window.sum(), rtol=1e-6)
 
 
+def test_coefficient_groups_and_reused_filters_change_nothing(monkeypatch):
+    """Speed-ups that must not change a bit: the noise estimate and the blend of all 9
+    coefficients in one canvas (vs one coefficient at a time: groups of 1 when the work
+    budget is tiny), and an OIDN filter reused for images of one shape (vs a new filter)."""
+    mesh, t = two_chart_plane()
+    charts = charts_of(mesh, t)
+    _, noisy = noisy_field(t, 0.2, seed=3)
+    var = np.full(noisy.shape, 1e-3)
+    kw = dict(charts=charts, variance=var, variance_bound=True, variance_pool=2)
+    batched = denoise.denoise_sh(noisy, t, **kw)
+    assert len(denoise._coefficient_groups((64, 64))) == 1
+    monkeypatch.setattr(denoise, "_WORK_ELEMENTS", 1)
+    assert [len(g) for g in denoise._coefficient_groups((64, 64))] == [1] * 9
+    np.testing.assert_array_equal(denoise.denoise_sh(noisy, t, **kw), batched)
+    rng = np.random.default_rng(0)
+    a, b = (rng.random((40, 40, 3), dtype=np.float32) for _ in range(2))
+    reused = denoise._Denoiser("high")
+    reused.run(a, filter_type="RTLightmap", directional=True)
+    again = reused.run(b, filter_type="RTLightmap", directional=True)
+    assert len(reused.filters) == 1
+    fresh = denoise._Denoiser("high")
+    np.testing.assert_array_equal(again, fresh.run(b, filter_type="RTLightmap", directional=True))
+    reused.close(), fresh.close()
+
+
 # ------------------------------------------------------------------------------ noise estimate
 
 

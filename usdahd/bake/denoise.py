@@ -122,7 +122,9 @@ def _pyoidn():
 
 
 class _Denoiser:
-    """One OIDN device, a filter per call."""
+    """One OIDN device; one filter per kind of call (type, mode, image shape, guides), reused:
+    a filter's first commit sets up its network (~0.5 ms per call on small charts), a later
+    commit with new images of the same shape only swaps the buffers (same output, checked)."""
 
     def __init__(self, quality: str):
         self.oidn = _pyoidn()
@@ -133,36 +135,45 @@ class _Denoiser:
             "balanced": self.oidn.OIDN_QUALITY_BALANCED,
             "fast": self.oidn.OIDN_QUALITY_FAST,
         }[quality]
+        self.filters = {}
 
-    def run(self, color, *, filter_type, hdr=False, directional=False, albedo=None, normal=None):
-        oidn = self.oidn
-        color = np.ascontiguousarray(color, dtype=np.float32)
-        out = np.zeros_like(color)
-        flt = oidn.Filter(self.device, filter_type)
-        try:
-            flt.set_image(oidn.OIDN_IMAGE_COLOR, color, oidn.OIDN_FORMAT_FLOAT3)
-            if albedo is not None:
-                albedo = np.ascontiguousarray(albedo, dtype=np.float32)
-                flt.set_image(oidn.OIDN_IMAGE_ALBEDO, albedo, oidn.OIDN_FORMAT_FLOAT3)
-            if normal is not None:
-                normal = np.ascontiguousarray(normal, dtype=np.float32)
-                flt.set_image(oidn.OIDN_IMAGE_NORMAL, normal, oidn.OIDN_FORMAT_FLOAT3)
-            flt.set_image(oidn.OIDN_IMAGE_OUTPUT, out, oidn.OIDN_FORMAT_FLOAT3)
+    def _filter(self, key, filter_type, hdr, directional):
+        flt = self.filters.get(key)
+        if flt is None:
+            flt = self.filters[key] = self.oidn.Filter(self.device, filter_type)
             if filter_type == "RTLightmap":
                 flt.set_bool("directional", bool(directional))
             else:
                 flt.set_bool("hdr", bool(hdr))
             flt.set_int("quality", self.quality)
-            flt.commit()
-            flt.execute()
-            err = self.device.get_error()
-            if err is not None:
-                raise InputError(f"Open Image Denoise failed: {err}")
-        finally:
-            flt.release()
+        return flt
+
+    def run(self, color, *, filter_type, hdr=False, directional=False, albedo=None, normal=None):
+        oidn = self.oidn
+        color = np.ascontiguousarray(color, dtype=np.float32)
+        out = np.zeros_like(color)
+        key = (filter_type, bool(hdr), bool(directional), color.shape,
+               albedo is not None, normal is not None)  # fmt: skip
+        flt = self._filter(key, filter_type, hdr, directional)
+        flt.set_image(oidn.OIDN_IMAGE_COLOR, color, oidn.OIDN_FORMAT_FLOAT3)
+        if albedo is not None:
+            albedo = np.ascontiguousarray(albedo, dtype=np.float32)
+            flt.set_image(oidn.OIDN_IMAGE_ALBEDO, albedo, oidn.OIDN_FORMAT_FLOAT3)
+        if normal is not None:
+            normal = np.ascontiguousarray(normal, dtype=np.float32)
+            flt.set_image(oidn.OIDN_IMAGE_NORMAL, normal, oidn.OIDN_FORMAT_FLOAT3)
+        flt.set_image(oidn.OIDN_IMAGE_OUTPUT, out, oidn.OIDN_FORMAT_FLOAT3)
+        flt.commit()
+        flt.execute()
+        err = self.device.get_error()
+        if err is not None:
+            raise InputError(f"Open Image Denoise failed: {err}")
         return out
 
     def close(self):
+        for flt in self.filters.values():
+            flt.release()
+        self.filters.clear()
         if hasattr(self.device, "release"):
             self.device.release()
 
@@ -480,16 +491,13 @@ def denoise_sh(
             sel = np.nonzero(charts == c)[0]
             x = sh[sel].astype(np.float64)  # (m, 3, 9)
             cv = _Canvas(texels.xy[sel])
-            # canvases are built one coefficient (3 channels) at a time to bound memory
+            groups = _coefficient_groups(cv.shape)  # canvases of bounded size
             vsel = None if variance is None else _pooled(cv, variance[sel], variance_pool)
             if variance is None or variance_bound:
-                var = np.stack(
-                    [
-                        cv.gather(_canvas_noise(cv.image(x[:, :, k], fill=False), cv.mask))
-                        for k in range(9)
-                    ],
-                    axis=2,
-                )
+                var = np.empty_like(x)
+                for g in groups:
+                    noise = _canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask)
+                    var[:, :, g] = cv.gather(noise).reshape(len(sel), 3, len(g))
                 if variance is not None:
                     var = np.minimum(var, vsel)
             else:
@@ -499,17 +507,18 @@ def denoise_sh(
             den = den or _Denoiser(quality)
             d = _denoise_chart(den, cv, x, sel, filter, albedo, normal)
             if blend:
-                for k in range(9):
+                for g in groups:
                     w = blend_weights(
-                        cv.image(x[:, :, k], fill=False),
-                        cv.image(d[:, :, k], fill=False),
-                        cv.image(var[:, :, k], fill=False),
+                        cv.image(_channels(x, g), fill=False),
+                        cv.image(_channels(d, g), fill=False),
+                        cv.image(_channels(var, g), fill=False),
                         cv.mask,
-                        pointwise=np.full(3, k in _RATIO_COEFFS),
+                        pointwise=np.tile(np.isin(g, _RATIO_COEFFS), 3),
                         gain=VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN,
                         edges=variance_bound,
                     )
-                    d[:, :, k] = x[:, :, k] + cv.gather(w) * (d[:, :, k] - x[:, :, k])
+                    w = cv.gather(w).reshape(len(sel), 3, len(g))
+                    d[:, :, g] = x[:, :, g] + w * (d[:, :, g] - x[:, :, g])
                 if variance_bound:
                     d = _keep_chart_energy(x, d)
             out[sel] = d.astype(np.float32)
@@ -517,6 +526,18 @@ def denoise_sh(
         if den is not None:
             den.close()
     return out
+
+
+def _coefficient_groups(shape: tuple[int, int]) -> list[np.ndarray]:
+    """The 9 SH coefficient indices in groups whose (h, w, 3 x group) canvases stay within
+    ``_WORK_ELEMENTS`` (all 9 at once for charts up to ~385 x 385 texels)."""
+    per = int(np.clip(_WORK_ELEMENTS // (shape[0] * shape[1] * 3), 1, 9))
+    return [np.arange(k, min(9, k + per)) for k in range(0, 9, per)]
+
+
+def _channels(v: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """(m, 3 x len(g)) channel-major columns of coefficients ``g`` of ``v (m, 3, 9)``."""
+    return v[:, :, g].reshape(len(v), -1)
 
 
 def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:

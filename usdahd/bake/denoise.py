@@ -96,6 +96,16 @@ VARIANCE_POOL = 2
 #: 0.90 / 1.06 at 16 / 64 / 256 spp; contrasts 1-16 measured alike, ungated (every texel)
 #: it kept noise (shared Cornell box at 16 spp 0.24 -> 0.35).
 EDGE_CONTRAST = 16.0
+#: With the integrator's variance, the second-difference estimate is taken again after OIDN
+#: without the texels where the *denoised* image curves (a squared second difference above
+#: CURVATURE_CONTRAST x 6 var in some direction and channel, i.e. a signal curvature of more
+#: than 2 noise deviations): there the curvature is signal, and counted as noise it let OIDN
+#: move the flat texels beside a sun shadow by ~3 noise deviations (exterior_sun_sky's ground
+#: at 256 spp: 1.07x the error without --denoise -> 0.95x). Measured (denoise_gain, 2 seeds,
+#: 10 stages x 16-1024 spp): 1 left much noise (geometric-mean ratio 0.475 -> 0.518), 4 costs
+#: 1 % (0.480) and no mesh's error rises; the gradient test of EDGE_CONTRAST instead also
+#: dropped smooth gradients at high sample counts (stretched_boxes 1024 spp 0.81 -> 0.95).
+CURVATURE_CONTRAST = 4.0
 #: The noise estimate (a mean of squared second differences, so fireflies count as noise) is
 #: capped at ROBUST_CAP x the robust one (median, converted for Gaussian noise), so a bright
 #: hotspot's curvature does not pass for noise: without it the blend let OIDN's directional
@@ -261,15 +271,20 @@ def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) 
     return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), fallback)
 
 
-def _canvas_noise(img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE) -> np.ndarray:
-    """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown)."""
+def _canvas_noise(
+    img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE, support: np.ndarray | None = None
+) -> np.ndarray:
+    """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown), from the
+    second differences whose three texels are all in ``support`` ((h, w) bool, default
+    ``mask``), assigned to every ``mask`` texel."""
     step = max(1, _WORK_ELEMENTS // (img.shape[0] * img.shape[1] * len(_DIRECTIONS)))
     if img.shape[2] > step:  # large canvas: a few channels at a time (bounded work arrays)
-        return np.concatenate([_canvas_noise(img[..., k : k + step], mask, tile)
+        return np.concatenate([_canvas_noise(img[..., k : k + step], mask, tile, support)
                                for k in range(0, img.shape[2], step)], axis=2)  # fmt: skip
     h, w, c = img.shape
     nd = len(_DIRECTIONS)
-    d2 = _second_differences(img, mask)  # (h, w, 4, c); E[D^2] = 6 var for iid noise
+    # (h, w, 4, c); E[D^2] = 6 var for iid noise
+    d2 = _second_differences(img, mask if support is None else support)
     th, tw = -(-h // tile), -(-w // tile)
     padded = np.full((th * tile, tw * tile, nd, c), np.nan)
     padded[:h, :w] = d2
@@ -458,8 +473,10 @@ def denoise_sh(
         integrator's two-halves estimate has one).
     variance_bound : ``variance`` is an upper bound of the noise (the integrator's, from
         :func:`integrator_iz_variance`): each texel uses the smaller of it and the
-        second-difference estimate, so neither an edge (which inflates the estimate) nor the
-        bound's slack lets the denoiser change signal, the blend's gain is
+        second-difference estimate (taken again after OIDN without the texels where the
+        denoised image curves: :func:`_noise_off_curvature`), so neither an edge (which
+        inflates the estimate) nor the bound's slack lets the denoiser change signal, the
+        blend's gain is
         ``VARIANCE_BOUND_GAIN`` and edges are judged texel by texel; each chart's summed c10
         per channel is then kept equal to the input's (:func:`_keep_chart_energy`).
     Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
@@ -506,6 +523,8 @@ def denoise_sh(
                 continue  # noise free (or too small to tell): nothing to remove
             den = den or _Denoiser(quality)
             d = _denoise_chart(den, cv, x, sel, filter, albedo, normal)
+            if blend and variance_bound:
+                var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups))
             if blend:
                 for g in groups:
                     w = blend_weights(
@@ -525,6 +544,29 @@ def denoise_sh(
     finally:
         if den is not None:
             den.close()
+    return out
+
+
+def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.ndarray:
+    """(h, w) bool: chart texels where the denoised SH ``d (m, 3, 9)`` has a squared second
+    difference (any direction, coefficient and channel) above CURVATURE_CONTRAST x 6 ``var``
+    (m, 3, 9), the squared second difference of pure noise of that variance."""
+    curved = np.zeros(cv.shape, bool)
+    for g in groups:
+        sd = np.nan_to_num(_second_differences(cv.image(_channels(d, g), fill=False), cv.mask))
+        v = np.nan_to_num(cv.image(_channels(var, g), fill=False))
+        curved |= (sd.max(axis=2) > CURVATURE_CONTRAST * 6.0 * v).any(axis=2)
+    return curved & cv.mask
+
+
+def _noise_off_curvature(cv: _Canvas, x: np.ndarray, d: np.ndarray, var: np.ndarray, groups):
+    """(m, 3, 9) second-difference noise variance of the chart's input ``x (m, 3, 9)`` from
+    the texels where the denoised ``d`` does not curve (:func:`_curved_texels` with ``var``)."""
+    support = cv.mask & ~_curved_texels(cv, d, var, groups)
+    out = np.empty_like(x)
+    for g in groups:
+        noise = _canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask, support=support)
+        out[:, :, g] = cv.gather(noise).reshape(len(x), 3, len(g))
     return out
 
 

@@ -327,6 +327,31 @@ def test_noise_estimate_leaves_out_where_the_denoised_image_curves():
     assert hot[firefly].min() > 2 * off[firefly].max()
 
 
+def test_denoised_sh_stays_a_non_negative_radiance():
+    """|c_lm| <= sqrt(2l+1) c00 holds for every non-negative radiance, and for a Monte Carlo
+    estimate of one (each sample's basis values obey it). The blend keeps it: a directional
+    coefficient is blended as its ratio to c00, whose weight may differ from its own.
+    Input: per texel 4 random directions of the upper hemisphere with random weights."""
+    mesh, t = full_quad()
+    rng = np.random.default_rng(11)
+    n, k = len(t), 4
+    z = rng.random((n, k))
+    phi = 2 * np.pi * rng.random((n, k))
+    r = np.sqrt(1 - z * z)
+    dirs = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+    wts = rng.exponential(size=(n, k, 3)) * (1 + t.position[:, :1, None])
+    x = np.einsum("nkc,nki->nci", wts, sh.basis(dirs)) / k
+    bound = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)
+    assert (np.abs(x) <= bound * x[:, :, :1] * (1 + 1e-9)).all()
+    iz_var = np.full(n, np.var(sh.luminance(sh.iz(x))))  # a loose bound, as the integrator's
+    out = denoise.denoise_sh(
+        x.astype(np.float32), t, charts=charts_of(mesh, t),
+        variance=denoise.sh_variance(x, iz_var), variance_bound=True, variance_pool=2,
+    )  # fmt: skip
+    assert np.abs(out - x).max() > 0.1 * np.abs(x).max()  # it did denoise
+    assert (np.abs(out) <= bound * out[:, :, :1] * (1 + 1e-5) + 1e-7).all()
+
+
 def test_blend_weights():
     mask = np.ones((8, 8), bool)
     x = np.zeros((8, 8, 1))

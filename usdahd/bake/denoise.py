@@ -526,6 +526,7 @@ def denoise_sh(
             if blend and variance_bound:
                 var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups))
             if blend:
+                weights = np.empty_like(x)
                 for g in groups:
                     w = blend_weights(
                         cv.image(_channels(x, g), fill=False),
@@ -536,8 +537,8 @@ def denoise_sh(
                         gain=VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN,
                         edges=variance_bound,
                     )
-                    w = cv.gather(w).reshape(len(sel), 3, len(g))
-                    d[:, :, g] = x[:, :, g] + w * (d[:, :, g] - x[:, :, g])
+                    weights[:, :, g] = cv.gather(w).reshape(len(sel), 3, len(g))
+                d = _blend(x, d, weights)
                 if variance_bound:
                     d = _keep_chart_energy(x, d)
             out[sel] = d.astype(np.float32)
@@ -590,6 +591,27 @@ def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
     flat = v.reshape(len(v), -1)
     img = np.nan_to_num(cv.image(flat, fill=False).astype(np.float64))
     return cv.gather(_box_mean(img, cv.mask, radius)).reshape(v.shape)
+
+
+def _blend(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(m, 3, 9) ``x + w (d - x)`` per coefficient for the input SH ``x``, OIDN's ``d`` and
+    the blend weights ``w``, except that each directional coefficient (``_RATIO_COEFFS``) is
+    blended as its ratio to c00 and multiplied by the blended c00 (where both c00 are > 0):
+    its weight is often smaller than c00's (judged texel by texel), and blended alone a
+    texel whose c00 was denoised but whose direction was kept came out with |c_lm| >
+    sqrt(2l+1) c00, i.e. negative radiance (floor_lamp at 8^2, 16 spp: HLSH's fit error 0.29
+    on the wall, the validator's HighEncodingError). A convex mix of two valid ratios is valid.
+    c00 and c10 (I_z) are blended directly, then c00 raised to |c10| / sqrt(3) where it
+    fell below (the least change that keeps I_z and a non-negative radiance)."""
+    out = x + w * (d - x)
+    out[:, :, 0] = np.maximum(out[:, :, 0], np.abs(out[:, :, 2]) / _BAND_BOUND[2])
+    r = list(_RATIO_COEFFS)
+    x00, d00 = x[:, :, :1], d[:, :, :1]
+    ok = (x00 > 0) & (d00 > 0)
+    rx = x[:, :, r] / np.where(ok, x00, 1.0)
+    rd = d[:, :, r] / np.where(ok, d00, 1.0)
+    out[:, :, r] = np.where(ok, (rx + w[:, :, r] * (rd - rx)) * out[:, :, :1], out[:, :, r])
+    return out
 
 
 def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:

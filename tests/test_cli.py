@@ -235,11 +235,14 @@ def test_denoise_without_pyoidn_fails_before_tracing(tmp_path, capsys, monkeypat
         importlib.util, "find_spec", lambda name, *a: None if name == "pyoidn" else real(name, *a)
     )
     traced = _count_traces(monkeypatch)
-    for extra in ([], ["--dry-run"]):
-        code, _, err = _main(capsys, "bake", str(plane), "--denoise", *FAST, *extra)
+    for extra in ([], ["--dry-run"], ["--denoise"]):  # denoising is the default
+        code, _, err = _main(capsys, "bake", str(plane), *FAST, *extra)
         assert code == 2
-        assert "pip install pyoidn" in _error_line(err, "bake")
+        line = _error_line(err, "bake")
+        assert "pip install pyoidn" in line and "--no-denoise" in line
     assert not traced
+    # the named way out works without pyoidn
+    assert _main(capsys, "bake", str(plane), *FAST, "--no-denoise")[0] == 0
 
 
 def test_baking_an_output_layer_is_refused(tmp_path, capsys):

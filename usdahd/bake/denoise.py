@@ -125,8 +125,8 @@ def _pyoidn():
         import pyoidn
     except ImportError:
         raise UsageError(
-            "denoising needs Intel Open Image Denoise: pip install pyoidn "
-            "(or 'usdahd[denoise]'), or bake without --denoise"
+            "denoising needs Intel Open Image Denoise: pip install pyoidn, "
+            "or bake with --no-denoise"
         ) from None
     return pyoidn
 

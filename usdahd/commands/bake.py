@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from usdahd import models
@@ -61,7 +62,14 @@ def add_parser(sub):
     )
     a("--padding", type=int, metavar="N", help="gutter dilation in texels (default 4)")
     a("--adaptive", action="store_true", help="stop sampling texels whose SH converged")
-    a("--denoise", action="store_true", help="denoise the SH with Intel Open Image Denoise")
+    a(
+        "--denoise",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="denoise the SH with Intel Open Image Denoise, trusted only as far as the "
+        "integrator's own noise estimate allows (default; docs/texels.md); --no-denoise "
+        "writes the integrator's estimate as it is",
+    )
     a(
         "--container",
         choices=["files", "ktx2"],

@@ -78,7 +78,8 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
         raise UsageError(f"-o {out}: refusing to overwrite the source layer; choose another path")
     if opts.denoise and importlib.util.find_spec("pyoidn") is None:
         raise UsageError(
-            "--denoise needs Intel Open Image Denoise: pip install pyoidn (or drop --denoise)"
+            "denoising (the default) needs Intel Open Image Denoise: pip install pyoidn, "
+            "or bake with --no-denoise"
         )
     parent = out.parent
     existing = parent

@@ -60,7 +60,7 @@ class BakeOptions:
     seed: int = 0
     padding: int | None = None
     adaptive: bool = False
-    denoise: bool = False
+    denoise: bool = True
     container: str | None = None
     unwrap: bool = True
     force: bool = False

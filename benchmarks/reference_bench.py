@@ -5,7 +5,7 @@ matplotlib from the ``bench`` extra for the plot)::
 
     python benchmarks/reference_bench.py [--stages cornell_box pillar_room floor_lamp]
         [--resolution 32] [--samples 16 64 256 1024] [--truth-spp 4096]
-        [--centre STAGE ...] [--centre-spp N] [--variant=--denoise ...] [--repeats N]
+        [--centre STAGE ...] [--centre-spp N] [--variant=--no-denoise ...] [--repeats N]
         [--warm] [--out docs/benchmarks/reference.md]
 
 For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
@@ -84,7 +84,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     point-sampled truth, ``centre_spp`` samples, default ``truth_spp``), or with the box truth
     too when ``centre`` is False. ``rel_rmse_net`` is ``rel_rmse`` net of the truth's noise.
     ``variants``: more usdahd runs at every sample count, each with these extra bake flags (a
-    lever, e.g. ``"--denoise"``); their renderer is ``"usdahd <flags>"``.
+    lever, e.g. ``"--no-denoise"``); their renderer is ``"usdahd <flags>"``.
     ``repeats``: every run is timed this many times, the repeats after the first interleaved
     (usdahd and Cycles in turn at each sample count, so a load change hits both);
     ``seconds_runs`` holds each repeat's time, ``seconds`` their median, ``load`` the 1-minute
@@ -436,7 +436,7 @@ SECTION_PLANS = {
         "resolution": 32,
         "samples": [16, 64, 256, 1024],
         "truth_spp": 4096,
-        "variants": ["--denoise"],
+        "variants": ["--no-denoise"],  # denoising is the default (issue 16)
         "repeats": 3,
     },
     "quick": {"resolution": 16, "samples": [16, 64, 256], "truth_spp": 1024, "variants": []},
@@ -508,7 +508,7 @@ def main(argv=None) -> int:
                    "(default: --truth-spp)")  # fmt: skip
     p.add_argument("--variant", action="append", default=[], metavar="FLAGS",
                    help="more usdahd runs with these bake flags (a lever), e.g. "
-                        "--variant=--denoise; repeatable")  # fmt: skip
+                        "--variant=--no-denoise; repeatable")  # fmt: skip
     p.add_argument(
         "--repeats",
         type=int,

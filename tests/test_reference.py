@@ -10,6 +10,7 @@ angular radius a gives L pi sin^2 a.
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import math
 import sys
@@ -489,6 +490,12 @@ def test_denoise_gain_ratios_table_and_usage_errors(tmp_path, capsys):
     """benchmarks/reference/denoise_gain.py: the ratio is denoised / plain relRMSE overall and
     per mesh (worst named), the table averages seeds; a missing stage or bpy exits 2 first."""
     from benchmarks.reference import denoise_gain as dg
+    from usdahd.commands import bake as bake_cmd
+
+    # each run names its flag, so a change of the bake's default cannot make both alike
+    parse = argparse.ArgumentParser()
+    bake_cmd.add_parser(parse.add_subparsers())
+    assert [parse.parse_args(["bake", "s.usda", *f]).denoise for _, f in dg.RUNS] == [False, True]
 
     def figs(overall, *meshes):
         return {"overall": {"usdahd": {"rel_rmse": overall}},

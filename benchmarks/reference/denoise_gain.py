@@ -4,7 +4,8 @@
 [--seeds 0 1] [--resolution 32] [--truth-spp 4096] [--out FILE.json]``
 
 For every stage, sample count and seed, ``usdahd bake`` runs twice in one warm process
-(:class:`benchmarks.reference.warm.WarmBaker`), without and with ``--denoise`` (same seed, so
+(:class:`benchmarks.reference.warm.WarmBaker`), with ``--no-denoise`` and with ``--denoise``
+(the default since 2026-12-04; same seed, so
 the same traced radiance), and both are judged against the cached point-sampled Cycles truth
 (``compare --point``; baked once if missing). Printed: a markdown table of the relRMSE
 ratio denoised / not denoised per stage (mean over seeds) and the worst mesh; the JSON keeps
@@ -28,6 +29,8 @@ from benchmarks.reference import export, runner
 from benchmarks.reference.warm import WarmBaker
 
 SAMPLE_STAGES = "samples/{}.usda"
+#: The two bakes compared, each with its flag spelled out (denoising is the default).
+RUNS = (("plain", ["--no-denoise"]), ("denoised", ["--denoise"]))
 
 
 def stage_path(name: str) -> Path:
@@ -42,7 +45,7 @@ def judge(baker, stage: Path, work: Path, args, spp: int, seed: int, bpy: str) -
     """{"plain": figures, "denoised": figures} of one stage at ``spp`` / ``seed``; figures
     as :func:`benchmarks.reference.compare.compare_images` gives them (no Cycles rows)."""
     out, truth, scene = {}, None, None
-    for name, extra in (("plain", []), ("denoised", ["--denoise"])):
+    for name, extra in RUNS:
         layer = work / f"{name}.lightmaps.usda"
         flags = ["--samples", str(spp), "--seed", str(seed), "--force", *extra]
         baked = baker.bake(stage, layer, args.resolution, flags)

@@ -252,6 +252,12 @@ def test_denoise_flag_bakes_valid_finite_output(tmp_path, capsys):
     assert np.isfinite(got).all()
     np.testing.assert_allclose(got, want, rtol=2e-3)
     assert cli.main(["validate", str(layer), "--quiet"]) == 0
+    # by default too, and it says so on stderr (with the way to skip it)
+    code, out = _bake([str(stage), "--resolution", "16", "--samples", "8", "--force"], capsys)
+    assert code == 0 and "denoised in " in out.err and "--no-denoise" in out.err
+    code, out = _bake([str(stage), "--resolution", "16", "--samples", "8", "--force",
+                       "--no-denoise"], capsys)  # fmt: skip
+    assert code == 0 and "denoised in " not in out.err
 
 
 def test_denoise_trusts_the_integrators_own_variance(tmp_path, capsys, monkeypatch):

@@ -185,9 +185,10 @@ def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
                     "own estimate, which treats back faces as two-sided; check those faces "
                     "for flipped normals, duplicates or enclosing geometry"
                 )
-    if opts.denoise:
+    if opts.denoise and ok:
         from usdahd.bake import denoise
 
+        t0 = time.perf_counter()
         for job in ok:
             iz_var = denoise.integrator_iz_variance(job.stats)
             var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
@@ -199,6 +200,7 @@ def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
                 variance_bound=True,
                 variance_pool=denoise.VARIANCE_POOL,
             )
+        _status(opts, f"denoised in {time.perf_counter() - t0:.2f}s (--no-denoise skips it)")
     if ok:
         t0 = time.perf_counter()
         seams = post.find_seams([j.mesh for j in ok], [j.texels.resolution for j in ok])

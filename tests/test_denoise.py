@@ -268,6 +268,12 @@ def test_coefficient_groups_and_reused_filters_change_nothing(monkeypatch):
     assert len(reused.filters) == 1
     fresh = denoise._Denoiser("high")
     np.testing.assert_array_equal(again, fresh.run(b, filter_type="RTLightmap", directional=True))
+    for side in range(20, 20 + 2 * reused.MAX_FILTERS):  # many shapes: only the last few kept
+        reused.run(rng.random((side, 24, 3), dtype=np.float32), filter_type="RTLightmap")
+    assert len(reused.filters) == reused.MAX_FILTERS
+    np.testing.assert_array_equal(
+        reused.run(b, filter_type="RTLightmap", directional=True), again
+    )  # an evicted kind is set up anew, with the same output
     reused.close(), fresh.close()
 
 

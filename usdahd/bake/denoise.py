@@ -134,7 +134,11 @@ def _pyoidn():
 class _Denoiser:
     """One OIDN device; one filter per kind of call (type, mode, image shape, guides), reused:
     a filter's first commit sets up its network (~0.5 ms per call on small charts), a later
-    commit with new images of the same shape only swaps the buffers (same output, checked)."""
+    commit with new images of the same shape only swaps the buffers (same output, checked).
+    At most ``MAX_FILTERS`` are kept (each holds ~0.05 MB: a stage of thousands of charts of
+    different shapes would otherwise keep hundreds of MB); a chart's runs share two."""
+
+    MAX_FILTERS = 8
 
     def __init__(self, quality: str):
         self.oidn = _pyoidn()
@@ -148,14 +152,17 @@ class _Denoiser:
         self.filters = {}
 
     def _filter(self, key, filter_type, hdr, directional):
-        flt = self.filters.get(key)
+        flt = self.filters.pop(key, None)
         if flt is None:
-            flt = self.filters[key] = self.oidn.Filter(self.device, filter_type)
+            while len(self.filters) >= self.MAX_FILTERS:  # the least recently used goes
+                self.filters.pop(next(iter(self.filters))).release()
+            flt = self.oidn.Filter(self.device, filter_type)
             if filter_type == "RTLightmap":
                 flt.set_bool("directional", bool(directional))
             else:
                 flt.set_bool("hdr", bool(hdr))
             flt.set_int("quality", self.quality)
+        self.filters[key] = flt  # (re)inserted last: dicts keep insertion order
         return flt
 
     def run(self, color, *, filter_type, hdr=False, directional=False, albedo=None, normal=None):

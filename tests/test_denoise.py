@@ -427,3 +427,29 @@ def test_denoise_errors():
         denoise.denoise_sh(bad, t)
     with pytest.raises(InputError, match="values"):
         denoise.noise_variance(np.zeros(3), t)
+
+
+@pytest.mark.parametrize(
+    "shape,tile", [((23, 31, 5), 8), ((8, 8, 2), 8), ((1, 9, 1), 4), ((40, 17, 27), 6)]
+)
+def test_tile_stats_kernel_matches_the_numpy_reference(shape, tile):
+    """The numba tile statistics of the noise estimate (usdahd/numerics/noise.py) equal the
+    numpy reference on a random chart shape (holes, borders, a canvas smaller than a tile):
+    counts exactly, means and medians to summation-order rounding (1e-12 relative)."""
+    from usdahd.numerics.noise import tile_stats
+
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    img = rng.standard_normal(shape) * rng.exponential(size=shape)
+    support = rng.random(shape[:2]) < 0.8
+    img[~support] = np.nan  # outside the chart: never read
+    fast = tile_stats(img, support, tile)
+    ref = tile_stats(img, support, tile, backend="numpy")
+    for name, a, b in zip(("mean", "median", "count", "chart mean", "chart median", "chart count"),
+                          fast, ref):  # fmt: skip
+        assert a.shape == b.shape, name
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=0, equal_nan=True, err_msg=name)
+    # every difference is in exactly one tile
+    np.testing.assert_array_equal(fast[2].sum(axis=(0, 1)), fast[5])
+    assert (fast[5] > 0).all()
+    with pytest.raises(ValueError, match="backend"):
+        tile_stats(img, support, tile, backend="cuda")

@@ -42,6 +42,7 @@ import numpy as np
 from usdahd.bake.post import dilate
 from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
+from usdahd.numerics.noise import second_differences, tile_stats
 
 FILTERS = ("RTLightmap", "RT")
 #: sqrt(2l + 1) per coefficient: |c_lm| <= sqrt(2l+1) c00 for non-negative functions.
@@ -115,7 +116,6 @@ ROBUST_CAP = 16.0
 #: Median of chi-square with 1 degree of freedom: median(D^2) = 0.45494 E[D^2] for Gaussian D.
 _CHI2_1_MEDIAN = 0.454936423119572
 
-_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 
@@ -240,33 +240,6 @@ class _Canvas:
 # noise estimate and blending
 
 
-def _second_differences(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(h, w, 4, c) squared second differences x[p-d] - 2x[p] + x[p+d] of the 4 directions
-    centred at each texel; NaN where p - d, p or p + d is outside the chart."""
-    h, w, c = img.shape
-    pad_v = np.pad(np.nan_to_num(img.astype(np.float64)), ((1, 1), (1, 1), (0, 0)))
-    pad_m = np.pad(mask, 1)
-    out = np.full((h, w, len(_DIRECTIONS), c), np.nan)
-    for k, (dx, dy) in enumerate(_DIRECTIONS):
-        a = pad_v[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
-        b = pad_v[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-        ok = mask & pad_m[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
-        ok &= pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-        d = a - 2.0 * pad_v[1 : 1 + h, 1 : 1 + w] + b
-        out[:, :, k] = np.where(ok[..., None], d * d, np.nan)
-    return out
-
-
-def _nan_median(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """NaN-ignoring median along ``axis`` and the count of non-NaN values (no warnings)."""
-    v = np.sort(values, axis=axis)  # NaNs sort last
-    cnt = np.sum(~np.isnan(values), axis=axis)
-    lo = np.expand_dims(np.maximum(cnt - 1, 0) // 2, axis)
-    hi = np.expand_dims(cnt // 2, axis)
-    med = 0.5 * (np.take_along_axis(v, lo, axis) + np.take_along_axis(v, hi, axis))
-    return np.where(cnt > 0, np.squeeze(med, axis), np.nan), cnt
-
-
 def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """Mean of the valid ``tiles (th, tw, c)`` over each tile's 3 x 3 neighbourhood."""
     th, tw = tiles.shape[:2]
@@ -284,29 +257,14 @@ def _canvas_noise(
     """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown), from the
     second differences whose three texels are all in ``support`` ((h, w) bool, default
     ``mask``), assigned to every ``mask`` texel."""
-    step = max(1, _WORK_ELEMENTS // (img.shape[0] * img.shape[1] * len(_DIRECTIONS)))
-    if img.shape[2] > step:  # large canvas: a few channels at a time (bounded work arrays)
-        return np.concatenate([_canvas_noise(img[..., k : k + step], mask, tile, support)
-                               for k in range(0, img.shape[2], step)], axis=2)  # fmt: skip
-    h, w, c = img.shape
-    nd = len(_DIRECTIONS)
-    # (h, w, 4, c); E[D^2] = 6 var for iid noise
-    d2 = _second_differences(img, mask if support is None else support)
-    th, tw = -(-h // tile), -(-w // tile)
-    padded = np.full((th * tile, tw * tile, nd, c), np.nan)
-    padded[:h, :w] = d2
-    blocks = padded.reshape(th, tile, tw, tile, nd, c).transpose(0, 2, 1, 3, 4, 5)
-    blocks = blocks.reshape(th, tw, tile * tile * nd, c)
-    have = ~np.isnan(blocks)
-    cnt = have.sum(axis=2)
-    mean = np.where(have, blocks, 0.0).sum(axis=2) / np.maximum(cnt, 1)
-    med, _ = _nan_median(blocks, axis=2)
+    h, w, _ = img.shape
+    # per tile: E[D^2] = 6 var for iid noise
+    mean, med, cnt, fmean, fmed, fcnt = tile_stats(img, mask if support is None else support, tile)
     ok = cnt >= MIN_NOISE_SAMPLES
     # too few differences nearby: the whole chart's estimate, else unknown (0: keep the input)
-    flat = d2.reshape(-1, c)
-    fcnt = np.sum(~np.isnan(flat), axis=0)
-    fmean = np.where(fcnt >= MIN_NOISE_SAMPLES, np.nansum(flat, axis=0) / np.maximum(fcnt, 1), 0)
-    fmed = np.where(fcnt >= MIN_NOISE_SAMPLES, _nan_median(flat, axis=0)[0], 0.0)
+    enough = fcnt >= MIN_NOISE_SAMPLES
+    fmean = np.where(enough, fmean, 0.0)
+    fmed = np.where(enough, fmed, 0.0)
     local = _neighbour_mean(mean, ok, fmean)
     robust = _neighbour_mean(med, ok, fmed) / _CHI2_1_MEDIAN
     local = np.minimum(local, ROBUST_CAP * robust)
@@ -561,7 +519,7 @@ def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.nd
     (m, 3, 9), the squared second difference of pure noise of that variance."""
     curved = np.zeros(cv.shape, bool)
     for g in groups:
-        sd = np.nan_to_num(_second_differences(cv.image(_channels(d, g), fill=False), cv.mask))
+        sd = np.nan_to_num(second_differences(cv.image(_channels(d, g), fill=False), cv.mask))
         v = np.nan_to_num(cv.image(_channels(var, g), fill=False))
         curved |= (sd.max(axis=2) > CURVATURE_CONTRAST * 6.0 * v).any(axis=2)
     return curved & cv.mask

@@ -1,0 +1,163 @@
+"""Tile statistics of squared second differences: the core of the denoiser's noise estimate.
+
+For spatially independent noise of variance s^2, a second difference ``x[p-d] - 2 x[p] +
+x[p+d]`` along a row, column or diagonal has mean square ``6 s^2`` and vanishes on a linear
+signal (``usdahd.bake.denoise.noise_variance`` explains how the statistics become a variance).
+:func:`tile_stats` gathers, for every ``tile x tile`` block of a canvas and channel, the mean,
+median and count of the squared second differences of the 4 directions centred in the block
+whose three texels are all in ``support``; and the same over the whole canvas.
+
+Two implementations behind one function: a numba kernel (default) and a numpy reference
+(``backend="numpy"``, the definition; tests/test_denoise.py checks their parity). The numpy
+one materializes a (h, w, 4, c) array and sorts every block: on a 46 x 46 canvas of 27
+channels 7 ms, the kernel ~1 ms (usdahd/bake/denoise.py's noise estimate ran twice per chart
+and was a third of the denoise time).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: The 4 directions (dx, dy) of the second differences: row, column, both diagonals.
+DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
+_DIR = np.array(DIRECTIONS, dtype=np.int64)
+
+
+def second_differences(img: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """(h, w, 4, c) float64 squared second differences of ``img (h, w, c)`` in the 4
+    :data:`DIRECTIONS` centred at each texel; NaN where p - d, p or p + d is outside
+    ``support (h, w) bool``."""
+    h, w, c = img.shape
+    pad_v = np.pad(np.nan_to_num(img.astype(np.float64)), ((1, 1), (1, 1), (0, 0)))
+    pad_m = np.pad(support, 1)
+    out = np.full((h, w, len(DIRECTIONS), c), np.nan)
+    for k, (dx, dy) in enumerate(DIRECTIONS):
+        a = pad_v[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
+        b = pad_v[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+        ok = support & pad_m[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
+        ok &= pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+        d = a - 2.0 * pad_v[1 : 1 + h, 1 : 1 + w] + b
+        out[:, :, k] = np.where(ok[..., None], d * d, np.nan)
+    return out
+
+
+def nan_median(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """NaN-ignoring median along ``axis`` (NaN where all are NaN) and the count of non-NaN
+    values, without warnings."""
+    v = np.sort(values, axis=axis)  # NaNs sort last
+    cnt = np.sum(~np.isnan(values), axis=axis)
+    lo = np.expand_dims(np.maximum(cnt - 1, 0) // 2, axis)
+    hi = np.expand_dims(cnt // 2, axis)
+    med = 0.5 * (np.take_along_axis(v, lo, axis) + np.take_along_axis(v, hi, axis))
+    return np.where(cnt > 0, np.squeeze(med, axis), np.nan), cnt
+
+
+def tile_stats(img: np.ndarray, support: np.ndarray, tile: int, backend: str = "numba"):
+    """Statistics of the squared second differences of ``img (h, w, c)`` (NaN outside the
+    chart is fine: only ``support`` texels are read) per ``tile x tile`` block.
+
+    support : (h, w) bool, the texels a difference may use (all three must be in it).
+    returns ``(mean, median, count, chart_mean, chart_median, chart_count)``: per block
+    ``(th, tw, c)`` float64 mean (0 where count is 0), float64 median (NaN where 0) and int64
+    count, with ``th = ceil(h / tile)``, ``tw = ceil(w / tile)``; and the same over the whole
+    canvas per channel, ``(c,)``. A difference belongs to the block of its centre texel.
+    """
+    img = np.ascontiguousarray(np.nan_to_num(np.asarray(img, np.float64)))
+    support = np.ascontiguousarray(np.asarray(support, bool))
+    if backend == "numpy":
+        return _tile_stats_numpy(img, support, tile)
+    if backend != "numba":
+        raise ValueError(f"unknown backend {backend!r}")
+    return _tile_stats_numba(img, support, int(tile), _DIR)
+
+
+def _tile_stats_numpy(img, support, tile):
+    h, w, c = img.shape
+    nd = len(DIRECTIONS)
+    d2 = second_differences(img, support)
+    th, tw = -(-h // tile), -(-w // tile)
+    padded = np.full((th * tile, tw * tile, nd, c), np.nan)
+    padded[:h, :w] = d2
+    blocks = padded.reshape(th, tile, tw, tile, nd, c).transpose(0, 2, 1, 3, 4, 5)
+    blocks = blocks.reshape(th, tw, tile * tile * nd, c)
+    have = ~np.isnan(blocks)
+    cnt = have.sum(axis=2)
+    mean = np.where(have, blocks, 0.0).sum(axis=2) / np.maximum(cnt, 1)
+    med, _ = nan_median(blocks, axis=2)
+    flat = d2.reshape(-1, c)
+    fmed, fcnt = nan_median(flat, axis=0)
+    fmean = np.nansum(flat, axis=0) / np.maximum(fcnt, 1)
+    return mean, med, cnt.astype(np.int64), fmean, fmed, fcnt.astype(np.int64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _median_sorted(v, k):
+    """Median of the first ``k`` values of the sorted ``v`` (NaN for k = 0)."""
+    if k == 0:
+        return np.nan
+    return 0.5 * (v[(k - 1) // 2] + v[k // 2])
+
+
+@numba.njit(cache=True, nogil=True)
+def _tile_stats_numba(img, support, tile, dirs):
+    h, w, c = img.shape
+    nd = dirs.shape[0]
+    th = (h + tile - 1) // tile
+    tw = (w + tile - 1) // tile
+    # which (texel, direction) differences exist: all three texels in the support
+    ok = np.zeros((h, w, nd), np.bool_)
+    n_all = 0
+    for y in range(h):
+        for x in range(w):
+            if not support[y, x]:
+                continue
+            for k in range(nd):
+                dx, dy = dirs[k, 0], dirs[k, 1]
+                ya, xa, yb, xb = y - dy, x - dx, y + dy, x + dx
+                if ya < 0 or yb < 0 or ya >= h or yb >= h:
+                    continue
+                if xa < 0 or xb < 0 or xa >= w or xb >= w:
+                    continue
+                if support[ya, xa] and support[yb, xb]:
+                    ok[y, x, k] = True
+                    n_all += 1
+    mean = np.zeros((th, tw, c))
+    med = np.full((th, tw, c), np.nan)
+    cnt = np.zeros((th, tw, c), np.int64)
+    fmean = np.zeros(c)
+    fmed = np.full(c, np.nan)
+    fcnt = np.zeros(c, np.int64)
+    buf = np.empty(tile * tile * nd)
+    allv = np.empty(max(n_all, 1))
+    for ch in range(c):
+        m = 0
+        total = 0.0
+        for ty in range(th):
+            for tx in range(tw):
+                k_in = 0
+                s = 0.0
+                for y in range(ty * tile, min(h, (ty + 1) * tile)):
+                    for x in range(tx * tile, min(w, (tx + 1) * tile)):
+                        for k in range(nd):
+                            if ok[y, x, k]:
+                                dx, dy = dirs[k, 0], dirs[k, 1]
+                                d = img[y - dy, x - dx, ch] - 2.0 * img[y, x, ch]
+                                d += img[y + dy, x + dx, ch]
+                                d *= d
+                                buf[k_in] = d
+                                allv[m] = d
+                                k_in += 1
+                                m += 1
+                                s += d
+                cnt[ty, tx, ch] = k_in
+                total += s
+                if k_in > 0:
+                    mean[ty, tx, ch] = s / k_in
+                    b = np.sort(buf[:k_in])
+                    med[ty, tx, ch] = _median_sorted(b, k_in)
+        fcnt[ch] = m
+        if m > 0:
+            fmean[ch] = total / m
+            fmed[ch] = _median_sorted(np.sort(allv[:m]), m)
+    return mean, med, cnt, fmean, fmed, fcnt

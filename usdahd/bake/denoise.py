@@ -7,8 +7,9 @@ stages per chart:
    texels, it has no context and distorts even a constant image (measured: a constant 16 x 16
    image comes back with up to 8.7 % error at its corners; 24 x 24 in directional mode 23 %;
    this, unpadded charts at the lightmap's edge and the ratio path for I_z below caused the
-   old 2.4 % error floor). Each chart is put alone into its own canvas with ``PAD`` texels on
-   every side (at least ``MIN_CROP`` per side, also past the lightmap's edges): holes in the
+   old 2.4 % error floor). Each chart is put alone into its own canvas with at least ``PAD``
+   texels on every side, its sides rounded up to a multiple of ``OIDN_BLOCK`` (OIDN's own
+   padding) and at least ``MIN_CROP`` (also past the lightmap's edges): holes in the
    chart's bounding box are grown from the chart (:func:`usdahd.bake.post.dilate`) and the box
    is mirrored outward, so the network sees the chart's own signal *and noise* around it
    (constant 16 x 16 chart: < 0.1 %; smooth dilation instead of mirroring made OIDN leave
@@ -56,9 +57,18 @@ _RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
 #: error is multiplied by c00 there.)
 
 # Tolerances and sizes (each with its reason)
-#: Dilated context (texels) on every side of a chart: a constant chart comes back within
-#: 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).
-PAD = 16
+#: Least dilated context (texels) on every side of a chart: a constant chart comes back
+#: within 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).
+#: The canvas side is then rounded up to a multiple of OIDN_BLOCK, the extra going to the
+#: context too (10-17 texels per side). Was 16 without rounding: OIDN then padded to
+#: the next multiple of 16, 1.3-2x the pixels of a run; 8 with rounding put OIDN's raw output
+#: on a noise-free gradient 0.9 % off at a chart's border (tests/test_denoise.py), 10 keeps
+#: the blended output's error of 16 (0.49 %) and the stages' error (docs/time-to-quality.md).
+PAD = 10
+#: OIDN pads every image side to a multiple of this and its run time follows the padded
+#: size (measured, 2 cores: 40 / 48 px sides 4.3 / 4.6 ms, 49 / 64 px 7.5 / 6.9 ms): canvas
+#: sides are rounded up to it, so the padding OIDN would add anyway is chart context.
+OIDN_BLOCK = 16
 #: Smallest canvas side given to OIDN: below ~16 its output on constant images is off by
 #: 5-30 % even away from borders; tiny charts are centred in a canvas this big.
 MIN_CROP = 32
@@ -202,11 +212,14 @@ class _Denoiser:
 class _Canvas:
     """A chart alone in its own image: (ly, lx) of its texels, mask, and the canvas shape."""
 
-    def __init__(self, xy, pad: int = PAD, min_crop: int = MIN_CROP, mode: str = "symmetric"):
+    def __init__(
+        self, xy, pad: int = PAD, min_crop: int = MIN_CROP, mode: str = "symmetric",
+        block: int = OIDN_BLOCK,
+    ):  # fmt: skip
         xy = np.asarray(xy, dtype=np.int64)
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         size = hi - lo + 1
-        full = np.maximum(size + 2 * pad, min_crop)
+        full = np.maximum(-(-(size + 2 * pad) // block) * block, min_crop)
         origin = lo - (full - size) // 2
         self.lx, self.ly = xy[:, 0] - origin[0], xy[:, 1] - origin[1]
         self.shape = (int(full[1]), int(full[0]))
@@ -297,7 +310,7 @@ def noise_variance(
     out = np.zeros(flat.shape, np.float64)
     for c in np.unique(charts):
         sel = np.nonzero(charts == c)[0]
-        cv = _Canvas(texels.xy[sel], pad=1, min_crop=1)
+        cv = _Canvas(texels.xy[sel], pad=1, min_crop=1, block=1)
         out[sel] = cv.gather(_canvas_noise(cv.image(flat[sel], fill=False), cv.mask))
     return out.reshape(values.shape)
 

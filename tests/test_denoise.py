@@ -453,3 +453,18 @@ def test_tile_stats_kernel_matches_the_numpy_reference(shape, tile):
     assert (fast[5] > 0).all()
     with pytest.raises(ValueError, match="backend"):
         tile_stats(img, support, tile, backend="cuda")
+
+
+@pytest.mark.parametrize("w, h", [(1, 1), (5, 9), (12, 12), (13, 40), (30, 3)])
+def test_canvas_sides_are_oidn_blocks_with_at_least_pad_context(w, h):
+    # OIDN pads every side to a multiple of 16 and is timed by the padded size: the canvas
+    # takes that padding as chart context, never less than PAD texels on any side.
+    x0, y0 = 7, 3
+    xx, yy = np.meshgrid(np.arange(x0, x0 + w), np.arange(y0, y0 + h))
+    cv = denoise._Canvas(np.stack([xx.ravel(), yy.ravel()], axis=1))
+    rows, cols = cv.shape
+    assert rows % denoise.OIDN_BLOCK == 0 and cols % denoise.OIDN_BLOCK == 0
+    assert min(rows, cols) >= denoise.MIN_CROP
+    assert cv.lx.min() >= denoise.PAD and cols - 1 - cv.lx.max() >= denoise.PAD
+    assert cv.ly.min() >= denoise.PAD and rows - 1 - cv.ly.max() >= denoise.PAD
+    assert cols < w + 2 * denoise.PAD + denoise.OIDN_BLOCK or cols == denoise.MIN_CROP

@@ -37,6 +37,14 @@ def _env(**extra) -> dict:
     return env
 
 
+def _interactive_sigint() -> None:
+    """Child setup: SIGINT at its default, as in a terminal. A job started in the background of
+    a non-interactive shell (``cmd &``, which is how CI scripts often run) inherits SIGINT
+    *ignored*, and Python then keeps ignoring it (no KeyboardInterrupt), as nohup intends; the
+    SIGINT tests are about the interactive Ctrl-C case, so they must not inherit that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _popen(stage: Path, *args: str, **env) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "usdahd", "bake", str(stage), *args],
@@ -44,6 +52,7 @@ def _popen(stage: Path, *args: str, **env) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         env=_env(**env),
+        preexec_fn=_interactive_sigint,
     )
 
 

@@ -517,6 +517,44 @@ def test_denoise_gain_ratios_table_and_usage_errors(tmp_path, capsys):
     assert "bpy interpreter" in capsys.readouterr().err
 
 
+def test_denoise_gain_direction_error_from_sidecars(tmp_path):
+    """The directional judge: tilted-normal irradiance from a real bake's SH sidecar is the
+    cosine-convolved SH at the 4 tilted normals; the error against a reference is 0 against
+    itself, 0.5 against twice itself, and the reference's own noise comes out in quadrature."""
+    from benchmarks.reference import denoise_gain as dg
+    from usdahd import cli, images
+    from usdahd.numerics import sh as shm
+    from usdahd.usd import schema
+
+    stage = tmp_path / "open_plane.usda"
+    stage.write_bytes((ROOT / "samples" / "open_plane.usda").read_bytes())
+    layer = tmp_path / "open_plane.lightmaps.usda"
+    args = ["bake", str(stage), "-o", str(layer), "--resolution", "8", "--samples", "4"]
+    assert cli.main([*args, "--quiet", "--no-denoise"]) == 0
+    (mesh, sidecar), *_ = dg.sidecars(layer).items()
+    e, cov = dg.tilted_irradiance(sidecar)
+    assert e.shape == (8, 8, 3, 4) and cov.any()
+    iz = compare.usdahd_iz(sidecar)[0]  # the untilted normal's, which must differ
+    raw = np.asarray(images.read(sidecar, channels=schema.SH_SIDECAR_CHANNELS).pixels, float)
+    sh9 = raw[..., :27].reshape(8, 8, 3, 9)
+    n = np.array([0.0, -1.0, 1.0]) / np.sqrt(2.0)
+    np.testing.assert_allclose(e[..., 3], shm.irradiance(sh9, n), rtol=1e-12)
+    assert not np.allclose(e[cov][..., 0], iz[cov])
+    same = {mesh: (e, 0.0, cov)}
+    assert dg.direction_error(layer, same) == pytest.approx(0.0, abs=1e-12)
+    assert dg.direction_error(layer, {mesh: (2 * e, 0.0, cov)}) == pytest.approx(0.5)
+    # a reference whose noise variance v is known: v per value is taken out of the error
+    rng = np.random.default_rng(3)
+    ref = e + 0.01 * rng.standard_normal(e.shape)
+    got = dg.direction_error(layer, {mesh: (ref, 1e-4, cov)})
+    assert got < 0.25 * np.sqrt(np.mean((e - ref)[cov] ** 2) / np.mean(ref[cov] ** 2))
+    row = {"plain": {"direction_rel_rmse": 0.04}, "denoised": {"direction_rel_rmse": 0.01}}
+    assert dg.direction_ratio(row) == pytest.approx(0.25)
+    rows = [{"stage": "/x/st.usda", "spp": 16, "ratio": 0.5, "worst": 0.9, "worst_mesh": "/m",
+             **row}]  # fmt: skip
+    assert dg.table(rows, [16]).splitlines()[-1] == "| st | 0.50 | 0.90 m (16) | 0.25 |"
+
+
 def test_new_samples_regenerate_identically(tmp_path):
     spec = importlib.util.spec_from_file_location(
         "make_samples_ref", ROOT / "samples" / "make_samples.py"

@@ -28,6 +28,7 @@ from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTabl
 from usdahd.bake.kernels.trace import nb_offset, nb_texture
 from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 from usdahd.numerics.sampling import orthonormal_basis, sample_discrete, to_world
 from usdahd.scene import lights as L
 from usdahd.scene.types import Texture
@@ -147,7 +148,7 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
         (wrap, wrap),
     )
     uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = NativeTables(*(None,) * 8, *pack_textures([tex]))
+    tb = NativeTables(*(None,) * 9, *pack_textures([tex]))
     got = _nb_tex(tb, 0, uv)[:, : len(channels)]
     np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
 
@@ -196,10 +197,10 @@ def test_sh9_equals_sh_basis():
 
 
 @njit(cache=False)
-def _nb_offsets(eps, p, ng, d):
+def _nb_offsets(scale, p, ng, d):
     out = np.zeros_like(p)
     for i in range(p.shape[0]):
-        out[i] = nb_offset(eps, p[i, 0], p[i, 1], p[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
+        out[i] = nb_offset(scale[i], p[i, 0], p[i, 1], p[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
                            d[i, 0], d[i, 1], d[i, 2])  # fmt: skip
     return out
 
@@ -213,9 +214,16 @@ def test_nb_offset_equals_tracer_offset():
     ng = _unit(rng, m)
     d = _unit(rng, m)
     ng[:10], d[:10] = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]  # tangent: d . ng exactly 0
-    eps = 3e-5
-    ref = Tracer.offset(SimpleNamespace(offset_eps=eps), p, ng, d)
-    np.testing.assert_array_equal(_nb_offsets(eps, p, ng, d), ref)
+    # per-point offsets (a triangle's or a texel's), some below the point's own ulp floor
+    scale = rng.uniform(0.0, 2e-4, m)
+    tr = SimpleNamespace(offset_eps=3e-5)
+    tr.offset_scale = lambda p, sc=None: Tracer.offset_scale(tr, p, sc)
+    ref = Tracer.offset(tr, p, ng, d, scale)
+    np.testing.assert_array_equal(_nb_offsets(scale, p, ng, d), ref)
+    moved = np.linalg.norm(ref - p, axis=1)
+    floor = OFFSET_ULPS * FLT_EPS * np.abs(p).max(axis=1)
+    np.testing.assert_allclose(moved, np.maximum(scale, floor), rtol=1e-9)
+    assert (scale < floor).any() and (scale > floor).any()
 
 
 @njit(cache=False)

@@ -330,9 +330,9 @@ def _expected_transmittance(o):
 
 
 @njit(cache=False)
-def _nb_transmittance(scene, pk, rec, tb, eps, rays):
+def _nb_transmittance(scene, pk, rec, tb, rays):
     out = np.zeros(rays.shape[0])
-    nb_transmittance_rays(scene, pk, rec, tb, eps, True, rays, rays.shape[0], out)
+    nb_transmittance_rays(scene, pk, rec, tb, True, rays, rays.shape[0], out)
     return out
 
 
@@ -359,7 +359,7 @@ def test_shadow_rays_carry_the_transmittance_of_what_they_cross():
             tb = tr.native_tables()
             rays = np.c_[o, d, np.full(2000, np.inf)]
             pk, rec = embree.new_packet(), embree.new_scratch()
-            nb = _nb_transmittance(tr.native_handle, pk, rec, tb, tr.offset_eps, rays)
+            nb = _nb_transmittance(tr.native_handle, pk, rec, tb, rays)
             np.testing.assert_allclose(nb, got, rtol=REL, atol=1e-12)
         tr.close()
     # the stochastic pass-through it replaces has the same mean (the numpy path draws from

@@ -178,6 +178,7 @@ def bake_texels(
     if native:
         ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy)
     chunk = chunk_texels(samples, adaptive, native)
+    offsets = tracer.texel_offsets(texels, mesh)  # ray-origin offset per texel
     est_rays_per_sample = None
     saved = 0
     for start in range(0, n, chunk):
@@ -188,10 +189,11 @@ def bake_texels(
         P = texels.position[sl].astype(np.float64)
         NG = texels.geom_normal[sl].astype(np.float64)
         F = texels.frame[sl].astype(np.float64)
+        E = offsets[sl]
         if native:
-            ctx.start_chunk(P, NG, F, rng)
+            ctx.start_chunk(P, NG, F, E, rng)
         else:
-            ctx.direct_delta(P, NG, F, acc)
+            ctx.direct_delta(P, NG, F, E, acc)
         for k in range(passes):
             if len(active) == 0:
                 break
@@ -202,7 +204,15 @@ def bake_texels(
                 ctx.native_pass(s_k, k * per_pass, acc, active, k == 0)
             else:
                 ctx.hemisphere_pass(
-                    P[active], NG[active], F[active], s_k, k * per_pass, rng, acc, active
+                    P[active],
+                    NG[active],
+                    F[active],
+                    E[active],
+                    s_k,
+                    k * per_pass,
+                    rng,
+                    acc,
+                    active,
                 )
             acc.n_half[active] += (s_k + 1) // 2
             if passes > 1 and k < passes - 1:
@@ -331,8 +341,8 @@ class _NativeCtx:
         self.tb = tracer.native_tables()
         self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces
 
-    def start_chunk(self, P, NG, F, rng):
-        self.P, self.NG, self.F = P, NG, np.ascontiguousarray(F)
+    def start_chunk(self, P, NG, F, E, rng):
+        self.P, self.NG, self.F, self.E = P, NG, np.ascontiguousarray(F), E
         self.state = rng.integers(0, np.iinfo(np.uint64).max, len(P), dtype=np.uint64,
                                   endpoint=True)  # fmt: skip
 
@@ -348,7 +358,7 @@ class _NativeCtx:
             work = native_work(s)
             return native_pass(
                 handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
-                s, r2h, r2n, self.state, do_delta, arrays, work,
+                self.E, s, r2h, r2n, self.state, do_delta, arrays, work,
             )  # fmt: skip
 
         rays = self.tr.run_parallel(run, np.asarray(active, np.int64))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.numerics import sh as shmod
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 from usdahd.numerics.sampling import (
     cosine_hemisphere,
     orthonormal_basis,
@@ -164,7 +165,7 @@ class ReferenceCtx:
         self.rays_per_sample = 1 + (1 if self.lights.area else 0) + 3 * bounces
 
     # ------------------------------------------------------------------ texel level
-    def direct_delta(self, P, NG, F, acc):
+    def direct_delta(self, P, NG, F, E, acc):
         """Exact contribution of delta lights: one shadow ray per texel and light."""
         for lt in self.lights.delta:
             d, dist, val, _ = lt.sample(P, np.zeros((len(P), 2)))
@@ -174,14 +175,14 @@ class ReferenceCtx:
             if not np.any(ok):
                 continue
             idx = np.nonzero(ok)[0]
-            o = self.tr.offset(P[idx], NG[idx], d[idx])
+            o = self.tr.offset(P[idx], NG[idx], d[idx], E[idx])
             tr = self._visibility(lt, o, *_shadow(o, P[idx], d[idx], dist[idx]))
             keep = tr > 0
             idx, tr = idx[keep], tr[keep]
             f = val[idx] * tr[:, None]
             acc.delta[idx] += np.einsum("nc,nk->nck", f, shmod.basis(loc[idx]))
 
-    def hemisphere_pass(self, P, NG, F, s, offset, rng, acc, active):
+    def hemisphere_pass(self, P, NG, F, E, s, offset, rng, acc, active):
         n = len(P)
         u = np.mod(r2_sequence(s, offset)[None] + rng.random((n, 1, 2)), 1.0)  # (n,s,2)
         loc, pdf_h = texel_hemisphere(u)  # (n,s,3), (n,s)
@@ -189,13 +190,14 @@ class ReferenceCtx:
         loc = loc.reshape(-1, 3)
         Pf = np.repeat(P, s, axis=0)
         NGf = np.repeat(NG, s, axis=0)
+        Ef = np.repeat(E, s, axis=0)
         above = np.einsum("ij,ij->i", d, NGf) > 0
         radiance = np.zeros((n * s, 3))
         back = np.zeros(n * s, bool)
         idx = np.nonzero(above)[0]
         texel_sel = self._texel_selection(P)
         if len(idx):
-            o = self.tr.offset(Pf[idx], NGf[idx], d[idx])
+            o = self.tr.offset(Pf[idx], NGf[idx], d[idx], Ef[idx])
             hits = self.tr.intersect(o, d[idx], rng=rng)
             tri = hits["tri"]
             gn = self.tr.geom_normal[np.where(tri >= 0, tri, 0)]
@@ -215,7 +217,7 @@ class ReferenceCtx:
         acc.count[active] += s
         ylum = shmod.IZ_FROM_L10 * (R @ shmod.LUMINANCE) * Y[..., 2] / pdf_h
         if self.lights.area:
-            nee_c, nee_y = self.texel_nee(P, NG, F, s, offset, rng, texel_sel)
+            nee_c, nee_y = self.texel_nee(P, NG, F, E, s, offset, rng, texel_sel)
             acc.nee[active] += nee_c
             ylum = ylum + nee_y
         acc.y_sum[active] += ylum.sum(axis=1)
@@ -230,7 +232,7 @@ class ReferenceCtx:
             return 1.0
         return selection_pmf(self.area_bounds, P, LIGHT_SELECTION_FLOOR)
 
-    def texel_nee(self, P, NG, F, s, offset, rng, texel_sel=None):
+    def texel_nee(self, P, NG, F, E, s, offset, rng, texel_sel=None):
         """Light samples at the texel (MIS with the texel hemisphere); returns sums
         (c (n,3,9), per-sample luminance Iz (n,s)). With at most ALL_LIGHTS_MAX sampled lights
         every light gets every sample (no light-selection noise; ``texel_sel`` = 1), else each
@@ -248,6 +250,7 @@ class ReferenceCtx:
             pick = np.minimum((rng.random(n * s)[:, None] >= cdf).sum(axis=1), m - 1)
         Pf = np.repeat(P, s, axis=0)
         NGf = np.repeat(NG, s, axis=0)
+        Ef = np.repeat(E, s, axis=0)
         Ff = np.repeat(F, s, axis=0)
         c = np.zeros((n, 3, 9))
         y = np.zeros(n * s)
@@ -267,7 +270,7 @@ class ReferenceCtx:
             idx, d, dist, val, pdf, loc = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], loc[ok]
             if len(idx) == 0:
                 continue
-            o = self.tr.offset(Pf[idx], NGf[idx], d)
+            o = self.tr.offset(Pf[idx], NGf[idx], d, Ef[idx])
             tr = self._visibility(lt, o, *_shadow(o, Pf[idx], d, dist), rng=rng)
             vis = tr > 0
             idx, val, pdf, loc = idx[vis], val[vis] * tr[vis, None], pdf[vis], loc[vis]
@@ -342,17 +345,21 @@ class ReferenceCtx:
             return L
         surf, tri_s, u, v, gn, ds, albedo = (a[keep] for a in (surf, tri_s, u, v, gn, ds, albedo))
         p = self.tr.hit_points(tri_s, u, v)
+        # the triangle's ray offset, and as many ulps of the hit distance (the native kernel's
+        # hit points are o + t d, whose error grows with t; the same rule here)
+        sc = np.maximum(self.tr.tri_offset[tri_s], OFFSET_ULPS * FLT_EPS * t[surf])
         ns = self.tr.shading_normals(tri_s, u, v)
         side = np.where(np.einsum("ij,ij->i", ds, gn) < 0, 1.0, -1.0)[:, None]
         gn = gn * side  # face the incoming ray (two-sided shading)
         ns = ns * side
         ns = np.where((np.einsum("ij,ij->i", ns, gn) > 0)[:, None], ns, gn)
-        L[surf] += albedo * self.reflect(p, gn, ns, depth + 1, rng, self.tr.tri_mesh[tri_s])
+        L[surf] += albedo * self.reflect(p, gn, ns, sc, depth + 1, rng, self.tr.tri_mesh[tri_s])
         return L
 
-    def reflect(self, p, gn, ns, depth, rng, mesh):
+    def reflect(self, p, gn, ns, sc, depth, rng, mesh):
         """(1/pi) * integral of incoming radiance * cos at surface points: NEE + one BSDF ray.
-        mesh : (m,) int scene mesh index of each point (light linking)."""
+        sc : (m,) ray-origin offset of each point (:meth:`Tracer.offset`); mesh : (m,) int
+        scene mesh index of each point (light linking)."""
         m = len(p)
         out = np.zeros((m, 3))
         nee = self.lights.nee
@@ -374,7 +381,7 @@ class ReferenceCtx:
                 idx, d, dist, val, pdf, cos = idx[ok], d[ok], dist[ok], val[ok], pdf[ok], cos[ok]
                 if len(idx) == 0:
                     continue
-                o = self.tr.offset(p[idx], gn[idx], d)
+                o = self.tr.offset(p[idx], gn[idx], d, sc[idx])
                 tr = self._visibility(lt, o, *_shadow(o, p[idx], d, dist), rng=rng)
                 vis = tr > 0
                 val = val * tr[:, None]
@@ -393,7 +400,7 @@ class ReferenceCtx:
             ok = np.einsum("ij,ij->i", d, gn) > 0
             idx = np.nonzero(ok)[0]
             if len(idx):
-                o = self.tr.offset(p[idx], gn[idx], d[idx])
+                o = self.tr.offset(p[idx], gn[idx], d[idx], sc[idx])
                 hits = self.tr.intersect(o, d[idx], rng=rng)
                 s_idx = (sel[idx], nee) if n_nee else 1.0
                 out[idx] += self.incoming(o, d[idx], hits, pdf[idx], s_idx, depth, rng, mesh[idx])
@@ -445,7 +452,7 @@ class ReferenceCtx:
             occ[todo[blocks]] = True
             go = hit & ~blocks  # a non-caster: continue past it
             nxt = todo[go]
-            step = h["t"][go].astype(np.float64) + self.tr.offset_eps
+            step = h["t"][go].astype(np.float64) + self.tr.tri_offset[h["tri"][go]]
             o[nxt] = o[nxt] + step[:, None] * d[nxt]
             tfar[nxt] = tfar[nxt] - step
             keep = tfar[nxt] > 0

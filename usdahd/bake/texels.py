@@ -512,9 +512,9 @@ def half_texel_vectors(mesh: MeshData, resolution) -> np.ndarray:
 def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, np.ndarray]:
     """Move sample points whose ray origin lies behind a surface crossing the texel's footprint.
 
-    The problem: a sample point exactly on (or within ``offset_eps`` of) a contact, e.g. the
+    The problem: a sample point exactly on (or within its ray offset of) a contact, e.g. the
     bottom edge of an overhanging face resting on the ground, gets its ray origin
-    ``P + offset_eps * n`` on the far side of the other surface (below the ground, inside a
+    ``P + offset * n`` on the far side of the other surface (below the ground, inside a
     solid); its hemisphere then sees what lies behind that surface (the sky under the ground)
     and the texel comes out as a bright line. No test from the origin back to ``P`` can see a
     surface through ``P`` itself in float32.
@@ -560,7 +560,7 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
 
     texels, mesh: as :func:`rasterize` returned them for this mesh; tracer: a
     :class:`usdahd.bake.trace.Tracer` over the scene (``offset``, ``intersect``,
-    ``geom_normal``, ``offset_eps``). Costs ``8 x rounds`` rays per texel (a bake traces
+    ``geom_normal``, ``texel_offsets``). Costs ``8 x rounds`` rays per texel (a bake traces
     hundreds). Returns ``(texels, invalid (n,) bool)``; ``texels`` is the same object when no
     point moved, else a copy with the new ``position`` and ``stats["contact_texels"]`` (moved)
     and ``stats["contact_invalid"]``.
@@ -577,13 +577,14 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
     k = len(CONTACT_PROBES)
     pos = texels.position.astype(np.float64)
     ng = texels.geom_normal.astype(np.float64)
+    scales = tracer.texel_offsets(texels, mesh)  # the integrator's ray offsets
     moved = np.zeros(n, bool)
     todo = np.nonzero(ok.any(axis=1))[0]
     for rnd in range(CONTACT_ROUNDS + 1):
         if len(todo) == 0:
             break
         p, g = pos[todo], ng[todo]
-        origin = tracer.offset(p, g, g)
+        origin = tracer.offset(p, g, g, scales[todo])
         o = np.repeat(origin, k, axis=0)
         d = dirs[todo].reshape(-1, 3)
         tfar = length[todo].reshape(-1)
@@ -611,7 +612,7 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
             invalid[sel] = True
             break
         jb, rb = j[behind], rows[behind]
-        scale = tracer.offset_eps + 1e-7 * np.abs(p[rb]).max(axis=1)
+        scale = tracer.offset_scale(p[rb], scales[todo[rb]])  # the origin's offset
         step = t[rb, jb] + 2.0 * scale / np.maximum(cos.reshape(-1, k)[rb, jb], CONTACT_MIN_COS)
         fits = step <= length[sel, jb]
         invalid[sel[~fits]] = True

@@ -40,13 +40,10 @@ from usdahd.bake.kernels import embree
 from usdahd.bake.kernels.layout import (
     NativeTables,
 )
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS, triangle_offset_scale
 
 #: Re-traces through cut-out/transmissive surfaces before a ray is considered blocked.
 MAX_TRANSMIT = 8
-#: Ray-origin offset along the geometric normal, relative to the scene's bounding diagonal
-#: (float32 positions carry ~6e-8 relative error; 1e-5 of the extent clears it with margin for
-#: scenes whose detail is >= ~1/1000 of their extent).
-OFFSET_REL = 1e-5
 #: Work items per thread in :meth:`Tracer.run_parallel` (dynamic load balance).
 PARTS_PER_THREAD = 4
 #: Batches smaller than this run on one thread (thread start-up would dominate).
@@ -60,7 +57,9 @@ class Tracer:
     ``tri_material`` (T,) int32, ``tri_one_sided`` (T,) bool (False on ``doubleSided``
     meshes, whose back faces are surfaces, not the inside of geometry: :meth:`back_face`),
     ``geom_normal`` (T,3) float32 unit, ``corner_normal``
-    (T,3,3) float32, ``verts`` (T,3,3) float64, ``offset_eps`` float, ``build_time`` s,
+    (T,3,3) float32, ``verts`` (T,3,3) float64, ``tri_offset`` (T,) float64 the ray-origin
+    offset of points on each triangle (:func:`triangle_offset_scale`), ``offset_eps`` float the
+    largest of them (for points whose triangle is not known), ``build_time`` s,
     ``rays_traced`` int (a running count).
     """
 
@@ -113,7 +112,9 @@ class Tracer:
         )
         lo, hi = points.min(axis=0), points.max(axis=0)
         self.extent = float(np.linalg.norm(hi - lo))
-        self.offset_eps = OFFSET_REL * max(self.extent, 1e-6)
+        self.tri_offset = triangle_offset_scale(self.verts)
+        self.mesh_first = np.r_[0, np.cumsum([len(m.triangles) for m in scene.meshes])]
+        self.offset_eps = float(self.tri_offset.max(initial=OFFSET_ULPS * FLT_EPS))
         self._embree = self._native = None
         if backend == "native":
             self._native = embree.NativeScene(points, self.triangles)
@@ -204,15 +205,40 @@ class Tracer:
         return np.concatenate(parts)
 
     # ------------------------------------------------------------------ public batch API
-    def offset(self, p: np.ndarray, ng: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """Ray origins: ``p`` moved by ``offset_eps`` along ``ng`` to the side ``d`` points to.
+    def offset(self, p: np.ndarray, ng: np.ndarray, d: np.ndarray, scale=None) -> np.ndarray:
+        """Ray origins: ``p`` moved along ``ng`` to the side ``d`` points to, by ``scale``
+        (m,) (the offset of the point's triangle: ``tri_offset[tri]``, or
+        :func:`texel_offsets`), at least ``OFFSET_ULPS`` ulps of the point's own largest
+        coordinate; without ``scale`` by ``offset_eps`` (the largest of the scene).
 
         p, ng, d : (m,3).  returns : (m,3) float64.
         """
         s = np.sign(np.einsum("ij,ij->i", ng, d))
         s = np.where(s == 0, 1.0, s)
-        scale = self.offset_eps + 1e-7 * np.abs(p).max(axis=1)
-        return p + (s * scale)[:, None] * ng
+        return p + (s * self.offset_scale(p, scale))[:, None] * ng
+
+    def offset_scale(self, p: np.ndarray, scale=None) -> np.ndarray:
+        """(m,) the distance :meth:`offset` moves points ``p`` (m, 3) by: ``scale`` (m,)
+        (``offset_eps`` when None), at least ``OFFSET_ULPS`` ulps of each point's largest
+        coordinate."""
+        own = OFFSET_ULPS * FLT_EPS * np.abs(p).max(axis=1)
+        return np.maximum(self.offset_eps if scale is None else scale, own)
+
+    def texel_offsets(self, texels, mesh) -> np.ndarray:
+        """Ray-origin offsets (n,) float64 of ``texels`` of the scene mesh ``mesh`` (its index
+        or its MeshData): the ``tri_offset`` of each texel's triangle, at least ``OFFSET_ULPS``
+        ulps of its point's largest coordinate. ``mesh`` None (texels not of one scene mesh):
+        ``offset_eps``, the scene's largest."""
+        n = len(texels)
+        if mesh is not None and not isinstance(mesh, (int, np.integer)):
+            mesh = next((i for i, m in enumerate(self.scene.meshes) if m is mesh), None)
+        if mesh is None:
+            scale = np.full(n, self.offset_eps)
+        else:
+            tri = self.mesh_first[int(mesh)] + np.asarray(texels.triangle, np.int64)
+            scale = self.tri_offset[tri]
+        p = np.asarray(texels.position, np.float64)
+        return np.maximum(scale, OFFSET_ULPS * FLT_EPS * np.abs(p).max(axis=1, initial=0.0))
 
     def intersect(self, o, d, tfar=None, rng=None):
         """Closest hits. o, d : (m,3) (d unit); tfar : (m,) or None (inf).
@@ -250,7 +276,7 @@ class Tracer:
         distance before them added to ``travelled``); returns the rays that hit again."""
         p = self.hit_points(tri[idx], u[idx], v[idx])
         ng = self.geom_normal[tri[idx]].astype(np.float64)
-        no = self.offset(p, ng, d[idx])
+        no = self.offset(p, ng, d[idx], self.tri_offset[tri[idx]])
         done = travelled[idx] + t[idx]
         rem = tf[idx] - done
         t2, tri2, u2, v2 = self._raw_intersect(
@@ -412,6 +438,7 @@ class Tracer:
             np.ascontiguousarray(self.corner_normal, np.float32),
             self.tri_material.astype(np.int32),
             self.tri_one_sided.astype(np.uint8),
+            np.ascontiguousarray(self.tri_offset, np.float64),
             self.tri_texcoord.astype(np.float64),
             mat_const,
             mat_tex,

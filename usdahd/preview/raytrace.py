@@ -58,7 +58,7 @@ def front_hits(tracer, o: np.ndarray, d: np.ndarray) -> dict:
             break
         # Continue the same ray: step past the plane along d (not along the normal, which
         # would shift the ray sideways by the offset and move the hit behind by as much).
-        step = tracer.offset_eps / np.maximum(cos, 1e-3)
+        step = tracer.tri_offset[tri[idx]] / np.maximum(cos, 1e-3)
         p = tracer.hit_points(tri[idx], u[idx], v[idx]) + step[:, None] * d[idx]
         again = tracer.intersect(p, d[idx])
         tri[idx], u[idx], v[idx] = again["tri"], again["u"], again["v"]

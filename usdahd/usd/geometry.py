@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 from usdahd.scene.types import ComputedNormals, MeshData
 from usdahd.usd import normals as N
 from usdahd.usd.materials import SubsetError
@@ -32,10 +33,12 @@ __all__ = ["GeometryReader", "MeshFailure", "Topology", "tessellate"]
 #: would snap to a grid coarser than 1/32 of its size (normals, texel positions and ray
 #: offsets wrong by > 3%). A 1 cm part passes up to ~5 km from the origin.
 MIN_SIZE_ULPS = 32.0
-#: A mesh whose diagonal is below this fraction of the scene's extent gets a warning: the
-#: tracer offsets ray origins by 1e-5 of the extent (trace.OFFSET_REL), i.e. by more than 10%
-#: of such a mesh, so its contact shadows and self-occlusion are unreliable.
-SMALL_MESH_REL = 1e-4
+#: A baked mesh whose diagonal is below this many times the largest ray offset of the scene
+#: gets a warning: rays leaving a triangle start ``OFFSET_ULPS`` float32 ulps of its largest
+#: coordinate off it (up to ``OFFSET_ULPS * eps * max |coordinate|``: 1.2 mm on a
+#: 160 m ground quad), so rays from the surfaces around such a mesh can start beyond it and its
+#: contact shadows and self-occlusion are unreliable.
+SMALL_MESH_OFFSETS = 10.0
 #: A triangle is degenerate (dropped, with a warning) when twice its area is below this
 #: fraction of its mesh's squared bounding-box diagonal: three collinear float32 points give
 #: |cross| ~ 6e-8 x diag^2 from rounding, real slivers are far above 1e-10.
@@ -90,24 +93,24 @@ class GeometryReader:
 
     def size_warnings(self) -> None:
         """One warning naming the baked meshes too small for the tracer's ray offsets
-        (SMALL_MESH_REL of the scene's extent)."""
+        (SMALL_MESH_OFFSETS times the largest)."""
         if not self.meshes:
             return
-        lo = np.min([m.points.min(axis=0) for m in self.meshes], axis=0)
-        hi = np.max([m.points.max(axis=0) for m in self.meshes], axis=0)
-        extent = float(np.linalg.norm(hi - lo))
+        big = max(float(np.abs(m.points).max(initial=0.0)) for m in self.meshes)
+        offset = OFFSET_ULPS * FLT_EPS * big  # the largest ray offset of the scene
         small = []
         for m in self.meshes:
             d = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
-            if m.bake and d < SMALL_MESH_REL * extent:
+            if m.bake and d < SMALL_MESH_OFFSETS * offset:
                 small.append(f"{m.path} ({d:.3g} units)")
         if small:
             more = f" and {len(small) - 5} more" if len(small) > 5 else ""
             self.warn(
-                f"{len(small)} baked meshes are very small, under {SMALL_MESH_REL:g} of the "
-                f"scene's extent {extent:.3g}: {', '.join(small[:5])}{more}; ray offsets exceed "
-                "10% of their size, so their lighting is approximate (a huge ground plane or a "
-                "stray far-away prim inflates the extent)"
+                f"{len(small)} baked meshes are very small, under {SMALL_MESH_OFFSETS:g}x the "
+                f"scene's largest ray offset {offset:.3g}: {', '.join(small[:5])}{more}; rays "
+                "from the surfaces around them start up to that far off, so their lighting is "
+                "approximate (the offset grows with the largest coordinate: a huge ground plane "
+                "or a stray far-away prim)"
             )
 
     def normals_warnings(self) -> None:

@@ -21,7 +21,6 @@ from usdahd.bake.kernels.layout import (
     CFG_BOUNCES,
     CFG_EMISSION,
     CFG_EMISSIVE_LIGHT,
-    CFG_EPS,
     CFG_REGRESSION,
     CFG_STRATEGY,
     CFG_TRANSMISSION,
@@ -68,6 +67,7 @@ from usdahd.bake.kernels.lights import (
     search_right,
 )
 from usdahd.bake.kernels.trace import (
+    _OFFSET_PER_UNIT,
     nb_albedo,
     nb_emission,
     nb_hit_point,
@@ -313,7 +313,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
     nee_idx, visible_idx, area_idx = lists.nee, lists.visible, lists.area
     tri_mat, mat_const, mat_tex = tb.tri_material, tb.mat_const, tb.mat_tex
-    bounces, eps = int(cfg[CFG_BOUNCES]), cfg[CFG_EPS]
+    bounces = int(cfg[CFG_BOUNCES])
     transmission, has_em = cfg[CFG_TRANSMISSION] != 0.0, cfg[CFG_EMISSION] != 0.0
     em_q = int(cfg[CFG_EMISSIVE_LIGHT])  # the emissive-triangles light (-1: none)
     mode = int(cfg[CFG_STRATEGY])
@@ -408,6 +408,9 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         break
                     ar, ag, ab = ar / rr, ag / rr, ab / rr
                 px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+                # the triangle's ray offset, and as many ulps of t (o + t d's error grows
+                # with t; Tracer.offset, reference.ReferenceCtx.incoming)
+                sc = max(tb.tri_offset[tri], _OFFSET_PER_UNIT * t)
                 nx, ny, nz = nb_shading_normal(tb, tri, u, v)
                 side = 1.0 if cos_in < 0.0 else -1.0
                 gx, gy, gz = gx * side, gy * side, gz * side
@@ -437,7 +440,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                         else:
                             pl = pdf * psel
                             f = _wl(mode, pl, cos / np.pi) * cos / np.pi / pl
-                        qx, qy, qz = nb_offset(eps, px, py, pz, gx, gy, gz, lx, ly, lz)
+                        qx, qy, qz = nb_offset(sc, px, py, pz, gx, gy, gz, lx, ly, lz)
                         sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, lx, ly, lz, dist)
                         _set_row(srays, ns, qx, qy, qz, sx, sy, sz, tf)
                         sval[ns, 0] = br * r * f
@@ -459,7 +462,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                 dx, dy, dz = nb_basis_apply(nx, ny, nz, a, b, cz)
                 if not (dx * gx + dy * gy + dz * gz > 0.0):
                     break
-                ox, oy, oz = nb_offset(eps, px, py, pz, gx, gy, gz, dx, dy, dz)
+                ox, oy, oz = nb_offset(sc, px, py, pz, gx, gy, gz, dx, dy, dz)
                 _set_row(rays, nn, ox, oy, oz, dx, dy, dz, np.inf)
                 _set_row(ps, nn, ox, oy, oz, dx, dy, dz, br)
                 ps[nn, PATH_BETA + 1] = bg
@@ -474,7 +477,7 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
             R[k, 1] += Lg
             R[k, 2] += Lb
         if ns:
-            traced += nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, srays, ns, occ)
+            traced += nb_transmittance_rays(scene, pk, rec, tb, transmission, srays, ns, occ)
             for q in range(ns):
                 tr = occ[q]  # the fraction of the light's sample that arrives
                 if tr > 0.0:
@@ -483,16 +486,16 @@ def _paths(scene, pk, rec, tb, lt, lists, cfg, st, n, ps, rays, hits, srays, sva
                     R[k, 1] += tr * sval[q, 1]
                     R[k, 2] += tr * sval[q, 2]
         if nn:
-            traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, nn, hits)
+            traced += nb_trace_rays(scene, pk, rec, tb, transmission, st, rays, nn, hits)
         n = nn
     return traced
 
 
 @helper
-def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
+def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, E, Y, delta):
     """Exact delta-light terms of texel ``i`` (one shadow ray per light). returns rays."""
     kind, par, img, pmf, cdf = lt.kind, lt.par, lt.img, lt.pmf, lt.cdf
-    eps, transmission = cfg[CFG_EPS], cfg[CFG_TRANSMISSION] != 0.0
+    eps, transmission = E[i], cfg[CFG_TRANSMISSION] != 0.0
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
     ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
     f = F[i]
@@ -507,7 +510,7 @@ def _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta):
             continue
         qx, qy, qz = nb_offset(eps, px, py, pz, ngx, ngy, ngz, dx, dy, dz)
         sx, sy, sz, tf = _shadow1(qx, qy, qz, px, py, pz, dx, dy, dz, dist)
-        tr, k = nb_transmittance(scene, rec, tb, eps, transmission, qx, qy, qz, sx, sy, sz, tf)
+        tr, k = nb_transmittance(scene, rec, tb, transmission, qx, qy, qz, sx, sy, sz, tf)
         rays += k
         if not (tr > 0.0):
             continue
@@ -545,11 +548,12 @@ def _gram_unpack(gram, i, G):
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def native_pass(
-    scene, tb, lt, lists, cfg, ids, P, NG, F, s, r2h, r2n, rng_state, do_delta, acc, work
+    scene, tb, lt, lists, cfg, ids, P, NG, F, E, s, r2h, r2n, rng_state, do_delta, acc, work
 ):
     """One pass of ``s`` hemisphere (+ light) samples for texels ``ids`` of a chunk.
 
-    P, NG : (n,3) f64; F : (n,3,3) f64; r2h : (s,4) R2 points for the hemisphere with
+    P, NG : (n,3) f64; F : (n,3,3) f64; E : (n,) f64 ray-origin offsets
+    (``Tracer.texel_offsets``); r2h : (s,4) R2 points for the hemisphere with
     cos/sin of 2 pi times their second coordinate; r2n : (s,2) R2 points for the light
     samples; acc : (gram, hemi, nee, delta, count, back, y_sum, y_sq, y_half) of ``Accum``;
     work : per-thread scratch from :func:`native_work` (RTCRayHit record, packet, (1,) uint64
@@ -561,7 +565,7 @@ def native_pass(
     kind, par, img, pmf, cdf, ldelta, linf, lsampled = lt
     delta_idx, area_idx = lists.delta, lists.area
     gram, hemi, nee, delta, count, back, y_sum, y_sq, y_half = acc
-    eps, transmission = cfg[CFG_EPS], cfg[CFG_TRANSMISSION] != 0.0
+    transmission = cfg[CFG_TRANSMISSION] != 0.0
     regression = cfg[CFG_REGRESSION] != 0.0
     mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
@@ -577,8 +581,9 @@ def native_pass(
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         ngx, ngy, ngz = NG[i, 0], NG[i, 1], NG[i, 2]
         f = F[i]
+        eps = E[i]
         if do_delta:
-            traced += _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, Y, delta)
+            traced += _texel_delta(scene, rec, tb, lt, delta_idx, cfg, st, i, P, NG, F, E, Y, delta)
         cp0 = nb_random(st)
         cp1 = nb_random(st)
         c1, s1 = np.cos(_TWO_PI * cp1), np.sin(_TWO_PI * cp1)
@@ -611,7 +616,7 @@ def native_pass(
                 m += 1
         n_back = 0
         if m:
-            traced += nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, m, hits)
+            traced += nb_trace_rays(scene, pk, rec, tb, transmission, st, rays, m, hits)
             for j in range(m):
                 # a back face of a one-sided triangle: the texel may be inside geometry
                 if hits[j, HIT_TRI] >= 0.0 and tb.tri_one_sided[int(hits[j, HIT_TRI])] != 0:
@@ -665,9 +670,7 @@ def native_pass(
                     sidx[ns] = k
                     ns += 1
             if ns:
-                traced += nb_transmittance_rays(
-                    scene, pk, rec, tb, eps, transmission, srays, ns, occ
-                )
+                traced += nb_transmittance_rays(scene, pk, rec, tb, transmission, srays, ns, occ)
                 for q in range(ns):
                     tr = occ[q]
                     if not (tr > 0.0):

@@ -113,8 +113,10 @@ class NativeTables(NamedTuple):
     ``verts`` (T,3,3) f64, ``geom_normal`` (T,3) f64, ``corner_normal`` (T,3,3) f32,
     ``tri_material`` (T,) i32 (narrow: read once per hit, where cache misses dominate),
     ``tri_one_sided`` (T,) u8 (0 on doubleSided meshes: their back faces are surfaces),
-    ``tri_texcoord`` (T,3,2) f64, ``mat_const`` (M,8) f64 (``MAT_*`` columns), ``mat_tex``
-    (M,3) i64 (``TEX_*`` columns), ``tex_data`` (D,) f32 texels, ``tex_info`` (K,8) i64
+    ``tri_offset`` (T,) f64 ray-origin offset of points on the triangle
+    (:func:`usdahd.numerics.offsets.triangle_offset_scale`), ``tri_texcoord`` (T,3,2) f64,
+    ``mat_const`` (M,8) f64 (``MAT_*`` columns), ``mat_tex`` (M,3) i64 (``TEX_*`` columns),
+    ``tex_data`` (D,) f32 texels, ``tex_info`` (K,8) i64
     (``TI_*`` columns), ``tex_chan`` (K,4) i64 selected channels, ``tex_sb`` (K,8) f64 scale
     then bias."""
 
@@ -123,6 +125,7 @@ class NativeTables(NamedTuple):
     corner_normal: np.ndarray
     tri_material: np.ndarray
     tri_one_sided: np.ndarray
+    tri_offset: np.ndarray
     tri_texcoord: np.ndarray
     mat_const: np.ndarray
     mat_tex: np.ndarray
@@ -134,9 +137,11 @@ class NativeTables(NamedTuple):
 
 # ----------------------------------------------------------------------------- integrator
 #: Slots of the integrator configuration ``cfg`` (CFG_LEN,) float64 (one array so the kernel
-#: signature stays fixed): bounces (int), ray offset eps, the scene has transmissive materials
-#: (0/1), has emission (0/1), the estimator is "regression" (0/1), index of the
-#: emissive-triangles light (-1: none), strategy (index in ``integrate.STRATEGIES``).
+#: signature stays fixed): bounces (int), the scene's largest ray offset (``Tracer.offset_eps``,
+#: informational: the kernels offset by the hit triangle's ``tri_offset`` or the texel's own),
+#: the scene has transmissive materials (0/1), has emission (0/1), the estimator is
+#: "regression" (0/1), index of the emissive-triangles light (-1: none), strategy (index in
+#: ``integrate.STRATEGIES``).
 CFG_BOUNCES, CFG_EPS, CFG_TRANSMISSION, CFG_EMISSION, CFG_REGRESSION = 0, 1, 2, 3, 4
 CFG_EMISSIVE_LIGHT, CFG_STRATEGY, CFG_LEN = 5, 6, 7
 #: ``cfg[CFG_STRATEGY]`` values (the order of ``integrate.STRATEGIES``).

@@ -25,12 +25,15 @@ from usdahd.bake.kernels.layout import (
     TEX_OPACITY,
 )
 from usdahd.bake.trace import MAX_TRANSMIT
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 
 # ----------------------------------------------------------------------------- numba side
 # Scalar per-ray versions of the methods above for the fused integrator kernel; ``tb`` is the
 # NativeTables returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.
 
 _U64 = np.uint64
+#: Tracer.offset's floor per unit of the point's largest coordinate (same product, same bits).
+_OFFSET_PER_UNIT = OFFSET_ULPS * FLT_EPS
 
 
 @helper
@@ -45,10 +48,11 @@ def nb_random(st):
 
 
 @helper
-def nb_offset(eps, px, py, pz, nx, ny, nz, dx, dy, dz):
-    """:meth:`Tracer.offset` for one ray."""
+def nb_offset(scale, px, py, pz, nx, ny, nz, dx, dy, dz):
+    """:meth:`Tracer.offset` for one ray (``scale``: the point's triangle's ``tri_offset``
+    or the texel's own offset)."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
-    sc = s * (eps + 1e-7 * max(abs(px), abs(py), abs(pz)))
+    sc = s * max(scale, _OFFSET_PER_UNIT * max(abs(px), abs(py), abs(pz)))
     return px + sc * nx, py + sc * ny, pz + sc * nz
 
 
@@ -207,21 +211,22 @@ def nb_shading_normal(tb, tri, u, v):
 
 
 @helper
-def _pass_through(scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t):
+def _pass_through(scene, rec, tb, tri, u, v, dx, dy, dz, tfar, travelled, t):
     """Continue a ray past its hit on ``tri`` at barycentrics (u, v), ``t`` beyond the
     ``travelled`` distance: (t, tri, u, v, travelled) of its next hit (tri -1: none)."""
     # barycentrics rounded to float32 as Embree reports them (float64: one specialisation)
     uf, vf = np.float64(np.float32(u)), np.float64(np.float32(v))
     px, py, pz = nb_hit_point(tb, tri, uf, vf)
     g = tb.geom_normal
-    qx, qy, qz = nb_offset(eps, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
+    sc = tb.tri_offset[tri]
+    qx, qy, qz = nb_offset(sc, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
     done = travelled + t
     t2, tri2, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
     return np.float64(t2), tri2, np.float64(u2), np.float64(v2), done
 
 
 @helper
-def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
+def nb_trace(scene, rec, tb, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
     on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
     per-triangle table is read)."""
@@ -240,7 +245,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
         if tri < 0 or not nb_transmits(tb, tri, u, v, st):
             break
         t, tri, u, v, travelled = _pass_through(
-            scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t
+            scene, rec, tb, tri, u, v, dx, dy, dz, tfar, travelled, t
         )
         rays += 1
     if tri < 0:
@@ -250,7 +255,7 @@ def nb_trace(scene, rec, tb, eps, transmission, st, ox, oy, oz, dx, dy, dz, tfar
 
 
 @helper
-def nb_transmittance(scene, rec, tb, eps, transmission, ox, oy, oz, dx, dy, dz, tfar):
+def nb_transmittance(scene, rec, tb, transmission, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.transmittance` for one shadow ray: (fraction passing, rays traced)."""
     if not transmission:
         return (0.0 if embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar) else 1.0), 1
@@ -266,14 +271,14 @@ def nb_transmittance(scene, rec, tb, eps, transmission, ox, oy, oz, dx, dy, dz, 
         if not (T > 0.0):
             return 0.0, rays
         t, tri, u, v, travelled = _pass_through(
-            scene, rec, tb, eps, tri, u, v, dx, dy, dz, tfar, travelled, t
+            scene, rec, tb, tri, u, v, dx, dy, dz, tfar, travelled, t
         )
         rays += 1
     return (T if tri < 0 else 0.0), rays
 
 
 @helper
-def nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, rays, n, out):
+def nb_transmittance_rays(scene, pk, rec, tb, transmission, rays, n, out):
     """:meth:`Tracer.transmittance` for ``rays[:n]`` into ``out[:n]`` (float64). returns rays
     traced (16-ray OCCLUDED packets when nothing in the scene transmits)."""
     if not transmission:
@@ -284,7 +289,7 @@ def nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, rays, n, out):
     total = 0
     for r in range(n):
         tr, k = nb_transmittance(
-            scene, rec, tb, eps, transmission, rays[r, 0], rays[r, 1], rays[r, 2],
+            scene, rec, tb, transmission, rays[r, 0], rays[r, 1], rays[r, 2],
             rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
         )  # fmt: skip
         out[r] = tr
@@ -293,7 +298,7 @@ def nb_transmittance_rays(scene, pk, rec, tb, eps, transmission, rays, n, out):
 
 
 @helper
-def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
+def nb_trace_rays(scene, pk, rec, tb, transmission, st, rays, n, hits):
     """:meth:`Tracer.intersect` for ``rays[:n]`` into ``hits[:n]`` (the row layouts of
     :func:`usdahd.bake.kernels.embree.intersect_rays`): 16-ray packets, or one ray at a time
     through :func:`nb_trace` when the scene has transmissive surfaces. returns rays traced."""
@@ -303,7 +308,7 @@ def nb_trace_rays(scene, pk, rec, tb, eps, transmission, st, rays, n, hits):
     total = 0
     for r in range(n):
         t, tri, u, v, gx, gy, gz, k = nb_trace(
-            scene, rec, tb, eps, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
+            scene, rec, tb, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
             rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
         )  # fmt: skip
         hits[r, 0], hits[r, 1], hits[r, 2], hits[r, 3] = t, tri, u, v

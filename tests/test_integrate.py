@@ -174,6 +174,59 @@ def test_distant_cone_direction_points_at_light():
     assert np.all(lin @ to_light > np.cos(np.radians(0.5)))  # cone half-angle 0.265 deg
 
 
+def _penumbra_iz(px, h, elev, half, n=600):
+    """Brute-force I_z at (px, 0, 0) (normal +z) under a normalized DistantLight (E = 1 at
+    normal incidence, half-angle ``half``) towards (cos elev, 0, sin elev), below an opaque
+    blade z = h, x in [-3, 0]: midpoint quadrature of the sun's disc, uniform in solid angle
+    (z = 1 - u (1 - cos half) about its axis), each direction tested against the blade's
+    plane analytically (no ray tracer)."""
+    u = (np.arange(n) + 0.5) / n
+    u0, u1 = np.meshgrid(u, u, indexing="ij")
+    z = 1.0 - u0 * (1.0 - np.cos(half))
+    s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    a = np.array([np.cos(elev), 0.0, np.sin(elev)])
+    t1 = np.array([-np.sin(elev), 0.0, np.cos(elev)])
+    t2 = np.array([0.0, 1.0, 0.0])
+    d = (z[..., None] * a + (s * np.cos(2 * np.pi * u1))[..., None] * t1
+         + (s * np.sin(2 * np.pi * u1))[..., None] * t2)  # fmt: skip
+    x = px + h * d[..., 0] / d[..., 2]
+    lit = ~((x >= -3.0) & (x <= 0.0))
+    # mean over the disc of L cos, L = 1 / (pi sin^2 half) (normalize: E = 1 at normal incidence)
+    e = (lit * d[..., 2]).mean() * 2.0 * np.pi * (1.0 - np.cos(half)) / (np.pi * np.sin(half) ** 2)
+    return e / np.pi
+
+
+@pytest.mark.parametrize("dx_mm", [-3.0, -1.5, 0.0, 1.5, 3.0])
+def test_sun_penumbra_is_not_moved_by_a_far_away_ground(dx_mm):
+    """A straight sun-shadow edge, texel points across its 9 mm penumbra, and a 400 m quad
+    200 m below that only makes the scene large. The irradiance follows the brute-force disc
+    quadrature: the ray offset is local to the receiver (issue 17: offsets of 1e-5 of the
+    scene's diagonal, 5.7 mm here, shifted such points across the whole penumbra)."""
+    h, elev = 0.25, np.radians(30.0)
+    st = _stage()
+    black = _material(st, "/black", albedo=(0, 0, 0))
+    _quad(st, "/receiver", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], black)
+    _quad(st, "/blade", [(-3, -2, h), (-3, 2, h), (0, 2, h), (0, -2, h)], black)  # faces down
+    _quad(st, "/far", [(-200, -200, -200), (-200, 200, -200), (200, 200, -200),
+                       (200, -200, -200)], black)  # fmt: skip
+    lt = UsdLux.DistantLight.Define(st, "/sun")
+    lt.CreateIntensityAttr(1.0)
+    lt.CreateNormalizeAttr(True)
+    lt.CreateAngleAttr(0.53)
+    UsdGeom.Xformable(lt).AddRotateYOp().Set(60.0)  # +Z to (cos 30, 0, sin 30)
+    px = -h / np.tan(elev) + dx_mm * 1e-3  # the edge's shadow on the receiver is at -h cot e
+    scene = load_scene(st)
+    mesh = [m.path for m in scene.meshes].index("/receiver")
+    tr = Tracer(scene, backend=BACKEND)
+    assert tr.extent > 500.0  # the old rule's offset: 1e-5 of it, > 5 mm
+    out, _ = bake_texels(scene, tr, _texels(_same_point((px, 0.0, 0.0))), samples=64,
+                         bounces=0, estimator="mc", mesh=mesh)  # fmt: skip
+    exact = _penumbra_iz(px, h, elev, np.radians(0.53) / 2)
+    assert 0.1 < exact * np.pi / np.sin(elev) < 0.9  # inside the penumbra (lit: sin e)
+    # rel: float32 positions and the quadrature's 600^2 points (~1e-4)
+    _check_mc(sh.iz(out)[:, 0], exact, rel_slack=2e-3)
+
+
 @pytest.mark.parametrize("normalize", [True, False])
 @pytest.mark.parametrize("point", [False, True])
 def test_sphere_light(normalize, point):

@@ -28,7 +28,7 @@ from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTabl
 from usdahd.bake.kernels.trace import nb_offset, nb_texture
 from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
-from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
+from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS, triangle_offset_scale
 from usdahd.numerics.sampling import orthonormal_basis, sample_discrete, to_world
 from usdahd.scene import lights as L
 from usdahd.scene.types import Texture
@@ -203,6 +203,14 @@ def _nb_offsets(scale, p, ng, d):
         out[i] = nb_offset(scale[i], p[i, 0], p[i, 1], p[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
                            d[i, 0], d[i, 1], d[i, 2])  # fmt: skip
     return out
+
+
+def test_triangle_offset_scale_is_ulps_of_the_largest_coordinate():
+    v = np.array([[[1.0, -2.0, 0.5], [0.0, 0.0, 0.0], [0.0, 4.0, 0.0]], [[0, 0, 0]] * 3])
+    np.testing.assert_allclose(
+        triangle_offset_scale(v), [OFFSET_ULPS * FLT_EPS * 4.0, OFFSET_ULPS * FLT_EPS * 1e-30]
+    )
+    assert triangle_offset_scale(np.zeros((0, 3, 3))).shape == (0,)
 
 
 def test_nb_offset_equals_tracer_offset():

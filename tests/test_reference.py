@@ -586,8 +586,9 @@ def test_stretched_boxes_have_no_normals_and_stretched_charts():
 
 def test_point_probes_sit_at_texel_centres_and_own_their_pixel():
     """probes.mesh_probes on a tilted, stretched quad: each probe's centroid is the texel
-    centre's surface point lifted by LIFT texel widths along the face normal, its corners lie
-    SIZE / 2 texel widths from it in the plane normal to the shading normal, wound
+    centre's surface point lifted along the face normal by LIFT texel widths, capped by
+    usdahd's ray offset there, its corners SIZE / 2 texel widths (capped by SIZE_LIFTS / 2
+    offsets) from it in the plane normal to the shading normal, wound
     counter-clockwise about it; in UV it contains Blender's sample point of its own pixel
     ((x + 0.501) / w, v up) and no other pixel's."""
     w, h = 8, 4
@@ -605,9 +606,12 @@ def test_point_probes_sit_at_texel_centres_and_own_their_pixel():
     width = np.sqrt(4.0 * 1.0 / (w * h))  # metres per texel of this mapping (0.5 x 0.25)
     assert np.allclose(pr["width"], width)
     centroid = pr["p"].mean(axis=1)
-    assert np.allclose(centroid, on_surface + probes.LIFT * width * nrm, atol=1e-12)
+    # both capped by usdahd's ray offset on the quad: 64 float32 ulps of its largest coordinate
+    cap = 64 * np.finfo(np.float32).eps * np.abs(quad).max()
+    assert cap < probes.LIFT * width and probes.SIZE_LIFTS * cap < probes.SIZE * width
+    assert np.allclose(centroid, on_surface + cap * nrm, atol=1e-12)
     r = np.linalg.norm(pr["p"] - centroid[:, None], axis=2)
-    assert np.allclose(r, probes.SIZE * width / 2)
+    assert np.allclose(r, probes.SIZE_LIFTS * cap / 2)
     assert np.allclose(((pr["p"] - centroid[:, None]) @ nrm), 0, atol=1e-12)
     face_n = np.cross(pr["p"][:, 1] - pr["p"][:, 0], pr["p"][:, 2] - pr["p"][:, 0])
     assert (face_n @ nrm > 0).all()

@@ -34,6 +34,7 @@ import json
 import numpy as np
 
 from benchmarks.reference.npzio import save_npz
+from usdahd.numerics.offsets import triangle_offset_scale
 from usdahd.numerics.raster import rasterize_uv
 
 #: Probe triangle size, in texel widths (its circumradius is SIZE / 2): bounds how far Cycles'
@@ -51,6 +52,13 @@ LIFT = 0.001
 #: 2 lift / h (32 ulps at |p| = 2 m, h = 0.15 m: 0.01 %).
 SIZE_ULPS = 256.0
 LIFT_ULPS = 32.0
+#: Caps in float32 terms of the triangle under the probe, for huge texels (the classroom's
+#: 221 m ground quad at 24^2 has 9.2 m texels, where 1/1000 and 1/100 of a texel are 9.2 mm
+#: and 9.2 cm, and a window's sun penumbra on it is 4.6 cm wide): the lift is at most usdahd's
+#: own ray offset there (:func:`usdahd.numerics.offsets.triangle_offset_scale`: 64 ulps of the
+#: triangle's largest coordinate, which Embree, Cycles' CPU intersector, does not re-hit), so
+#: both renderers sample the same height; the size at most SIZE_LIFTS such offsets.
+SIZE_LIFTS = 16.0
 #: Probe circumradius in bake-image pixels: Blender's bake lattice samples each pixel at
 #: (x + 0.501, y + 0.502) (RE_bake_pixels_populate), well inside 0.3 px (inradius 0.15 px);
 #: no neighbouring pixel's sample point is within 0.5 px.
@@ -91,8 +99,9 @@ def mesh_probes(tri_p, tri_n, tri_uv, resolution) -> dict:
     )
     width = np.sqrt(area3 / np.maximum(area_px, 1e-300))  # metres per texel
     ulp = np.finfo(np.float32).eps * np.maximum(np.abs(p).max(axis=1), 1.0)
-    size = np.maximum(SIZE * width, SIZE_ULPS * ulp)
-    lift = np.maximum(LIFT * width, LIFT_ULPS * ulp)
+    cap = triangle_offset_scale(P)  # usdahd's ray offset on each probe's triangle
+    size = np.maximum(np.minimum(SIZE * width, SIZE_LIFTS * cap), SIZE_ULPS * ulp)
+    lift = np.maximum(np.minimum(LIFT * width, cap), LIFT_ULPS * ulp)
     centre = p + lift[:, None] * ng
     # tangent frame about the shading normal: t x b = n
     a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])

@@ -27,5 +27,5 @@ FLT_EPS = float(np.finfo(np.float32).eps)
 def triangle_offset_scale(verts: np.ndarray) -> np.ndarray:
     """Ray-origin offset (T,) float64 of points on triangles ``verts`` (T, 3, 3):
     ``OFFSET_ULPS`` float32 ulps of the largest absolute corner coordinate (floor 1e-30)."""
-    v = np.asarray(verts, np.float64).reshape(len(verts), -1)
-    return OFFSET_ULPS * FLT_EPS * np.maximum(np.abs(v).max(axis=1, initial=0.0), 1e-30)
+    v = np.abs(np.asarray(verts, np.float64))
+    return OFFSET_ULPS * FLT_EPS * np.maximum(v.max(axis=(1, 2), initial=0.0), 1e-30)

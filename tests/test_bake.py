@@ -295,7 +295,8 @@ def test_prim_selection_keeps_unwrapped_uvs_of_other_prims(tmp_path, capsys):
     stage = Usd.Stage.Open(str(stage_path))
     UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Geometry/Floor")).RemovePrimvar("st")
     stage.GetRootLayer().Save()
-    assert _bake([str(stage_path), *FAST], capsys)[0] == 0
+    code, out = _bake([str(stage_path), *FAST], capsys)
+    assert code == 0, out.err
     layer_path = tmp_path / "cornell_box.lightmaps.usda"
     uv = Sdf.Path("/World/Geometry/Floor.primvars:st")
     first = Sdf.Layer.OpenAsAnonymous(str(layer_path))  # keep the layer alive while reading

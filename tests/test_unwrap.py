@@ -144,6 +144,27 @@ def test_one_worker_unwraps_mesh_after_mesh_and_survives_a_crash(monkeypatch):
     assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], a[0])
 
 
+def test_a_worker_killed_during_one_mesh_fails_no_prim(monkeypatch, tmp_path):
+    """A worker that dies once (killed from outside while unwrapping) is retried in a fresh
+    worker: the mesh unwraps. (A crash that follows the mesh fails twice: the test above.)"""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    unwrap_mod._stop_worker()
+    want = unwrap(box_mesh(), texels_per_unit=20.0)
+    unwrap_mod._stop_worker()
+    marker = tmp_path / "died"
+    once = (
+        f"import os, sys; m = {str(marker)!r}\n"
+        "if not os.path.exists(m):\n"
+        "    open(m, 'w').close(); sys.stdin.buffer.read(8); os._exit(137)\n"
+        f"{unwrap_mod._CHILD_CODE}"
+    )
+    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
+    got = unwrap(box_mesh(), texels_per_unit=20.0)
+    assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
+    unwrap_mod._stop_worker()
+
+
 def test_too_many_charts_for_the_resolution_fail_at_once():
     """A mesh xatlas cuts into more charts than the lightmap can hold with their padding
     fails after one xatlas run (not MAX_ATTEMPTS), saying how many texels it needs."""

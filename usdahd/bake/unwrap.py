@@ -238,30 +238,36 @@ def _pack_isolated(args, path):
     import pickle
 
     global _worker
-    if _worker is None or not _worker.alive():
-        if _worker is None:
-            atexit.register(_stop_worker)
-        else:
-            _worker.stop()
-        _worker = _Worker()
     limit = UNWRAP_TIMEOUT_S + UNWRAP_TIMEOUT_PER_TRIANGLE_S * len(args[1])
-    try:
-        reply = _worker.request(pickle.dumps(args), limit)
-    except TimeoutError:
-        _worker = None
-        raise BakeError(
-            f"{path}: xatlas did not finish unwrapping this mesh within {limit:.0f} s "
-            "(the child process was stopped); author a lightmap UV set for it and pass it "
-            "with --uv"
-        ) from None
-    if reply is None:
+    # A worker that dies on a mesh gets one retry in a fresh worker: a death from outside
+    # (a signal, memory pressure) then fails no prim, and xatlas's segfaults, which follow the
+    # mesh, fail the second time too.
+    for attempt in range(2):
+        if _worker is None or not _worker.alive():
+            if _worker is None:
+                atexit.register(_stop_worker)
+            else:
+                _worker.stop()
+            _worker = _Worker()
+        try:
+            reply = _worker.request(pickle.dumps(args), limit)
+        except TimeoutError:
+            _worker = None
+            raise BakeError(
+                f"{path}: xatlas did not finish unwrapping this mesh within {limit:.0f} s "
+                "(the child process was stopped); author a lightmap UV set for it and pass it "
+                "with --uv"
+            ) from None
+        if reply is not None:
+            break
         detail = _worker.failure()
         _worker.stop()
-        _worker = None
-        raise BakeError(
-            f"{path}: xatlas crashed while unwrapping this mesh ({detail}); "
-            "author a lightmap UV set for it and pass it with --uv"
-        )
+        if attempt:
+            _worker = None
+            raise BakeError(
+                f"{path}: xatlas crashed while unwrapping this mesh ({detail}); "
+                "author a lightmap UV set for it and pass it with --uv"
+            )
     kind, value = reply
     if kind == "usage":
         raise UsageError(value)

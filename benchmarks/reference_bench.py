@@ -75,7 +75,8 @@ def centre_truth(scene, sf, spp: int, bpy: str) -> tuple[dict, float]:
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
                 centre: bool = True, centre_spp: int | None = None,
-                variants: list[str] = (), repeats: int = 1, warm=None):  # fmt: skip
+                variants: list[str] = (), repeats: int = 1, warm=None,
+                cycles_samples: list[int] | None = None):  # fmt: skip
     """Rows {"stage", "renderer", "spp", "seconds", "seconds_runs", "load", "wall", "bias",
     "rel_rmse", "rel_rmse_net", "truth", "truth_noise"}.
 
@@ -93,6 +94,8 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     ``warm``: a :class:`benchmarks.reference.warm.WarmBaker`; every usdahd run is also timed
     as a bake call in that running process (renderer ``"<renderer> (warm)"``, ``"timing":
     "warm"``, the same errors: same code and seed), after one untimed bake of the stage.
+    ``cycles_samples``: Cycles' sample counts when not ``samples`` (at 128^2 Cycles' runs
+    below the 1024-spp target cost most of a stage's time and only draw its curve).
     """
     rows, box_usdahd = [], []
     ctruth = cnoise = None
@@ -148,7 +151,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 rows.append(dict(rows[-1], renderer=f"{renderer} (warm)", timing="warm",
                                  seconds=secs_w, seconds_runs=[secs_w], load=[load]))  # fmt: skip
                 _log(f"{stage.name}: {renderer} (warm) {n} spp {secs_w:.2f}s")
-        for n in samples:
+        for n in cycles_samples or samples:
             load = os.getloadavg()[0]
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
             res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp)
@@ -297,6 +300,9 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         f"python benchmarks/reference_bench.py --resolution {args.resolution} "
         f"--samples {' '.join(map(str, args.samples))} --truth-spp {args.truth_spp}"
     )
+    cyc_spp = sorted({r["spp"] for r in rows if r["renderer"] == "cycles"})
+    if cyc_spp and cyc_spp != sorted(set(args.samples)):
+        cmd += f" --cycles-samples {' '.join(map(str, cyc_spp))}"
     if boxed:  # the default judges every stage against the point truth
         cmd += " --centre" + "".join(f" {s}" for s in sorted(centred))
     if n_rep > 1:
@@ -422,7 +428,8 @@ def plot(rows: list[dict], path: Path) -> bool:
     for ax in axes.ravel()[len(stages) :]:
         ax.axis("off")
     axes[0, 0].legend(fontsize=7)
-    fig.supxlabel("bake time (s, 2 shared cores; points: 16, 64, 256, 1024 spp)", fontsize=9)
+    spp = ", ".join(map(str, sorted({r["spp"] for r in rows})))
+    fig.supxlabel(f"bake time (s, 2 shared cores; points: {spp} spp)", fontsize=9)
     fig.supylabel("relRMSE of I_z vs truth (net of its noise)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -500,6 +507,9 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", type=int, default=32)
     p.add_argument("--samples", type=int, nargs="+", default=[16, 64, 256, 1024])
     p.add_argument("--truth-spp", type=int, default=4096)
+    p.add_argument("--cycles-samples", type=int, nargs="+", metavar="N",
+                   help="Cycles' sample counts (default: --samples); must include 1024, the "
+                        "target")  # fmt: skip
     p.add_argument("--centre", nargs="*", metavar="STAGE",
                    help="only these stages judge usdahd against the point-sampled truth, the "
                         "others against Cycles' box truth (default: every stage; none: "
@@ -530,6 +540,10 @@ def main(argv=None) -> int:
         a.out.write_text(markdown(rows, a, png.name if has_plot else None), encoding="utf-8")
         print(a.out)
         return 0
+    if a.cycles_samples and 1024 not in a.cycles_samples:
+        print("error: --cycles-samples must include 1024 (the target's sample count)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     try:
         bpy = runner.find_bpy(a.bpy_python)
     except runner.ReferenceUnavailable as exc:
@@ -550,7 +564,8 @@ def main(argv=None) -> int:
         for st in stages:
             centre = a.centre is None or st.stem in a.centre
             rows += bench_stage(st, a.resolution, a.samples, a.truth_spp, bpy, centre,
-                                a.centre_spp, a.variant, a.repeats, warm)  # fmt: skip
+                                a.centre_spp, a.variant, a.repeats, warm,
+                                a.cycles_samples)  # fmt: skip
             # rows so far, so an interrupted run keeps its finished stages (--from-json redraws)
             a.out.parent.mkdir(parents=True, exist_ok=True)
             a.out.with_name("reference_bench.json").write_text(json.dumps(rows, indent=1))

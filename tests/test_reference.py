@@ -793,6 +793,21 @@ def test_time_to_quality_gives_the_ratio_of_every_repeat():
     assert "median of 3 repeats" in md and "0.10, 0.20, 0.04 |" in md
 
 
+def test_cycles_samples_of_their_own_are_in_the_command_and_must_hold_the_target(capsys):
+    from benchmarks import reference_bench as rb
+
+    def row(ren, spp, secs, err):
+        return {"stage": "s", "renderer": ren, "spp": spp, "seconds": secs, "rel_rmse": err}
+
+    rows = [row("cycles", 256, 10.0, 0.04), row("cycles", 1024, 40.0, 0.02)]
+    rows += [row("usdahd", 16, 1.0, 0.04), row("usdahd", 256, 16.0, 0.01)]
+    args = type("A", (), {"resolution": 128, "samples": [16, 256], "truth_spp": 64})
+    md = rb.markdown(rows, args, None)
+    assert "--samples 16 256 --truth-spp 64 --cycles-samples 256 1024" in md
+    assert rb.main(["--cycles-samples", "256", "--stages", "floor_lamp"]) == 2
+    assert "--cycles-samples must include 1024" in capsys.readouterr().err
+
+
 def test_run_section_without_bpy_says_how_to_set_it_up(monkeypatch, tmp_path):
     from benchmarks import reference_bench as rb
 

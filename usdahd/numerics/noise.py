@@ -92,14 +92,6 @@ def _tile_stats_numpy(img, support, tile):
 
 
 @numba.njit(cache=True, nogil=True)
-def _median_sorted(v, k):
-    """Median of the first ``k`` values of the sorted ``v`` (NaN for k = 0)."""
-    if k == 0:
-        return np.nan
-    return 0.5 * (v[(k - 1) // 2] + v[k // 2])
-
-
-@numba.njit(cache=True, nogil=True)
 def _tile_stats_numba(img, support, tile, dirs):
     h, w, c = img.shape
     nd = dirs.shape[0]
@@ -154,10 +146,11 @@ def _tile_stats_numba(img, support, tile, dirs):
                 total += s
                 if k_in > 0:
                     mean[ty, tx, ch] = s / k_in
-                    b = np.sort(buf[:k_in])
-                    med[ty, tx, ch] = _median_sorted(b, k_in)
+                    med[ty, tx, ch] = np.median(buf[:k_in])
         fcnt[ch] = m
         if m > 0:
             fmean[ch] = total / m
-            fmed[ch] = _median_sorted(np.sort(allv[:m]), m)
+            # a selection, not a sort: the chart-wide median was most of this kernel's time
+            # on big canvases (144 x 144 x 27: 9 of 12 ms per channel)
+            fmed[ch] = np.median(allv[:m])
     return mean, med, cnt, fmean, fmed, fcnt

@@ -1,6 +1,8 @@
 """Regenerate docs/benchmarks.md and its plots from scratch on this machine.
 
-    python benchmarks/run.py            # full run (<= ~20 min on 2 cores)
+    python benchmarks/run.py            # full run (~20 min on 2 cores without the reference
+                                        # section; that one, usdahd vs Cycles at 128^2, adds
+                                        # about an hour, more while Cycles' truths are not cached)
     python benchmarks/run.py --quick    # ~2-3 min: fewer samples, texels and repeats
     usdahd bench [--quick]              # the same, from a source checkout
 

@@ -438,16 +438,20 @@ def test_white_furnace_at_default_settings(rho):
     _check_mc(sh.iz(out2)[:, 0], le / (1 - rho))
 
 
+@pytest.mark.parametrize("height", [0.5, 0.01])
 @pytest.mark.parametrize("double_sided", [False, True])
-def test_back_of_a_double_sided_card_is_a_surface_not_inside(double_sided):
-    """A texel under a card (a quad facing up, 0.5 above the ground) sees the card's back in
-    most of its hemisphere: one-sided, that reads as inside geometry (invalid, then filled by
-    dilation, which lit a sun shadow under McUsd's doubleSided plant cards); with doubleSided
-    the back is a surface: the texel is valid and in the card's shadow (the sun's term is
-    exact: I_z = 0 under the card, E/pi beside it)."""
+def test_under_a_card_is_a_surface_not_inside(double_sided, height):
+    """A texel under a card (a quad facing up, 0.5 or 0.01 above the ground) sees the card's
+    back in most of its hemisphere. That is not the inside of geometry: with doubleSided the
+    back is a surface, and one-sided the gap is open along the ground (before 2026-12-05 a
+    one-sided card read as inside geometry and the texel was filled from its sunlit
+    neighbours; with doubleSided that lit McUsd's plant-card shadows, one-sided it lit the
+    ceiling behind emissive_only's panel). The texel is valid and in the card's shadow (the
+    sun's term is exact: I_z = 0 under the card, E/pi beside it)."""
     st = _stage()
     _ground(st)
-    card = _quad(st, "/card", [(-2, -2, 0.5), (2, -2, 0.5), (2, 2, 0.5), (-2, 2, 0.5)])
+    h = height
+    card = _quad(st, "/card", [(-2, -2, h), (2, -2, h), (2, 2, h), (-2, 2, h)])
     if double_sided:
         card.CreateDoubleSidedAttr(True)
     sun = UsdLux.DistantLight.Define(st, "/sun")
@@ -455,24 +459,52 @@ def test_back_of_a_double_sided_card_is_a_surface_not_inside(double_sided):
     sun.CreateAngleAttr(0.0)
     pts = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0]], np.float32)
     out, stats = _bake(st, _texels(pts), samples=64)
-    assert stats["invalid"].tolist() == [not double_sided, False]
+    assert stats["invalid"].tolist() == [False, False]
+    np.testing.assert_allclose(sh.iz(out)[:, 0], [0.0, 2.0 / np.pi], atol=1e-4)
     if double_sided:
         assert stats["backface_fraction"][0] == 0.0
-        np.testing.assert_allclose(sh.iz(out)[:, 0], [0.0, 2.0 / np.pi], atol=1e-4)
     else:
         assert stats["backface_fraction"][0] > 0.5
 
 
-def test_texels_inside_geometry_flagged_invalid():
+@pytest.mark.parametrize("bottom", [True, False])
+def test_texels_inside_geometry_flagged_invalid(bottom):
+    """A texel inside a box standing in the floor is inside geometry, closed box or not: a box
+    without a bottom face (a common game asset) walls the floor in all the same."""
     st = _stage()
     _ground(st)
-    _box(st, 0.5, _material(st, "/mat/g"), inward=False)  # closed box standing on the floor
+    box = _box(st, 0.5, _material(st, "/mat/g"), inward=False)
+    if not bottom:  # drop the z = -0.5 face (the 5th quad)
+        idx = list(box.GetFaceVertexIndicesAttr().Get())
+        box.GetFaceVertexIndicesAttr().Set(idx[:16] + idx[20:])
+        box.GetFaceVertexCountsAttr().Set([4] * 5)
     UsdLux.DomeLight.Define(st, "/dome")
     pts = np.array([[0.0, 0.0, -0.0], [3.0, 0.0, 0.0]], np.float32)
     # the box spans z in [-0.5, 0.5]: the first texel sits inside it
     out, stats = _bake(st, _texels(pts), samples=64)
     assert stats["invalid"].tolist() == [True, False]
     assert stats["backface_fraction"][0] > 0.9
+
+
+def test_beside_a_lone_one_sided_wall_is_estimated_not_filled():
+    """Ground 5 cm behind a one-sided wall (its back to the texel) sees that back in ~half its
+    hemisphere, above the 0.25 back-face threshold, but is not walled in along the ground
+    (rays the other way leave): it is estimated, not filled. Its sky term is the exact
+    unoccluded-half value: a uniform dome of radiance L over a wall plane through the
+    texel's neighbourhood gives I_z = L/2 (the wall's back, albedo 0 here, hides the rest)."""
+    st = _stage()
+    _ground(st)
+    black = _material(st, "/mat/black", albedo=(0.0, 0.0, 0.0))
+    # a tall wall in the plane x = 0.05 facing +x: its back faces the texel at the origin
+    _quad(st, "/wall", [(0.05, -200, -1), (0.05, 200, -1), (0.05, 200, 200), (0.05, -200, 200)],
+          black)  # fmt: skip
+    dome = UsdLux.DomeLight.Define(st, "/dome")
+    dome.CreateIntensityAttr(1.0)
+    pts = np.c_[np.zeros(N_TEX), np.linspace(-1.0, 1.0, N_TEX), np.zeros(N_TEX)]
+    out, stats = _bake(st, _texels(pts), samples=64, estimator="mc")
+    assert (stats["backface_fraction"] > 0.25).all()
+    assert not stats["invalid"].any()
+    _check_mc(sh.iz(out)[:, 0], 0.5)
 
 
 def test_deterministic_for_seed_and_bounces_add_light():

@@ -82,6 +82,7 @@ from usdahd.bake.kernels.layout import (
 )
 from usdahd.bake.kernels.lights import pack_lights
 from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_linking
+from usdahd.bake.texels import walled_in
 from usdahd.numerics.sampling import r2_sequence
 
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
@@ -223,7 +224,6 @@ def bake_texels(
         res, bf = ctx.result(acc) if native else acc.result(estimator)
         out[sl] = res
         backfrac[sl] = bf
-        invalid[sl] = bf > backface_threshold
         used[sl] = acc.count
         iz_var[sl] = acc.iz_variance()
         iz_halves[sl] = acc.iz_variance_halves()
@@ -232,7 +232,24 @@ def bake_texels(
             if est_rays_per_sample is None:
                 est_rays_per_sample = done_rays / max(1, int(acc.count.sum()))
             progress(done_rays, int(est_rays_per_sample * n * samples) or done_rays)
+    invalid = inside_geometry(tracer, texels, offsets, backfrac, backface_threshold)
     return out, _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
+
+
+def inside_geometry(tracer, texels, offsets, backfrac, threshold: float = 0.25) -> np.ndarray:
+    """(n,) bool: texels inside geometry, whose estimate the pipeline replaces by its neighbours'.
+
+    texels : usdahd.bake.types.Texels; offsets : (n,) float64 ray-origin offsets; backfrac :
+    (n,) the fraction of each texel's hemisphere rays that hit a back face of a one-sided mesh.
+    Both must hold: ``backfrac > threshold`` (the texel's view is mostly the back of something)
+    and :func:`usdahd.bake.texels.walled_in` (rays along its surface meet back faces on all
+    sides), so a thin gap behind a one-sided card is estimated, not filled (docs/integrator.md).
+    """
+    inside = np.asarray(backfrac) > threshold
+    if inside.any():
+        idx = np.nonzero(inside)[0]
+        inside[idx] = walled_in(texels.position[idx], texels.geom_normal[idx], offsets[idx], tracer)
+    return inside
 
 
 def iz_batches(

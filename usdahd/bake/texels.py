@@ -627,3 +627,44 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
     position = np.where(moved[:, None], pos, texels.position).astype(np.float32)
     stats = dict(texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum()))
     return replace(texels, position=position, stats=stats), invalid
+
+
+#: Directions of the walled-in test: evenly spread azimuths in the surface's tangent plane.
+WALLED_IN_RAYS = 16
+#: A texel is walled in when at least this fraction of its along-surface rays hit back faces.
+WALLED_IN = 0.75
+
+
+def walled_in(position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray, tracer):
+    """(n,) bool: texels whose point is closed in along its own surface, i.e. inside geometry.
+
+    position, geom_normal : (n, 3) texel sample points and geometric normals; offsets : (n,)
+    float64 ray-origin offsets (``tracer.texel_offsets``); tracer : usdahd.bake.trace.Tracer.
+
+    From the ray origin (the point lifted by its offset) ``WALLED_IN_RAYS`` rays run in the
+    tangent plane, evenly spread in azimuth; the texel is walled in when at least ``WALLED_IN``
+    of them hit a back face of a one-sided mesh (``Tracer.back_face``). The integrator's
+    hemisphere back-face fraction alone cannot tell the inside of a solid from a thin gap under
+    a single-sided card: a ceiling 1 cm above a one-sided emissive panel sees the panel's back
+    in ~99 % of its cosine-weighted hemisphere, like the floor under a box. Along the surface
+    the two differ: from the floor under the box every such ray meets a wall from behind; from
+    the ceiling in the gap they leave through it (and behind a lone one-sided wall or under a
+    one-sided table top about half or none meet a back face). So a texel is inside geometry
+    only when both tests say so (:func:`usdahd.bake.integrate.inside_geometry`).
+    """
+    p = np.asarray(position, np.float64)
+    g = np.asarray(geom_normal, np.float64)
+    n = len(p)
+    if n == 0:
+        return np.zeros(0, bool)
+    k = WALLED_IN_RAYS
+    phi = (np.arange(k) + 0.5) * (2.0 * np.pi / k)
+    local = np.stack([np.cos(phi), np.sin(phi), np.zeros(k)], axis=1)  # (k, 3), z = normal
+    frames = orthonormal_basis(g)  # (n, 3, 3)
+    dirs = to_world(local[None, :, :], frames[:, None, :, :]).reshape(-1, 3)
+    origin = tracer.offset(p, g, g, np.asarray(offsets, np.float64))
+    hit = tracer.intersect(np.repeat(origin, k, axis=0), dirs)
+    tri = hit["tri"]
+    hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
+    back = tracer.back_face(tri, dirs, hn).reshape(n, k)
+    return back.mean(axis=1) >= WALLED_IN

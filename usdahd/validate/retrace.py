@@ -15,8 +15,9 @@ rescaled together, the wrong light units, a stale bake whose hash was copied.
 Texels: the prim's lightmap UVs (``baked:uvPrimvar`` on the validated stage) rasterised at
 ``baked:resolution`` by the baker's rasteriser (:func:`usdahd.bake.texels.rasterize`), so the
 sample points and tangent frames are the ones the bake traced. Texels must match the bake's
-coverage (the SH sidecar's ``A``); texels the retrace finds inside geometry (back-face
-fraction above the baker's threshold: the baker filled those from neighbours) are dropped.
+coverage (the SH sidecar's ``A``); texels the retrace finds inside geometry (the baker's rule,
+:func:`usdahd.bake.integrate.inside_geometry`: the baker filled those from neighbours) are
+dropped.
 
 Baked I_z: from the float32 SH sidecar when it exists (``usdahd.sh.iz``; the encoding's
 quantization is IzCheck's job, not this rule's), else the decoded textures at n = z.
@@ -519,7 +520,11 @@ def _check(prim, opt: RetraceOptions) -> list:
             mesh=next((i for i, m in enumerate(scene.meshes) if m is mesh), None),
         )
     seconds = time.perf_counter() - t0
-    inside = backface > _backface_threshold()
+    if dark:
+        inside = np.zeros(len(pick), bool)
+    else:  # the baker's rule (it filled these from neighbours)
+        offsets = tracer.texel_offsets(sub, mesh)
+        inside = integrate.inside_geometry(tracer, sub, offsets, backface, _backface_threshold())
     finite = np.isfinite(baked).all(axis=1) & np.isfinite(batches).all(axis=(0, 2))
     use = ~inside & finite
     n = int(use.sum())

@@ -39,8 +39,9 @@ variance) is below ``adaptive_tol`` times max(its Iz, ``ADAPTIVE_FLOOR`` times t
 largest Iz). ``stats["rays_saved"]`` counts the rays not traced.
 
 Texels inside geometry: a texel whose hemisphere rays hit back faces more often than
-``backface_threshold`` is flagged in ``stats["invalid"]`` (its SH is still returned; post
-processing should replace it by dilation).
+``backface_threshold`` and that is walled in along its surface (:func:`inside_geometry`) is
+flagged in ``stats["invalid"]`` (its SH is still returned; post processing replaces it by its
+valid neighbours).
 
 Determinism: each chunk of texels draws from ``np.random.default_rng([seed, stream, first])``
 so results depend on the seed and texel order only, not on threads or executors.

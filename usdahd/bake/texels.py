@@ -450,8 +450,8 @@ CONTACT_ENCLOSURE_RAYS = 32
 #: geometry: inside a closed solid it is all of it, while outside a convex single-sided shell
 #: (a room modelled from the inside) a point on the ground sees the shell's back in at most half
 #: (a plane wall right next to it; 32 rays measured 17/32 at 3 cm from a wall, hence the
-#: margin). The integrator's ``backface_threshold`` (0.25) is lower: it discards such
-#: near-wall points and the caller fills them from neighbours, which are outside.
+#: margin). The integrator's ``backface_threshold`` (0.25) is lower, but it also asks for
+#: :func:`walled_in` (such a near-wall point is not: it is estimated, not filled).
 CONTACT_ENCLOSED = 0.75
 
 

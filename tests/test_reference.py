@@ -636,6 +636,53 @@ def test_point_probes_skip_texels_whose_centre_is_outside_every_triangle():
     assert len(pr["ids"]) == 6 and (u + v < 0.9).all()  # centres with u + v < 0.9: 3 + 2 + 1
 
 
+def test_point_probes_under_tilted_normals_lie_in_the_face_plane_above_the_mesh():
+    """Where the shading normal tilts more than 1 degree from the face (smoothed corner normals
+    at a crease) a probe lies in the face's plane, lifted along the face normal, so no part of
+    it dips under the mesh (perpendicular to a normal tilted 15 degrees, its edge sank by
+    radius sin 15 deg ~ 1.3 lifts, and the mesh shadowed that part in Cycles: -9.5 % at the
+    crease); its shading normal stays the interpolated one. Untilted probes are unchanged."""
+    tri = np.array([[[0, 0, 1], [2, 0, 1], [2, 0, -1]], [[0, 0, 1], [2, 0, -1], [0, 0, -1]]],
+                   float)  # fmt: skip
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
+    lean = np.array([np.sin(np.radians(15)), np.cos(np.radians(15)), 0.0])
+    up = np.array([0.0, 1.0, 0.0])
+    nrm = np.array([[lean, up, up], [lean, up, lean]])  # the x = 0 edge leans 15 degrees
+    pr = probes.mesh_probes(tri, nrm, uv, (8, 8))
+    assert len(pr["ids"]) == 64
+    tilt = np.degrees(np.arccos(np.clip(pr["n"] @ up, -1, 1)))
+    assert tilt.max() > 7  # perpendicular to n, these would have dipped under the face
+    lift = pr["p"].mean(axis=1)[:, 1]
+    assert (lift > 0).all()
+    face_n = np.cross(pr["p"][:, 1] - pr["p"][:, 0], pr["p"][:, 2] - pr["p"][:, 0])
+    face_n /= np.linalg.norm(face_n, axis=1, keepdims=True)
+    tilted = tilt > 1.0
+    assert tilted.any() and (~tilted).any()
+    # tilted: every corner at the probe's lift (the face plane), wound about the face normal
+    assert np.allclose(pr["p"][tilted][:, :, 1], lift[tilted][:, None], rtol=1e-9, atol=0)
+    assert np.allclose(face_n[tilted], up)
+    # untilted: perpendicular to the shading normal as before
+    assert np.allclose(np.einsum("nj,nj->n", face_n[~tilted], pr["n"][~tilted]), 1.0)
+
+
+def test_point_truths_are_keyed_by_their_probes_content():
+    """A point truth's cache key hashes the probes Cycles bakes (not probes.py's text): equal
+    probes give equal keys, different probes or no probes different ones."""
+    from benchmarks.reference import runner
+
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 0, -1]]], float)
+    uv = np.array([[[0.05, 0.05], [0.85, 0.05], [0.05, 0.85]]])
+    n_up = np.broadcast_to([0.0, 1.0, 0.0], (1, 3, 3))
+    a = probes.mesh_probes(tri, n_up, uv, (4, 4))
+    b = probes.mesh_probes(tri.copy(), n_up.copy(), uv.copy(), (4, 4))
+    c = probes.mesh_probes(tri, n_up, uv, (8, 8))
+    arr = lambda pr: {"p_0": pr["p"], "n_0": pr["n"], "uv_0": pr["uv"]}  # noqa: E731
+    da, db, dc = (probes.probes_digest(arr(pr)) for pr in (a, b, c))
+    assert da == db != dc
+    keys = {runner.cache_key("d", 64, 1, 1, x) for x in (da, dc, None)}
+    assert len(keys) == 3
+
+
 # ------------------------------------------------------------------ through Blender
 
 

@@ -12,8 +12,9 @@ A probe is a tiny triangle, one per covered texel, that Cycles bakes instead of 
 * in space it sits at the texel's centre point (the point usdahd's rasteriser gives the texel:
   :func:`usdahd.numerics.raster.rasterize_uv`, centre-inside texels only), lifted by
   ``LIFT`` texel widths along the face normal, in the plane perpendicular to the
-  interpolated shading normal, ``SIZE`` texel widths across: Cycles' jitter can only move the
-  sample inside it, i.e. by <= SIZE / 2 of a texel;
+  interpolated shading normal (the face's plane where that normal tilts more than 1 degree:
+  ``TILT_COS``), ``SIZE`` texel widths across: Cycles' jitter can only move the sample inside
+  it, i.e. by <= SIZE / 2 of a texel; its custom normals are the shading normal;
 * in UV it is a small triangle around the centre of its own pixel of the (w, h) bake image
   (circumradius ``UV_RADIUS`` pixels), so Blender gives it exactly that pixel;
 * its object is invisible to every diffuse, glossy, transmission and shadow ray, so
@@ -29,6 +30,7 @@ file it writes).
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import numpy as np
@@ -59,6 +61,17 @@ LIFT_ULPS = 32.0
 #: triangle's largest coordinate, which Embree, Cycles' CPU intersector, does not re-hit), so
 #: both renderers sample the same height; the size at most SIZE_LIFTS such offsets.
 SIZE_LIFTS = 16.0
+#: A probe lies in its face's plane (lifted by ``lift`` along the face normal), not
+#: perpendicular to the shading normal, once that normal tilts more than 1 degree from the face
+#: (cos below TILT_COS). Perpendicular to a normal tilted by t, the probe's edge dips by
+#: radius sin t, and its radius is 5-8 lifts: from t ~ 7 degrees part of it lay under the mesh,
+#: where the mesh shadowed it (measured 2026-12-05 on a flat quad whose corner normals lean
+#: 15 degrees toward a crease: Cycles' point truth 0.712 at the crease where the sun term is
+#: 0.787, -9.5 %; usdahd and the truth agreed from 7 texels away). The face plane is also what
+#: usdahd's estimator assumes: the cosine about the shading normal, no directions under the
+#: face. Below 1 degree the plane is the shading normal's, as before (so probes of flat
+#: meshes are unchanged and their cached truths stay valid: the cache key hashes the probes).
+TILT_COS = float(np.cos(np.radians(1.0)))
 #: Probe circumradius in bake-image pixels: Blender's bake lattice samples each pixel at
 #: (x + 0.501, y + 0.502) (RE_bake_pixels_populate), well inside 0.3 px (inradius 0.15 px);
 #: no neighbouring pixel's sample point is within 0.5 px.
@@ -76,7 +89,8 @@ def mesh_probes(tri_p, tri_n, tri_uv, resolution) -> dict:
     tri_p : (t, 3, 3) float64 world corners; tri_n : (t, 3, 3) unit shading normals per corner;
     tri_uv : (t, 3, 2) float64 lightmap UVs; resolution : (w, h).
     returns : {"p": (n, 3, 3) float64 probe corners (counter-clockwise about the shading
-    normal), "n": (n, 3) float64 unit shading normal, "uv": (n, 3, 2) float64 probe UVs,
+    normal, or about the face normal where the two differ by more than 1 degree), "n": (n, 3)
+    float64 unit shading normal, "uv": (n, 3, 2) float64 probe UVs,
     "ids": (n,) int64 texel ids y * w + x, "width": (n,) float64 texel width in metres}.
     """
     w, h = (int(r) for r in resolution)
@@ -103,10 +117,12 @@ def mesh_probes(tri_p, tri_n, tri_uv, resolution) -> dict:
     size = np.maximum(np.minimum(SIZE * width, SIZE_LIFTS * cap), SIZE_ULPS * ulp)
     lift = np.maximum(np.minimum(LIFT * width, cap), LIFT_ULPS * ulp)
     centre = p + lift[:, None] * ng
-    # tangent frame about the shading normal: t x b = n
-    a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t = _unit(np.cross(a, n))
-    b = np.cross(n, t)
+    # the probe's plane: about the shading normal where it (nearly) is the face normal, else
+    # the face's own plane (a probe perpendicular to a tilted normal dips through the mesh)
+    axis = np.where(((n * ng).sum(axis=1) >= TILT_COS)[:, None], n, ng)
+    a = np.where(np.abs(axis[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t = _unit(np.cross(a, axis))
+    b = np.cross(axis, t)
     ang = np.array([0.5, 0.5 + 2.0 / 3.0, 0.5 + 4.0 / 3.0]) * np.pi  # counter-clockwise
     rad = 0.5 * size
     corners = centre[:, None, :] + rad[:, None, None] * (
@@ -126,14 +142,13 @@ def mesh_probes(tri_p, tri_n, tri_uv, resolution) -> dict:
     return {"p": corners, "n": n, "uv": uv, "ids": ids, "width": width}
 
 
-def write_probes(scene_file, out_file) -> dict:
-    """Probes of every baked mesh of an exported scene file (``export.save_scene``), written
-    atomically to ``out_file`` (npz: ``p_<k>``, ``n_<k>``, ``uv_<k>`` per mesh k); returns
-    {mesh index: probe count}."""
+def scene_probes(scene_file) -> dict:
+    """Probes of every baked mesh of an exported scene file (``export.save_scene``): {``p_<k>``,
+    ``n_<k>``, ``uv_<k>``: arrays of :func:`mesh_probes` per mesh k}."""
     data = np.load(scene_file, allow_pickle=False)
     meta = json.loads(str(data["meta"]))
     tri_mesh = data["tri_mesh"]
-    arrays, counts = {}, {}
+    arrays = {}
     for k, m in enumerate(meta["meshes"]):
         sel = np.nonzero(tri_mesh == k)[0]
         if not m["baked"] or len(sel) == 0:
@@ -141,6 +156,23 @@ def write_probes(scene_file, out_file) -> dict:
         pr = mesh_probes(data["tri_p"][sel], data["tri_n"][sel], data["tri_uv"][sel],
                          m["resolution"])  # fmt: skip
         arrays.update({f"p_{k}": pr["p"], f"n_{k}": pr["n"], f"uv_{k}": pr["uv"]})
-        counts[k] = len(pr["ids"])
+    return arrays
+
+
+def probes_digest(arrays: dict) -> str:
+    """Content hash (16 hex digits) of :func:`scene_probes` arrays: a point truth's cache key
+    (benchmarks/reference/runner.py), so only truths whose probes change are recomputed."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def write_probes(scene_file, out_file) -> dict:
+    """:func:`scene_probes` written atomically to ``out_file`` (npz); returns {mesh index:
+    probe count}."""
+    arrays = scene_probes(scene_file)
     save_npz(out_file, arrays, prefix=".probes.")
-    return counts
+    return {int(k[2:]): len(v) for k, v in arrays.items() if k.startswith("p_")}

@@ -21,11 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.reference.npzio import save_npz
-from benchmarks.reference.probes import write_probes
+from benchmarks.reference.probes import probes_digest, scene_probes, write_probes
 
 HERE = Path(__file__).resolve().parent
 SCRIPT = HERE / "cycles_bake.py"
-PROBES = HERE / "probes.py"
 ENV_VAR = "USDAHD_BPY_PYTHON"
 CACHE_VAR = "USDAHD_REFERENCE_CACHE"
 HOW_TO = (
@@ -69,10 +68,15 @@ def _script_hash() -> str:
     return hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16]
 
 
-def cache_key(digest: str, spp: int, seed: int, oversample: int = 1, point: bool = False) -> str:
+def cache_key(digest: str, spp: int, seed: int, oversample: int = 1,
+              point: str | None = None) -> str:  # fmt: skip
+    """The cache file name of a Cycles bake: the scene's digest, samples, seed, cycles_bake.py's
+    hash, and for a point truth ``point``, the probes' own content hash
+    (:func:`benchmarks.reference.probes.probes_digest`), so a change to probes.py recomputes
+    only the truths whose probes it changes."""
     extra = "" if oversample == 1 else f":os{oversample}"
-    if point:  # the probe geometry is part of the key through probes.py's own hash
-        extra += ":point:" + hashlib.sha256(PROBES.read_bytes()).hexdigest()[:16]
+    if point:
+        extra += ":probes:" + point
     key = f"{digest}:{spp}:{seed}:{_script_hash()}{extra}"
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
@@ -118,7 +122,8 @@ def cached_cycles(
     threads: int = 0, quiet: bool = False, oversample: int = 1, point: bool = False,
 ) -> tuple[dict, dict, bool]:  # fmt: skip
     """Like :func:`run_cycles`, through the on-disk cache; returns (info, images, hit)."""
-    key = cache_key(scene.digest(), spp, seed, oversample, point)
+    probes = probes_digest(scene_probes(scene_file)) if point else None
+    key = cache_key(scene.digest(), spp, seed, oversample, probes)
     path = cache_dir() / f"{key}.npz"
     if use_cache and path.is_file():
         data = np.load(path, allow_pickle=False)

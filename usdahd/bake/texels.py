@@ -468,15 +468,21 @@ def _crossed_by_offset(p, o, d, t, hn, k) -> np.ndarray:
 def _enclosed(origin: np.ndarray, g: np.ndarray, tracer) -> np.ndarray:
     """(m,) bool: origins whose hemisphere about ``g`` sees back faces in more than
     ``CONTACT_ENCLOSED`` of ``CONTACT_ENCLOSURE_RAYS`` fixed directions."""
-    m = len(origin)
     local, _ = uniform_hemisphere(r2_sequence(CONTACT_ENCLOSURE_RAYS))  # (r, 3)
+    return _back_fraction(origin, g, local, tracer) > CONTACT_ENCLOSED
+
+
+def _back_fraction(origin: np.ndarray, g: np.ndarray, local: np.ndarray, tracer) -> np.ndarray:
+    """(m,) fraction of rays from ``origin`` (m, 3) along the directions ``local`` (r, 3), given
+    in each origin's frame about ``g`` (m, 3) (z = g), whose first hit is a back face of a
+    one-sided mesh (``Tracer.back_face``)."""
+    m, r = len(origin), len(local)
     frames = orthonormal_basis(g)  # (m, 3, 3)
     dirs = to_world(local[None, :, :], frames[:, None, :, :]).reshape(-1, 3)
-    hit = tracer.intersect(np.repeat(origin, CONTACT_ENCLOSURE_RAYS, axis=0), dirs)
+    hit = tracer.intersect(np.repeat(origin, r, axis=0), dirs)
     tri = hit["tri"]
     hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
-    back = tracer.back_face(tri, dirs, hn)
-    return back.reshape(m, CONTACT_ENCLOSURE_RAYS).mean(axis=1) > CONTACT_ENCLOSED
+    return tracer.back_face(tri, dirs, hn).reshape(m, r).mean(axis=1)
 
 
 def half_texel_vectors(mesh: MeshData, resolution) -> np.ndarray:
@@ -654,17 +660,9 @@ def walled_in(position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray
     """
     p = np.asarray(position, np.float64)
     g = np.asarray(geom_normal, np.float64)
-    n = len(p)
-    if n == 0:
+    if len(p) == 0:
         return np.zeros(0, bool)
-    k = WALLED_IN_RAYS
-    phi = (np.arange(k) + 0.5) * (2.0 * np.pi / k)
-    local = np.stack([np.cos(phi), np.sin(phi), np.zeros(k)], axis=1)  # (k, 3), z = normal
-    frames = orthonormal_basis(g)  # (n, 3, 3)
-    dirs = to_world(local[None, :, :], frames[:, None, :, :]).reshape(-1, 3)
+    phi = (np.arange(WALLED_IN_RAYS) + 0.5) * (2.0 * np.pi / WALLED_IN_RAYS)
+    local = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)  # z = normal
     origin = tracer.offset(p, g, g, np.asarray(offsets, np.float64))
-    hit = tracer.intersect(np.repeat(origin, k, axis=0), dirs)
-    tri = hit["tri"]
-    hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
-    back = tracer.back_face(tri, dirs, hn).reshape(n, k)
-    return back.mean(axis=1) >= WALLED_IN
+    return _back_fraction(origin, g, local, tracer) >= WALLED_IN

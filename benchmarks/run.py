@@ -88,6 +88,8 @@ PLANS = {
     ),
 }
 
+DEFAULT_SECTIONS = "bake,fit,encodings,skipping,soak,ktx2,reference"
+
 #: Scene and prim whose per-texel error maps are plotted (section 3).
 ERROR_MAP_SCENE = "cornell_box"
 ERROR_MAP_PRIM = "/World/Geometry/Floor"
@@ -109,10 +111,17 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--sections",
-        default="bake,fit,encodings,skipping,soak,ktx2,reference",
+        default=DEFAULT_SECTIONS,
         help="comma-separated subset of bake,fit,encodings,skipping,soak,ktx2,reference "
         "(reference: usdahd vs Blender Cycles; needs $USDAHD_BPY_PYTHON, see "
         "benchmarks/reference/README.md)",
+    )
+    ap.add_argument(
+        "--reference-stages",
+        nargs="+",
+        metavar="STAGE",
+        help="the reference section's stages by file stem (default: every lit sample stage and "
+        "the shared Cornell boxes), e.g. to leave out one whose Cycles truths are not cached yet",
     )
     ap.add_argument(
         "--fresh", action="store_true", help="delete cached reference bakes first (from scratch)"
@@ -142,6 +151,11 @@ def run(args) -> Path:
             f"unknown --sections {', '.join(sorted(unknown))}; "
             "choose from bake, fit, encodings, skipping, soak, ktx2, reference"
         )
+    ref_stages = getattr(args, "reference_stages", None)
+    if "reference" in sections:
+        import reference_bench
+
+        reference_bench.section_stages(ref_stages)  # an unknown name fails before any work
     common.VERBOSE = not getattr(args, "quiet", False)
     out = Path(args.out)
     plots = out.parent / "benchmarks"
@@ -233,11 +247,11 @@ def run(args) -> Path:
         import reference_bench
 
         results["reference"] = timed_section(
-            "reference", lambda: reference_bench.run_section(plan_name, plots)
+            "reference", lambda: reference_bench.run_section(plan_name, plots, stages=ref_stages)
         )
     total = time.perf_counter() - t_start
 
-    md.append(report_header(facts, plan_name, plan, total, timings, no_denoise))
+    md.append(report_header(facts, plan_name, plan, total, timings, no_denoise, command(args)))
     md.append(section_summary(results))
     if "bake" in results:
         md.append(section_bake(results["bake"], plan, no_denoise))
@@ -283,11 +297,24 @@ def _jsonable(obj):
 # ----------------------------------------------------------------------------------- report
 
 
-def report_header(facts, plan_name, plan, total, timings, no_denoise) -> str:
+def command(args) -> str:
+    """The command line that reproduces this run's report (the options that change it)."""
+    cmd = ["python benchmarks/run.py"]
+    if args.quick:
+        cmd.append("--quick")
+    if args.sections != DEFAULT_SECTIONS:
+        cmd.append(f"--sections {args.sections}")
+    if getattr(args, "reference_stages", None):
+        cmd.append("--reference-stages " + " ".join(args.reference_stages))
+    return " ".join(cmd)
+
+
+def report_header(facts, plan_name, plan, total, timings, no_denoise, cmd=None) -> str:
     rows = [[k, str(v)] for k, v in facts.items()]
     rows.append(["run", f"{plan_name} ({total / 60:.1f} min)"])
     rows.append(["section wall times", ", ".join(f"{k} {v:.0f}s" for k, v in timings.items())])
-    cmd = "python benchmarks/run.py" + (" --quick" if plan_name == "quick" else "")
+    if cmd is None:
+        cmd = "python benchmarks/run.py" + (" --quick" if plan_name == "quick" else "")
     return "\n".join(
         [
             "# Benchmarks: run time against error",
@@ -486,7 +513,11 @@ def section_soak(result) -> str:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    print(run(args))
+    try:
+        print(run(args))
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 

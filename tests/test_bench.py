@@ -122,3 +122,26 @@ def test_bench_unknown_section(tmp_path):
     args = runner.parse_args(["--sections", "nope", "--out", str(tmp_path / "b.md")])
     with pytest.raises(UsageError, match="unknown --sections"):
         runner.run(args)
+
+
+def test_run_names_an_unknown_reference_stage_before_any_work(capsys):
+    """``--reference-stages`` takes file stems; a wrong one is a usage error listing the
+    choices, raised before the first section starts (the full run takes hours)."""
+    import run as bench_run
+
+    assert bench_run.main(["--sections", "reference", "--reference-stages", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown reference stage nope; choose from cornell_box, pillar_room" in err
+    assert "section" not in err.split("error:")[0]  # nothing ran before the message
+
+
+def test_report_header_names_the_command_that_reproduces_it():
+    import run as bench_run
+
+    args = bench_run.parse_args(["--reference-stages", "cornell_box", "floor_lamp"])
+    assert bench_run.command(args) == (
+        "python benchmarks/run.py --reference-stages cornell_box floor_lamp"
+    )
+    args = bench_run.parse_args(["--quick", "--sections", "fit"])
+    assert bench_run.command(args) == "python benchmarks/run.py --quick --sections fit"
+    assert bench_run.command(bench_run.parse_args([])) == "python benchmarks/run.py"

@@ -140,22 +140,35 @@ def _encoding_bakes(scenes, plan: Plan) -> dict:
     return out
 
 
+def check_args(args) -> set[str]:
+    """The sections ``args`` selects; UsageError for an unknown section or reference stage, or
+    ``--reference-stages`` without the reference section (before any work starts)."""
+    sections = {s.strip() for s in args.sections.split(",") if s.strip()}
+    unknown = sections - set(DEFAULT_SECTIONS.split(","))
+    if unknown:
+        raise UsageError(
+            f"unknown --sections {', '.join(sorted(unknown))}; "
+            f"choose from {DEFAULT_SECTIONS.replace(',', ', ')}"
+        )
+    ref_stages = getattr(args, "reference_stages", None)
+    if ref_stages and "reference" not in sections:
+        raise UsageError(
+            "--reference-stages picks the reference section's stages, but --sections "
+            f"{args.sections} leaves that section out; add reference to --sections"
+        )
+    if "reference" in sections:
+        import reference_bench
+
+        reference_bench.section_stages(ref_stages)  # an unknown name raises
+    return sections
+
+
 def run(args) -> Path:
     """Run the selected sections and write the report; returns its path."""
     plan_name = "quick" if args.quick else "full"
     plan = PLANS[plan_name]
-    sections = {s.strip() for s in args.sections.split(",") if s.strip()}
-    unknown = sections - {"bake", "fit", "encodings", "skipping", "soak", "ktx2", "reference"}
-    if unknown:
-        raise UsageError(
-            f"unknown --sections {', '.join(sorted(unknown))}; "
-            "choose from bake, fit, encodings, skipping, soak, ktx2, reference"
-        )
+    sections = check_args(args)
     ref_stages = getattr(args, "reference_stages", None)
-    if "reference" in sections:
-        import reference_bench
-
-        reference_bench.section_stages(ref_stages)  # an unknown name fails before any work
     common.VERBOSE = not getattr(args, "quiet", False)
     out = Path(args.out)
     plots = out.parent / "benchmarks"

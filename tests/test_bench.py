@@ -133,6 +133,8 @@ def test_run_names_an_unknown_reference_stage_before_any_work(capsys):
     err = capsys.readouterr().err
     assert "unknown reference stage nope; choose from cornell_box, pillar_room" in err
     assert "section" not in err.split("error:")[0]  # nothing ran before the message
+    assert bench_run.main(["--sections", "fit", "--reference-stages", "cornell_box"]) == 2
+    assert "--sections fit leaves that section out; add reference" in capsys.readouterr().err
 
 
 def test_report_header_names_the_command_that_reproduces_it():
@@ -145,3 +147,26 @@ def test_report_header_names_the_command_that_reproduces_it():
     args = bench_run.parse_args(["--quick", "--sections", "fit"])
     assert bench_run.command(args) == "python benchmarks/run.py --quick --sections fit"
     assert bench_run.command(bench_run.parse_args([])) == "python benchmarks/run.py"
+
+
+def test_bench_command_runs_what_run_py_runs(capsys):
+    """``usdahd bench`` is benchmarks/run.py: the same default sections, and a wrong reference
+    stage is the same usage error (exit 2, also as JSON), in-process and as a subprocess."""
+    import json
+    import subprocess
+
+    import run as bench_run
+
+    from usdahd import cli
+
+    assert bench_cmd.SECTIONS == bench_run.DEFAULT_SECTIONS
+    argv = ["bench", "--sections", "reference", "--reference-stages", "nope", "--json"]
+    assert cli.main(argv) == 2
+    cap = capsys.readouterr()
+    assert "usdahd bench: error: unknown reference stage nope; choose from" in cap.err
+    assert json.loads(cap.out)["exit_code"] == 2
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", *argv], capture_output=True, text=True, cwd=REPO
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "unknown reference stage nope" in json.loads(proc.stdout)["error"]

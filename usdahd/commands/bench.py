@@ -15,6 +15,9 @@ from pathlib import Path
 from usdahd.commands.output import emit
 from usdahd.errors import UsageError
 
+#: benchmarks/run.py's sections, all run by default (its DEFAULT_SECTIONS; kept equal by a test).
+SECTIONS = "bake,fit,encodings,skipping,soak,ktx2,reference"
+
 #: The checkout's root, when usdahd is imported from one (``<root>/usdahd/commands/bench.py``).
 CHECKOUT = Path(__file__).resolve().parents[2]
 
@@ -62,17 +65,25 @@ def add_parser(sub):
         help="regenerate docs/benchmarks.md and its plots (needs a source checkout)",
         description=(
             "Run the benchmarks (bake run time against error, fit speed and error per model and "
-            "solver, encodings after quantization, skipping, soak) and write docs/benchmarks.md "
-            "with PNG plots in docs/benchmarks/. Same as python benchmarks/run.py; needs "
-            "matplotlib (pip install 'usdahd[bench]')."
+            "solver, encodings after quantization, skipping, soak, KTX2 containers, usdahd vs "
+            "Blender Cycles) and write docs/benchmarks.md with PNG plots in docs/benchmarks/. "
+            "Same as python benchmarks/run.py; needs matplotlib (pip install 'usdahd[bench]')."
         ),
     )
     p.add_argument("--quick", action="store_true", help="~2-3 minute run (fewer samples)")
     p.add_argument("--out", default=None, help="report path (default: docs/benchmarks.md)")
     p.add_argument(
         "--sections",
-        default="bake,fit,encodings,skipping,soak",
-        help="comma-separated subset of bake,fit,encodings,skipping,soak",
+        default=SECTIONS,
+        help=f"comma-separated subset of {SECTIONS} (reference: usdahd vs Blender Cycles; needs "
+        "$USDAHD_BPY_PYTHON, see benchmarks/reference/README.md; reported as not run without it)",
+    )
+    p.add_argument(
+        "--reference-stages",
+        nargs="+",
+        metavar="STAGE",
+        help="the reference section's stages by file stem (default: every lit sample stage and "
+        "the shared Cornell boxes)",
     )
     p.add_argument("--fresh", action="store_true", help="recompute cached reference bakes")
     p.set_defaults(func=run)
@@ -80,18 +91,20 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise UsageError("usdahd bench needs matplotlib: pip install 'usdahd[bench]'") from None
     runner = load_runner()
     ns = argparse.Namespace(
         quick=args.quick,
         out=args.out or str(CHECKOUT / "docs" / "benchmarks.md"),
         sections=args.sections,
+        reference_stages=args.reference_stages,
         fresh=args.fresh,
         quiet=bool(args.quiet or args.json),
     )
+    runner.check_args(ns)  # usage errors first
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise UsageError("usdahd bench needs matplotlib: pip install 'usdahd[bench]'") from None
     out = runner.run(ns)
     emit(args, {"report": str(out), "exit_code": 0}, lambda: print(out))
     return 0

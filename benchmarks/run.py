@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import statistics
 import sys
 import time
 from dataclasses import dataclass
@@ -391,7 +392,37 @@ def section_summary(results) -> str:
             )
         else:
             lines.append(f"- Soak: 0 non-finite values in {n:,} texels through every model.")
+    if results.get("reference", {}).get("rows"):
+        import reference_bench
+
+        lines += reference_summary(reference_bench.time_to_quality(results["reference"]["rows"]))
     return "\n".join(lines)
+
+
+def reference_summary(ttq: list[dict]) -> list[str]:
+    """Summary lines of the reference section: per usdahd timing (the command, warm), the
+    largest ratio of usdahd's time to Cycles' to reach Cycles' 1024-spp error, and its stage
+    (``ttq``: reference_bench.time_to_quality's rows)."""
+    lines = []
+    for ren in dict.fromkeys(t["renderer"] for t in ttq):
+        mine = [t for t in ttq if t["renderer"] == ren]
+        missed = [t["stage"] for t in mine if t["ratio"] is None]
+        how = "as a call in a running process" if ren.endswith("(warm)") else "as a command"
+        flags = ren.removeprefix("usdahd").replace("(warm)", "").strip()
+        who = f"usdahd {flags}".strip()
+        if missed:
+            lines.append(
+                f"- usdahd vs Cycles ({how}): {who} does not reach Cycles' 1024-spp error on "
+                f"{', '.join(missed)}."
+            )
+            continue
+        worst = max(mine, key=lambda t: t["ratio"])
+        lines.append(
+            f"- usdahd vs Cycles ({how}): {who} reaches Cycles' 1024-spp error in at most "
+            f"{worst['ratio']:.2f}x Cycles' time on every one of {len(mine)} stages (largest: "
+            f"{worst['stage']}; median {statistics.median(t['ratio'] for t in mine):.2f}x)."
+        )
+    return lines
 
 
 def section_bake(result, plan: Plan, no_denoise) -> str:

@@ -170,3 +170,24 @@ def test_bench_command_runs_what_run_py_runs(capsys):
     )
     assert proc.returncode == 2, proc.stderr
     assert "unknown reference stage nope" in json.loads(proc.stdout)["error"]
+
+
+def test_reference_summary_names_the_largest_ratio_and_stages_not_reached():
+    import run as bench_run
+
+    ttq = [
+        {"stage": "a", "renderer": "usdahd", "ratio": 0.05},
+        {"stage": "b", "renderer": "usdahd", "ratio": 0.17},
+        {"stage": "c", "renderer": "usdahd", "ratio": 0.08},
+        {"stage": "a", "renderer": "usdahd (warm)", "ratio": 0.04},
+        {"stage": "b", "renderer": "usdahd (warm)", "ratio": None},
+    ]
+    lines = bench_run.reference_summary(ttq)
+    assert lines[0] == (
+        "- usdahd vs Cycles (as a command): usdahd reaches Cycles' 1024-spp error in at most "
+        "0.17x Cycles' time on every one of 3 stages (largest: b; median 0.08x)."
+    )
+    assert lines[1] == (
+        "- usdahd vs Cycles (as a call in a running process): usdahd does not reach Cycles' "
+        "1024-spp error on b."
+    )

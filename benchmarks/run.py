@@ -1,8 +1,10 @@
 """Regenerate docs/benchmarks.md and its plots from scratch on this machine.
 
-    python benchmarks/run.py            # full run (~20 min on 2 cores without the reference
-                                        # section; that one, usdahd vs Cycles at 128^2, adds
-                                        # about an hour, more while Cycles' truths are not cached)
+    python benchmarks/run.py            # full run: ~62 min on 2 cores (2026-12-05), of which
+                                        # the reference section (usdahd vs Cycles at 128^2)
+                                        # takes ~52 with Cycles' truths cached; each stage's
+                                        # uncached truths add ~1.5 h
+    python benchmarks/run.py --reference-stages cornell_box floor_lamp   # a subset of stages
     python benchmarks/run.py --quick    # ~2-3 min: fewer samples, texels and repeats
     usdahd bench [--quick]              # the same, from a source checkout
 

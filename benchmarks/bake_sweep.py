@@ -125,12 +125,16 @@ def _cache_key(stage: Path, resolution: int, samples: int, seeds) -> str:
     for pattern in BAKE_SOURCES:
         for src in sorted(REPO.glob(pattern)):
             h.update(src.read_bytes())
-    h.update(json.dumps([resolution, samples, list(seeds), __version__]).encode())
+    # "raw": references are baked without the denoiser (before 2026-12-05 they were denoised,
+    # the default since 2868392, which hid part of their error from the two-seed noise figure)
+    h.update(json.dumps([resolution, samples, list(seeds), __version__, "raw"]).encode())
     return f"{stage.stem}-r{resolution}-s{samples}-{h.hexdigest()[:12]}"
 
 
 def reference(stage: Path, *, resolution: int, samples: int, seeds=REFERENCE_SEEDS) -> dict:
-    """The converged reference bake of a scene (cached on disk; computed when missing).
+    """The converged reference bake of a scene (cached on disk; computed when missing), baked
+    without the denoiser: its noise figure is the difference of its two seeds, which a
+    denoiser's residual (the same in both) would hide.
 
     returns : dict(sh {prim: (mean sh (h,w,3,9), covered)}, seeds_iz [(n,) lum I_z per seed],
     noise_rel (relative rms noise of the mean), seconds (to compute it), cached (bool)).
@@ -149,7 +153,10 @@ def reference(stage: Path, *, resolution: int, samples: int, seeds=REFERENCE_SEE
         seconds, cached = meta["seconds"], True
     else:
         log(f"reference bake {stage.name}: {resolution}^2, {samples} spp x {len(seeds)} seeds")
-        results = [bake_once(stage, resolution=resolution, samples=samples, seed=s) for s in seeds]
+        results = [
+            bake_once(stage, resolution=resolution, samples=samples, seed=s, denoise=False)
+            for s in seeds
+        ]
         runs = [r["sh"] for r in results]
         seconds, cached = sum(r["seconds"] for r in results), False
         prims = list(runs[0])

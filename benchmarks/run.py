@@ -434,7 +434,8 @@ def section_bake(result, plan: Plan, no_denoise) -> str:
             "## 1. Bake: run time against error",
             "",
             f"Every sample stage (`samples/*.usda`) baked with `usdahd.pipeline.bake` at "
-            f"{plan.resolution} x {plan.resolution} per mesh, 2 bounces, for "
+            f"{plan.resolution} x {plan.resolution} per mesh, default bounces (Russian "
+            "roulette, at most 64), for "
             f"{', '.join(map(str, plan.spps))} samples per texel, with and without adaptive "
             f"sampling and OIDN denoising (`--adaptive`, `--denoise`). Each point is the median "
             f"of {plan.repeats} bake(s) with different seeds. *seconds* is the wall time of the "
@@ -443,7 +444,8 @@ def section_bake(result, plan: Plan, no_denoise) -> str:
             "",
             "Error: luminance of I_z (normalized irradiance along the normal, from the SH "
             "sidecar) per covered texel against the converged reference of the same scene "
-            f"(mean of two bakes at {plan.ref_samples} spp with independent seeds), divided by "
+            f"(mean of two bakes at {plan.ref_samples} spp with independent seeds, not denoised), "
+            "divided by "
             "the scene's mean reference I_z: relative RMSE, mean (bias) and 99th percentile "
             "of |error|. The reference's own noise (rms of the two seeds' difference / 2, "
             "relative) is listed below and drawn dotted in the plot; errors near it are not "

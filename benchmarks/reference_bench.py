@@ -19,6 +19,10 @@ noise is Cycles' relRMSE at spp S scaled by sqrt(S / truth spp).
 
 Writes the markdown section to ``--out``, the plot next to it (``reference_time_error.png``)
 and the raw rows to ``reference_bench.json``; prints the markdown path on stdout.
+
+The truths are the slow part (at 128^2 about 1.5 h per Cornell box on 2 cores) and need no
+quiet machine: compute them first, untimed, with the same stages and resolution, e.g.
+``nice python benchmarks/reference_bench.py --truths-only --stages ... --resolution 128``.
 """
 
 from __future__ import annotations
@@ -72,6 +76,30 @@ def centre_truth(scene, sf, spp: int, bpy: str) -> tuple[dict, float]:
     res = compare.compare_images(scene.meshes, a, b, {}, half, half)  # (its truth_noise unused)
     diff = res["overall"].get("cycles", {}).get("rel_rmse")
     return truth, (None if diff is None else 0.5 * diff)
+
+
+def cache_truths(stage: Path, resolution: int, truth_spp: int, bpy: str,
+                 centre_spp: int | None = None) -> dict:  # fmt: skip
+    """Compute (and cache) the Cycles truths :func:`bench_stage` judges ``stage`` against, untimed:
+    the box truth at ``truth_spp`` and the point-sampled truth at ``centre_spp`` (default
+    ``truth_spp``). At 128^2 the Cornell boxes' truths take about 1.5 h on 2 cores, so they can
+    be computed beforehand, e.g. at a low priority beside other work, and the timed runs then
+    need a quiet machine only for themselves. The scene is exported from a 4-spp usdahd bake
+    (the cache key depends on the geometry, texel layout and probes, not on the baked values).
+    Returns {"box_seconds", "box_cached", "point_seconds"}."""
+    with tempfile.TemporaryDirectory(prefix="usdahd-truths-") as tmp:
+        tmp = Path(tmp)
+        (tmp / "u").mkdir()
+        baked = compare.bake_usdahd(stage, tmp / "u", resolution, None, ["--samples", "4"],
+                                    quiet=True)  # fmt: skip
+        scene = export.export_stage(baked["layer"], baked=compare.usdahd_results(baked["layer"]))
+        sf = export.save_scene(scene, tmp / "scene.npz")
+        t0 = time.perf_counter()
+        _, _, hit = runner.cached_cycles(scene, sf, truth_spp, seed=compare.TRUTH_SEED, bpy=bpy)
+        t1 = time.perf_counter()
+        centre_truth(scene, sf, centre_spp or truth_spp, bpy)
+        return {"box_seconds": t1 - t0, "box_cached": hit,
+                "point_seconds": time.perf_counter() - t1}  # fmt: skip
 
 
 def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int, bpy: str,
@@ -564,6 +592,10 @@ def main(argv=None) -> int:
     p.add_argument("--warm", action="store_true",
                    help="also time every usdahd run as a bake call in a running process "
                         "(benchmarks/reference/warm.py), as Cycles' bake is timed")  # fmt: skip
+    p.add_argument("--truths-only", action="store_true",
+                   help="only compute (cache) the stages' Cycles truths, untimed, and exit: "
+                        "run it beforehand (e.g. with nice) so the timed runs find them "
+                        "cached")  # fmt: skip
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -592,6 +624,14 @@ def main(argv=None) -> int:
             print(f"error: {path}: no such stage", file=sys.stderr)
             return 2
         stages.append(path)
+    if a.truths_only:
+        for st in stages:
+            _log(f"{st.name}: truths at {a.resolution}^2 ...")
+            got = cache_truths(st, a.resolution, a.truth_spp, bpy, a.centre_spp)
+            print(f"{st.name}: box truth {got['box_seconds']:.0f} s"
+                  f"{' (cached)' if got['box_cached'] else ''}, point truth "
+                  f"{got['point_seconds']:.0f} s")  # fmt: skip
+        return 0
     rows = []
     from benchmarks.reference.warm import WarmBaker
 

@@ -3,7 +3,8 @@
     python benchmarks/run.py            # full run: ~62 min on 2 cores (2026-12-05), of which
                                         # the reference section (usdahd vs Cycles at 128^2)
                                         # takes ~52 with Cycles' truths cached; each stage's
-                                        # uncached truths add minutes to ~1.5 h (Cornell boxes)
+                                        # uncached truths add minutes to ~1.5 h (Cornell
+                                        # boxes): `reference_bench.py --truths-only` first
     python benchmarks/run.py --reference-stages cornell_box floor_lamp   # a subset of stages
     python benchmarks/run.py --quick    # ~2-3 min: fewer samples, texels and repeats
     usdahd bench [--quick]              # the same, from a source checkout

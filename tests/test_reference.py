@@ -969,3 +969,27 @@ def test_warm_baker_bakes_what_the_cli_bakes(tmp_path):
         np.testing.assert_array_equal(
             compare.usdahd_iz(ours[p]["sidecar"])[0], compare.usdahd_iz(theirs[p]["sidecar"])[0]
         )
+
+
+def test_smoke_truths_only_caches_what_bench_stage_reads(tmp_path, bpy_python, monkeypatch):
+    """``reference_bench.py --truths-only`` computes the truths untimed (beforehand, e.g. at a
+    low priority); a later bench_stage of the same stage and resolution renders no truth, only
+    its own equal-spp Cycles run."""
+    from benchmarks import reference_bench as rb
+
+    monkeypatch.setenv(runner.CACHE_VAR, str(tmp_path / "cache"))
+    args = ["--truths-only", "--stages", "floor_lamp", "--resolution", "8", "--truth-spp", "8"]
+    assert rb.main([*args, "--bpy-python", bpy_python]) == 0
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 3  # box, and two point halves
+    calls = []
+    real = runner.run_cycles
+
+    def spy(scene_file, spp, **kw):
+        calls.append((spp, kw.get("seed"), kw.get("point", False)))
+        return real(scene_file, spp, **kw)
+
+    monkeypatch.setattr(runner, "run_cycles", spy)
+    stage = ROOT / "samples" / "floor_lamp.usda"
+    rows = rb.bench_stage(stage, 8, [4], 8, bpy_python, cycles_samples=[4])
+    assert calls == [(4, compare.EQUAL_SEED, False)]
+    assert {r["renderer"] for r in rows} == {"usdahd", "cycles"}

@@ -666,7 +666,10 @@ class MaterialReader:
                 m = m.replace("; fallback used", "")
                 for head in (f"cannot read texture {path}", f"cannot decode texture {path}"):
                     m = m.replace(head, "cannot decode it" if "decode" in head else "")
-                problems.append(m.strip(" :()") or "unreadable")
+                m = m.strip()
+                m = m[1:].strip() if m.startswith(":") else m
+                m = m[1:-1] if m.startswith("(") and m.endswith(")") else m
+                problems.append(m or "unreadable")
             else:
                 self.warn(f"{owner}: {m}")
 

@@ -130,6 +130,7 @@ class Port:
     src: object = None
     out: str = "out"
     colorspace: str = ""
+    unresolved: bool = False  # an asset path USD's resolver does not resolve
 
 
 class UsdNode:
@@ -155,7 +156,9 @@ class UsdNode:
         v = self.get(attr)
         cs = str(attr.GetColorSpace()) if attr.HasColorSpace() else ""
         if isinstance(v, Sdf.AssetPath):
+            unresolved = bool(v.path) and not v.resolvedPath
             v = v.resolvedPath or v.path or None
+            return Port(value=v, colorspace=cs, unresolved=unresolved)
         elif v is not None and not isinstance(v, str):
             v = [float(x) for x in np.ravel(np.asarray(v, np.float64))]
         return Port(value=v, colorspace=cs)
@@ -380,7 +383,16 @@ class Graph:
         if cat in ("UsdPrimvarReader", "geompropvalue"):
             var = self.value(node, "varname" if cat == "UsdPrimvarReader" else "geomprop", "")
             dflt = self.input(node, "fallback" if cat == "UsdPrimvarReader" else "default")
-            v = self.mats.primvar_value(self.prim, str(var), dflt.const, self.name)
+            v = self.mats.primvar_value(self.prim, str(var), None, self.name)
+            if v is None:
+                v = _fit(dflt.const, _WIDTH.get(typ, dflt.width))
+                who = self.prim.GetPath() if self.prim is not None else "a prim"
+                self.mats.warn(
+                    f"{who}: {node.path} reads primvars:{var}, which the prim does not have; "
+                    f"{self.name} uses the reader's fallback {fmt_values(v)}. Fix: author "
+                    f"primvars:{var} on the prim (or a fallback on the reader)",
+                    key=f"pv-missing:{who}:{var}:{self.name}",
+                )
             return Sig(const=np.asarray(v, np.float32))
         if cat in ("constant", "dot"):
             return self.input(node, "value" if cat == "constant" else "in")
@@ -435,14 +447,18 @@ class Graph:
         )
         if cat == "tiledimage":
             wrap = ("repeat", "repeat")
-        tex, reason = self.mats.image_texture(path, port.colorspace, self.name)
+        if port.unresolved:
+            tex, reason = None, f"it does not exist: the asset path @{path}@ does not resolve"
+        else:
+            tex, reason = self.mats.image_texture(path, port.colorspace, self.name)
         if tex is None:
             authored = node.port("default")
             if authored is not None and authored.src is None and authored.value is not None:
                 v, what = _fit(dflt.const, n), f"the authored inputs:default of {node.path}"
             else:
                 v, what = self.substitute(_fit(dflt.const, n))
-            self.mats.report_unreadable(self, node.path, path, reason, v, what)
+            inp = self.surface[1] if self.surface is not None else ""
+            self.mats.report_unreadable(self.prim, self.name, node.path, path, reason, v, what, inp)
             return Sig(const=_fit(v, n))
         ch = tuple(range(n)) if n > 1 else (0,)
         t = Texture(tex.path, tex.data, np.ones(4, np.float32), np.zeros(4, np.float32), ch, wrap)
@@ -502,7 +518,7 @@ class Graph:
         rt = np.ravel(self.value(node, "realworldtilesize", [1.0, 1.0])).astype(np.float64)
         s = rt / rw
         a = np.diag(tiling * s)
-        b = -offset * s
+        b = -offset * s + 0.0  # no -0 in the derived name
         if np.allclose(a, np.eye(2)) and np.allclose(b, 0):
             return tc
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):

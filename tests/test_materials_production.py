@@ -282,9 +282,23 @@ def test_open_chess_set_materials_are_not_grey():
     assert len(textured) >= 13, [m.name for m in sc.materials]
     assert not any("fix the binding" in w for w in sc.warnings)
     mean = {m.name: m.albedo_tex.outputs().reshape(-1, 3).mean(0) for m in textured}
-    white = [v for k, v in mean.items() if k.endswith("_W")]
-    black = [v for k, v in mean.items() if k.endswith("_B")]
-    assert min(v.mean() for v in white) > 2 * max(v.mean() for v in black)
+    pairs = [
+        (v, mean[k.replace("White", "Black")[:-1] + "B"])
+        for k, v in mean.items()
+        if k.endswith("_W") and k.replace("White", "Black")[:-1] + "B" in mean
+    ]
+    assert len(pairs) >= 6, sorted(mean)
+    assert all(w.mean() > 1.5 * b.mean() for w, b in pairs)  # each white piece is lighter
+    # the King's albedo against the files decoded here: sRGB formula x (1 - metallic)
+    import OpenImageIO as oiio
+
+    tex = ASSETS / "OpenChessSet" / "assets" / "King" / "tex"
+    metal = oiio.ImageBuf(str(tex / "king_shared_metallic.jpg")).get_pixels(oiio.FLOAT)
+    for side in ("black", "white"):
+        base = oiio.ImageBuf(str(tex / f"king_{side}_base_color.jpg")).get_pixels(oiio.FLOAT)
+        want = (_srgb_to_linear(base[..., :3]) * (1 - metal[..., :1])).reshape(-1, 3).mean(0)
+        got = mean[f"/ChessSet/{side.title()}/King/Materials/M_King_{side[0].upper()}"]
+        np.testing.assert_allclose(got, want, rtol=0.01)
 
 
 @pytest.mark.skipif(not (ASSETS / "Teapot").is_dir(), reason="usd-wg/assets not fetched")

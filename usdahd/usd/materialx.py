@@ -46,6 +46,7 @@ from pxr import Sdf, UsdShade
 
 from usdahd.scene.types import Texture
 from usdahd.usd.stage import fmt_values, one_line
+from usdahd.usd.textures import outputs_on_grid
 
 __all__ = [
     "SURFACES",
@@ -297,8 +298,7 @@ def multiply(a: Sig, b: Sig, warn) -> Sig:
 def texture_product(a: Texture, b: Texture) -> Texture:
     """The product of two textures' outputs on a common grid (per axis the larger
     resolution; each evaluated at the texel centres by its own bilinear lookup: exact at
-    those centres, see usdahd.usd.materials.albedo_times_metal). Wraps like ``a``."""
-    from usdahd.usd.materials import _outputs_on_grid
+    those centres, see usdahd.usd.textures.albedo_times_metal). Wraps like ``a``."""
 
     h = max(a.data.shape[0], b.data.shape[0])
     w = max(a.data.shape[1], b.data.shape[1])
@@ -306,7 +306,7 @@ def texture_product(a: Texture, b: Texture) -> Texture:
 
     def values(t):  # (h, w, k) outputs; the texels' own grid without padding copies
         if t.data.shape[:2] != (h, w):
-            return _outputs_on_grid(t, h, w)
+            return outputs_on_grid(t, h, w)
         c = t.data.shape[2]
         out = np.empty((h, w, len(t.channels)), np.float32)
         for i, q in enumerate(t.channels):

@@ -306,3 +306,150 @@ def test_teapot_display_color_is_lime():
     sc = load_scene(Usd.Stage.Open(str(ASSETS / "Teapot" / "Teapot.usd")))
     albedo = [m.albedo for m in sc.materials]
     assert any(np.allclose(a, [0.325, 0.825, 0.0], atol=1e-6) for a in albedo), albedo
+
+
+# ----------------------------------------------------------------- pattern nodes (unit)
+
+_GRAPH_STAGE = """#usda 1.0
+(
+    defaultPrim = "World"
+    upAxis = "Z"
+)
+
+def Xform "World"
+{
+    def Mesh "Plane" (
+        prepend apiSchemas = ["MaterialBindingAPI"]
+    )
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "vertex"
+        )
+        texCoord2f[] primvars:st1 = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "vertex"
+        )
+        uniform token subdivisionScheme = "none"
+        rel material:binding = </World/M>
+    }
+
+    def Material "M"
+    {
+        token outputs:mtlx:surface.connect = </World/M/S.outputs:out>
+
+        def Shader "S"
+        {
+            uniform token info:id = "ND_standard_surface_surfaceshader"
+            BODY
+            token outputs:out
+        }
+
+        def Shader "Img"
+        {
+            uniform token info:id = "ND_image_color3"
+            asset inputs:file = @./mtlx_albedo.png@ (
+                colorSpace = "srgb_texture"
+            )
+            color3f outputs:out
+        }
+        NODES
+    }
+}
+"""
+
+
+def _graph_scene(tmp_path, body, nodes=""):
+    shutil.copy(DATA / "mtlx_albedo.png", tmp_path)
+    text = _GRAPH_STAGE.replace("BODY", body).replace("NODES", nodes)
+    (tmp_path / "g.usda").write_text(text)
+    sc = load_scene(Usd.Stage.Open(str(tmp_path / "g.usda")))
+    return sc, sc.materials[int(sc.meshes[0].material[0])]
+
+
+def test_affine_nodes_and_an_extracted_channel_as_metalness(tmp_path):
+    body = """color3f inputs:base_color.connect = </World/M/Add.outputs:out>
+            float inputs:metalness.connect = </World/M/Blue.outputs:out>"""
+    nodes = """
+        def Shader "Mul"
+        {
+            uniform token info:id = "ND_multiply_color3FA"
+            color3f inputs:in1.connect = </World/M/Img.outputs:out>
+            float inputs:in2 = 0.5
+            color3f outputs:out
+        }
+
+        def Shader "Add"
+        {
+            uniform token info:id = "ND_add_color3"
+            color3f inputs:in1.connect = </World/M/Mul.outputs:out>
+            color3f inputs:in2 = (0.1, 0, 0)
+            color3f outputs:out
+        }
+
+        def Shader "Blue"
+        {
+            uniform token info:id = "ND_extract_color3"
+            color3f inputs:in.connect = </World/M/Img.outputs:out>
+            int inputs:index = 2
+            float outputs:out
+        }
+"""
+    sc, m = _graph_scene(tmp_path, body, nodes)
+    want = (ALBEDO_PNG * 0.5 + [0.1, 0, 0]) * (1 - ALBEDO_PNG[2])
+    np.testing.assert_allclose(_albedo(m), want, rtol=3e-3)
+    assert not any("does not evaluate" in w for w in sc.warnings)
+
+
+def test_a_node_the_bake_cannot_evaluate_is_named_with_the_value_used(tmp_path):
+    body = """color3f inputs:base_color.connect = </World/M/Noise.outputs:out>"""
+    nodes = """
+        def Shader "Noise"
+        {
+            uniform token info:id = "ND_noise2d_color3"
+            color3f outputs:out
+        }
+"""
+    sc, m = _graph_scene(tmp_path, body, nodes)
+    np.testing.assert_allclose(m.albedo, [0.8, 0.8, 0.8], rtol=1e-6)
+    w = [x for x in sc.warnings if "ND_noise2d_color3" in x]
+    assert len(w) == 1 and "/World/M/Noise" in w[0] and "does not evaluate" in w[0]
+    assert "(0.8, 0.8, 0.8)" in w[0] and "Fix:" in w[0]
+
+
+def test_textures_on_different_texcoords_are_not_combined_silently(tmp_path):
+    body = """color3f inputs:base_color.connect = </World/M/Img.outputs:out>
+            float inputs:metalness.connect = </World/M/Metal.outputs:out>"""
+    nodes = """
+        def Shader "Metal"
+        {
+            uniform token info:id = "ND_image_float"
+            asset inputs:file = @./mtlx_albedo.png@
+            float2 inputs:texcoord.connect = </World/M/UV1.outputs:out>
+            float outputs:out
+        }
+
+        def Shader "UV1"
+        {
+            uniform token info:id = "ND_geompropvalue_vector2"
+            string inputs:geomprop = "st1"
+            float2 outputs:out
+        }
+"""
+    sc, m = _graph_scene(tmp_path, body, nodes)
+    np.testing.assert_allclose(_albedo(m), ALBEDO_PNG, rtol=3e-3)  # metalness dropped
+    w = [x for x in sc.warnings if "different texcoords" in x]
+    assert len(w) == 1 and "'st1'" in w[0] and "Fix:" in w[0]
+
+
+def test_composition_note_for_a_mtlx_reference():
+    from usdahd.usd.materialx import composition_note
+
+    stage = Usd.Stage.Open(str(DATA / "mtlx_file.usda"))
+    errs = [str(e) for e in stage.GetCompositionErrors() if ".mtlx" in str(e)]
+    assert errs, "usd-core composed the .mtlx reference: usdMtlx is present, update the docs"
+    note = composition_note(errs[0])
+    assert note.startswith("MaterialX file /") and "mtlx_look.mtlx could not be composed" in note
+    assert "no usdMtlx" in note
+    assert composition_note("Could not open asset @a.usda@ for reference") is None

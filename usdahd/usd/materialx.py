@@ -36,7 +36,6 @@ texcoord. Anything else is reported (material, node, value used, fix).
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from functools import lru_cache
@@ -55,6 +54,7 @@ __all__ = [
     "MtlxSource",
     "Sig",
     "UsdNode",
+    "composition_note",
     "find_mtlx",
     "load_document",
     "nodedef_default",
@@ -673,5 +673,21 @@ def mtlx_surface(src: MtlxSource):
     return port.src, ""
 
 
-def is_finite(v) -> bool:
-    return all(math.isfinite(x) for x in np.ravel(np.asarray(v, np.float64)))
+def composition_note(error_text: str) -> str | None:
+    """For a USD composition error about a ``.mtlx`` asset, the message the user needs (the
+    file, why USD cannot compose it, that the bake reads it anyway), else None. For callers
+    that report composition errors (usdahd.usd.stage)."""
+    import re
+
+    m = re.search(r"@([^@]+?\.mtlx)(?::SDF_FORMAT_ARGS[^@]*)?@", error_text, re.IGNORECASE)
+    if not m:
+        return None
+    path = m.group(1)
+    if "Cannot determine file format" in error_text:
+        why = "the usd-core wheel has no usdMtlx file-format plugin"
+    else:
+        why = one_line(error_text, 160)
+    return (
+        f"MaterialX file {path} could not be composed ({why}); the bake reads the materials "
+        "bound from it with the MaterialX library (docs/usd-semantics.md, Materials)"
+    )

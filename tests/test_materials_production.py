@@ -453,3 +453,14 @@ def test_composition_note_for_a_mtlx_reference():
     assert note.startswith("MaterialX file /") and "mtlx_look.mtlx could not be composed" in note
     assert "no usdMtlx" in note
     assert composition_note("Could not open asset @a.usda@ for reference") is None
+
+
+def test_an_emission_texture_under_a_zero_weight_is_no_emitter(tmp_path):
+    body = """color3f inputs:emission_color.connect = </World/M/Img.outputs:out>
+            float inputs:emission = 0"""
+    sc, m = _graph_scene(tmp_path, body)
+    assert m.emission_tex is None and not m.emissive
+    body = body.replace("float inputs:emission = 0", "float inputs:emission = 2")
+    sc, m = _graph_scene(tmp_path, body)
+    v = m.emission_tex.outputs().reshape(-1, 3)[0]
+    np.testing.assert_allclose(v, 2 * ALBEDO_PNG, rtol=3e-3)

@@ -529,6 +529,17 @@ class Graph:
         return name
 
 
+def _constant_if_flat(s: Sig) -> Sig:
+    """A texture scaled by 0 (e.g. emission x an emission weight of 0) is its bias: a
+    constant, so that a material is not taken for an emitter or textured for nothing."""
+    if s.tex is None:
+        return s
+    q = list(s.tex.channels)
+    if np.all(s.tex.scale[q] == 0):
+        return Sig(const=np.asarray(s.tex.bias[q], np.float32))
+    return s
+
+
 def surface_terms(g: Graph, node) -> dict:
     """What the bake takes from a MaterialX surface node: {'albedo', 'emission', 'opacity',
     'opacity_threshold'} as :class:`Sig` / float, and 'ignored': [(input, value)] of
@@ -565,6 +576,7 @@ def surface_terms(g: Graph, node) -> dict:
         albedo = multiply(base, affine(metal, -1.0, 1.0), g.warn)
     else:
         albedo = base
+    albedo, emission, op = (_constant_if_flat(x) for x in (albedo, emission, op))
     if albedo.tex is None:
         albedo = Sig(const=_fit(albedo.const, 3))
     if emission.tex is None:

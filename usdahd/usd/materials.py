@@ -309,8 +309,7 @@ class MaterialReader:
         )
         op, out.opacity_tex = self._input(shader, "opacity", 1.0, name, tc_names)
         out.opacity = float(np.ravel(op)[0])
-        thr = shader.GetInput("opacityThreshold")
-        out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
+        out.opacity_threshold = float(self._uniform(shader, "opacityThreshold", 0.0))
         self._check_material(out)
         self._metallic(shader, out, *metal)
         self._unhonoured_inputs(shader, name)
@@ -331,8 +330,7 @@ class MaterialReader:
         bake cannot apply is warned (naming the material and the fix); an unreadable texture
         gives its ``fallback`` (a constant metallic, applied by :meth:`_metallic`); not
         connected: (None, None)."""
-        wf = shader.GetInput("useSpecularWorkflow")
-        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+        if int(self._uniform(shader, "useSpecularWorkflow", 0)) == 1:
             return None, None
         inp = shader.GetInput("metallic")
         if not inp or not inp.HasConnectedSource():
@@ -387,8 +385,7 @@ class MaterialReader:
         scale and bias (exact: bilinear filtering commutes with the affine map). A metallic
         texture (``metal_tex``, :meth:`_metallic_texture`) becomes part of the albedo
         texture (:func:`albedo_times_metal`); an unreadable one gives its ``fallback``."""
-        wf = shader.GetInput("useSpecularWorkflow")
-        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+        if int(self._uniform(shader, "useSpecularWorkflow", 0)) == 1:
             return
         inp = shader.GetInput("metallic")
         if not inp:
@@ -417,6 +414,16 @@ class MaterialReader:
             tex.scale[:3] *= k
             tex.bias[:3] *= k
 
+    def _uniform(self, shader, name: str, default: float) -> float:
+        """An unconnected shader input's value, through NodeGraph / Material interface
+        inputs (usdMtlx writes those), else ``default``."""
+        port = materialx.UsdNode(shader, self.get).port(name)
+        if port is None or port.src is not None or port.value is None:
+            return default
+        if isinstance(port.value, str):
+            return default
+        return float(np.ravel(np.asarray(port.value, np.float64))[0])
+
     def _unhonoured_inputs(self, shader, name) -> None:
         """Record the UsdPreviewSurface inputs that change the diffuse response and that the
         baker ignores (a Lambertian bake of the base layer); see material_warnings."""
@@ -426,17 +433,16 @@ class MaterialReader:
             "occlusion": 1.0,
             "clearcoat": 0.0,
         }
+        node = materialx.UsdNode(shader, self.get)
         for inp_name, value in neutral.items():
-            inp = shader.GetInput(inp_name)
-            if not inp:
+            port = node.port(inp_name)  # through NodeGraph / Material interface inputs
+            if port is None:
                 continue
-            if inp.HasConnectedSource():
+            if port.src is not None:
                 what = f"UsdPreviewSurface {inp_name} (connected)"
                 self.unhonoured.setdefault(what, []).append(name)
                 continue
-            if not inp.GetAttr().HasAuthoredValue():
-                continue
-            v = self.get(inp.GetAttr())
+            v = port.value
             if v is not None and not np.allclose(np.asarray(v, np.float64), value):
                 what = f"UsdPreviewSurface {inp_name} = {fmt_values(v)}"
                 self.unhonoured.setdefault(what, []).append(name)

@@ -123,6 +123,10 @@ def test_mtlx_file_materials_are_read_with_the_materialx_library():
     # open_pbr_surface: base_color (sRGB image in a nodegraph) x (1 - base_metalness 0.25)
     np.testing.assert_allclose(_albedo(tex), ALBEDO_PNG * 0.75, rtol=2e-3)
     np.testing.assert_allclose(tex.emission, 3.0 * np.array([0.5, 0.5, 1.0]), rtol=1e-6)
+    # a Material prim that references the document's material itself
+    np.testing.assert_allclose(
+        mats["/World/DirectLook"].albedo, 0.9 * np.array([0.8, 0.1, 0.1]), rtol=1e-6
+    )
     said = [w for w in sc.warnings if "mtlx_look.mtlx" in w and "MaterialX" in w]
     assert len(said) == 1, sc.warnings
     assert "MaterialX file could not be composed by USD" in said[0]

@@ -209,13 +209,16 @@ class MaterialReader:
             tp = stage.GetPrimAtPath(t)
             if tp and tp.IsA(UsdShade.Material):
                 continue
-            key = str(t)
-            if key not in self._mtlx:
-                self._mtlx[key] = materialx.find_mtlx(stage, t)
-            src = self._mtlx[key]
+            src = self._mtlx_binding_of(t)
             if src is not None:
-                return key, src
+                return str(t), src
         return None
+
+    def _mtlx_binding_of(self, path):
+        key = str(path)
+        if key not in self._mtlx:
+            self._mtlx[key] = materialx.find_mtlx(self.ctx.stage, path)
+        return self._mtlx[key]
 
     def _read_mtlx_file(self, target: str, src, prim) -> Material:
         """The material ``target`` read from its ``.mtlx`` document (see materialx)."""
@@ -283,6 +286,9 @@ class MaterialReader:
             if universal and universal.GetShaderId() == "UsdPreviewSurface":
                 shader, sid = universal, "UsdPreviewSurface"
         if not shader:
+            src = self._mtlx_binding_of(mat.GetPath())
+            if src is not None:  # a Material prim whose .mtlx reference did not compose
+                return self._read_mtlx_file(name, src, self._prim)
             self.warn(
                 f"{name}: no surface shader (outputs:surface or outputs:mtlx:surface); the "
                 f"bake uses albedo {fmt_values(DEFAULT_ALBEDO)}. Fix: connect a surface"

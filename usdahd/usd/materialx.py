@@ -621,7 +621,10 @@ class MtlxSource:
 def find_mtlx(stage, target) -> MtlxSource | None:
     """The ``.mtlx`` reference or payload (on ``target`` or an ancestor) that should have
     provided the prim ``target``, or None. usdMtlx maps a document's materials to
-    ``/MaterialX/Materials/<name>``, so the material is the target's last path element."""
+    ``/MaterialX/Materials/<name>``, so the material is the last element of the arc's prim
+    path extended by the target's path below the referencing prim (``@a.mtlx@</MaterialX/
+    Materials>`` on ``/W/Looks``, target ``/W/Looks/M``: ``M``; ``@a.mtlx@</MaterialX/
+    Materials/M>`` on the target itself: ``M``)."""
     target = Sdf.Path(str(target))
     anc = target
     while anc != Sdf.Path.absoluteRootPath and not anc.isEmpty:
@@ -635,8 +638,15 @@ def find_mtlx(stage, target) -> MtlxSource | None:
                     if not ap.lower().endswith(".mtlx"):
                         continue
                     f = spec.layer.ComputeAbsolutePath(ap)
-                    src = MtlxSource(f, target.name, spec.layer.identifier)
-                    src.reason = _mtlx_problem(f, target.name)
+                    name = target.name
+                    if not arc.primPath.isEmpty:  # the prim the arc targets in the document
+                        rel = target.MakeRelativePath(anc)
+                        full = (
+                            arc.primPath if rel == Sdf.Path(".") else arc.primPath.AppendPath(rel)
+                        )
+                        name = full.name
+                    src = MtlxSource(f, name, spec.layer.identifier)
+                    src.reason = _mtlx_problem(f, name)
                     return src
             break  # the nearest existing ancestor decides
         anc = anc.GetParentPath()

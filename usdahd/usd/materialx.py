@@ -344,7 +344,10 @@ class Graph:
         self.surface = None  # (surface node, input name) being evaluated
 
     def warn(self, msg, key=None):
-        self.mats.warn(f"{self.name}: {msg}", key=key)
+        """A warning naming the prim the material is read for (the first one bound, when
+        prims share it) and the material."""
+        who = f"{self.prim.GetPath()}: " if self.prim is not None else ""
+        self.mats.warn(f"{who}{self.name}: {msg}", key=key)
 
     def input(self, node, name: str, default=None) -> Sig:
         """The value of input ``name`` of ``node``: its connection evaluated, its authored

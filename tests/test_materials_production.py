@@ -468,3 +468,17 @@ def test_an_emission_texture_under_a_zero_weight_is_no_emitter(tmp_path):
     sc, m = _graph_scene(tmp_path, body)
     v = m.emission_tex.outputs().reshape(-1, 3)[0]
     np.testing.assert_allclose(v, 2 * ALBEDO_PNG, rtol=3e-3)
+
+
+def test_an_untyped_prim_referencing_a_mtlx_material_is_read_and_not_blamed(tmp_path):
+    text = (DATA / "mtlx_file.usda").read_text()
+    text = text.replace('def Material "DirectLook" (', 'over "DirectLook" (')
+    (tmp_path / "u.usda").write_text(text)
+    for f in ("mtlx_look.mtlx", "mtlx_albedo.png"):
+        shutil.copy(DATA / f, tmp_path)
+    stage = Usd.Stage.Open(str(tmp_path / "u.usda"))
+    sc = load_scene(stage)
+    by_prim = {m.path: sc.materials[int(m.material[0])] for m in sc.meshes}
+    np.testing.assert_allclose(by_prim["/World/Direct"].albedo, [0.72, 0.09, 0.09], rtol=1e-6)
+    found = check_stage(stage)
+    assert not any("material:binding" in w for w in found.warnings), found.warnings

@@ -112,7 +112,7 @@ def _check_binding(prim, out: StageFindings) -> None:
     for target in rel.GetTargets():
         tp = stage.GetPrimAtPath(target)
         path = str(prim.GetPath())
-        if not tp:
+        if not tp or not tp.IsA(UsdShade.Material):
             from usdahd.usd.materialx import find_mtlx  # the MaterialX library, lazily
 
             src = find_mtlx(stage, target)
@@ -130,6 +130,7 @@ def _check_binding(prim, out: StageFindings) -> None:
                 if src.reason and not any(w.startswith(f"{src.file}:") for w in out.warnings):
                     out.warnings.append(msg)
                 continue
+        if not tp:
             out.warnings.append(
                 f"{path}: material:binding targets {target}, which does not exist: the "
                 "default material (grey 0.18, no emission) is used; fix the binding"

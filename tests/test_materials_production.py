@@ -482,3 +482,27 @@ def test_an_untyped_prim_referencing_a_mtlx_material_is_read_and_not_blamed(tmp_
     np.testing.assert_allclose(by_prim["/World/Direct"].albedo, [0.72, 0.09, 0.09], rtol=1e-6)
     found = check_stage(stage)
     assert not any("material:binding" in w for w in found.warnings), found.warnings
+
+
+@pytest.mark.parametrize(
+    "ca, cha, cb, chb",
+    [(3, (0, 1, 2), 1, (0,)), (1, (0,), 3, (0, 1, 2)), (3, (2,), 3, (0, 1, 2))]
+    + [(4, (0, 1, 2), 1, (0, 0, 0)), (1, (0, 1, 2), 3, (1,)), (2, (3,), 3, (0, 1, 2))],
+)
+def test_texture_product_is_the_product_of_the_outputs(ca, cha, cb, chb):
+    """Same grid: texel by texel, the product of the two UsdUVTexture-style outputs
+    (Texture.outputs: channel padding, scale and bias), a one-channel value broadcast."""
+    from usdahd.scene.types import Texture
+    from usdahd.usd.materialx import texture_product
+
+    rng = np.random.default_rng(7)
+
+    def tex(c, ch):
+        r = rng.random((6, 5, c), dtype=np.float32)
+        return Texture("t", r, rng.random(4, dtype=np.float32), rng.random(4, dtype=np.float32), ch)
+
+    a, b = tex(ca, cha), tex(cb, chb)
+    oa, ob = a.outputs(), b.outputs()
+    n = max(oa.shape[2], ob.shape[2])
+    want = np.broadcast_to(oa, oa.shape[:2] + (n,)) * np.broadcast_to(ob, ob.shape[:2] + (n,))
+    np.testing.assert_allclose(texture_product(a, b).outputs(), want, rtol=1e-6)

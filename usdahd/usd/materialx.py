@@ -304,26 +304,35 @@ def texture_product(a: Texture, b: Texture) -> Texture:
     w = max(a.data.shape[1], b.data.shape[1])
     n = max(len(a.channels), len(b.channels))
 
-    def values(t):  # (h, w, k) outputs; the texels' own grid without padding copies
+    def values(t):  # (h, w, k) outputs on the grid, in few whole-array passes
         if t.data.shape[:2] != (h, w):
             return outputs_on_grid(t, h, w)
         c = t.data.shape[2]
-        out = np.empty((h, w, len(t.channels)), np.float32)
-        for i, q in enumerate(t.channels):
-            src = t.data[..., q] if q < c else (t.data[..., 0] if c == 1 and q < 3 else 1.0)
-            out[..., i] = src
-            out[..., i] *= t.scale[q]
-            out[..., i] += t.bias[q]
+        ch = list(t.channels)
+        if all(q < c for q in ch):
+            out = t.data[..., ch] if ch != list(range(c)) else t.data.copy()
+        else:  # channels the file lacks: USD's padding (grey replicated, alpha 1)
+            out = np.empty((h, w, len(ch)), np.float32)
+            for i, q in enumerate(ch):
+                out[..., i] = (
+                    t.data[..., q] if q < c else (t.data[..., 0] if c == 1 and q < 3 else 1)
+                )
+        k, d = t.scale[ch], t.bias[ch]
+        if np.any(k != 1):
+            out *= k
+        if np.any(d != 0):
+            out += d
         return out
 
     va, vb = values(a), values(b)
+    if va.shape[2] < vb.shape[2]:
+        va, vb = vb, va  # the wider one receives the product (a 1-channel one broadcasts)
     if va.shape[2] == 1 and n > 1:
-        va = np.broadcast_to(va, (h, w, n))
-    if vb.shape[2] == 1 and n > 1:
-        vb = np.broadcast_to(vb, (h, w, n))
+        va = np.repeat(va, n, axis=2)
+    np.multiply(va[..., :n], vb[..., :n] if vb.shape[2] > 1 else vb, out=va[..., :n])
     return Texture(
         a.path,
-        np.ascontiguousarray(va[..., :n] * vb[..., :n], np.float32),
+        np.ascontiguousarray(va[..., :n], np.float32),
         np.ones(4, np.float32),
         np.zeros(4, np.float32),
         tuple(range(n)),

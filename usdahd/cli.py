@@ -140,6 +140,28 @@ def _error(command: str, message: str, code: int, as_json: bool) -> int:
     return code
 
 
+def _run_captured(args, command: str) -> int:
+    """Run the command with USD's own diagnostics trapped (usdahd.usd.diagnostics): none is
+    printed raw; each one usdahd did not report in its own words is printed once when the
+    command ends, ``usdahd CMD: warning: USD: <message>`` on stderr (not with -qq)."""
+    if command not in ("bake", "validate", "preview"):  # the commands that read stages
+        return int(args.func(args) or 0)
+    from usdahd.usd import diagnostics
+
+    diags = []
+    try:
+        with diagnostics.capture() as diags:
+            return int(args.func(args) or 0)
+    finally:
+        if int(getattr(args, "quiet", 0) or 0) < 2:
+            from usdahd import progress
+
+            progress.clear_line()
+            diagnostics.report(
+                diags, lambda line: print(f"usdahd {command}: warning: {line}", file=sys.stderr)
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
@@ -155,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         command = args.command
         as_json = bool(getattr(args, "json", False))
-        return int(args.func(args) or 0)
+        return _run_captured(args, command)
     except KeyboardInterrupt:
         from usdahd import progress
 

@@ -151,10 +151,10 @@ def run(args) -> int:
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)
-    emit(args, report, lambda: _print_report(report))
+    emit(args, report, lambda: _print_report(report, notes=quiet == 0))
     if not args.json and quiet == 1:
-        # --quiet hides progress and the per-prim lines, not warnings: they go to stderr
-        # (-qq hides them too).
+        # --quiet keeps the per-prim results on stdout and hides progress; warnings go to
+        # stderr (-qq hides them and the results too).
         for w in _all_warnings(report):
             print(f"warning: {w}", file=sys.stderr)
     # Failures reach stderr even with --quiet or --json: CI logs must show why it exited 1.
@@ -172,7 +172,9 @@ def _all_warnings(report) -> list[str]:
     return out + list(report.get("warnings", []))
 
 
-def _print_report(report) -> None:
+def _print_report(report, notes: bool = True) -> None:
+    """The result lines; ``notes`` False (-q): without the warnings and notes (stderr has
+    the warnings)."""
     planned = 0
     for p in report["prims"]:
         if p["status"] == "skipped":
@@ -194,13 +196,13 @@ def _print_report(report) -> None:
                     else ""
                 )
             )
-        for w in p.get("warnings", []):
+        for w in p.get("warnings", []) if notes else []:
             print(f"  warning: {w}")
-        for n in p.get("notes", []):
+        for n in p.get("notes", []) if notes else []:
             print(f"  note: {n}")
-    for w in report.get("warnings", []):
+    for w in report.get("warnings", []) if notes else []:
         print(f"warning: {w}")
-    for n in report.get("notes", []):
+    for n in report.get("notes", []) if notes else []:
         print(f"note: {n}")
     if planned or "texels_total" in report and report.get("dry_run"):
         total = report.get("texels_total", 0)

@@ -51,6 +51,8 @@ def _filtered_stderr():
             for line in text.splitlines():
                 if line.strip() and not any(n in line for n in NOISE):
                     print(line, file=sys.stderr)
+
+
 FACTORS = (
     "izScale",
     "ambientScale",

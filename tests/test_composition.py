@@ -282,3 +282,33 @@ def test_selected_composition_error_is_printed_once_with_its_cause(tmp_path):
             "exist and be a USD layer)"
         )
     )
+
+
+def test_materialx_file_that_does_not_compose_is_one_warning(tmp_path, capsys):
+    """A material referencing a .mtlx file (usd-core from the index has no MaterialX file
+    format): one warning naming MaterialX, not an error of the lightmap rules."""
+    src = _copy(tmp_path)
+    (tmp_path / "look.mtlx").write_text(
+        '<?xml version="1.0"?>\n<materialx version="1.38">\n</materialx>\n'
+    )
+    src.write_text(
+        src.read_text().replace(
+            'def DomeLight "Sky"',
+            'def Material "MxLook" (\n        prepend references = @./look.mtlx@</MaterialX>\n'
+            '    )\n    {\n    }\n\n    def DomeLight "Sky"',
+        )
+    )
+    assert _main(capsys, "bake", src, *FAST, "-qq")[0] == 0
+    code, out, _ = _main(
+        capsys, "validate", "--json", tmp_path / "variant_unselected.lightmaps.usda"
+    )
+    report = json.loads(out)
+    assert code == 0 and report["counts"]["error"] == 0
+    (f,) = [f for f in report["findings"] if f["prim"] == "/World/MxLook"]
+    assert (f["rule"], f["severity"], f["code"]) == (
+        "Composition",
+        "warning",
+        "CompositionErrorUnbaked",
+    )
+    assert f["message"].startswith("MaterialX file could not be composed: ")
+    assert "look.mtlx" in f["message"] and "fix the binding" not in f["message"]

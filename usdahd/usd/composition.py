@@ -63,6 +63,12 @@ class Problem:
         return "error" if self.baked or self.cycle else "warning"
 
     @property
+    def is_materialx(self) -> bool:
+        """A ``.mtlx`` file (USD composes it only with its usdMtlx plugin)."""
+        text = f"{self.asset} {self.cause}".lower()
+        return ".mtlx@" in text or ".mtlx:" in text or self.asset.lower().endswith(".mtlx")
+
+    @property
     def code(self) -> str:
         if self.variant:
             return "UnselectedVariantArc"
@@ -93,6 +99,14 @@ class Problem:
                 f"composition error on the composition of baked prim(s) {shown}{more}: "
                 f"{self.cause}. Their data may be incomplete. Fix: repair the arc (the file "
                 "it names must exist and be a USD layer), then re-bake"
+            )
+        if self.is_materialx:
+            return (
+                f"MaterialX file could not be composed: {self.cause}. The installed USD has no "
+                "MaterialX file format (usd-core from the package index lacks usdMtlx), so the "
+                "material's network is not on the stage; no baked prim's geometry is affected "
+                "(the bake reports the material it uses instead). Fix: convert the .mtlx to a "
+                "UsdShade network, or use a USD build with MaterialX support"
             )
         return (
             f"composition error in a part of the stage no baked prim is composed from: "

@@ -163,6 +163,9 @@ def composition_warnings(stage, source, warn) -> None:
         if prob.variant:
             warn(f"{source}: <{prob.prim}>: {prob.message()}")
             continue
+        if prob.is_materialx and not prob.baked:
+            warn(f"{source}: <{prob.prim}>: {prob.message()}")
+            continue
         n = len(prob.baked)
         touched = (
             f"{n} mesh(es) under it ({', '.join(prob.baked[:3])}{', ...' if n > 3 else ''}) "

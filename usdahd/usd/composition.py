@@ -168,10 +168,17 @@ def _arcs(spec, found: list) -> None:
             _arcs(variant.primSpec, found)
 
 
+def _all_prims(stage):
+    """Every prim once: the stage's (inactive and unloaded ones too) and its instancing
+    prototypes' (instance proxies would visit a prototype once per instance)."""
+    yield from Usd.PrimRange.Stage(stage, Usd.PrimAllPrimsPredicate)
+    for proto in stage.GetPrototypes():
+        yield from Usd.PrimRange(proto, Usd.PrimAllPrimsPredicate)
+
+
 def _unselected_variant_arcs(stage) -> list[Problem]:
     out, seen, opened = [], set(), {}
-    predicate = Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)
-    for prim in Usd.PrimRange.Stage(stage, predicate):
+    for prim in _all_prims(stage):
         if not prim.HasVariantSets():
             continue
         sets = prim.GetVariantSets()

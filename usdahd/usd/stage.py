@@ -151,7 +151,7 @@ def composition_warnings(stage, source, warn) -> None:
 
     meshes = [
         str(p.GetPath())
-        for p in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies())
+        for p in Usd.PrimRange.Stage(stage)  # instance proxies are occluders, never baked
         if p.IsA(UsdGeom.Mesh)
     ]
     for prob in composition.problems(stage, meshes):

@@ -312,3 +312,29 @@ def test_materialx_file_that_does_not_compose_is_one_warning(tmp_path, capsys):
     )
     assert f["message"].startswith("MaterialX file could not be composed: ")
     assert "look.mtlx" in f["message"] and "fix the binding" not in f["message"]
+
+
+def test_a_usd_warning_during_bake_is_reported_once_in_usdahd_format(tmp_path):
+    """A binding authored without MaterialBindingAPI: USD warns from UsdShade (before, its
+    printer wrote ``Warning: in BindingsAtPrim at line 669 of .../materialBindingAPI.cpp --
+    ...`` beside usdahd's output). Now one ``usdahd bake: warning: USD: ...`` line, whole."""
+    src = _copy(tmp_path)
+    text = src.read_text()
+    old = '        uniform token subdivisionScheme = "none"\n    }\n\n    def DistantLight'
+    new = (
+        '        uniform token subdivisionScheme = "none"\n'
+        "        rel material:binding = </World/Looks/Grey>\n    }\n\n"
+        '    def Scope "Looks"\n    {\n        def Material "Grey"\n        {\n        }\n    }\n\n'
+        "    def DistantLight"
+    )
+    assert old in text
+    src.write_text(text.replace(old, new, 1))
+    proc = _subprocess("bake", src, *FAST, "-q")
+    assert proc.returncode == 0, proc.stderr
+    expected = (
+        "usdahd bake: warning: USD: Found material bindings on prim at path (/World/Floor) but "
+        "MaterialBindingAPI is not applied on the prim"
+    )
+    assert proc.stderr.splitlines().count(expected) == 1, proc.stderr
+    assert "MaterialBindingAPI" not in proc.stdout
+    assert not any(r in proc.stdout + proc.stderr for r in RAW), proc.stderr

@@ -338,3 +338,18 @@ def test_a_usd_warning_during_bake_is_reported_once_in_usdahd_format(tmp_path):
     assert proc.stderr.splitlines().count(expected) == 1, proc.stderr
     assert "MaterialBindingAPI" not in proc.stdout
     assert not any(r in proc.stdout + proc.stderr for r in RAW), proc.stderr
+
+
+def test_a_raw_usd_error_is_described_by_its_cause(tmp_path):
+    """An uncaught Tf.ErrorException becomes ``USD: <message>``, whole, without USD's
+    ``Error in 'pxrInternal_...::_ReadFromAsset' at line 323 in file ...`` in front."""
+    from pxr import Sdf, Tf
+
+    folder = tmp_path / ("d" * 150) / ("e" * 150)  # a path past the old 300-character cut
+    folder.mkdir(parents=True)
+    empty = folder / "empty.usda"
+    empty.write_text("")
+    with pytest.raises(Tf.ErrorException) as info:
+        Sdf.Layer.FindOrOpen(str(empty))
+    message, code = cli.describe_error(info.value)
+    assert code == 2 and message == f"USD: <{empty}> is not a valid usda layer"

@@ -97,7 +97,8 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
     """(one-line message, exit code) for an exception a user can cause.
 
     UsdAhdError carries its own; OS errors name the file and the fix; pxr's Tf.ErrorException
-    keeps its first line. Anything else is an internal error (exit 2, "please report").
+    gives USD's messages, whole, without the C++ location in front of them. Anything else is
+    an internal error (exit 2, "please report").
     """
     if isinstance(exc, UsdAhdError):
         return str(exc), exc.exit_code
@@ -121,8 +122,9 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
         }.get(exc.errno, "check the path and re-run")
         return (f"{where}: {what}; {fix}" if where else f"{what}; {fix}"), 2
     if type(exc).__module__.startswith("pxr") or type(exc).__name__ == "ErrorException":
-        text = str(exc).strip().splitlines()
-        return f"USD: {text[0][:300] if text else type(exc).__name__}", 2
+        from usdahd.usd.diagnostics import exception_causes  # USD's messages, whole, no C++ site
+
+        return f"USD: {'; '.join(exception_causes(exc))}", 2
     return (
         f"internal error {type(exc).__name__}: {str(exc)[:300]} (please report a bug; "
         "set USDAHD_DEBUG=1 for the traceback)",

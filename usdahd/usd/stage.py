@@ -164,6 +164,8 @@ def composition_warnings(stage, source, warn) -> None:
             warn(f"{source}: <{prob.prim}>: {prob.message()}")
             continue
         if prob.is_materialx and not prob.baked:
+            if _reads_materialx():
+                continue  # the material reader names the file once where a binding uses it
             warn(f"{source}: <{prob.prim}>: {prob.message()}")
             continue
         n = len(prob.baked)
@@ -178,3 +180,12 @@ def composition_warnings(stage, source, warn) -> None:
             f"<{prob.prim}>: {prob.cause}. Fix: repair or remove the arc (the file it names "
             "must exist and be a USD layer)"
         )
+
+
+def _reads_materialx() -> bool:
+    """Whether usdahd's MaterialX reader (usdahd.usd.materialx, issue 37) is installed: it
+    reads materials from ``.mtlx`` files USD cannot compose and reports each such file itself,
+    so the bake does not report the composition error a second time."""
+    import importlib.util
+
+    return importlib.util.find_spec("usdahd.usd.materialx") is not None

@@ -285,8 +285,9 @@ def test_selected_composition_error_is_printed_once_with_its_cause(tmp_path):
 
 
 def test_materialx_file_that_does_not_compose_is_one_warning(tmp_path, capsys):
-    """A material referencing a .mtlx file (usd-core from the index has no MaterialX file
-    format): one warning naming MaterialX, not an error of the lightmap rules."""
+    """Two materials referencing a .mtlx file (usd-core from the index has no MaterialX file
+    format): one warning naming MaterialX and both prims, not an error of the lightmap rules
+    (the chess set's 19 CompositionError findings of issue 37)."""
     src = _copy(tmp_path)
     (tmp_path / "look.mtlx").write_text(
         '<?xml version="1.0"?>\n<materialx version="1.38">\n</materialx>\n'
@@ -295,6 +296,8 @@ def test_materialx_file_that_does_not_compose_is_one_warning(tmp_path, capsys):
         src.read_text().replace(
             'def DomeLight "Sky"',
             'def Material "MxLook" (\n        prepend references = @./look.mtlx@</MaterialX>\n'
+            "    )\n    {\n    }\n\n"
+            'def Material "MxLook2" (\n        prepend references = @./look.mtlx@</MaterialX>\n'
             '    )\n    {\n    }\n\n    def DomeLight "Sky"',
         )
     )
@@ -304,7 +307,8 @@ def test_materialx_file_that_does_not_compose_is_one_warning(tmp_path, capsys):
     )
     report = json.loads(out)
     assert code == 0 and report["counts"]["error"] == 0
-    (f,) = [f for f in report["findings"] if f["prim"] == "/World/MxLook"]
+    (f,) = [f for f in report["findings"] if "look.mtlx" in f["message"]]
+    assert f["prim"] == "/World/MxLook" and f["data"]["also"] == ["/World/MxLook2"]
     assert (f["rule"], f["severity"], f["code"]) == (
         "Composition",
         "warning",

@@ -21,7 +21,8 @@ stage: USD drops the arc that closes the cycle, so what is left is not what was 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 
 from pxr import Ar, Sdf, Tf, Usd
 
@@ -44,7 +45,8 @@ class Problem:
     ('' when unknown); arc : "reference", "payload" or "composition"; variant : ``set=name`` of
     the unselected variant that authors the arc ('' for a composed arc); layer : the layer
     that authors it; baked : the prims given as baked whose composed data go through it;
-    cycle : a composition cycle.
+    cycle : a composition cycle; also : the other prims whose arcs name the same broken
+    file for the same reason (reported with this one).
     """
 
     prim: str
@@ -56,6 +58,8 @@ class Problem:
     layer: str = ""
     baked: tuple[str, ...] = ()
     cycle: bool = False
+    #: every prim with the same broken file (``prim`` is the first): one file, one problem
+    also: tuple[str, ...] = ()
 
     @property
     def severity(self) -> str:
@@ -77,7 +81,16 @@ class Problem:
         return "CompositionError" if self.baked else "CompositionErrorUnbaked"
 
     def message(self) -> str:
-        """What is wrong, what it means for the bake, and the fix (one line, the cause whole)."""
+        """What is wrong, what it means for the bake, and the fix (one line, the cause whole);
+        with ``also``: how many other prims have an arc to the same file, and the first few."""
+        text = self._message()
+        if self.also:
+            shown = ", ".join(f"<{p}>" for p in self.also[:5])
+            more = f" and {len(self.also) - 5} more" if len(self.also) > 5 else ""
+            text += f" (the same file is also named by {shown}{more})"
+        return text
+
+    def _message(self) -> str:
         if self.variant:
             set_name = self.variant.split("=", 1)[0]
             where = f" in {self.layer}" if self.layer else ""
@@ -121,8 +134,34 @@ def problems(stage, baked=()) -> list[Problem]:
     first, then unselected variants' arcs, each sorted by prim. baked : prim paths (str)
     whose composed data decide an error's severity."""
     baked = sorted({str(p) for p in baked})
-    out = _composed_errors(stage, baked)
-    out += _unselected_variant_arcs(stage)
+    return _grouped(_composed_errors(stage, baked)) + _grouped(_unselected_variant_arcs(stage))
+
+
+_ASSET = re.compile(r"@([^@]+)@")
+#: USD's message parts that name the prim or layer introducing an arc (differ per prim).
+_INTRODUCED = re.compile(r" for (reference|payload|sublayer) introduced by @[^@]*@<[^>]*>")
+
+
+def _grouped(found: list[Problem]) -> list[Problem]:
+    """One Problem per broken file and reason: a material library referenced from 19 prims is
+    one finding naming the first prim and counting the others (``also``); errors on baked prims
+    stay one per prim (each is a prim whose data may be incomplete)."""
+    out, index = [], {}
+    for p in found:
+        if p.baked or p.cycle:
+            out.append(p)
+            continue
+        asset = p.resolved or (_ASSET.search(p.cause).group(1) if _ASSET.search(p.cause) else "")
+        if not asset:
+            out.append(p)
+            continue
+        key = (bool(p.variant), asset, _INTRODUCED.sub("", p.cause))
+        if key not in index:
+            index[key] = len(out)
+            out.append(p)
+            continue
+        first = out[index[key]]
+        out[index[key]] = replace(first, also=(*first.also, p.prim))
     return out
 
 

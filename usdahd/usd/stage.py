@@ -175,10 +175,13 @@ def composition_warnings(stage, source, warn) -> None:
             if n
             else "no mesh is composed from it"
         )
+        also = (
+            f" (also on {len(prob.also)} more prim(s): <{prob.also[0]}>, ...)" if prob.also else ""
+        )
         warn(
             f"{source}: composition error, that part of the scene is missing ({touched}): "
-            f"<{prob.prim}>: {prob.cause}. Fix: repair or remove the arc (the file it names "
-            "must exist and be a USD layer)"
+            f"<{prob.prim}>: {prob.cause}{also}. Fix: repair or remove the arc (the file it "
+            "names must exist and be a USD layer)"
         )
 
 

@@ -41,6 +41,8 @@ def check_composition(stage) -> list[Finding]:
             data["variant"] = prob.variant
         if prob.baked:
             data["baked_prims"] = list(prob.baked)
+        if prob.also:
+            data["also"] = list(prob.also)
         out.append(
             Finding(
                 COMPOSITION_RULE.name,

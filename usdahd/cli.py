@@ -146,7 +146,7 @@ def _run_captured(args, command: str) -> int:
     """Run the command with USD's own diagnostics trapped (usdahd.usd.diagnostics): none is
     printed raw; each one usdahd did not report in its own words is printed once when the
     command ends, ``usdahd CMD: warning: USD: <message>`` on stderr (not with -qq)."""
-    if command not in ("bake", "validate", "preview"):  # the commands that read stages
+    if command not in ("bake", "validate", "preview", "export"):  # the commands reading stages
         return int(args.func(args) or 0)
     from usdahd.usd import diagnostics
 

@@ -357,3 +357,12 @@ def test_a_raw_usd_error_is_described_by_its_cause(tmp_path):
         Sdf.Layer.FindOrOpen(str(empty))
     message, code = cli.describe_error(info.value)
     assert code == 2 and message == f"USD: <{empty}> is not a valid usda layer"
+
+
+def test_preview_in_process_warns_once(baked, tmp_path, capsys):
+    _, layer, _ = baked
+    out = tmp_path / "inproc.png"
+    code, stdout, err = _main(capsys, "preview", layer, "-o", out, "--size", "32", "24", "--json")
+    assert code == 0 and json.loads(stdout)["meshes"] == 2 and out.exists()
+    _once(err, EMPTY)
+    _once(err, MISSING)

@@ -205,7 +205,7 @@ def run(args) -> int:
             f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
         )
         for n in usd_notes[:10]:
-            print(f"  usd: {n[:300]}", file=sys.stderr)
+            print(f"  usd: {n}", file=sys.stderr)  # whole: the cause ends the message
     if not args.quiet:
         status = "FAILED" if code else "ok"
         note = "" if baked else " (no prim has AhdLightmapAPI)"

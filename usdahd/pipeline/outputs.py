@@ -18,7 +18,7 @@ import numpy as np
 
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
-from usdahd.usd.author import referenced_assets
+from usdahd.usd.author import layer_assets, referenced_assets
 
 #: Folder beside the output layer that holds its textures.
 LIGHTMAPS_DIR = "lightmaps"
@@ -162,7 +162,7 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     removed = []
     folder = out.parent / LIGHTMAPS_DIR
     prefix = layer_prefix(out)
-    refs = None if staged_only else referenced_assets(out)
+    refs = None if staged_only else _layer_refs(out)
     owned = _owned_pattern(out)
     layer_tmp = re.compile(
         r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
@@ -190,6 +190,29 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
         except OSError:
             pass
     return removed
+
+
+#: The assets of the layers this process committed, keyed by (path, inode, mtime, size): the
+#: cleanup after a bake reads them from the layer it just built instead of re-parsing the file
+#: (a text layer of millions of authored normals costs GBs to parse, issue 40).
+_COMMITTED_REFS: dict[str, tuple[tuple, set[Path]]] = {}
+
+
+def _stat_key(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
+
+
+def _layer_refs(out: Path) -> set[Path] | None:
+    """:func:`referenced_assets` of ``out``, from the commit's record when the file is still
+    the one this process wrote."""
+    known = _COMMITTED_REFS.get(str(out))
+    if known is not None and known[0] == _stat_key(out):
+        return set(known[1])
+    return referenced_assets(out)
 
 
 def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
@@ -316,10 +339,13 @@ def _author_layer(
         _fsync(tmp)
         _fault("layer_exported")
         new = tmp.read_bytes()
+        refs = layer_assets(layer, out.parent)
         if out.is_file() and out.read_bytes() == new:
+            _COMMITTED_REFS[str(out)] = (_stat_key(out), refs)
             return False
         os.replace(tmp, out)  # the commit point
         _fsync(out.parent, directory=True)
+        _COMMITTED_REFS[str(out)] = (_stat_key(out), refs)
         return True
     finally:
         if tmp.exists():

@@ -465,3 +465,24 @@ def test_budget_rejects_nothing_it_should_accept(monkeypatch):
     budget.check(27 * 8 * 1000, "x", "y")  # a small array passes
     with pytest.raises(InputError, match=r"^x 1\.0 TiB, above the memory budget"):
         budget.check(2**40, "x", "y")
+
+
+def test_fit_output_on_a_full_disk_names_the_file(tmp_path, capsys):
+    """A write that fails through usdahd.io_util.atomic_path (here ``usdahd fit -o`` on a full
+    disk) names the file the user asked for, not the hidden temp file, and the fix."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounts.mount_tmpfs(disk, "size=256k")
+    src = tmp_path / "sh.npy"
+    np.save(src, np.resize(np.load(SKY), (20000, 3, 9)))
+    try:
+        free = shutil.disk_usage(disk).free
+        (disk / "filler").write_bytes(b"\0" * (free - 4096))
+        target = disk / "params.npz"
+        assert cli.main(["fit", str(src), "-o", str(target), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"usdahd fit: error: {target}: No space left on device; ")
+        assert "the disk is full" in err and err.count("\n") == 1
+        assert sorted(f.name for f in disk.iterdir()) == ["filler"]
+    finally:
+        mounts.unmount(disk)

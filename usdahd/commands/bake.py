@@ -101,9 +101,9 @@ def add_parser(sub):
         type=float,
         metavar="SECONDS",
         help="give up (exit 2) when another bake of the same output still holds its lock "
-        "after SECONDS (default 600: long enough for a concurrent bake to commit, short "
-        "enough that a hung one frees a farm slot; 0: do not wait; inf: wait as long as it "
-        "takes)",
+        "after SECONDS (default 3600: 3x the longest real-scene bake measured, so a healthy "
+        "bake is waited for and a hung or stopped one frees a farm slot within the hour; 0: "
+        "do not wait; inf: wait as long as it takes)",
     )
     a("--force", action="store_true", help="re-bake prims even if unchanged")
     a("--dry-run", action="store_true", help="report what would be baked; write nothing")

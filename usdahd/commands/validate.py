@@ -90,7 +90,8 @@ def list_rules(out=None) -> None:
     width = max(len(r.name) for r in v.RULES)
     for r in v.RULES:
         print(f"{r.name:<{width}}  {r.description}", file=out)
-    print(f"{v.STAGE_RULE.name:<{width}}  {v.STAGE_RULE.description} (per stage)", file=out)
+    for rule in v.STAGE_RULES:  # Lightmapped, Composition
+        print(f"{rule.name:<{width}}  {rule.description} (per stage)", file=out)
     from usdahd.validate import retrace as rt
 
     print(f"{rt.RULE:<{width}}  {rt.DESCRIPTION} (--retrace N)", file=out)
@@ -204,7 +205,7 @@ def run(args) -> int:
             f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
         )
         for n in usd_notes[:10]:
-            print(f"  usd: {n[:300]}", file=sys.stderr)
+            print(f"  usd: {n}", file=sys.stderr)  # whole: the cause ends the message
     if not args.quiet:
         status = "FAILED" if code else "ok"
         note = "" if baked else " (no prim has AhdLightmapAPI)"

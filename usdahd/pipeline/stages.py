@@ -150,7 +150,27 @@ def _record_trace(job: PrimJob, t1: float) -> None:
 
 
 def bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
-    """Trace, post-process, fit, encode and write textures for every job (atomically)."""
+    """Trace, post-process, fit, encode and write textures for every job (atomically).
+
+    Subdivision meshes (catmullClark / loop) are traced on their refinement for the duration
+    (:func:`usdahd.scene.subdiv.refine_scene`); the cages are put back before authoring."""
+    from usdahd.scene import subdiv
+
+    t0 = time.perf_counter()
+    undo = subdiv.refine_scene(scene, jobs)
+    if undo:
+        _status(
+            opts,
+            f"subdivision: {len(undo)} meshes refined in {time.perf_counter() - t0:.2f}s "
+            f"({scene.triangle_count} triangles traced)",
+        )
+    try:
+        _bake_jobs(scene, jobs, out, opts)
+    finally:
+        subdiv.restore_scene(scene, undo)
+
+
+def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None:
     from usdahd.bake import post
 
     refits = []

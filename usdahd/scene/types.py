@@ -47,6 +47,9 @@ class MeshData:
     bake : whether this mesh receives a lightmap (False: occluder only).
     double_sided : UsdGeomGprim ``doubleSided``: both sides are surfaces, so a ray reaching
         its back is not inside geometry (cards, leaves, single-wall props).
+    cage : for a ``catmullClark`` / ``loop`` mesh, its control polygons
+        (:class:`usdahd.scene.subdiv.Cage`); the mesh is traced on their refinement
+        (:func:`usdahd.scene.subdiv.refine_scene`). None: traced as it is.
     """
 
     path: str
@@ -61,6 +64,7 @@ class MeshData:
     bake: bool = True
     warnings: list[str] = field(default_factory=list)
     double_sided: bool = False
+    cage: object | None = None
 
 
 @dataclass

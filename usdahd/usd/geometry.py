@@ -22,6 +22,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
+from usdahd.scene.subdiv import cage_from_topology
 from usdahd.scene.types import ComputedNormals, MeshData
 from usdahd.usd import normals as N
 from usdahd.usd.materials import SubsetError
@@ -145,7 +146,7 @@ class GeometryReader:
                 "their authored normals), but usdahd bakes the polygons as they are, with their "
                 "normals or, without normals, crease-angle normals (as RTX renders unsubdivided "
                 'meshes without normals faceted); author subdivisionScheme = "none" (or '
-                '"catmullClark" for smooth normals) to say which you mean',
+                '"catmullClark" to bake the refined smooth surface) to say which you mean',
                 key="normals:scheme",
             )
 
@@ -207,10 +208,12 @@ class GeometryReader:
         left = self.get(mesh.GetOrientationAttr()) == UsdGeom.Tokens.leftHanded
         sda = mesh.GetSubdivisionSchemeAttr()
         sd = str(self.get(sda)) if sda.HasAuthoredValue() else None
-        if sd not in (None, UsdGeom.Tokens.none):
+        if sd not in (None, UsdGeom.Tokens.none, *N.SMOOTH_SCHEMES):
             self.warn(
                 f"{path}: subdivisionScheme {sd}: the control cage is baked as is", key="subdiv"
             )
+        if sd in N.SMOOTH_SCHEMES:
+            self._subdiv_tags(mesh, path, sd)
         try:
             face_mat = self.mats.face_materials(prim, len(counts), path)
         except SubsetError as exc:
@@ -313,6 +316,8 @@ class GeometryReader:
             bake=bake and not instanced and not implicit,
             double_sided=bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()),
         )
+        if scheme in N.SMOOTH_SCHEMES and not implicit:  # traced on its refinement
+            md.cage = cage_from_topology(scheme, topo.counts, topo.idx, bool(flip))
         self.meshes.append(md)
         self.link_paths.append(self.instancer or str(prim.GetPath()))
         if computed is not None:
@@ -320,6 +325,28 @@ class GeometryReader:
         self.texcoords.append(texcoords)
         self.instanced.append(bool(instanced) and not implicit)
         self.implicit[id(md)] = implicit
+
+    def _subdiv_tags(self, mesh, path, scheme) -> None:
+        """Warn once per prim about subdivision tags the refinement does not apply (creases,
+        corners, holes); see docs/usd-semantics.md, "Subdivision surfaces"."""
+        tags = []
+        sharp = self.get(mesh.GetCreaseSharpnessesAttr())
+        if sharp is not None and len(sharp) and max(sharp) > 0:
+            tags.append(f"{len(sharp)} creases")
+        corner = self.get(mesh.GetCornerSharpnessesAttr())
+        if corner is not None and len(corner) and max(corner) > 0:
+            tags.append(f"{len(corner)} corners")
+        holes = self.get(mesh.GetHoleIndicesAttr())
+        if holes is not None and len(holes):
+            tags.append(f"{len(holes)} holes")
+        if tags:
+            self.warn(
+                f"{path}: subdivisionScheme {scheme} with {', '.join(tags)}: usdahd refines the "
+                "surface smooth everywhere (creases, corners and holes are not applied), so "
+                "sharp features bake rounded; split the sharp parts into a mesh with "
+                'subdivisionScheme = "none" if that matters',
+                key=f"subdiv-tags:{path}",
+            )
 
     def _primvar_corner_values(self, pv, topo, path, width, strict=False):
         """Expand a primvar to per faceVertex (corner) values (len(idx), width) or None.

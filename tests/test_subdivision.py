@@ -265,4 +265,4 @@ def test_cli_bakes_and_validates_the_production_sphere(tmp_path):
     out = tmp_path / "subdiv_sphere.lightmaps.usda"
     r = subprocess.run([*run, "validate", str(out)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "0 error(s), 0 warning(s)" in r.stdout
+    assert "0 error(s), 0 warning(s)" in r.stdout + r.stderr

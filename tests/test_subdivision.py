@@ -244,6 +244,12 @@ def test_sphere_bake_against_analytic():
         s = sc.lights[1].direction
         exact = 1.0 + 3.0 / np.pi * np.clip(n @ s, 0.0, None)
         rel[refine] = np.sqrt(np.mean((v - exact) ** 2) / np.mean(exact**2))
+        band = np.abs(n @ s) < 0.15  # within 8.6 degrees of the terminator
+        rb = np.sqrt(np.mean((v[band] - exact[band]) ** 2) / np.mean(exact[band] ** 2))
+        print(  # the figures of docs/usd-semantics.md (pytest -s)
+            f"{'refined' if refine else 'cage'}: relRMSE {rel[refine]:.4f}, bias "
+            f"{v.mean() / exact.mean() - 1:+.4f}, terminator band relRMSE {rb:.4f}"
+        )
     # measured: cage 0.034, refined 0.0059 (32x32, 64 spp)
     assert rel[True] < 0.012
     assert rel[False] > 3 * rel[True]

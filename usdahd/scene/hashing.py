@@ -18,10 +18,17 @@ __all__ = ["changed_parts", "content_hash", "is_dark", "scene_hash_parts", "shap
 
 def shape_digest(m):
     """sha256 object over a mesh's geometry without its lightmap UVs (points (N, 3), triangles
-    (T, 3), normals, material ids: the bytes of each array as stored)."""
+    (T, 3), normals, material ids: the bytes of each array as stored); a subdivision mesh adds
+    its scheme and the refinement's version (:data:`usdahd.scene.subdiv.SUBDIV_VERSION`), so a
+    change of the refinement re-bakes it and a cage baked before refinement is stale."""
     shape = hashlib.sha256()
     for a in (m.points, m.triangles, m.normals, m.material):
         shape.update(np.ascontiguousarray(a).tobytes())
+    cage = getattr(m, "cage", None)
+    if cage is not None:
+        from usdahd.scene.subdiv import SUBDIV_VERSION
+
+        shape.update(f"{cage.scheme}; {SUBDIV_VERSION}".encode())
     return shape
 
 

@@ -284,11 +284,11 @@ def _page(b: _Builder, res, hdr: str, prim: str, stats: list) -> dict:
     data_sampler = b.sampler(
         {"magFilter": _NEAREST, "minFilter": _NEAREST, "wrapS": _CLAMP, "wrapT": _CLAMP}
     )
-    textures = {}
+    textures = []
     for lay in models.get(res.model).layout(res.ratio):
         file = res.textures[lay.role]
         name = f"{prim} {lay.role}"
-        if lay.format == "uint8":
+        if lay.format == "unorm8":
             img = images.read(file, channels=lay.channels)
             px = np.asarray(img.pixels)
             entry = {"encoding": "unorm8"}
@@ -301,7 +301,7 @@ def _page(b: _Builder, res, hdr: str, prim: str, stats: list) -> dict:
             dec = hdr_codec.decode(px, hdr, params)
             stats.append((np.sum((dec - values) ** 2), np.sum(values**2), len(values.flat)))
         tex = b.texture(b.image(blob, name), data_sampler)
-        textures[lay.role] = {"index": tex, **entry, "packing": lay.packing}
+        textures.append({"role": lay.role, "index": tex, **entry, "packing": lay.packing})
     w, h = res.resolution
     return {
         "model": res.model,

@@ -30,7 +30,7 @@ from usdahd import cli
 ROOT = Path(__file__).resolve().parents[1]
 WEB = Path(__file__).resolve().parent / "web"
 SIZE = (96, 72)
-NPM_PACKAGES = ("three@0.187.0", "puppeteer-core@24", "gltf-validator@2")
+NPM_PACKAGES = ("three@0.187.0", "puppeteer-core@24", "gltf-validator@2", "ajv@8")
 CHROMIUM = os.environ.get("USDAHD_CHROMIUM", "/usr/bin/chromium")
 
 
@@ -45,7 +45,7 @@ def web_modules() -> Path | str:
         return "node/npm not installed (apt-get install nodejs npm; .ci/run does)"
     base = Path(os.environ.get("USDAHD_WEB_MODULES", Path.home() / ".cache" / "usdahd-web"))
     mods = base / "node_modules"
-    need = ("three", "puppeteer-core", "gltf-validator")
+    need = ("three", "puppeteer-core", "gltf-validator", "ajv")
     if not all((mods / n / "package.json").exists() for n in need):
         base.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, "PUPPETEER_SKIP_DOWNLOAD": "1"}
@@ -71,10 +71,11 @@ def _chromium_or_skip():
 
 
 def validate(files) -> dict:
-    """The Khronos glTF-Validator's report per file: {file: {errors, warnings, infos, ...}}."""
+    """The Khronos glTF-Validator's report per file: {file: {errors, warnings, infos, messages,
+    schemaErrors}} (schemaErrors: the extension objects against docs/gltf/*.schema.json)."""
     mods = _modules_or_skip()
     r = subprocess.run(
-        ["node", str(WEB / "validate.mjs"), *map(str, files)],
+        ["node", str(WEB / "validate.mjs"), str(ROOT / "docs" / "gltf"), *map(str, files)],
         capture_output=True, text=True, env={**os.environ, "USDAHD_WEB_MODULES": str(mods)},
         timeout=120,
     )  # fmt: skip
@@ -220,3 +221,251 @@ def read_glb(path: Path) -> tuple[dict, bytes]:
     m, kind2 = struct.unpack_from("<II", data, 20 + n)
     assert kind2 == 0x004E4942
     return doc, data[28 + n : 28 + n + m]
+
+
+#: Two stages over the cornell box with a model per prim, so one bake and one browser page test
+#: every model and ratio. The auto framing does not see ``a``'s Ceiling and ``b``'s Floor (back
+#: faces); ``b`` is Z-up in centimetres, testing the unit and axis conversion.
+MIXED = {
+    "mixed_a": ("Y", 1.0, {
+        "Ceiling": ("ahd", "rgb"), "Floor": ("sh_l2", None), "BackWall": ("hhd", None),
+        "RightWall": ("sh_l1", "linear"), "LeftWall": ("hl2", None),
+        "TallBox": ("ambient_cube", None), "ShortBox": ("hlsh", None),
+    }),
+    "mixed_b": ("Z", 0.01, {
+        "Ceiling": ("ahd", None), "Floor": ("hemisphere", None), "BackWall": ("ahd_classic", None),
+        "RightWall": ("sh_l1", "nonlinear"), "LeftWall": ("hhd", "rgb"),
+        "TallBox": ("hlsh", "rgb"), "ShortBox": ("sh_l1", "8bit"),
+    }),
+}  # fmt: skip
+
+
+def _mixed_layer(folder: Path, name: str) -> Path:
+    up, mpu, prims = MIXED[name]
+    body = ""
+    for prim, (model, ratio) in prims.items():
+        r = f'\n            uniform token ahdLightmap:ratio = "{ratio}"' if ratio else ""
+        body += (
+            f'        over "{prim}" (prepend apiSchemas = ["AhdLightmapAPI"])\n        {{\n'
+            f'            uniform token ahdLightmap:model = "{model}"{r}\n        }}\n'
+        )
+    text = (
+        f'#usda 1.0\n(\n    metersPerUnit = {mpu}\n    upAxis = "{up}"\n'
+        f"    subLayers = [@./cornell_box.usda@]\n)\n\n"
+        f'over "World"\n{{\n    over "Geometry"\n    {{\n{body}    }}\n}}\n'
+    )
+    (folder / f"{name}.usda").write_text(text)
+    return folder / f"{name}.usda"
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory):
+    """{name: baked layer} of the MIXED stages (16 x 16 texels, 16 samples, 1 bounce)."""
+    out = {}
+    for name in MIXED:
+        d = tmp_path_factory.mktemp(f"gltf_{name}")
+        copy_sample(d, "cornell_box.usda")
+        stage = _mixed_layer(d, name)
+        argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1"]
+        assert cli.main([*argv, "--quiet"]) == 0
+        out[name] = stage.with_name(f"{name}.lightmaps.usda")
+    return out
+
+
+# ---------------------------------------------------------------------------- tests
+
+
+def test_hdr_encodings_round_trip_signed_values():
+    """RGBM and RGBE hold signed HDR data (the offset) within their quantisation bounds, with w
+    the texel's largest shifted channel: RGBM half an RGB step of the texel's scale
+    (multiplier x A/255 <= w + multiplier/255), RGBE half a mantissa step (2^e/512 <= w/256);
+    zero stays zero."""
+    from usdahd.export import hdr
+
+    rng = np.random.default_rng(7)
+    v = rng.lognormal(-1.0, 1.5, (32, 32, 3)) - 0.2
+    v[0, 0] = 0.0
+    for enc in hdr.ENCODINGS:
+        px, params = hdr.encode(v, enc)
+        assert px.dtype == np.uint8 and px.shape == (32, 32, 4)
+        d = hdr.decode(px, enc, params)
+        w = (v - np.asarray(params["offset"])).max(-1, keepdims=True)
+        if enc == "rgbm":
+            bound = (w + params["multiplier"] / 255.0) / 510.0
+        else:
+            bound = w / 256.0
+        assert np.all(np.abs(d - v) <= bound + 1e-12), enc
+    px, params = hdr.encode(np.zeros((2, 2, 3)), "rgbm")
+    assert np.all(hdr.decode(px, "rgbm", params) == 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        hdr.encode(np.full((1, 1, 3), np.nan), "rgbm")
+
+
+def test_importer_embeds_the_shipped_glsl():
+    """usdahd-lightmap.js carries usdahd/shaders/glsl verbatim (python -m usdahd.web)."""
+    from usdahd import web
+
+    assert web.main(["--check"]) == 0
+    text = web.IMPORTER.read_text(encoding="utf-8")
+    assert web.synced(text) == text
+    assert "usdahd_hhd_evaluate" in text and "usdahd_sh_l1_decode_8bit" in text
+
+
+def test_export_structure_and_textures(mixed, tmp_path):
+    """The file says what the bake says: one node per baked prim (TRS under a root node that
+    turns centimetres Z-up into metres Y-up), positions through the node transforms equal to
+    the converted USD world points, TEXCOORD_1 the lightmap UVs with v flipped, unit normals, a
+    page per prim with the bake's model/ratio/factors, 8-bit codes byte-identical and float16
+    textures within the RGBM quantisation."""
+    from usdahd import images, models
+    from usdahd.export import hdr
+    from usdahd.export.gltf import EXTENSION, load_prims
+
+    layer = mixed["mixed_b"]
+    out = tmp_path / "b.glb"
+    rep = _export(layer, out)
+    assert rep["nodes"] == 7 and rep["pages"] == 7 and rep["up_axis"] == "Z"
+    assert rep["hdr_relrmse"] < 0.005
+    doc, binary = read_glb(out)
+    assert doc["extensionsUsed"] == [EXTENSION]
+    root = doc["nodes"][0]
+    s = math.sqrt(0.5)
+    assert root["rotation"] == pytest.approx([-s, 0, 0, s]) and root["scale"] == [0.01] * 3
+    c = gltf_root_matrix("Z", 0.01)
+
+    def acc(i):
+        a = doc["accessors"][i]
+        bv = doc["bufferViews"][a["bufferView"]]
+        n = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
+        dt = np.uint32 if a["componentType"] == 5125 else np.float32
+        raw = np.frombuffer(binary, dt, a["count"] * n, bv["byteOffset"])
+        return raw.reshape(a["count"], n) if n > 1 else raw
+
+    def trs(node):
+        t = np.eye(4)
+        x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+        r = np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ])  # fmt: skip
+        t[:3, :3] = r * np.asarray(node.get("scale", [1, 1, 1]))
+        t[:3, 3] = node.get("translation", [0, 0, 0])
+        return t
+
+    _, prims, _ = load_prims(str(layer))
+    by_path = {p.mesh.path: p for p in prims}
+    pages = doc["extensions"][EXTENSION]["pages"]
+    for k in root["children"]:
+        node = doc["nodes"][k]
+        ext = node["extensions"][EXTENSION]
+        p = by_path[ext["prim"]]
+        assert ext["scale"] == [1.0, 1.0] and ext["offset"] == [0.0, 0.0] and ext["texCoord"] == 1
+        (prim_json,) = doc["meshes"][node["mesh"]]["primitives"]
+        at = prim_json["attributes"]
+        idx = acc(prim_json["indices"]).reshape(-1, 3)
+        pos = acc(at["POSITION"]).astype(np.float64)
+        world = (c @ trs(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
+        want = (
+            c[:3, :3] @ np.asarray(p.mesh.points)[np.asarray(p.mesh.triangles)].reshape(-1, 3).T
+        ).T
+        np.testing.assert_allclose(world[idx].reshape(-1, 3), want, atol=1e-7)
+        uv = acc(at["TEXCOORD_1"])[idx]
+        np.testing.assert_allclose(uv[..., 0], np.asarray(p.mesh.uv)[..., 0], atol=1e-7)
+        np.testing.assert_allclose(uv[..., 1], 1.0 - np.asarray(p.mesh.uv)[..., 1], atol=1e-7)
+        np.testing.assert_allclose(np.linalg.norm(acc(at["NORMAL"]), axis=1), 1.0, atol=1e-6)
+        page = pages[ext["page"]]
+        res = p.results
+        assert (page["model"], page["ratio"]) == (res.model, res.ratio)
+        assert page["factors"]["ratioScale"] == res.factor("ratioScale")
+        layout = models.get(res.model).layout(res.ratio)
+        assert [t["role"] for t in page["textures"]] == [t.role for t in layout]
+        for t, lay in zip(page["textures"], layout):
+            img = doc["images"][doc["textures"][t["index"]]["source"]]
+            bv = doc["bufferViews"][img["bufferView"]]
+            png = tmp_path / "t.png"
+            png.write_bytes(binary[bv["byteOffset"] : bv["byteOffset"] + bv["byteLength"]])
+            got = np.asarray(images.read(png).pixels)
+            stored = np.asarray(images.read(res.textures[lay.role], channels=lay.channels).pixels)
+            if t["encoding"] == "unorm8":
+                assert np.array_equal(got, stored)
+            else:
+                dec = hdr.decode(got, t["encoding"], t)
+                err = np.sqrt(((dec - stored) ** 2).sum() / max((stored**2).sum(), 1e-30))
+                assert err < 0.01, (ext["prim"], lay.role, err)
+
+
+@pytest.fixture(scope="module")
+def exports(cornell, mixed, tmp_path_factory):
+    """{name: (layer, exported file)}: the cornell default (hhd) bake as .glb and .gltf, the
+    mixed stages as .glb, mixed_a also with RGBE."""
+    d = tmp_path_factory.mktemp("gltf_exports")
+    out = {}
+    for name, layer, ext, hdr in (
+        ("cornell", cornell, "glb", "rgbm"),
+        ("cornell_gltf", cornell, "gltf", "rgbm"),
+        ("mixed_a", mixed["mixed_a"], "glb", "rgbm"),
+        ("mixed_a_rgbe", mixed["mixed_a"], "glb", "rgbe"),
+        ("mixed_b", mixed["mixed_b"], "glb", "rgbm"),
+    ):
+        f = d / f"{name}.{ext}"
+        _export(layer, f, "--hdr", hdr)
+        out[name] = (layer, f)
+    return out
+
+
+def test_khronos_validator_reports_no_error_or_warning(exports):
+    """Every export passes the Khronos glTF-Validator with 0 errors and 0 warnings (infos: the
+    vendor extension it cannot check and the lightmap textures only the extension uses), and its
+    extension objects pass docs/gltf/*.schema.json."""
+    report = validate([f for _, f in exports.values()])
+    for file, r in report.items():
+        assert (r["errors"], r["warnings"]) == (0, 0), (file, r["messages"])
+        assert r["schemaErrors"] == [], (file, r["schemaErrors"])
+        codes = {m.split()[1] for m in r["messages"]}
+        assert codes <= {"UNSUPPORTED_EXTENSION", "UNUSED_OBJECT"}, (file, codes)
+
+
+def test_three_js_render_matches_usdahd_preview_for_every_model(exports, tmp_path):
+    """Headless Chromium (SwiftShader WebGL 2) loads each export with usdahd-lightmap.js in
+    three.js's GLTFLoader and renders the preview's camera; over the pixels both show the same
+    mesh, the picture is within 2 % relRMSE of ``usdahd preview`` overall and for every mesh
+    (one model or ratio each in the mixed stages). Measured: 0.1-0.8 % per mesh."""
+    jobs, previews = {}, {}
+    site = tmp_path / "site"
+    site.mkdir()
+    for name in ("cornell", "cornell_gltf", "mixed_a", "mixed_a_rgbe", "mixed_b"):
+        layer, f = exports[name]
+        for extra in f.parent.glob(f.stem + ".*"):
+            shutil.copy(extra, site / extra.name)
+        img, proj, visible, ids = preview_and_projection(layer)
+        previews[name] = (img, visible, ids, layer)
+        jobs[name] = {"gltf": f.name, "size": list(SIZE), "projection": proj,
+                      "irradiance": True, "ids": ids}  # fmt: skip
+    rendered = browser_render(site, jobs)
+    summary = {}
+    for name, (px, rep) in rendered.items():
+        img, visible, ids, layer = previews[name]
+        assert rep["patched"] == len(ids)
+        err, n = rel_rmse(px, img, rep["ids"], visible)
+        covered = int(((px[..., 3] > 0) & (img[..., 3] > 0)).sum())
+        assert n >= 0.98 * covered and covered >= 0.3 * SIZE[0] * SIZE[1]
+        assert err < 0.02, (name, err)
+        models = _models(layer)
+        for path, k in ids.items():
+            m = (visible == k) & (rep["ids"] == k)
+            if m.sum() < 20:
+                continue
+            e, _ = rel_rmse(np.where(m[..., None], px, 0), np.where(m[..., None], img, 0))
+            summary[(name, models[path])] = e
+            assert e < 0.02, (name, path, models[path], e)
+    families = {m.split("/")[0] for _, m in summary}
+    assert {"hhd", "hlsh", "ahd", "sh_l1", "sh_l2", "hl2", "ambient_cube"} <= families
+    print({f"{n}:{m}": round(e, 5) for (n, m), e in summary.items()})
+
+
+def _models(layer) -> dict:
+    from usdahd.export.gltf import check_stage
+
+    _, records = check_stage(str(layer))
+    return {p: f"{r.model}/{r.ratio}" for p, r in records.items()}

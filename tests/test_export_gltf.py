@@ -18,6 +18,7 @@ import os
 import shutil
 import struct
 import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -469,3 +470,101 @@ def _models(layer) -> dict:
 
     _, records = check_stage(str(layer))
     return {p: f"{r.model}/{r.ratio}" for p, r in records.items()}
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
+    """A copy of the cornell bake broken one way; returns the layer to export."""
+    d = tmp_path / "bake"
+    shutil.copytree(cornell.parent, d)
+    layer = d / cornell.name
+    if case == "unbaked":
+        return d / "cornell_box.usda"
+    if case == "missing_texture":
+        (f,) = [p for p in (d / "lightmaps").glob("*Floor*.direction.*.png")]
+        f.unlink()
+        return layer
+    if case == "no_uvs":  # a layer over the bake that blocks the Floor's lightmap UVs
+        (d / "no_uvs.usda").write_text(
+            f"#usda 1.0\n(\n    subLayers = [@./{cornell.name}@]\n)\n\n"
+            'over "World"\n{\n    over "Geometry"\n    {\n        over "Floor"\n        {\n'
+            "            texCoord2f[] primvars:st = None\n        }\n    }\n}\n"
+        )
+        return d / "no_uvs.usda"
+    raise AssertionError(case)
+
+
+BAD = [
+    ("unbaked", "no baked prim (formatVersion 0): this is not a baked stage; run usdahd bake"),
+    ("missing_texture", "/World/Geometry/Floor: lightmap texture 'direction'"),
+    ("no_uvs", "/World/Geometry/Floor: has no lightmap UVs (primvar 'st'"),
+]
+
+
+@pytest.mark.parametrize(("case", "message"), BAD, ids=[c for c, _ in BAD])
+def test_bad_input_is_an_error_naming_the_prim_and_the_fix(
+    cornell, tmp_path, capsys, case, message
+):
+    layer = _broken(cornell, tmp_path, case)
+    out = tmp_path / "out.glb"
+    assert cli.main(["export", "gltf", str(layer), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "usdahd export: error: " in err and message in err, err
+    assert "usdahd bake" in err  # the fix
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("case", "message"), BAD, ids=[c for c, _ in BAD])
+def test_bad_input_subprocess(cornell, tmp_path, case, message):
+    layer = _broken(cornell, tmp_path, case)
+    out = tmp_path / "out.glb"
+    r = subprocess.run(
+        [sys.executable, "-m", "usdahd", "export", "gltf", str(layer), "-o", str(out), "--json"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["exit_code"] == 2 and message in doc["error"]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["-o", "OUT/x.obj"], "write a .glb (one file) or .gltf (+ .bin) file"),
+        (["-o", "OUT/nowhere/x.glb"], "does not exist; create it first"),
+        (["-o", "OUT/x.glb", "--hdr", "exr"], None),
+    ],
+)
+def test_bad_options(cornell, tmp_path, capsys, argv, message):
+    argv = [a.replace("OUT", str(tmp_path)) for a in argv]
+    with pytest.raises(SystemExit) if message is None else _nothing():
+        code = cli.main(["export", "gltf", str(cornell), *argv])
+        assert code == 2
+        assert message in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.glb")) and not list(tmp_path.glob("*.obj"))
+
+
+def _nothing():
+    import contextlib
+
+    return contextlib.nullcontext()
+
+
+def test_export_subprocess_gltf_with_side_file(cornell, tmp_path):
+    """As a subprocess: .gltf + .bin, one result line on stdout, progress on stderr; the JSON
+    report names every file written."""
+    out = tmp_path / "level.gltf"
+    cmd = [sys.executable, "-m", "usdahd", "export", "gltf", str(cornell), "-o", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.count("\n") == 1 and "7 baked meshes" in r.stdout
+    assert "reading" in r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["buffers"][0]["uri"] == "level.bin"
+    assert (tmp_path / "level.bin").stat().st_size == doc["buffers"][0]["byteLength"]
+    r = subprocess.run([*cmd, "--json", "-q"], capture_output=True, text=True, timeout=300)
+    rep = json.loads(r.stdout)
+    assert rep["files"] == [str(out), str(tmp_path / "level.bin")] and r.stderr == ""

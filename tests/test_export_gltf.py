@@ -2,9 +2,10 @@
 browser against ``usdahd preview``, the Khronos validator, and the bad inputs.
 
 The browser tests need Debian's ``chromium`` and node with the npm packages ``three``,
-``puppeteer-core`` and ``gltf-validator`` (installed by ``.ci/run`` into
-``$USDAHD_WEB_MODULES``, default ``~/.cache/usdahd-web``; :func:`web_modules` runs ``npm
-install`` there itself when they are missing). They skip, saying why, only where node/npm or
+``puppeteer-core``, ``gltf-validator`` and ``ajv`` (installed by ``.ci/run`` and the README's
+test command with ``npm install --prefix $USDAHD_WEB_CACHE``, default ``~/.cache/usdahd-web``,
+outside the repository; :func:`web_modules` runs that ``npm install`` itself when they are
+missing). They skip, saying why, only where node/npm or
 chromium is not installed.
 """
 
@@ -31,7 +32,7 @@ from usdahd import cli
 ROOT = Path(__file__).resolve().parents[1]
 WEB = Path(__file__).resolve().parent / "web"
 SIZE = (96, 72)
-NPM_PACKAGES = ("three@0.187.0", "puppeteer-core@24", "gltf-validator@2", "ajv@8")
+NPM_PACKAGES = ("three@0.187.0", "puppeteer-core@24", "gltf-validator@2.0.0-dev.3.10", "ajv@8")
 CHROMIUM = os.environ.get("USDAHD_CHROMIUM", "/usr/bin/chromium")
 
 
@@ -44,7 +45,7 @@ def web_modules() -> Path | str:
     a string saying why not (the skip reason)."""
     if not shutil.which("node") or not shutil.which("npm"):
         return "node/npm not installed (apt-get install nodejs npm; .ci/run does)"
-    base = Path(os.environ.get("USDAHD_WEB_MODULES", Path.home() / ".cache" / "usdahd-web"))
+    base = Path(os.environ.get("USDAHD_WEB_CACHE", Path.home() / ".cache" / "usdahd-web"))
     mods = base / "node_modules"
     need = ("three", "puppeteer-core", "gltf-validator", "ajv")
     if not all((mods / n / "package.json").exists() for n in need):

@@ -599,3 +599,23 @@ def test_shared_cornell_box_exports_valid_and_renders_like_the_preview(tmp_path)
     px, info = browser_render(site, {"shared": job})["shared"]
     err, n = rel_rmse(px, img, info["ids"], visible)
     assert n > 0.2 * SIZE[0] * SIZE[1] and err < 0.02, err
+
+
+def test_docs_example_has_the_fields_the_exporter_writes(exports):
+    """docs/gltf.md's example JSON parses and names the same fields as a real export."""
+    import re
+
+    from usdahd.export.gltf import EXTENSION
+
+    text = (ROOT / "docs" / "gltf.md").read_text(encoding="utf-8")
+    (block,) = re.findall(r"```json\n(.*?)```", text, re.S)
+    ex = json.loads(block)
+    doc, _ = read_glb(exports["cornell"][1])
+    got, want = ex["extensions"][EXTENSION], doc["extensions"][EXTENSION]
+    assert set(got) == set(want)
+    assert set(got["pages"][0]) == set(want["pages"][0])
+    for t in got["pages"][0]["textures"]:
+        (same,) = [u for u in want["pages"][0]["textures"] if u["role"] == t["role"]]
+        assert set(t) == set(same)
+    node = ex["nodes"][1]["extensions"][EXTENSION]
+    assert set(node) == set(doc["nodes"][1]["extensions"][EXTENSION])

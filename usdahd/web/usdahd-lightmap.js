@@ -19,6 +19,8 @@
 //   THREE       the three.js namespace (required)
 //   irradiance  true: the fragment shows I(n) itself (normalized irradiance, no albedo): the
 //               view `usdahd preview` renders, used by the browser test
+//   albedo      with irradiance: show albedo x I(n) (three.js's diffuse colour, map included,
+//               at the normal-mapped normal): the view of `usdahd preview --model-view`
 //   intensity   a factor on the lightmap (default 1)
 
 export const EXTENSION = 'USDAHD_lightmap_directional';
@@ -157,7 +159,8 @@ export function patchMaterial(THREE, material, page, textures, placement, option
   uniforms.usdahdScaleOffset = { value: new THREE.Vector4(placement.scale[0],
     placement.scale[1], placement.offset[0], placement.offset[1]) };
   uniforms.usdahdIntensity = { value: options.intensity === undefined ? 1.0 : options.intensity };
-  const show = options.irradiance ? '#define USDAHD_SHOW_IRRADIANCE\n' : '';
+  let show = options.irradiance ? '#define USDAHD_SHOW_IRRADIANCE\n' : '';
+  if (options.irradiance && options.albedo) show += '#define USDAHD_SHOW_ALBEDO\n';
   const texCoord = placement.texCoord === undefined ? 1 : placement.texCoord;
   const uvAttr = texCoord === 0 ? 'uv' : `uv${texCoord}`;
   const tangentAttr = placement.tangentAttribute.toLowerCase();
@@ -182,7 +185,8 @@ export function patchMaterial(THREE, material, page, textures, placement, option
       .replace('#include <lights_fragment_maps>', '#include <lights_fragment_maps>\n' +
         '#if defined( RE_IndirectDiffuse )\n    irradiance += PI * usdahdI;\n#endif\n')
       .replace('#include <dithering_fragment>', '#include <dithering_fragment>\n' +
-        '#ifdef USDAHD_SHOW_IRRADIANCE\n    gl_FragColor = vec4(usdahdI, 1.0);\n#endif\n');
+        '#if defined( USDAHD_SHOW_ALBEDO )\n    gl_FragColor = vec4(usdahdI * diffuseColor.rgb, 1.0);\n' +
+        '#elif defined( USDAHD_SHOW_IRRADIANCE )\n    gl_FragColor = vec4(usdahdI, 1.0);\n#endif\n');
   };
   const key = `usdahd:${page.model}:${page.ratio}:${page.textures.length}:${show}:${uvAttr}`;
   material.customProgramCacheKey = () => key;

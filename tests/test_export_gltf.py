@@ -659,3 +659,31 @@ def test_normal_maps_and_albedo_textures_render_like_preview_model_view(tmp_path
         assert m.sum() > 200, path
         e, _ = rel_rmse(np.where(m[..., None], px, 0), np.where(m[..., None], img, 0))
         assert e < 0.02, (path, e)
+
+
+def test_unbaked_meshes_are_plain_nodes(tmp_path):
+    """Meshes the bake left unbaked (here all but the floor, ``--prim``; instances and
+    ``ahdLightmap:bake = false`` occluders alike) are exported as plain nodes with their base
+    colour and no lightmap; ``--baked-only`` leaves them out. Both files validate."""
+    from usdahd.export.gltf import EXTENSION
+
+    stage = copy_sample(tmp_path, "cornell_box.usda")
+    argv = ["bake", str(stage), "--prim", "/World/Geometry/Floor", "--resolution", "16"]
+    assert cli.main([*argv, "--samples", "16", "-q"]) == 0
+    layer = tmp_path / "cornell_box.lightmaps.usda"
+    rep = _export(layer, tmp_path / "all.glb")
+    assert (rep["nodes"], rep["unbaked_nodes"], rep["pages"]) == (1, 6, 1)
+    doc, _ = read_glb(tmp_path / "all.glb")
+    plain = [n for n in doc["nodes"][1:] if "extensions" not in n]
+    assert "/World/Geometry/ShortBox" in {n["name"] for n in plain} and len(plain) == 6
+    for n in plain:
+        for prim in doc["meshes"][n["mesh"]]["primitives"]:
+            assert set(prim["attributes"]) == {"POSITION", "NORMAL"}
+            base = doc["materials"][prim["material"]]["pbrMetallicRoughness"]["baseColorFactor"]
+            assert 0 < min(base[:3]) and base[3] == 1.0
+    rep = _export(layer, tmp_path / "baked.glb", "--baked-only")
+    assert (rep["nodes"], rep["unbaked_nodes"]) == (1, 0)
+    doc, _ = read_glb(tmp_path / "baked.glb")
+    assert all(EXTENSION in n.get("extensions", {}) for n in doc["nodes"][1:])
+    for r in validate([tmp_path / "all.glb", tmp_path / "baked.glb"]).values():
+        assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])

@@ -32,6 +32,12 @@ def add_parser(sub):
         help="8-bit PNG encoding of the float16 lightmap textures (default rgbm; docs/gltf.md "
         "lists the error each adds)",
     )
+    p.add_argument(
+        "--baked-only",
+        action="store_true",
+        help="export only the baked meshes (default: also the visible meshes without a bake, "
+        "e.g. instances and ahdLightmap:bake = false occluders, as plain meshes)",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -41,11 +47,12 @@ def run(args) -> int:
 
     if not args.quiet:
         print(f"usdahd export: reading {args.stage}", file=sys.stderr)
-    report = export(args.stage, args.output, hdr=args.hdr)
+    report = export(args.stage, args.output, hdr=args.hdr, unbaked=not args.baked_only)
 
     def human():
         print(
-            f"{report['output']}: {report['nodes']} baked meshes, {report['pages']} lightmap "
+            f"{report['output']}: {report['nodes']} baked meshes (+{report['unbaked_nodes']} "
+            f"without a bake), {report['pages']} lightmap "
             f"pages ({', '.join(report['models'])}), {report['bytes']} bytes; {report['hdr']} "
             f"adds relRMSE {report['hdr_relrmse']:.3%} to the float16 textures"
         )

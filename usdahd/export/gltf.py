@@ -224,9 +224,12 @@ def check_stage(layer: str):
     return stage, records
 
 
-def load_prims(layer: str) -> tuple[object, list[BakedPrim], object]:
+def load_prims(layer: str, unbaked: bool = False) -> tuple[object, list[BakedPrim], object]:
     """(stage, [BakedPrim] sorted by path, scene of the first UV set: up axis, metersPerUnit,
-    time). Raises StageError naming the prim and the fix for every bad input."""
+    time). Raises StageError naming the prim and the fix for every bad input. ``unbaked``:
+    also the stage's visible meshes without a bake (occluders: instances, PointInstancer
+    copies, ``ahdLightmap:bake = false``), as BakedPrims with ``results`` None and their
+    base colour (:func:`plain_surfaces`), after the baked ones."""
     from usdahd.bake import texels
     from usdahd.preview.surface import surfaces
     from usdahd.usd.reader import load_scene
@@ -257,7 +260,47 @@ def load_prims(layer: str) -> tuple[object, list[BakedPrim], object]:
     groups = surfaces(stage, [(p.mesh, p.results, p.tangent, p.sign) for p in out])
     for p, g in zip(out, groups):
         p.surfaces = g
+    if unbaked:
+        for k, mesh in enumerate(first.meshes):
+            if mesh.path not in records:
+                out.append(BakedPrim(mesh, None, None, None, plain_surfaces(first, k)))
     return stage, out, first
+
+
+def plain_surfaces(scene, k: int) -> list:
+    """Surfaces (usdahd.preview.surface.Surface) of the unbaked mesh ``scene.meshes[k]``: per
+    bound material its base colour, constant or texture (when the mesh has the texture's
+    coordinates), no normal map."""
+    from usdahd.preview.surface import Surface
+
+    mesh = scene.meshes[k]
+    coords = scene.texcoords[k] if k < len(scene.texcoords) else {}
+    out = []
+    for mi in np.unique(np.asarray(mesh.material)):
+        mat = scene.materials[int(mi)]
+        tris = np.nonzero(np.asarray(mesh.material) == mi)[0]
+        st = coords.get(mat.texcoord) if mat.albedo_tex is not None else None
+        tex = None
+        if st is not None:
+            a = mat.albedo_tex.outputs()
+            tex = np.clip(np.repeat(a, 3, axis=2) if a.shape[2] == 1 else a, 0.0, 1.0)
+        albedo = np.ones(3) if tex is not None else np.clip(mat.albedo, 0.0, 1.0)
+        zeros = np.zeros((len(tris), 3, 2), np.float32)
+        out.append(
+            Surface(
+                material=mat.name,
+                tris=tris,
+                albedo=np.asarray(albedo, np.float32),
+                albedo_tex=tex,
+                albedo_wrap=mat.albedo_tex.wrap if tex is not None else ("repeat", "repeat"),
+                normal_tex=None,
+                normal_wrap=("repeat", "repeat"),
+                st=np.asarray(st, np.float32)[tris] if st is not None else zeros,
+                tangent=np.zeros((len(tris), 3, 3)),
+                sign=np.ones(len(tris)),
+            )
+        )
+    return out
 
 
 # ------------------------------------------------------------------------------ export
@@ -359,17 +402,22 @@ def _sampler(wrap) -> dict:
 
 
 def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
-    """One primitive: the surface's triangles, corners deduplicated into indexed vertices."""
+    """One primitive: the surface's triangles, corners deduplicated into indexed vertices.
+    ``p.results`` None: an unbaked mesh (no lightmap UVs or tangent)."""
     m3, m3_inv, tr, inv = local
     tris = surf.tris
     tri = np.asarray(p.mesh.triangles)[tris]
     pts = np.asarray(p.mesh.points, np.float64)[tri]  # (k, 3, 3) world
     pos = (np.concatenate([pts, np.ones(pts.shape[:2] + (1,))], -1) @ inv)[..., :3]
     nrm = _unit(np.asarray(p.mesh.normals, np.float64)[tris] @ m3.T)
-    tan = _unit(np.asarray(p.tangent, np.float64)[tris] @ m3_inv)
-    sign = np.repeat(np.asarray(p.sign, np.float64)[tris][:, None], 3, axis=1)[..., None]
-    uv = np.asarray(p.mesh.uv, np.float64)[tris]
-    cols = [pos, nrm, np.stack([uv[..., 0], 1.0 - uv[..., 1]], -1), tan, sign]
+    baked = p.results is not None
+    if baked:
+        tan = _unit(np.asarray(p.tangent, np.float64)[tris] @ m3_inv)
+        sign = np.repeat(np.asarray(p.sign, np.float64)[tris][:, None], 3, axis=1)[..., None]
+        uv = np.asarray(p.mesh.uv, np.float64)[tris]
+        cols = [pos, nrm, np.stack([uv[..., 0], 1.0 - uv[..., 1]], -1), tan, sign]
+    else:  # same column layout, lightmap columns zero (dropped below)
+        cols = [pos, nrm, np.zeros(pos.shape[:2] + (6,))]
     textured = surf.albedo_tex is not None or surf.normal_tex is not None
     if textured:
         st = np.asarray(surf.st, np.float64)
@@ -384,12 +432,13 @@ def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
     attrs = {
         "POSITION": b.accessor(uniq[:, 0:3], "VEC3", bounds=True),
         "NORMAL": b.accessor(uniq[:, 3:6], "VEC3"),
-        f"TEXCOORD_{LIGHTMAP_TEXCOORD}": b.accessor(uniq[:, 6:8], "VEC2"),
-        TANGENT_ATTRIBUTE: b.accessor(uniq[:, 8:12], "VEC4"),
     }
+    if baked:
+        attrs[f"TEXCOORD_{LIGHTMAP_TEXCOORD}"] = b.accessor(uniq[:, 6:8], "VEC2")
+        attrs[TANGENT_ATTRIBUTE] = b.accessor(uniq[:, 8:12], "VEC4")
     if textured:
         attrs["TEXCOORD_0"] = b.accessor(uniq[:, 12:14], "VEC2")
-    else:  # glTF requires TEXCOORD_0 when TEXCOORD_1 is present
+    elif baked:  # glTF requires TEXCOORD_0 when TEXCOORD_1 is present
         attrs["TEXCOORD_0"] = attrs[f"TEXCOORD_{LIGHTMAP_TEXCOORD}"]
     if surf.normal_tex is not None:
         attrs["TANGENT"] = b.accessor(uniq[:, 14:18], "VEC4")
@@ -401,13 +450,14 @@ def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
     }
 
 
-def build(layer: str, *, hdr: str = "rgbm") -> tuple[dict, bytes, dict]:
-    """(glTF JSON, binary buffer, report) of a baked layer."""
+def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict, bytes, dict]:
+    """(glTF JSON, binary buffer, report) of a baked layer; ``unbaked``: also the visible meshes
+    without a bake, as plain nodes (no extension)."""
     from usdahd.usd.transforms import world_matrices
 
     if hdr not in ("rgbm", "rgbe"):
         raise UsageError(f"--hdr {hdr}: choose rgbm or rgbe")
-    stage, prims, scene = load_prims(layer)
+    stage, prims, scene = load_prims(layer, unbaked=unbaked)
     b = _Builder()
     root = {"name": "usdahd_stage", "children": []}
     rot = _axis_rotation(scene.up_axis)
@@ -430,7 +480,6 @@ def build(layer: str, *, hdr: str = "rgbm") -> tuple[dict, bytes, dict]:
         local = (m3, np.linalg.inv(m3), m, inv)
         prims_json = [_primitive(b, p, s, local, _material(b, s, cache)) for s in p.surfaces]
         mesh_index = b._add("meshes", {"name": path, "primitives": prims_json})
-        pages.append(_page(b, p.results, hdr, path, stats))
         node = {"name": path, "mesh": mesh_index}
         if trs is not None:
             t, r, s = trs
@@ -440,6 +489,11 @@ def build(layer: str, *, hdr: str = "rgbm") -> tuple[dict, bytes, dict]:
                 node["rotation"] = r
             if s != [1.0, 1.0, 1.0]:
                 node["scale"] = s
+        root["children"].append(len(b.doc["nodes"]))
+        b.doc["nodes"].append(node)
+        if p.results is None:
+            continue
+        pages.append(_page(b, p.results, hdr, path, stats))
         node["extensions"] = {
             EXTENSION: {
                 "page": len(pages) - 1,
@@ -449,8 +503,6 @@ def build(layer: str, *, hdr: str = "rgbm") -> tuple[dict, bytes, dict]:
                 "prim": path,
             }
         }
-        root["children"].append(len(b.doc["nodes"]))
-        b.doc["nodes"].append(node)
     b.doc["extensionsUsed"] = [EXTENSION]
     b.doc["extensions"] = {
         EXTENSION: {
@@ -464,7 +516,8 @@ def build(layer: str, *, hdr: str = "rgbm") -> tuple[dict, bytes, dict]:
     ref2 = sum(s[1] for s in stats)
     report = {
         "stage": str(layer),
-        "nodes": len(prims),
+        "nodes": len(pages),
+        "unbaked_nodes": len(prims) - len(pages),
         "pages": len(pages),
         "models": sorted({f"{p['model']}/{p['ratio']}" for p in pages}),
         "hdr": hdr,
@@ -503,7 +556,7 @@ def write(doc: dict, binary: bytes, out: Path) -> list[Path]:
     return [out, out.parent / bin_name]
 
 
-def export(layer: str, out, *, hdr: str = "rgbm") -> dict:
+def export(layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True) -> dict:
     """Export ``layer`` to ``out`` (.glb or .gltf); returns the report (files, counts, error
     the HDR encoding adds)."""
     out = Path(out)
@@ -513,7 +566,7 @@ def export(layer: str, out, *, hdr: str = "rgbm") -> dict:
         raise UsageError(f"-o {out}: the folder {out.parent} does not exist; create it first")
     if not os.access(out.parent if str(out.parent) else ".", os.W_OK):
         raise UsageError(f"-o {out}: the folder {out.parent} is not writable; choose another -o")
-    doc, binary, report = build(layer, hdr=hdr)
+    doc, binary, report = build(layer, hdr=hdr, unbaked=unbaked)
     files = write(doc, binary, out)
     report["output"] = str(out)
     report["files"] = [str(f) for f in files]

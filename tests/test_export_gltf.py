@@ -101,7 +101,9 @@ def browser_render(site: Path, jobs: dict) -> dict:
     mods = _modules_or_skip()
     _chromium_or_skip()
     shutil.copy(WEB / "page.html", site / "page.html")
-    shutil.copy(ROOT / "usdahd" / "web" / "usdahd-lightmap.js", site / "usdahd-lightmap.js")
+    from usdahd.web import IMPORTER  # the installed importer, as a user gets it
+
+    shutil.copy(IMPORTER, site / "usdahd-lightmap.js")
     if not (site / "three").exists():
         (site / "three").symlink_to(mods / "three")
     for name, job in jobs.items():

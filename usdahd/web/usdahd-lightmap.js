@@ -191,7 +191,7 @@ export function patchMaterial(THREE, material, page, textures, placement, option
   const key = `usdahd:${page.model}:${page.ratio}:${page.textures.length}:${show}:${uvAttr}`;
   material.customProgramCacheKey = () => key;
   material.needsUpdate = true;
-  material.userData.usdahdLightmap = { page, placement };
+  material.userData.usdahdLightmap = { page, textures, placement };
   return material;
 }
 

@@ -225,6 +225,30 @@ def _export(layer: Path, out: Path, *extra) -> dict:
     return json.loads(buf.getvalue())
 
 
+def accessor(doc: dict, binary: bytes, i: int) -> np.ndarray:
+    """The values of accessor ``i`` of a GLB's document and binary chunk."""
+    a = doc["accessors"][i]
+    bv = doc["bufferViews"][a["bufferView"]]
+    n = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
+    dt = np.uint32 if a["componentType"] == 5125 else np.float32
+    raw = np.frombuffer(binary, dt, a["count"] * n, bv["byteOffset"])
+    return raw.reshape(a["count"], n) if n > 1 else raw
+
+
+def node_matrix(node: dict) -> np.ndarray:
+    """(4, 4) column-vector matrix of a glTF node's TRS."""
+    t = np.eye(4)
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+    t[:3, :3] = r * np.asarray(node.get("scale", [1, 1, 1]))
+    t[:3, 3] = node.get("translation", [0, 0, 0])
+    return t
+
+
 def read_glb(path: Path) -> tuple[dict, bytes]:
     data = Path(path).read_bytes()
     magic, version, total = struct.unpack_from("<III", data, 0)
@@ -348,24 +372,7 @@ def test_export_structure_and_textures(mixed, tmp_path):
     c = gltf_root_matrix("Z", 0.01)
 
     def acc(i):
-        a = doc["accessors"][i]
-        bv = doc["bufferViews"][a["bufferView"]]
-        n = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
-        dt = np.uint32 if a["componentType"] == 5125 else np.float32
-        raw = np.frombuffer(binary, dt, a["count"] * n, bv["byteOffset"])
-        return raw.reshape(a["count"], n) if n > 1 else raw
-
-    def trs(node):
-        t = np.eye(4)
-        x, y, z, w = node.get("rotation", [0, 0, 0, 1])
-        r = np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ])  # fmt: skip
-        t[:3, :3] = r * np.asarray(node.get("scale", [1, 1, 1]))
-        t[:3, 3] = node.get("translation", [0, 0, 0])
-        return t
+        return accessor(doc, binary, i)
 
     _, prims, _ = load_prims(str(layer))
     by_path = {p.mesh.path: p for p in prims}
@@ -379,7 +386,7 @@ def test_export_structure_and_textures(mixed, tmp_path):
         at = prim_json["attributes"]
         idx = acc(prim_json["indices"]).reshape(-1, 3)
         pos = acc(at["POSITION"]).astype(np.float64)
-        world = (c @ trs(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
+        world = (c @ node_matrix(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
         want = (
             c[:3, :3] @ np.asarray(p.mesh.points)[np.asarray(p.mesh.triangles)].reshape(-1, 3).T
         ).T
@@ -693,3 +700,74 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     assert all(EXTENSION in n.get("extensions", {}) for n in doc["nodes"][1:])
     for r in validate([tmp_path / "all.glb", tmp_path / "baked.glb"]).values():
         assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
+
+
+INSTANCES = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+    subLayers = [@./cornell_box.usda@]
+)
+
+class Xform "Proto"
+{
+    def "Box" (references = </World/Geometry/ShortBox>)
+    {
+        float3 xformOp:scale = (0.3, 0.3, 0.3)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ", "xformOp:scale"]
+    }
+}
+
+over "World"
+{
+    def Xform "Props"
+    {
+        def "A" (instanceable = true
+            references = </Proto>)
+        {
+            double3 xformOp:translate = (0.5, 0.6, -0.3)
+            uniform token[] xformOpOrder = ["xformOp:translate"]
+        }
+        def "B" (instanceable = true
+            references = </Proto>)
+        {
+            double3 xformOp:translate = (-0.5, 1.2, 0.2)
+            float3 xformOp:rotateXYZ = (0, 40, 0)
+            uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+        }
+    }
+}
+"""
+
+
+def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp_path):
+    """Two instanceable references of a prototype that itself references the baked ShortBox.
+    The instance proxies compose the ShortBox's bake record (the override layer's opinions reach
+    every reference) but the bake never baked them: the export gives them no lightmap (not the
+    ShortBox's) and one shared glTF mesh with their own TRS; valid glTF."""
+    from usdahd.export.gltf import EXTENSION
+
+    copy_sample(tmp_path, "cornell_box.usda")
+    (tmp_path / "inst.usda").write_text(INSTANCES)
+    argv = ["bake", str(tmp_path / "inst.usda"), "--resolution", "16", "--samples", "16", "-q"]
+    assert cli.main(argv) == 0
+    rep = _export(tmp_path / "inst.lightmaps.usda", tmp_path / "inst.glb")
+    assert (rep["nodes"], rep["unbaked_nodes"]) == (7, 2)
+    doc, binary = read_glb(tmp_path / "inst.glb")
+    nodes = {n["name"]: n for n in doc["nodes"]}
+    a, b = nodes["/World/Props/A/Box"], nodes["/World/Props/B/Box"]
+    assert EXTENSION not in a.get("extensions", {}) and EXTENSION not in b.get("extensions", {})
+    assert a["mesh"] == b["mesh"] != nodes["/World/Geometry/ShortBox"]["mesh"]
+    from usdahd.export.gltf import load_prims
+
+    _, prims, _ = load_prims(str(tmp_path / "inst.lightmaps.usda"), unbaked=True)
+    world = {p.mesh.path: np.asarray(p.mesh.points) for p in prims}
+    (prim,) = doc["meshes"][a["mesh"]]["primitives"]
+    pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
+    for node in (a, b):  # the shared vertices through each node's TRS are its copy's points
+        got = (node_matrix(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
+        want = world[node["name"]]
+        d = np.linalg.norm(got[:, None, :] - want[None, :, :], axis=-1)
+        assert d.min(axis=1).max() < 1e-6 and d.min(axis=0).max() < 1e-6
+    (r,) = validate([tmp_path / "inst.glb"]).values()
+    assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])

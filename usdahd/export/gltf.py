@@ -24,6 +24,7 @@ re-encoded as RGBM or RGBE PNG (:mod:`usdahd.export.hdr`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -192,6 +193,7 @@ def check_stage(layer: str):
     from usdahd import models
     from usdahd.usd import assets, schema
     from usdahd.usd.stage import open_stage
+    from usdahd.usd.transforms import instance_proxies
 
     if not Path(layer).exists():
         raise StageError(f"{layer}: no such file")
@@ -207,6 +209,11 @@ def check_stage(layer: str):
             ) from None
         if res is not None:
             records[path] = res
+    # Instance proxies show the bake record of the prim their prototype references (the
+    # override layer's opinions compose into every reference): not their own lightmap. The
+    # bake never bakes them; they are exported as unbaked meshes.
+    for path in instance_proxies(stage, list(records)):
+        del records[path]
     if not records:
         raise StageError(
             f"{layer}: no baked prim (formatVersion 0): this is not a baked stage; run "
@@ -369,8 +376,10 @@ def _material(b: _Builder, surf, cache: dict) -> int:
     key = (
         surf.material,
         tuple(np.round(surf.albedo, 7)),
-        id(surf.albedo_tex),
-        id(surf.normal_tex),
+        _digest(surf.albedo_tex),
+        _digest(surf.normal_tex),
+        tuple(surf.albedo_wrap),
+        tuple(surf.normal_wrap),
     )
     if key in cache:
         return cache[key]
@@ -392,6 +401,13 @@ def _material(b: _Builder, surf, cache: dict) -> int:
     return cache[key]
 
 
+def _digest(a) -> str | None:
+    if a is None:
+        return None
+    a = np.ascontiguousarray(a)
+    return hashlib.sha256(a.tobytes() + repr((a.shape, a.dtype.str)).encode()).hexdigest()
+
+
 def _sampler(wrap) -> dict:
     return {
         "magFilter": _LINEAR,
@@ -401,33 +417,41 @@ def _sampler(wrap) -> dict:
     }
 
 
-def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
-    """One primitive: the surface's triangles, corners deduplicated into indexed vertices.
-    ``p.results`` None: an unbaked mesh (no lightmap UVs or tangent)."""
+def _corners(p: BakedPrim, surf, local) -> tuple[np.ndarray, tuple[bool, bool, bool]]:
+    """Per-corner vertex rows (3k, 18) float32 of one surface in the node's space (position,
+    normal, lightmap UV, lightmap tangent + sign, material UV, material tangent + sign; unused
+    columns zero) and (baked, textured, normal-mapped). ``p.results`` None: an unbaked mesh (no
+    lightmap UVs or tangent)."""
     m3, m3_inv, tr, inv = local
     tris = surf.tris
+    k = len(tris)
+    rows = np.zeros((k, 3, 18))
     tri = np.asarray(p.mesh.triangles)[tris]
     pts = np.asarray(p.mesh.points, np.float64)[tri]  # (k, 3, 3) world
-    pos = (np.concatenate([pts, np.ones(pts.shape[:2] + (1,))], -1) @ inv)[..., :3]
-    nrm = _unit(np.asarray(p.mesh.normals, np.float64)[tris] @ m3.T)
+    rows[..., 0:3] = (np.concatenate([pts, np.ones(pts.shape[:2] + (1,))], -1) @ inv)[..., :3]
+    rows[..., 3:6] = _unit(np.asarray(p.mesh.normals, np.float64)[tris] @ m3.T)
     baked = p.results is not None
     if baked:
-        tan = _unit(np.asarray(p.tangent, np.float64)[tris] @ m3_inv)
-        sign = np.repeat(np.asarray(p.sign, np.float64)[tris][:, None], 3, axis=1)[..., None]
         uv = np.asarray(p.mesh.uv, np.float64)[tris]
-        cols = [pos, nrm, np.stack([uv[..., 0], 1.0 - uv[..., 1]], -1), tan, sign]
-    else:  # same column layout, lightmap columns zero (dropped below)
-        cols = [pos, nrm, np.zeros(pos.shape[:2] + (6,))]
+        rows[..., 6] = uv[..., 0]
+        rows[..., 7] = 1.0 - uv[..., 1]
+        rows[..., 8:11] = _unit(np.asarray(p.tangent, np.float64)[tris] @ m3_inv)
+        rows[..., 11] = np.asarray(p.sign, np.float64)[tris][:, None]
     textured = surf.albedo_tex is not None or surf.normal_tex is not None
     if textured:
         st = np.asarray(surf.st, np.float64)
-        cols.append(np.stack([st[..., 0], 1.0 - st[..., 1]], -1))
-    if surf.normal_tex is not None:
-        mt = _unit(np.asarray(surf.tangent, np.float64) @ m3_inv)
-        ms = np.repeat(np.asarray(surf.sign, np.float64)[:, None], 3, axis=1)[..., None]
-        cols += [mt, ms]
-    corners = np.concatenate(cols, -1).reshape(-1, sum(c.shape[-1] for c in cols))
-    corners = corners.astype(np.float32)
+        rows[..., 12] = st[..., 0]
+        rows[..., 13] = 1.0 - st[..., 1]
+    mapped = surf.normal_tex is not None
+    if mapped:
+        rows[..., 14:17] = _unit(np.asarray(surf.tangent, np.float64) @ m3_inv)
+        rows[..., 17] = np.asarray(surf.sign, np.float64)[:, None]
+    return rows.reshape(-1, 18).astype(np.float32), (baked, textured, mapped)
+
+
+def _primitive(b: _Builder, corners: np.ndarray, flags, material: int) -> dict:
+    """One primitive of :func:`_corners` rows, corners deduplicated into indexed vertices."""
+    baked, textured, mapped = flags
     uniq, index = np.unique(corners, axis=0, return_inverse=True)
     attrs = {
         "POSITION": b.accessor(uniq[:, 0:3], "VEC3", bounds=True),
@@ -440,7 +464,7 @@ def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
         attrs["TEXCOORD_0"] = b.accessor(uniq[:, 12:14], "VEC2")
     elif baked:  # glTF requires TEXCOORD_0 when TEXCOORD_1 is present
         attrs["TEXCOORD_0"] = attrs[f"TEXCOORD_{LIGHTMAP_TEXCOORD}"]
-    if surf.normal_tex is not None:
+    if mapped:
         attrs["TANGENT"] = b.accessor(uniq[:, 14:18], "VEC4")
     return {
         "attributes": attrs,
@@ -448,6 +472,23 @@ def _primitive(b: _Builder, p: BakedPrim, surf, local, material: int) -> dict:
         "material": material,
         "mode": 4,
     }
+
+
+def _mesh(b: _Builder, p: BakedPrim, local, materials: dict, meshes: dict) -> int:
+    """The glTF mesh of a prim in its node's space; prims with the same vertices and materials
+    (scenegraph instances, repeated props) share one mesh."""
+    parts = [(*_corners(p, s, local), _material(b, s, materials)) for s in p.surfaces]
+    h = hashlib.sha256()
+    for corners, flags, mat in parts:
+        # transforming to world and back leaves ~1e-8 differences between copies: compare
+        # at 1e-6 (the first copy's vertices are the ones written)
+        h.update((np.round(corners.astype(np.float64), 6) + 0.0).tobytes())  # no -0.0
+        h.update(repr((corners.shape, flags, mat)).encode())
+    key = h.hexdigest()
+    if key not in meshes:
+        prims = [_primitive(b, c, f, m) for c, f, m in parts]
+        meshes[key] = b._add("meshes", {"name": p.mesh.path, "primitives": prims})
+    return meshes[key]
 
 
 def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict, bytes, dict]:
@@ -468,7 +509,7 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         root["scale"] = [mpu, mpu, mpu]
     b.doc["nodes"].append(root)
     mats = world_matrices(stage, [p.mesh.path for p in prims], scene.time)
-    pages, stats, cache = [], [], {}
+    pages, stats, cache, mesh_cache = [], [], {}, {}
     for p in prims:
         path = p.mesh.path
         m = mats.get(path)
@@ -478,9 +519,7 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         inv = np.linalg.inv(m)
         m3 = m[:3, :3]
         local = (m3, np.linalg.inv(m3), m, inv)
-        prims_json = [_primitive(b, p, s, local, _material(b, s, cache)) for s in p.surfaces]
-        mesh_index = b._add("meshes", {"name": path, "primitives": prims_json})
-        node = {"name": path, "mesh": mesh_index}
+        node = {"name": path, "mesh": _mesh(b, p, local, cache, mesh_cache)}
         if trs is not None:
             t, r, s = trs
             if any(abs(x) > 0 for x in t):

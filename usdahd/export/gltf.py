@@ -542,6 +542,10 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
                 "prim": path,
             }
         }
+    for cam in _cameras(stage, scene.up_axis, mpu):
+        cam["camera"] = b._add("cameras", cam.pop("_camera"))
+        b.doc["scenes"][0]["nodes"].append(len(b.doc["nodes"]))
+        b.doc["nodes"].append(cam)
     b.doc["extensionsUsed"] = [EXTENSION]
     b.doc["extensions"] = {
         EXTENSION: {
@@ -561,10 +565,40 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         "models": sorted({f"{p['model']}/{p['ratio']}" for p in pages}),
         "hdr": hdr,
         "hdr_relrmse": float(math.sqrt(err2 / ref2)) if ref2 > 0 else 0.0,
+        "cameras": len(b.doc.get("cameras", [])),
         "up_axis": scene.up_axis,
         "meters_per_unit": mpu,
     }
     return b.doc, bytes(b.bin), report
+
+
+def _cameras(stage, up: str, mpu: float) -> list[dict]:
+    """glTF camera nodes of the stage's perspective UsdGeomCameras (read as usdahd preview
+    reads them: transform, vertical field of view, clipping range, at the default time); the
+    horizontal field of view follows the viewport, as in the preview. Both conventions look
+    down -Z with +Y up. The nodes are top-level, in glTF's metres and +Y, with no scale:
+    engines ignore a camera's scale (three.js does), so an inherited metersPerUnit scale would
+    leave the clipping range in the wrong unit; znear/zfar are converted to metres instead."""
+    from usdahd.usd.camera import read_camera
+    from usdahd.usd.transforms import camera_paths
+
+    conv = np.eye(4)
+    if up == "Z":
+        conv[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
+    conv[:3, :3] *= mpu
+    nodes = []
+    for path in camera_paths(stage):
+        view, fov, near, far = read_camera(stage, path)
+        world = conv @ np.linalg.inv(view)  # column vectors: camera -> glTF world
+        world[:3, :3] /= mpu  # a rotation: the unit conversion goes to the clipping range
+        trs = decompose(world.T)  # as a USD row-vector matrix
+        if trs is None or not (0 < near < far) or not (0 < fov < 180):
+            continue
+        t, r, _ = trs
+        perspective = {"yfov": math.radians(fov), "znear": near * mpu, "zfar": far * mpu}
+        camera = {"name": path, "type": "perspective", "perspective": perspective}
+        nodes.append({"name": path, "translation": t, "rotation": r, "_camera": camera})
+    return nodes
 
 
 def glb_bytes(doc: dict, binary: bytes) -> bytes:

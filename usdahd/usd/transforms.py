@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
-__all__ = ["instance_proxies", "world_matrices"]
+__all__ = ["camera_paths", "instance_proxies", "world_matrices"]
 
 
 def world_matrices(stage, paths, time=None) -> dict[str, np.ndarray]:
@@ -35,3 +35,8 @@ def instance_proxies(stage, paths) -> set[str]:
         if prim and prim.IsInstanceProxy():
             out.add(p)
     return out
+
+
+def camera_paths(stage) -> list[str]:
+    """Paths of the stage's UsdGeomCameras (active, defined, not in instances), sorted."""
+    return sorted(str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Camera))

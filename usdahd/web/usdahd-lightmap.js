@@ -9,8 +9,8 @@
 //   loader.register((parser) => new UsdahdLightmapPlugin(parser, { THREE }));
 //   const gltf = await loader.loadAsync('level.glb');
 //
-// The plugin loads every lightmap page's textures (raw bytes: no colour conversion, no
-// premultiplied alpha, nearest texels) and patches the material of every node that names a page
+// The plugin loads every lightmap page's textures (decoding the PNG itself: the stored bytes,
+// no colour conversion, no premultiplied alpha; nearest texels) and patches the material of every node that names a page
 // (onBeforeCompile): per fragment it fetches the four texels around the lightmap UV, decodes
 // each (RGBM/RGBE PNG -> float, 8-bit codes as stored), filters them bilinearly, decodes the
 // model with usdahd's reference GLSL (usdahd/shaders/glsl, embedded below) in the lightmap
@@ -195,22 +195,94 @@ export function patchMaterial(THREE, material, page, textures, placement, option
   return material;
 }
 
-// Load an image of the glTF as raw bytes (no colour-space conversion, no premultiplied alpha):
-// lightmap textures are data.
+// A PNG decoder for the lightmap textures (8-bit grey/grey-alpha/RGB/RGBA, not interlaced: what
+// usdahd writes): the bytes exactly as stored. Browser image decoding is not used because it may
+// colour-manage (gAMA) or premultiply alpha, losing the RGB of texels whose alpha code is 0,
+// which 8-bit SH textures store (L1z = -L0). Inflate through DecompressionStream('deflate').
+export async function decodePng(bytes) {
+  const u8 = new Uint8Array(bytes);
+  const dv = new DataView(u8.buffer, u8.byteOffset, u8.byteLength);
+  let pos = 8;
+  let width = 0;
+  let height = 0;
+  let channels = 0;
+  const idat = [];
+  while (pos < u8.length) {
+    const len = dv.getUint32(pos);
+    const type = String.fromCharCode(...u8.subarray(pos + 4, pos + 8));
+    const data = u8.subarray(pos + 8, pos + 8 + len);
+    if (type === 'IHDR') {
+      width = dv.getUint32(pos + 8);
+      height = dv.getUint32(pos + 12);
+      const depth = data[8];
+      const colour = data[9];
+      channels = { 0: 1, 2: 3, 4: 2, 6: 4 }[colour];
+      if (depth !== 8 || !channels || data[12] !== 0) {
+        throw new Error(`${EXTENSION}: lightmap PNG must be 8-bit, not interlaced, no palette`);
+      }
+    } else if (type === 'IDAT') {
+      idat.push(data);
+    } else if (type === 'IEND') {
+      break;
+    }
+    pos += 12 + len;
+  }
+  const stream = new Blob(idat).stream().pipeThrough(new DecompressionStream('deflate'));
+  const raw = new Uint8Array(await new Response(stream).arrayBuffer());
+  const stride = width * channels;
+  const out = new Uint8Array(width * height * 4);
+  let prev = new Uint8Array(stride);
+  for (let y = 0; y < height; y++) {
+    const filter = raw[y * (stride + 1)];
+    const line = raw.slice(y * (stride + 1) + 1, (y + 1) * (stride + 1));
+    for (let i = 0; i < stride; i++) {
+      const a = i >= channels ? line[i - channels] : 0;
+      const b = prev[i];
+      const c = i >= channels ? prev[i - channels] : 0;
+      let p = 0;
+      if (filter === 1) p = a;
+      else if (filter === 2) p = b;
+      else if (filter === 3) p = (a + b) >> 1;
+      else if (filter === 4) {
+        const pa = Math.abs(b - c);
+        const pb = Math.abs(a - c);
+        const pc = Math.abs(a + b - 2 * c);
+        p = pa <= pb && pa <= pc ? a : pb <= pc ? b : c;
+      }
+      line[i] = (line[i] + p) & 255;
+    }
+    for (let x = 0; x < width; x++) {
+      const o = (y * width + x) * 4;
+      const q = x * channels;
+      if (channels >= 3) {
+        out[o] = line[q];
+        out[o + 1] = line[q + 1];
+        out[o + 2] = line[q + 2];
+        out[o + 3] = channels === 4 ? line[q + 3] : 255;
+      } else {
+        out[o] = out[o + 1] = out[o + 2] = line[q];
+        out[o + 3] = channels === 2 ? line[q + 1] : 255;
+      }
+    }
+    prev = line;
+  }
+  return { width, height, data: out };
+}
+
+// A lightmap texture of the glTF: the PNG's bytes as a DataTexture (data, not colour).
 async function loadRawTexture(THREE, parser, textureIndex) {
   const json = parser.json;
   const source = json.images[json.textures[textureIndex].source];
-  let blob;
+  let bytes;
   if (source.bufferView !== undefined) {
-    const view = await parser.getDependency('bufferView', source.bufferView);
-    blob = new Blob([view], { type: source.mimeType || 'image/png' });
+    bytes = await parser.getDependency('bufferView', source.bufferView);
   } else {
     const url = new URL(source.uri, new URL(parser.options.path || './', globalThis.location?.href));
-    blob = await (await fetch(url)).blob();
+    bytes = await (await fetch(url)).arrayBuffer();
   }
-  const bitmap = await createImageBitmap(blob, { premultiplyAlpha: 'none',
-    colorSpaceConversion: 'none', imageOrientation: 'from-image' });
-  const tex = new THREE.Texture(bitmap);
+  const png = await decodePng(bytes);
+  const tex = new THREE.DataTexture(png.data, png.width, png.height, THREE.RGBAFormat,
+    THREE.UnsignedByteType);
   tex.flipY = false; // glTF: row 0 at texture coordinate v = 0
   tex.magFilter = THREE.NearestFilter;
   tex.minFilter = THREE.NearestFilter;
@@ -218,7 +290,7 @@ async function loadRawTexture(THREE, parser, textureIndex) {
   tex.wrapS = THREE.ClampToEdgeWrapping;
   tex.wrapT = THREE.ClampToEdgeWrapping;
   tex.colorSpace = THREE.NoColorSpace;
-  tex.premultiplyAlpha = false;
+  tex.unpackAlignment = 1;
   tex.needsUpdate = true;
   return tex;
 }

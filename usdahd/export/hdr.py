@@ -13,7 +13,7 @@ float16 texture gives under bilinear filtering):
 
 :func:`encode` returns the bytes' pixels and the parameters; :func:`decode` is the numpy
 reference of what the shader does. The error each adds against the float16 bake is measured in
-docs/gltf.md (``python -m usdahd.export.hdr STAGE.lightmaps.usda``).
+docs/gltf.md (``python -m usdahd.export STAGE.lightmaps.usda ...``).
 """
 
 from __future__ import annotations

@@ -820,3 +820,16 @@ def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp
         assert d.min(axis=1).max() < 1e-6 and d.min(axis=0).max() < 1e-6
     (r,) = validate([tmp_path / "inst.glb"]).values()
     assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
+
+
+def test_hdr_error_table(mixed, capsys):
+    """``python -m usdahd.export LAYER...`` (docs/gltf.md's table): one row per model/ratio and
+    float16 role, RGBM and RGBE errors below 1 % relRMSE on these bakes."""
+    from usdahd.export.__main__ import main, texture_errors
+
+    assert main([str(mixed["mixed_a"])]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| sh_l2/none")]
+    assert len(rows) == 9
+    for by in texture_errors([mixed["mixed_a"]]).values():
+        for enc, (se, sr, _) in by.items():
+            assert sr == 0 or math.sqrt(se / sr) < 0.01, enc

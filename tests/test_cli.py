@@ -78,6 +78,8 @@ def test_every_command_takes_json_and_quiet(command):
     positional = ["x"] if command in ("bake", "validate", "fit", "preview") else []
     if command == "preview":
         positional += ["-o", "x.png"]
+    if command == "export":
+        positional = ["gltf", "x", "-o", "x.glb"]
     args = parser.parse_args([command, "--json", "-qq", *positional])
     assert args.json is True and args.quiet == 2
 

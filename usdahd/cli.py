@@ -32,6 +32,7 @@ COMMANDS = {
     "plugin-path": "usdahd.commands.plugin_path",
     "preview": "usdahd.commands.preview",
     "warmup": "usdahd.commands.warmup",
+    "export": "usdahd.commands.export",
 }
 
 

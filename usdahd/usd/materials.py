@@ -38,7 +38,9 @@ from usdahd.usd import materialx
 from usdahd.usd.stage import fmt_values
 from usdahd.usd.textures import (  # re-exported: the texture half of this module
     LINEAR_SPACE,
+    MAX_MATERIAL_TEXTURE,
     albedo_times_metal,
+    box_downsample,
     read_image,
     sanitize_image,
     source_color_space,
@@ -707,6 +709,8 @@ class MaterialReader:
         data = read_image(path, colorspace, warn, file_colorspace=file_colorspace)
         if data is not None:
             data = sanitize_image(data, f"{owner}: {path}", self.warn)
+            # material textures are seen only through bounce rays: MAX_MATERIAL_TEXTURE
+            data = box_downsample(data, MAX_MATERIAL_TEXTURE)
         reason = problems[0] if problems else ("cannot be decoded" if data is None else "")
         self._textures[key] = (data, reason)
         return data, reason

@@ -20,7 +20,9 @@ from usdahd.usd.stage import one_line
 
 __all__ = [
     "LINEAR_SPACE",
+    "MAX_MATERIAL_TEXTURE",
     "albedo_times_metal",
+    "box_downsample",
     "outputs_on_grid",
     "read_image",
     "sanitize_image",
@@ -28,6 +30,35 @@ __all__ = [
     "texture_channels",
     "to_rgb",
 ]
+
+
+#: Largest side, in texels, a material texture is kept at (larger ones are box-filtered down by
+#: an integer factor when read). The bake sees a material's textures only through the rays that
+#: hit it, the bounce light of a lightmap texel averaging hundreds of them over neighbouring
+#: surfaces: 512 keeps a texel of a 2048 texture's 4 x 4 mean, and a chess set whose 10 material
+#: textures are 2048^2 (654 MB as float32) holds 41 MB instead (docs/usd-semantics.md).
+MAX_MATERIAL_TEXTURE = 512
+
+
+def box_downsample(data: np.ndarray, max_size: int = MAX_MATERIAL_TEXTURE) -> np.ndarray:
+    """(h, w, c) texels reduced by the smallest integer factor f that brings both sides to at
+    most ``max_size``: each output texel is the mean of an f x f block (in linear values, so
+    the mean albedo is kept exactly; a side that f does not divide is padded by repeating its
+    last row/column). Returns ``data`` itself when it is small enough."""
+    h, w, c = data.shape
+    f = -(-max(h, w) // max_size)
+    if f <= 1:
+        return data
+    h2, w2 = -(-h // f), -(-w // f)
+    if (h2 * f, w2 * f) != (h, w):
+        data = np.pad(data, ((0, h2 * f - h), (0, w2 * f - w), (0, 0)), mode="edge")
+    out = np.empty((h2, w2, c), np.float32)
+    rows = max(1, (1 << 22) // (w2 * f * f * c))  # bound the float64 temporary (~32 MB)
+    for r0 in range(0, h2, rows):
+        r1 = min(h2, r0 + rows)
+        blk = data[r0 * f : r1 * f].reshape(r1 - r0, f, w2, f, c)
+        out[r0:r1] = blk.mean(axis=(1, 3), dtype=np.float64)
+    return out
 
 
 def outputs_on_grid(tex: Texture, h: int, w: int) -> np.ndarray:

@@ -121,3 +121,19 @@ def test_downsampled_floor_bounces_within_mc_noise(tmp_path, monkeypatch):
     # the mean bounce: within 3 standard errors of one estimate (noise / sqrt 2 per texel)
     se = noise / np.sqrt(2) / np.sqrt(full.size)
     assert abs(small.mean() - full.mean()) < 3 * se
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4])
+@pytest.mark.parametrize("dst", ["lin_rec709_scene", "lin_ap1_scene"])
+def test_8bit_colour_table_equals_openimageio(channels, dst):
+    """The 256-code table gives OpenImageIO's own conversion texel for texel (alpha and the
+    alpha of grey+alpha untouched); a conversion that mixes channels (to ACEScg's gamut) is
+    not tabulated and falls back to OpenImageIO per pixel."""
+    from usdahd import images
+
+    rng = np.random.default_rng(channels)
+    d = (rng.integers(0, 256, (64, 48, channels)) / 255.0).astype(np.float32)
+    want = images.convert_color(d, "srgb_rec709_scene", dst)
+    got = images.convert_color_8bit(d, "srgb_rec709_scene", dst)
+    np.testing.assert_array_equal(got, want)
+    assert (images._lut8("srgb_rec709_scene", dst) is None) == (dst == "lin_ap1_scene")

@@ -231,7 +231,10 @@ def read_image(path: str, colorspace: str = "auto", warn=None, file_colorspace: 
     space = source_color_space(colorspace, file_colorspace, fmt, data.shape[2])
     if space is not None:
         try:
-            data = images.convert_color(data, space, LINEAR_SPACE)
+            if fmt == "uint8":  # the same conversion, by a table of the 256 codes
+                data = images.convert_color_8bit(data, space, LINEAR_SPACE)
+            else:
+                data = images.convert_color(data, space, LINEAR_SPACE)
         except ImageError as exc:
             if warn:
                 warn(

@@ -272,3 +272,23 @@ def test_cli_bakes_and_validates_the_production_sphere(tmp_path):
     r = subprocess.run([*run, "validate", str(out)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "0 error(s), 0 warning(s)" in r.stdout + r.stderr
+
+
+def test_scene_budget_refines_baked_meshes_first(monkeypatch):
+    """Occluder copies stop being refined when the scene's budget is spent; the baked mesh is
+    refined first whatever its place in the mesh list."""
+    sc = load_scene(SPHERE)
+    m = sc.meshes[0]
+    occ = [
+        subdiv.MeshData(**{**vars(m), "bake": False, "path": f"/Copy{k}", "warnings": []})
+        for k in range(3)
+    ]
+    sc.meshes[:0] = occ  # occluders before the baked mesh
+    sc.texcoords[:0] = [{} for _ in occ]
+    per = subdiv.refined_triangles(m.cage, 2)
+    assert per == 2 * 112 * 4  # 32 cage faces with 112 corners: 112 quads, then x 4, 2 tris each
+    monkeypatch.setattr(subdiv, "MAX_SCENE_REFINED_TRIANGLES", 2 * per + 10)
+    job = types.SimpleNamespace(mesh=m, resolution=(32, 32), texels=None, report={})
+    undo = subdiv.refine_scene(sc, [job])
+    assert [i for i, *_ in undo] == [3, 0]  # the baked mesh, then one occluder
+    assert [len(x.triangles) for x in sc.meshes] == [per, 48, 48, per]

@@ -32,6 +32,9 @@ MAX_LEVELS = 3
 TEXELS_FOR_MAX_LEVEL = 16 * 16
 #: Refined triangles allowed per mesh: levels are lowered (down to 0: the cage) to stay below.
 MAX_REFINED_TRIANGLES = 2_000_000
+#: Refined triangles allowed over the whole scene (instanced copies count each time): baked
+#: meshes are refined first, then occluders, each with the levels that still fit.
+MAX_SCENE_REFINED_TRIANGLES = 6_000_000
 #: Part of the bake's generator id: change it when refined surfaces change.
 SUBDIV_VERSION = "subdiv-1: CC/Loop uniform, 2 levels (3 for >= 256 texels/face), CC limit"
 
@@ -74,9 +77,19 @@ def cage_from_topology(scheme, counts, idx, flip: bool) -> Cage:
     return Cage(scheme, c, idx[corners], corners, np.flatnonzero(keep).astype(np.int64))
 
 
-def choose_levels(mesh: MeshData, cage: Cage, resolution=None) -> int:
+def refined_triangles(cage: Cage, levels: int) -> int:
+    """Triangles of ``cage`` after ``levels`` levels (0: its fan triangulation)."""
+    if levels == 0:
+        return int((cage.counts - 2).sum())
+    if cage.scheme == "loop" and np.all(cage.counts == 3):
+        return len(cage.counts) * 4**levels
+    return 2 * len(cage.indices) * 4 ** (levels - 1)
+
+
+def choose_levels(mesh: MeshData, cage: Cage, resolution=None, budget=None) -> int:
     """DEFAULT_LEVELS, MAX_LEVELS for a baked mesh whose cage faces average
-    TEXELS_FOR_MAX_LEVEL texels or more, lowered to keep MAX_REFINED_TRIANGLES."""
+    TEXELS_FOR_MAX_LEVEL texels or more, lowered to keep MAX_REFINED_TRIANGLES (and
+    ``budget``, the scene's triangles left)."""
     levels = DEFAULT_LEVELS
     if resolution is not None and mesh.uv is not None and len(cage.counts):
         uv = np.asarray(mesh.uv, np.float64)
@@ -85,9 +98,8 @@ def choose_levels(mesh: MeshData, cage: Cage, resolution=None) -> int:
         per_face = area * float(resolution[0]) * float(resolution[1]) / len(cage.counts)
         if per_face >= TEXELS_FOR_MAX_LEVEL:
             levels = MAX_LEVELS
-    tri_per_quad = 1 if cage.scheme == "loop" and np.all(cage.counts == 3) else 2
-    base = len(cage.indices) if tri_per_quad == 2 else len(cage.counts)  # level-1 faces
-    while levels > 0 and base * tri_per_quad * 4 ** (levels - 1) > MAX_REFINED_TRIANGLES:
+    cap = MAX_REFINED_TRIANGLES if budget is None else min(MAX_REFINED_TRIANGLES, budget)
+    while levels > 0 and refined_triangles(cage, levels) > cap:
         levels -= 1
     return levels
 
@@ -156,19 +168,24 @@ def refine_scene(scene, jobs) -> list:
     :func:`restore_scene`."""
     by_mesh = {id(j.mesh): j for j in jobs if j.mesh is not None}
     undo = []
-    for i, mesh in enumerate(scene.meshes):
+    budget = MAX_SCENE_REFINED_TRIANGLES
+    order = sorted(range(len(scene.meshes)), key=lambda i: not scene.meshes[i].bake)
+    for i in order:
+        mesh = scene.meshes[i]
         cage = getattr(mesh, "cage", None)
         if cage is None:
             continue
         job = by_mesh.get(id(mesh))
         res = job.resolution if job is not None else None
-        levels = choose_levels(mesh, cage, res)
+        levels = choose_levels(mesh, cage, res, budget)
         tcs = scene.texcoords[i] if i < len(scene.texcoords) else {}
         note = None
         if levels == 0:
             note = (
-                f"subdivisionScheme {cage.scheme}: the cage has too many faces to refine within "
-                f"{MAX_REFINED_TRIANGLES} triangles; the control cage is traced as is"
+                f"subdivisionScheme {cage.scheme}: refining it would exceed "
+                f"{min(budget, MAX_REFINED_TRIANGLES)} triangles (per mesh "
+                f"{MAX_REFINED_TRIANGLES}, per scene {MAX_SCENE_REFINED_TRIANGLES}); the "
+                "control cage is traced as is"
             )
             out = None
         else:
@@ -183,6 +200,7 @@ def refine_scene(scene, jobs) -> list:
                 job.report.setdefault("warnings", []).append(note)
             continue
         refined, rtcs = out
+        budget -= len(refined.triangles)
         undo.append((i, mesh, tcs, job))
         scene.meshes[i] = refined
         if i < len(scene.texcoords):

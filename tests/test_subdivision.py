@@ -292,3 +292,16 @@ def test_scene_budget_refines_baked_meshes_first(monkeypatch):
     undo = subdiv.refine_scene(sc, [job])
     assert [i for i, *_ in undo] == [3, 0]  # the baked mesh, then one occluder
     assert [len(x.triangles) for x in sc.meshes] == [per, 48, 48, per]
+
+
+def test_uvs_that_cut_a_polygon_keep_the_cage(tmp_path):
+    """An unwrap whose two triangles of one quad disagree on a corner's UV cannot be refined
+    per cage face: the cage is traced, with a warning on the prim saying why."""
+    sc = load_scene(_stage(tmp_path, "catmullClark"))
+    m = sc.meshes[0]
+    m.uv = m.uv.copy()
+    m.uv[1, 0] += 0.1  # triangle 1 of quad 0: its first corner is corner 0 of triangle 0 too
+    job = types.SimpleNamespace(mesh=m, resolution=(32, 32), texels=None, report={})
+    assert subdiv.refine_scene(sc, [job]) == [] and job.mesh is m
+    w = job.report["warnings"][0]
+    assert "different UVs at one corner" in w and "control cage is traced as is" in w

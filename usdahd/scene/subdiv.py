@@ -105,15 +105,20 @@ def choose_levels(mesh: MeshData, cage: Cage, resolution=None, budget=None) -> i
 
 
 def _corner_values(values, mesh: MeshData, cage: Cage):
-    """Per-triangle-corner (t, 3, k) values -> per cage corner (c, k), or None when a cage
-    corner is in no triangle (its triangles were dropped as degenerate)."""
-    v = np.asarray(values, np.float64)
-    k = v.shape[-1]
-    n = int(max(cage.corners.max(initial=-1), np.asarray(mesh.corner).max(initial=-1))) + 1
-    out = np.full((n, k), np.nan)
-    out[np.asarray(mesh.corner).reshape(-1)] = v.reshape(-1, k)
+    """Per-triangle-corner (t, 3, k) values -> (per cage corner (c, k), None), or (None, why)
+    when a cage corner is in no triangle (its triangles were dropped as degenerate) or the
+    triangles of one polygon disagree on a corner's value (an unwrap that cut the polygon)."""
+    v = np.asarray(values, np.float64).reshape(-1, np.shape(values)[-1])
+    corner = np.asarray(mesh.corner).reshape(-1)
+    n = int(max(cage.corners.max(initial=-1), corner.max(initial=-1))) + 1
+    out = np.full((n, v.shape[1]), np.nan)
+    out[corner] = v
+    if np.any(np.abs(out[corner] - v) > 1e-6):
+        return None, "the triangles of a polygon hold different UVs at one corner"
     res = out[cage.corners]
-    return None if np.isnan(res).any() else res
+    if np.isnan(res).any():
+        return None, "degenerate cage triangles were dropped"
+    return res, None
 
 
 def refine_mesh(mesh: MeshData, texcoords: dict, levels: int):
@@ -122,15 +127,15 @@ def refine_mesh(mesh: MeshData, texcoords: dict, levels: int):
     cage: Cage = mesh.cage
     fv = []
     if mesh.uv is not None:
-        uv = _corner_values(mesh.uv, mesh, cage)
+        uv, why = _corner_values(mesh.uv, mesh, cage)
         if uv is None:
-            return None, "degenerate cage triangles were dropped"
+            return None, why
         fv.append(uv)
     names = sorted(texcoords)
     for name in names:
-        tc = _corner_values(texcoords[name], mesh, cage)
+        tc, why = _corner_values(texcoords[name], mesh, cage)
         if tc is None:
-            return None, "degenerate cage triangles were dropped"
+            return None, f"texture coordinates {name}: {why}"
         fv.append(tc)
     n_src = int(max(cage.faces.max(initial=-1), np.asarray(mesh.face).max(initial=-1))) + 1
     face_mat = np.zeros(n_src, np.int32)

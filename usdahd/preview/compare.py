@@ -163,8 +163,8 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
     """
     from usdahd.bake import integrate
     from usdahd.bake.trace import Tracer
+    from usdahd.preview.meshes import preview_scene
     from usdahd.scene.hashing import is_dark
-    from usdahd.usd.reader import load_scene
 
     w, h = size
     k, s = batch_plan(int(samples))
@@ -175,7 +175,7 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
     bounces = int(bounces)
     if bounces < 0:
         raise UsageError(f"--compare-bounces {bounces}: bounces must be >= 0")
-    scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)
+    scene = preview_scene(stage, meshes[0][1].uv_primvar)  # refined as the bake traced it
     pix, which, texels = visible_points(meshes, viewproj, size, scene)
     image = np.zeros((h * w, 4), np.float32)
     var = np.zeros((h * w, 3))

@@ -7,11 +7,22 @@ import numpy as np
 from usdahd.errors import StageError, UsageError
 
 
+def preview_scene(stage, uv: str):
+    """The stage's Scene as the bake traced it: subdivision meshes (catmullClark / loop)
+    replaced by their refinement (:func:`usdahd.scene.subdiv.refine_scene`; texels still
+    addressed through the cage's lightmap UVs)."""
+    from usdahd.scene import subdiv
+    from usdahd.usd.reader import load_scene
+
+    sc = load_scene(stage, uv_name=uv)
+    subdiv.refine_scene(sc, [])
+    return sc
+
+
 def baked_meshes(layer: str):
     """[(MeshData, BakeResults)] of every baked mesh, and the stage's up axis."""
     from usdahd.bake import texels
     from usdahd.usd import schema
-    from usdahd.usd.reader import load_scene
     from usdahd.usd.stage import open_stage
 
     stage = open_stage(layer)  # re-read from disk when this process opened it before
@@ -24,7 +35,7 @@ def baked_meshes(layer: str):
         raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
     out, up = [], "Y"
     for uv in sorted({r.uv_primvar for r in records.values()}):
-        sc = load_scene(stage, uv_name=uv)
+        sc = preview_scene(stage, uv)
         up = sc.up_axis
         for mesh in sc.meshes:
             res = records.get(mesh.path)
@@ -105,9 +116,8 @@ def render_view(
 
         return render(dev, items, viewproj, size)
     from usdahd.preview import raytrace
-    from usdahd.usd.reader import load_scene
 
-    scene = load_scene(stage, uv_name=meshes[0][1].uv_primvar)  # the materials
+    scene = preview_scene(stage, meshes[0][1].uv_primvar)  # the materials
     if surfaces is None:
         traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
         return raytrace.render(scene, traced, viewproj, size)

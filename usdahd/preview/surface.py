@@ -122,8 +122,9 @@ def surfaces(stage, meshes) -> list[list[Surface]]:
     :class:`Surface` groups, one per bound material. Raises StageError when a material's
     texture reads a primvar the mesh lacks (the fix: author it)."""
     from usdahd.bake import texels as tx
+    from usdahd.preview.meshes import preview_scene
     from usdahd.usd.materials import MaterialReader
-    from usdahd.usd.reader import ReadContext, load_scene
+    from usdahd.usd.reader import ReadContext
     from usdahd.usd.surface_inputs import normal_input
 
     scenes = {}
@@ -131,7 +132,7 @@ def surfaces(stage, meshes) -> list[list[Surface]]:
     for mesh, res, tangent, sign in meshes:
         uv = res.uv_primvar
         if uv not in scenes:
-            sc = load_scene(stage, uv_name=uv)
+            sc = preview_scene(stage, uv)  # refined, as baked_meshes' meshes are
             ctx = ReadContext(stage, sc.time)
             scenes[uv] = (sc, {m.path: k for k, m in enumerate(sc.meshes)}, MaterialReader(ctx))
         sc, index, reader = scenes[uv]

@@ -334,3 +334,68 @@ def test_preview_draws_and_compares_the_refined_surface(tmp_path):
     cmp = json.loads(r.stdout)["compare"]
     assert cmp["inside_geometry"] == 0
     assert cmp["relrmse"] < 1.3 * cmp["reference_noise"] and abs(cmp["bias"]) < 0.006
+
+
+BPY_SUBSURF = """
+import json, sys
+import bpy
+cases = json.loads(sys.stdin.read())
+out = []
+for case in cases:
+    me = bpy.data.meshes.new("m")
+    me.from_pydata(case["points"], [], case["faces"])
+    me.update()
+    ob = bpy.data.objects.new("o", me)
+    bpy.context.scene.collection.objects.link(ob)
+    mod = ob.modifiers.new("s", "SUBSURF")
+    mod.levels = mod.render_levels = case["levels"]
+    mod.subdivision_type = "CATMULL_CLARK"
+    mod.use_limit_surface = True
+    mod.quality = 6
+    mod.boundary_smooth = "PRESERVE_CORNERS"  # USD's edgeAndCorner
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = ob.evaluated_get(dg).to_mesh()
+    out.append([list(v.co) for v in ev.vertices])
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_catmull_clark_matches_blender_opensubdiv():
+    """Blender's Subdivision Surface modifier (OpenSubdiv, limit surface on, corners kept as
+    USD's edgeAndCorner) against :func:`SD.refine` on a closed cube, the sphere cage (triangles
+    at the poles) and an open 3x2 grid (boundary curves and corners). Needs a bpy interpreter
+    ($USDAHD_BPY_PYTHON, benchmarks/reference/README.md); skipped without one."""
+    import json
+    import os
+
+    bpy = os.environ.get("USDAHD_BPY_PYTHON")
+    if not bpy:
+        pytest.skip("no bpy interpreter ($USDAHD_BPY_PYTHON); see benchmarks/reference/README.md")
+    sc = load_scene(SPHERE)
+    cage = sc.meshes[0].cage
+    st = np.concatenate([[0], np.cumsum(cage.counts)])
+    sphere_faces = [cage.indices[a:b].tolist() for a, b in zip(st[:-1], st[1:])]
+    gx, gy = np.meshgrid(np.arange(4.0), np.arange(3.0))
+    grid_p = np.stack([gx.ravel(), gy.ravel(), 0.3 * np.sin(gx.ravel() + gy.ravel())], 1)
+    grid_f = [[j * 4 + i, j * 4 + i + 1, (j + 1) * 4 + i + 1, (j + 1) * 4 + i]
+              for j in range(2) for i in range(3)]  # fmt: skip
+    cases = [
+        {"points": CUBE_P.tolist(), "faces": [list(q) for q in CUBE_Q], "levels": 2},
+        {"points": sc.meshes[0].points.tolist(), "faces": sphere_faces, "levels": 2},
+        {"points": grid_p.tolist(), "faces": grid_f, "levels": 2},
+    ]
+    r = subprocess.run(
+        [bpy, "-c", BPY_SUBSURF], input=json.dumps(cases), capture_output=True, text=True,
+        timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    blender = json.loads(r.stdout.split("RESULT", 1)[1])
+    for case, theirs in zip(cases, blender, strict=True):
+        counts = [len(f) for f in case["faces"]]
+        idx = [i for f in case["faces"] for i in f]
+        ours, *_ = SD.refine(np.array(case["points"]), counts, idx, "catmullClark", 2)
+        theirs = np.array(theirs)
+        assert ours.shape == theirs.shape
+        d = np.linalg.norm(ours[:, None] - theirs[None], axis=2)
+        # Blender stores float32 positions
+        assert d.min(axis=1).max() < 1e-5 and d.min(axis=0).max() < 1e-5

@@ -35,7 +35,7 @@ __all__ = [
 #: Largest side, in texels, a material texture is kept at (larger ones are box-filtered down by
 #: an integer factor when read). The bake sees a material's textures only through the rays that
 #: hit it, the bounce light of a lightmap texel averaging hundreds of them over neighbouring
-#: surfaces: 512 keeps a texel of a 2048 texture's 4 x 4 mean, and a chess set whose 10 material
+#: surfaces: 512 keeps a texel of a 2048 texture's 4 x 4 mean, and a chess set whose 13 material
 #: textures are 2048^2 (654 MB as float32) holds 41 MB instead (docs/usd-semantics.md).
 MAX_MATERIAL_TEXTURE = 512
 

@@ -24,7 +24,14 @@ from numba import njit
 from usdahd.bake import reference as R
 from usdahd.bake.kernels import integrate as KI
 from usdahd.bake.kernels import lights as K
-from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTables
+from usdahd.bake.kernels import shading as KS
+from usdahd.bake.kernels.layout import (
+    LIGHT_PARAMS,
+    MODE_BSDF,
+    MODE_MIS,
+    MODE_NEE,
+    NativeTables,
+)
 from usdahd.bake.kernels.trace import nb_offset, nb_texture
 from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
@@ -148,7 +155,9 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
         (wrap, wrap),
     )
     uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = NativeTables(*(None,) * 9, *pack_textures([tex]))
+    tex_data, tex_info, tex_chan, tex_sb = pack_textures([tex])
+    fields = dict(tex_data=tex_data, tex_info=tex_info, tex_chan=tex_chan, tex_sb=tex_sb)
+    tb = NativeTables(**{f: fields.get(f) for f in NativeTables._fields})
     got = _nb_tex(tb, 0, uv)[:, : len(channels)]
     np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
 
@@ -172,8 +181,7 @@ def test_native_result_equals_numpy_result(regression):
     ref, bf_ref = acc.result("regression" if regression else "mc")
     out = np.empty((n, 3, 9), np.float32)
     bf = np.empty(n, np.float32)
-    native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
-                   regression, out, bf)  # fmt: skip
+    native_result(np.arange(n), acc.arrays, regression, out, bf)
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
     np.testing.assert_array_equal(bf, bf_ref)
 
@@ -277,8 +285,8 @@ def _nb_weights(mode, pa, pb):
     wl = np.zeros(pa.shape[0])
     wb = np.zeros(pa.shape[0])
     for i in range(pa.shape[0]):
-        wl[i] = KI._wl(mode, pa[i], pb[i])
-        wb[i] = KI._wb(mode, pb[i], pa[i])
+        wl[i] = KS.w_light(mode, pa[i], pb[i])
+        wb[i] = KS.w_bsdf(mode, pb[i], pa[i])
     return wl, wb
 
 
@@ -300,7 +308,7 @@ def test_mis_weights_equal_reference(strategy):
 def _nb_shadows(o, p, d, dist):
     out = np.zeros((o.shape[0], 4))
     for i in range(o.shape[0]):
-        out[i] = KI._shadow1(o[i, 0], o[i, 1], o[i, 2], p[i, 0], p[i, 1], p[i, 2],
+        out[i] = KS.shadow1(o[i, 0], o[i, 1], o[i, 2], p[i, 0], p[i, 1], p[i, 2],
                              d[i, 0], d[i, 1], d[i, 2], dist[i])  # fmt: skip
     return out
 
@@ -349,17 +357,17 @@ def test_helper_called_from_python_raises_instead_of_crashing():
     raises TypeError naming the function and the fix, even once compiled for a numba caller."""
     from usdahd.bake.kernels.cache import HelperDispatcher
 
-    assert isinstance(KI._pw, HelperDispatcher)
-    with pytest.raises(TypeError, match=r"integrate\._pw is a numba kernel helper .* @njit"):
-        KI._pw(1.0, 2.0)
+    assert isinstance(KS.power, HelperDispatcher)
+    with pytest.raises(TypeError, match=r"shading\.power is a numba kernel helper .* @njit"):
+        KS.power(1.0, 2.0)
 
     @njit(cache=False)
     def call(a, b):
-        return KI._pw(a, b)
+        return KS.power(a, b)
 
     assert call(1.0, 1.0) == 0.5  # from numba code it works
     with pytest.raises(TypeError, match="call it from @njit code"):
-        KI._pw(1.0, 1.0)  # now compiled for (float64, float64): still no call from Python
+        KS.power(1.0, 1.0)  # now compiled for (float64, float64): still no call from Python
 
 
 def test_helpers_compile_one_specialisation_per_argument_types():
@@ -410,10 +418,11 @@ def test_numba_light_importance_equals_bound(light):
     par[K.PAR_IMP_CENTER : K.PAR_IMP_CENTER + 3] = b.center
     par[K.PAR_IMP_NORMAL : K.PAR_IMP_NORMAL + 3] = b.normal
     if not isinstance(light, L.EmissiveTriangles):  # pack_lights writes the same slots
-        np.testing.assert_array_equal(
-            K.pack_lights([light]).par[0],
-            np.where(np.arange(K.N_PAR) >= K.PAR_IMP_FALLOFF, par, K.pack_lights([light]).par[0]),
-        )
+        imp = np.zeros(K.N_PAR, bool)
+        for f in ("imp_falloff", "imp_scale", "imp_r2", "imp_cap", "imp_center", "imp_normal"):
+            o = LIGHT_PARAMS.offset[f]
+            imp[o : o + LIGHT_PARAMS.width[f]] = True
+        np.testing.assert_array_equal(K.pack_lights([light]).par[0][imp], par[imp])
     np.testing.assert_allclose(_nb_importance(par, p), b.importance(p), rtol=REL)
     assert np.all(b.importance(p) >= 0)
 
@@ -425,9 +434,9 @@ def _nb_selection(par, nee_idx, p, u):
     ps = np.zeros(m)
     sel = np.zeros((m, n))
     for i in range(m):
-        q[i], ps[i] = KI._nee_pick(par, nee_idx, p[i, 0], p[i, 1], p[i, 2], u[i])
+        q[i], ps[i] = KS.nee_pick(par, nee_idx, p[i, 0], p[i, 1], p[i, 2], u[i])
         for j in range(n):
-            sel[i, j] = KI._nee_sel(par, nee_idx, nee_idx[j], p[i, 0], p[i, 1], p[i, 2])
+            sel[i, j] = KS.nee_sel(par, nee_idx, nee_idx[j], p[i, 0], p[i, 1], p[i, 2])
     return q, ps, sel
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.bake.kernels.layout import AccumArrays
 from usdahd.numerics import sh as shmod
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 from usdahd.numerics.sampling import (
@@ -75,21 +76,17 @@ class LightGroups:
 
 
 class Accum:
-    """Per-texel running sums (so passes and estimators combine)."""
+    """Per-texel running sums (so passes and estimators combine): the arrays of
+    :class:`usdahd.bake.kernels.layout.AccumArrays` (``acc.gram``, ``acc.count``, ...; the
+    tuple itself, as the native kernel takes it, is ``acc.arrays``)."""
 
     def __init__(self, n):
-        self.gram = np.zeros((n, 9, 9))  # sum Y Y^T / p over hemisphere samples
-        self.hemi = np.zeros((n, 3, 9))  # sum L Y / p over hemisphere samples
-        self.nee = np.zeros((n, 3, 9))  # sum of light-sample contributions
-        self.delta = np.zeros((n, 3, 9))  # exact delta-light terms (not divided by S)
-        self.count = np.zeros(n, np.int32)
-        self.back = np.zeros(n, np.int64)
-        self.y_sum = np.zeros(n)  # per-sample luminance Iz estimates (for adaptivity)
-        self.y_sq = np.zeros(n)
-        # the even-numbered samples of every pass (sample k of a pass, k even): their sum and
-        # count, for the two-halves variance estimate (iz_variance_halves)
-        self.y_half = np.zeros(n)
-        self.n_half = np.zeros(n, np.int32)
+        self.arrays = AccumArrays.alloc(n=n)
+
+    def __getattr__(self, name):
+        if name == "arrays":  # not yet set (e.g. during unpickling)
+            raise AttributeError(name)
+        return getattr(self.arrays, name)
 
     def converged(self, active, tol):
         c = self.count[active].astype(np.float64)

@@ -115,7 +115,14 @@ def _cone_dirs(axis, one_minus_cos_max, u):
 
 @dataclass
 class Light:
-    """Base: ``path`` (prim path), ``radiance`` (3,) float64 (meaning per subclass)."""
+    """Base: ``path`` (prim path), ``radiance`` (3,) float64 (meaning per subclass).
+
+    The native form: ``KIND`` names the light's kind and ``FIELDS`` ((name, width) pairs) the
+    parameters of its row in the baker's light table (``usdahd.bake.kernels.layout
+    .LIGHT_PARAMS``: the numba routines read them as ``PAR_<NAME>``); :meth:`pack` writes
+    exactly those fields. Light linking (``usdahd.usd.lights.LightReader.link_membership``):
+    ``lit_meshes`` / ``shadow_meshes`` (k,) int32 scene mesh indices the light lights / whose
+    shadows it casts, None for every mesh."""
 
     path: str
     radiance: np.ndarray
@@ -124,9 +131,19 @@ class Light:
     #: False for lights that NEE need not sample (a uniform dome is better covered by
     #: hemisphere sampling alone).
     sampled = True
+    lit_meshes = None
+    shadow_meshes = None
+    KIND = ""
+    FIELDS = ()
 
     def bound(self) -> Bound:
         """The light's :class:`Bound` (which light a path vertex samples)."""
+        raise NotImplementedError
+
+    def pack(self, rec, blocks) -> None:
+        """Write this light's ``FIELDS`` into ``rec`` (a named row view: ``rec.center = c``);
+        ``blocks.add(img (k, 3), pmf (k,), cdf (k,))`` appends per-pixel tables shared by all
+        lights and returns their offset."""
         raise NotImplementedError
 
 
@@ -136,6 +153,12 @@ class SphereLight(Light):
 
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     radius: float = 0.5
+    KIND = "sphere"
+    FIELDS = (("center", 3), ("radius", 1))
+
+    def pack(self, rec, blocks) -> None:
+        rec.center = self.center
+        rec.radius = self.radius
 
     def _omc(self, p):
         w = self.center - p
@@ -194,6 +217,11 @@ class PointLight(Light):
 
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     delta = True
+    KIND = "point"
+    FIELDS = (("center", 3),)
+
+    def pack(self, rec, blocks) -> None:
+        rec.center = self.center
 
     def bound(self) -> Bound:
         return Bound(
@@ -224,6 +252,23 @@ class _PlanarLight(Light):
     ex: np.ndarray = field(default_factory=lambda: np.array([0.5, 0, 0]))
     ey: np.ndarray = field(default_factory=lambda: np.array([0, 0.5, 0]))
     normal: np.ndarray = field(default_factory=lambda: np.array([0, 0, -1.0]))
+    #: half-extent edges, emitting side, world area, inverse Gram of (ex, ey) row major, unit
+    #: plane normal of the hit test
+    FIELDS = (
+        ("center", 3),
+        ("ex", 3),
+        ("ey", 3),
+        ("normal", 3),
+        ("area", 1),
+        ("ginv", 4),
+        ("plane_n", 3),
+    )
+
+    def pack(self, rec, blocks) -> None:
+        rec.center, rec.ex, rec.ey, rec.normal = self.center, self.ex, self.ey, self.normal
+        rec.area = self.area
+        rec.ginv = self._ginv
+        rec.plane_n = self._pn
 
     def __post_init__(self):
         g = np.array(
@@ -288,10 +333,18 @@ class RectLight(_PlanarLight):
     agree with the sampler.
     """
 
+    KIND = "rect"
+    #: rect_ortho: 1 when the edges are orthogonal (solid-angle sampling applies)
+    FIELDS = _PlanarLight.FIELDS + (("rect_ortho", 1),)
+
     def __post_init__(self):
         super().__post_init__()
         ne, ny = np.linalg.norm(self.ex), np.linalg.norm(self.ey)
         self.orthogonal = bool(abs(self.ex @ self.ey) <= 1e-9 * ne * ny)
+
+    def pack(self, rec, blocks) -> None:
+        super().pack(rec, blocks)
+        rec.rect_ortho = 1.0 if self.orthogonal else 0.0
 
     @property
     def area(self) -> float:
@@ -348,6 +401,8 @@ class RectLight(_PlanarLight):
 class DiskLight(_PlanarLight):
     """UsdLuxDiskLight: ellipse ``center + a ex + b ey``, a^2 + b^2 <= 1, emits to ``normal``."""
 
+    KIND = "disk"
+
     @property
     def area(self) -> float:
         return float(np.pi * np.linalg.norm(np.cross(self.ex, self.ey)))
@@ -368,10 +423,26 @@ class CylinderLight(Light):
     axis: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0]))
     half_length: float = 0.5
     radius: float = 0.5
+    KIND = "cylinder"
+    #: cyl_e1, cyl_e2: unit vectors across the axis
+    FIELDS = (
+        ("center", 3),
+        ("axis", 3),
+        ("radius", 1),
+        ("area", 1),
+        ("half_length", 1),
+        ("cyl_e1", 3),
+        ("cyl_e2", 3),
+    )
 
     def __post_init__(self):
         f = orthonormal_basis(self.axis[None, :])[0]
         self._e1, self._e2 = f[0], f[1]
+
+    def pack(self, rec, blocks) -> None:
+        rec.center, rec.axis = self.center, self.axis
+        rec.radius, rec.area, rec.half_length = self.radius, self.area, self.half_length
+        rec.cyl_e1, rec.cyl_e2 = self._e1, self._e2
 
     @property
     def area(self) -> float:
@@ -435,12 +506,19 @@ class DistantLight(Light):
     direction: np.ndarray = field(default_factory=lambda: np.array([0, 0, 1.0]))
     half_angle: float = 0.0
     infinite = True
+    KIND = "distant"
+    #: direction towards the light; omc, cos_max: 1 - cos(half angle), cos(half angle)
+    FIELDS = (("direction", 3), ("omc", 1), ("cos_max", 1))
 
     def __post_init__(self):
         self.delta = self.half_angle <= 0.0
         s = np.sin(self.half_angle / 2.0)
         self._omc = 2.0 * s * s  # 1 - cos(half_angle)
         self._cos_max = 1.0 - self._omc
+
+    def pack(self, rec, blocks) -> None:
+        rec.direction = self.direction
+        rec.omc, rec.cos_max = self._omc, self._cos_max
 
     def bound(self) -> Bound:
         L = _lum(self.radiance)  # delta: already the illuminance at normal incidence
@@ -487,6 +565,32 @@ class DomeLight(Light):
     image: np.ndarray | None = None
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     infinite = True
+    KIND = "dome"
+    #: textured flag; offsets of the image's pmf/cdf and pixels in the shared blocks;
+    #: world-from-dome rotation (row major), its inverse; image height, width
+    FIELDS = (
+        ("dome_textured", 1),
+        ("dome_pmf", 1),
+        ("dome_pix", 1),
+        ("dome_rot", 9),
+        ("dome_inv_rot", 9),
+        ("dome_h", 1),
+        ("dome_w", 1),
+    )
+
+    def pack(self, rec, blocks) -> None:
+        rec.dome_rot = np.asarray(self.rotation, np.float64)
+        if self.image is None:  # uniform: hit by rays only, never sampled
+            rec.dome_textured = rec.dome_pmf = rec.dome_pix = rec.dome_h = rec.dome_w = 0.0
+            rec.dome_inv_rot = np.zeros(9)
+            return
+        h, w = self._img.shape[:2]
+        rec.dome_textured = 1.0
+        rec.dome_pmf = rec.dome_pix = blocks.add(
+            self._img[..., :3].reshape(-1, 3), self._pmf, self._cdf
+        )
+        rec.dome_inv_rot = self._inv_rot
+        rec.dome_h, rec.dome_w = h, w
 
     def __post_init__(self):
         self.sampled = self.image is not None
@@ -593,6 +697,18 @@ class EmissiveTriangles(Light):
     lum: np.ndarray = field(default_factory=lambda: np.zeros(0))
     two_sided: np.ndarray | None = None
     emission_at: object = None
+    KIND = "emissive"
+    #: offsets in the shared blocks of the per-emitter pmf/cdf (E entries), of the global
+    #: triangles' ``pdf_area`` (T entries, in ``pmf``), of the emitters' global triangle ids
+    #: (E entries, float64 in ``pmf``); E
+    FIELDS = (("em_table", 1), ("em_pdf_area", 1), ("em_tri", 1), ("em_count", 1))
+
+    def pack(self, rec, blocks) -> None:
+        ne, nt = len(self.tri), len(self.pdf_area)
+        rec.em_table = blocks.add(np.zeros((ne, 3)), self.pmf, self.cdf)
+        rec.em_count = ne
+        rec.em_pdf_area = blocks.add(np.zeros((nt, 3)), self.pdf_area, np.zeros(nt))
+        rec.em_tri = blocks.add(np.zeros((ne, 3)), self.tri.astype(np.float64), np.zeros(ne))
 
     @classmethod
     def from_tracer(cls, tracer) -> EmissiveTriangles | None:
@@ -697,3 +813,5 @@ LIGHT_TYPES = (
     DistantLight,
     DomeLight,
 )
+#: Every light with a native form, in the order of the baker's ``KIND_*`` numbers.
+PACKED_LIGHTS = LIGHT_TYPES + (EmissiveTriangles,)

@@ -28,6 +28,8 @@ KERNEL_SOURCES = tuple(
         ("bake", "kernels", "cache.py"),
         ("bake", "kernels", "layout.py"),
         ("bake", "kernels", "lights.py"),
+        ("bake", "kernels", "shading.py"),
+        ("bake", "kernels", "paths.py"),
         ("bake", "kernels", "integrate.py"),
         ("bake", "reference.py"),
         ("numerics", "sampling.py"),

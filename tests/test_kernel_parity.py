@@ -269,14 +269,14 @@ def _nb_cones(axis, omc, u):
 
 
 def test_cone_equals_scene_cone_dirs():
-    """The kernel's cone sampler (sphere and distant lights) is ``scene.lights._cone_dirs``,
+    """The kernel's cone sampler (sphere and distant lights) is ``scene.lights.cone_dirs``,
     down to tiny cones (1 - cos = 1e-12, the stable form both use)."""
     rng = np.random.default_rng(3)
     m = 2000
     axis = _unit(rng, m)
     omc = 10.0 ** rng.uniform(-12, 0.3, m)
     u = rng.random((m, 2))
-    ref = L._cone_dirs(axis, omc, u)
+    ref = L.cone_dirs(axis, omc, u)
     np.testing.assert_allclose(_nb_cones(axis, omc, u), ref, rtol=REL, atol=REL)
 
 

@@ -34,7 +34,7 @@ KERNEL_SOURCES = tuple(
         ("bake", "reference.py"),
         ("numerics", "sampling.py"),
         ("numerics", "sh.py"),
-        ("scene", "lights.py"),
+        ("scene", "lights", "base.py"),
     )
 )
 

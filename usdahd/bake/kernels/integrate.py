@@ -24,7 +24,10 @@ from usdahd.bake.kernels.layout import (
     CFG_STRATEGY,
     CFG_TEXEL_MESH,
     CFG_TRANSMISSION,
+    GRAM_FIRST,
+    GRAM_PAIRS,
     GRAM_SUMS,
+    GRAM_WSUM,
     HIT_NG,
     HIT_TRI,
     PATH_BETA,
@@ -188,13 +191,14 @@ def _texel_delta(scene, tb, lt, delta_idx, cfg, tex, i, delta, work):
 
 @helper
 def _gram_unpack(gram, i, G):
-    """Add the register-fed Gram sums ``G`` (GRAM_SUMS,) to ``gram[i]`` and zero ``G``: slots
-    0..7 are sum w Y_a (a = 1..8), 8..43 the upper triangle of sum w Y_a Y_b, 44 sum w, with
-    w = 1/p per sample (row 0 of the Gram is C0 times the first sums)."""
-    gram[i, 0, 0] += _C0 * _C0 * G[44]
-    q = 8
+    """Add the Gram sums ``G`` (``layout.GRAM``) to ``gram[i]`` and zero ``G``: the first
+    sums sum w Y_a (a = 1..8), the pairs the upper triangle of sum w Y_a Y_b (a <= b, row by
+    row), the weight sum sum w, with w = 1/p per sample (row 0 of the Gram is C0 times the
+    first sums)."""
+    gram[i, 0, 0] += _C0 * _C0 * G[GRAM_WSUM]
+    q = GRAM_PAIRS
     for a in range(1, 9):
-        v = _C0 * G[a - 1]
+        v = _C0 * G[GRAM_FIRST + a - 1]
         gram[i, 0, a] += v
         gram[i, a, 0] += v
         for b9 in range(a, 9):
@@ -359,72 +363,23 @@ def native_pass(scene, tb, lt, lists, cfg, tex, ids, pts, rng_state, do_delta, a
         ys2 = 0.0
         yh = 0.0  # the even-numbered samples' share (Accum.iz_variance_halves)
         for k in range(s):
-            x, y, z = loc[k, 0], loc[k, 1], loc[k, 2]
-            y1, y2, y3 = -_C1 * y, _C1 * z, -_C1 * x
-            y4, y5 = _C2 * x * y, -_C2 * y * z
-            y6, y7, y8 = _C20 * (3.0 * z * z - 1.0), -_C2 * x * z, _C22 * (x * x - y * y)
-            wp = _4PI / (1.0 + 2.0 * z)
+            _sh9(Y, loc[k, 0], loc[k, 1], loc[k, 2])
+            wp = _4PI / (1.0 + 2.0 * loc[k, 2])
             for c in range(3):
                 w = wp * R[k, c]
-                H[9 * c] += w * _C0
-                H[9 * c + 1] += w * y1
-                H[9 * c + 2] += w * y2
-                H[9 * c + 3] += w * y3
-                H[9 * c + 4] += w * y4
-                H[9 * c + 5] += w * y5
-                H[9 * c + 6] += w * y6
-                H[9 * c + 7] += w * y7
-                H[9 * c + 8] += w * y8
-            if regression:  # upper triangle of w Y Y^T (rows 1..8; row 0 is C0 * sum w Y)
-                G[44] += wp
-                w1, w2, w3, w4 = wp * y1, wp * y2, wp * y3, wp * y4
-                w5, w6, w7, w8 = wp * y5, wp * y6, wp * y7, wp * y8
-                G[0] += w1
-                G[1] += w2
-                G[2] += w3
-                G[3] += w4
-                G[4] += w5
-                G[5] += w6
-                G[6] += w7
-                G[7] += w8
-                G[8] += w1 * y1
-                G[9] += w1 * y2
-                G[10] += w1 * y3
-                G[11] += w1 * y4
-                G[12] += w1 * y5
-                G[13] += w1 * y6
-                G[14] += w1 * y7
-                G[15] += w1 * y8
-                G[16] += w2 * y2
-                G[17] += w2 * y3
-                G[18] += w2 * y4
-                G[19] += w2 * y5
-                G[20] += w2 * y6
-                G[21] += w2 * y7
-                G[22] += w2 * y8
-                G[23] += w3 * y3
-                G[24] += w3 * y4
-                G[25] += w3 * y5
-                G[26] += w3 * y6
-                G[27] += w3 * y7
-                G[28] += w3 * y8
-                G[29] += w4 * y4
-                G[30] += w4 * y5
-                G[31] += w4 * y6
-                G[32] += w4 * y7
-                G[33] += w4 * y8
-                G[34] += w5 * y5
-                G[35] += w5 * y6
-                G[36] += w5 * y7
-                G[37] += w5 * y8
-                G[38] += w6 * y6
-                G[39] += w6 * y7
-                G[40] += w6 * y8
-                G[41] += w7 * y7
-                G[42] += w7 * y8
-                G[43] += w8 * y8
+                for a in range(9):
+                    H[9 * c + a] += w * Y[a]
+            if regression:  # sum w Y_a and the upper triangle of w Y Y^T (GRAM_* slots)
+                G[GRAM_WSUM] += wp
+                q = GRAM_PAIRS
+                for a in range(1, 9):
+                    wa = wp * Y[a]
+                    G[GRAM_FIRST + a - 1] += wa
+                    for b in range(a, 9):
+                        G[q] += wa * Y[b]
+                        q += 1
             lum = _LUM[0] * R[k, 0] + _LUM[1] * R[k, 1] + _LUM[2] * R[k, 2]
-            ylum = wp * _IZ * lum * y2 + yl[k]
+            ylum = wp * _IZ * lum * Y[2] + yl[k]
             ys += ylum
             ys2 += ylum * ylum
             if k % 2 == 0:

@@ -331,9 +331,12 @@ SVAL = Row.of("shadow-ray value", "SVAL_", [("rgb", 3), ("dir", 3)])
 SVAL_COLS = SVAL.size
 globals().update(SVAL.constants())
 
-#: Register-fed Gram sums of the native pass (``kernels.integrate``): 8 first sums, the 36
-#: upper-triangle products of the basis functions 1..8, the weight sum.
-GRAM_SUMS = 45
+#: The per-texel Gram sums of the native pass (``kernels.integrate``, scratch ``G``): the 8
+#: first sums sum w Y_a (a = 1..8), the 36 pairs sum w Y_a Y_b (1 <= a <= b <= 8, row by
+#: row), the weight sum.
+GRAM = Row.of("Gram sums", "GRAM_", [("first", 8), ("pairs", 36), ("wsum", 1)])
+GRAM_SUMS = GRAM.size
+globals().update(GRAM.constants())
 
 #: The per-texel sums both integrators fill (:class:`usdahd.bake.reference.Accum`).
 AccumArrays = array_record(

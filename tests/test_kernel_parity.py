@@ -458,3 +458,49 @@ def test_vertex_light_selection_equals_selection_pmf():
     col = np.minimum((u[:, None] >= np.cumsum(pmf, axis=1)).sum(axis=1), len(nee_idx) - 1)
     np.testing.assert_array_equal(q, nee_idx[col])
     np.testing.assert_allclose(ps, pmf[np.arange(len(p)), col], rtol=REL)
+
+
+# ----------------------------------------------------------------------------- declared records
+
+
+def test_light_rows_are_declared_per_kind_without_overlap():
+    """Every light kind's fields (LIGHT_PARAMS, from each class's FIELDS) occupy disjoint
+    slots inside the row, a field name has one offset for every kind, and the generated
+    constants are those offsets."""
+    from usdahd.bake.kernels import layout
+
+    rec = layout.LIGHT_PARAMS
+    assert set(rec.variants) == {cls.KIND for cls in L.PACKED_LIGHTS}
+    for kind, names in rec.variants.items():
+        slots = np.zeros(rec.size, int)
+        for f in names:
+            slots[rec.offset[f] : rec.offset[f] + rec.width[f]] += 1
+        assert slots.max() == 1, kind
+    for i, cls in enumerate(L.PACKED_LIGHTS):
+        assert getattr(layout, "KIND_" + cls.KIND.upper()) == i
+        for f, w in cls.FIELDS:
+            assert getattr(layout, "PAR_" + f.upper()) == rec.offset[f] and rec.width[f] == w
+
+
+def test_a_light_row_refuses_a_foreign_field_and_reports_a_missing_one():
+    """A wrong slot is an error, not plausible wrong light: a kind's view refuses another
+    kind's field, and packing raises when a declared field stays unwritten."""
+    rec = LIGHT_PARAMS
+    row = np.zeros(rec.size)
+    view = rec.view(row, "sphere")
+    view.radius = 0.5
+    assert row[K.PAR_RADIUS] == 0.5
+    with pytest.raises(AttributeError, match="no field 'ex'"):
+        view.ex = np.ones(3)  # a rect light's field
+    with pytest.raises(ValueError, match=r"sphere.*not written.*radius"):
+        rec.pack(np.zeros(rec.size), "sphere", lambda v: setattr(v, "center", np.ones(3)))
+
+
+def test_overlapping_declarations_are_refused():
+    from usdahd.bake.kernels.layout import Row
+
+    with pytest.raises(ValueError, match="widths"):
+        Row.union("r", "R_", [("a", 1)], {"x": [("b", 3)], "y": [("b", 2)]})
+    r = Row.union("r", "R_", [("a", 1)], {"x": [("b", 3), ("c", 1)], "y": [("c", 1), ("d", 2)]})
+    assert r.offset["c"] not in range(r.offset["b"], r.offset["b"] + 3)
+    assert r.offset["d"] not in (r.offset["c"], r.offset["c"] - 1)

@@ -165,7 +165,8 @@ class ReferenceCtx:
     def direct_delta(self, P, NG, F, E, acc):
         """Exact contribution of delta lights: one shadow ray per texel and light."""
         for lt in self.lights.delta:
-            d, dist, val, _ = lt.sample(P, np.zeros((len(P), 2)))
+            ls = lt.sample(P, np.zeros((len(P), 2)))
+            d, dist, val = ls.dirs, ls.dist, ls.value
             loc = to_local(d, F)
             ok = (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NG) > 0)
             ok &= self._lit(lt, np.full(len(P), self.texel_mesh))
@@ -260,7 +261,8 @@ class ReferenceCtx:
                 uj = u[idx]
             if len(idx) == 0:
                 continue
-            d, dist, val, pdf = lt.sample(Pf[idx], uj)
+            ls = lt.sample(Pf[idx], uj)
+            d, dist, val, pdf = ls.dirs, ls.dist, ls.value, ls.pdf
             loc = to_local(d, Ff[idx])
             ok = (pdf > 0) & (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NGf[idx]) > 0)
             ok &= np.any(val > 0, axis=1) & self._lit(lt, np.full(len(idx), self.texel_mesh))
@@ -297,7 +299,8 @@ class ReferenceCtx:
         tri = hits["tri"]
         miss = tri < 0
         for lt in self.lights.visible:
-            hit, tl, rad = lt.intersect(o, d)
+            lh = lt.intersect(o, d)
+            hit, tl, rad = lh.hit, lh.t, lh.radiance
             if self.cast.get(id(lt)) is None:
                 vis = hit & (miss if lt.infinite else (tl < t))
             else:  # shadow-linked: only casting meshes may stand between the ray and the light
@@ -371,7 +374,8 @@ class ReferenceCtx:
                 idx = np.nonzero(pick == j)[0]
                 if len(idx) == 0:
                     continue
-                d, dist, val, pdf = lt.sample(p[idx], uu[idx])
+                ls = lt.sample(p[idx], uu[idx])
+                d, dist, val, pdf = ls.dirs, ls.dist, ls.value, ls.pdf
                 cos = np.einsum("ij,ij->i", d, ns[idx])
                 ok = (cos > 0) & (np.einsum("ij,ij->i", d, gn[idx]) > 0) & (pdf > 0)
                 ok &= np.any(val > 0, axis=1) & self._lit(lt, mesh[idx])

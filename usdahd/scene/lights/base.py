@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -14,6 +15,27 @@ from usdahd.numerics.sampling import (
 from usdahd.numerics.sh import LUMINANCE
 
 TWO_PI = 2.0 * np.pi
+
+
+class LightSamples(NamedTuple):
+    """What ``Light.sample`` returns for m query points (float64): unit directions ``dirs``
+    (m, 3) towards the light, distances ``dist`` (m,) (inf: infinite lights), the radiance
+    arriving ``value`` (m, 3) (delta lights: the irradiance at normal incidence) and the
+    solid-angle ``pdf`` (m,) (1 for delta lights, 0: invalid)."""
+
+    dirs: np.ndarray
+    dist: np.ndarray
+    value: np.ndarray
+    pdf: np.ndarray
+
+
+class LightHits(NamedTuple):
+    """What ``Light.intersect`` returns for m rays: ``hit`` (m,) bool, distance ``t`` (m,)
+    (inf for infinite lights and misses), emitted ``radiance`` (m, 3) (0 on misses)."""
+
+    hit: np.ndarray
+    t: np.ndarray
+    radiance: np.ndarray
 
 
 def norm(v):

@@ -7,7 +7,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usdahd.numerics.sampling import orthonormal_basis
-from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, TWO_PI, Bound, Light, lum, norm
+from usdahd.scene.lights.base import (
+    FALLOFF_ISOTROPIC,
+    TWO_PI,
+    Bound,
+    Light,
+    LightHits,
+    LightSamples,
+    lum,
+    norm,
+)
 
 
 @dataclass
@@ -63,7 +72,7 @@ class CylinderLight(Light):
         cos_l = -np.einsum("ij,ij->i", dirs, radial)
         front = cos_l > 0
         pdf = np.where(front, dist * dist / (self.area * np.where(front, cos_l, 1.0)), 0.0)
-        return dirs, dist, np.where(front[:, None], self.radiance[None, :], 0.0), pdf
+        return LightSamples(dirs, dist, np.where(front[:, None], self.radiance[None, :], 0.0), pdf)
 
     def _hit(self, o, d):
         oc = o - self.center
@@ -81,7 +90,7 @@ class CylinderLight(Light):
 
     def intersect(self, o, d):
         hit, t, _ = self._hit(o, d)
-        return hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0)
+        return LightHits(hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0))
 
     def pdf(self, o, d, t):
         hit, t2, radial = self._hit(o, d)

@@ -6,7 +6,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from usdahd.scene.lights.base import FALLOFF_CONSTANT, TWO_PI, Bound, Light, cone_dirs, lum
+from usdahd.scene.lights.base import (
+    FALLOFF_CONSTANT,
+    TWO_PI,
+    Bound,
+    Light,
+    LightHits,
+    LightSamples,
+    cone_dirs,
+    lum,
+)
 
 
 @dataclass
@@ -45,18 +54,20 @@ class DistantLight(Light):
         n = len(p)
         if self.delta:
             dirs = np.broadcast_to(self.direction, (n, 3)).copy()
-            return dirs, np.full(n, np.inf), np.broadcast_to(self.radiance, (n, 3)), np.ones(n)
+            rad = np.broadcast_to(self.radiance, (n, 3))
+            return LightSamples(dirs, np.full(n, np.inf), rad, np.ones(n))
         axis = np.broadcast_to(self.direction, (n, 3))
         dirs = cone_dirs(axis, self._omc, u)
         pdf = np.full(n, 1.0 / (TWO_PI * self._omc))
-        return dirs, np.full(n, np.inf), np.broadcast_to(self.radiance, (n, 3)), pdf
+        return LightSamples(dirs, np.full(n, np.inf), np.broadcast_to(self.radiance, (n, 3)), pdf)
 
     def intersect(self, o, d):
         n = len(o)
         if self.delta:
-            return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+            return LightHits(np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3)))
         hit = d @ self.direction >= self._cos_max
-        return hit, np.full(n, np.inf), np.where(hit[:, None], self.radiance[None, :], 0.0)
+        rad = np.where(hit[:, None], self.radiance[None, :], 0.0)
+        return LightHits(hit, np.full(n, np.inf), rad)
 
     def pdf(self, o, d, t):
         if self.delta:

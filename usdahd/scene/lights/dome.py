@@ -8,7 +8,16 @@ import numpy as np
 
 from usdahd.numerics.sampling import sample_discrete
 from usdahd.numerics.sh import LUMINANCE
-from usdahd.scene.lights.base import FALLOFF_CONSTANT, TWO_PI, Bound, Light, lum, norm
+from usdahd.scene.lights.base import (
+    FALLOFF_CONSTANT,
+    TWO_PI,
+    Bound,
+    Light,
+    LightHits,
+    LightSamples,
+    lum,
+    norm,
+)
 
 
 @dataclass
@@ -113,11 +122,11 @@ class DomeLight(Light):
         dirs /= norm(dirs)[:, None]
         pdf = self._pmf[idx] * (h * w) / (2.0 * np.pi * np.pi * np.maximum(np.sin(theta), 1e-12))
         value = self._img[y, x, :3] * self.radiance[None, :]
-        return dirs, np.full(n, np.inf), value, pdf
+        return LightSamples(dirs, np.full(n, np.inf), value, pdf)
 
     def intersect(self, o, d):
         n = len(o)
-        return np.ones(n, bool), np.full(n, np.inf), self.eval(d)
+        return LightHits(np.ones(n, bool), np.full(n, np.inf), self.eval(d))
 
     def pdf(self, o, d, t):
         if self.image is None:

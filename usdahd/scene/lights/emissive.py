@@ -8,7 +8,7 @@ import numpy as np
 
 from usdahd.numerics.sampling import sample_discrete
 from usdahd.numerics.sh import LUMINANCE
-from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, Bound, Light, norm
+from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, Bound, Light, LightHits, LightSamples, norm
 
 
 @dataclass
@@ -132,7 +132,7 @@ class EmissiveTriangles(Light):
         )
         em = np.asarray(self.emission_at(self.tri[k], bu, bv), np.float64)[:, :3]
         value = np.where(front[:, None], em, 0.0)
-        return dirs, dist, value, pdf
+        return LightSamples(dirs, dist, value, pdf)
 
     def pdf_hit(self, tri, t, cos_abs):
         """Solid-angle pdf of hitting global triangle ``tri`` (m,) at distance ``t`` with
@@ -141,7 +141,7 @@ class EmissiveTriangles(Light):
 
     def intersect(self, o, d):  # emitters are geometry: hits are found by the tracer
         n = len(o)
-        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+        return LightHits(np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3)))
 
     def pdf(self, o, d, t):  # pragma: no cover - MIS at emitters uses pdf_hit
         return np.zeros(len(o))

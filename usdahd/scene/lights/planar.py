@@ -12,7 +12,7 @@ from usdahd.numerics.sampling import (
     concentric_disk,
     spherical_rectangle,
 )
-from usdahd.scene.lights.base import FALLOFF_FRONT, Bound, Light, lum, norm
+from usdahd.scene.lights.base import FALLOFF_FRONT, Bound, Light, LightHits, LightSamples, lum, norm
 
 
 @dataclass
@@ -75,7 +75,7 @@ class PlanarLight(Light):
         front = cos_l > 0
         pdf = np.where(front, dist * dist / (self.area * np.where(front, cos_l, 1.0)), 0.0)
         value = np.where(front[:, None], self.radiance[None, :], 0.0)
-        return dirs, dist, value, pdf
+        return LightSamples(dirs, dist, value, pdf)
 
     def intersect(self, o, d):
         den = d @ self._pn
@@ -87,7 +87,7 @@ class PlanarLight(Light):
         front = -(d @ self.normal) > 0
         hit = ok & (t > 0) & front & self._inside(ab[:, 0], ab[:, 1])
         t = np.where(hit, t, np.inf)
-        return hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0)
+        return LightHits(hit, t, np.where(hit[:, None], self.radiance[None, :], 0.0))
 
     def pdf(self, o, d, t):
         cos_l = -(d @ self.normal)
@@ -141,7 +141,8 @@ class RectLight(PlanarLight):
         return out
 
     def sample(self, p, u):
-        dirs, dist, value, pdf = super().sample(p, u)
+        base = super().sample(p, u)
+        dirs, dist, value, pdf = base.dirs, base.dist, base.value, base.pdf
         sr = self._solid(p)
         use = sr > 0
         if np.any(use):
@@ -155,7 +156,7 @@ class RectLight(PlanarLight):
             dirs[use], dist[use] = d, dd
             value[use] = np.where(front[:, None], self.radiance[None, :], 0.0)
             pdf[use] = np.where(front, 1.0 / sr[use], 0.0)
-        return dirs, dist, value, pdf
+        return LightSamples(dirs, dist, value, pdf)
 
     def pdf(self, o, d, t):
         base = super().pdf(o, d, t)

@@ -6,7 +6,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, TWO_PI, Bound, Light, cone_dirs, lum, norm
+from usdahd.scene.lights.base import (
+    FALLOFF_ISOTROPIC,
+    TWO_PI,
+    Bound,
+    Light,
+    LightHits,
+    LightSamples,
+    cone_dirs,
+    lum,
+    norm,
+)
 
 
 @dataclass
@@ -47,7 +57,7 @@ class SphereLight(Light):
         t = np.where(np.isfinite(t), t, np.sqrt(d2))
         pdf = np.where(outside, 1.0 / (TWO_PI * np.maximum(omc, 1e-300)), 0.0)
         value = np.where(outside[:, None], self.radiance[None, :], 0.0)
-        return dirs, t, value, pdf
+        return LightSamples(dirs, t, value, pdf)
 
     def _hit_t(self, o, d):
         oc = o - self.center
@@ -62,7 +72,7 @@ class SphereLight(Light):
         t = self._hit_t(o, d)
         hit = np.isfinite(t)
         rad = np.where(hit[:, None], self.radiance[None, :], 0.0)
-        return hit, t, rad
+        return LightHits(hit, t, rad)
 
     def pdf(self, o, d, t):
         _, _, outside, omc = self._omc(o)
@@ -95,11 +105,11 @@ class PointLight(Light):
         dist = norm(w)
         dirs = w / np.maximum(dist, 1e-300)[:, None]
         value = self.radiance[None, :] / np.maximum(dist * dist, 1e-300)[:, None]
-        return dirs, dist, value, np.ones(len(p))
+        return LightSamples(dirs, dist, value, np.ones(len(p)))
 
     def intersect(self, o, d):
         n = len(o)
-        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3))
+        return LightHits(np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 3)))
 
     def pdf(self, o, d, t):
         return np.zeros(len(o))

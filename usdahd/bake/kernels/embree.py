@@ -193,6 +193,7 @@ from usdahd.bake.kernels.layout import (  # noqa: E402
     RAY_D,
     RAY_O,
     RAY_TFAR,
+    EmbreeHit,
 )
 
 
@@ -289,7 +290,8 @@ def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
 def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """Closest hit. rec : (RAYHIT_FLOATS,) float32 scratch (16-byte aligned).
 
-    returns (t, primID, u, v): t float32 (inf on miss), primID int64 (-1 on miss).
+    returns an :class:`~usdahd.bake.kernels.layout.EmbreeHit` (t float32, inf on miss;
+    tri int64, -1 on miss; u, v float32).
     """
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)
     iv = rec.view(np.uint32)
@@ -297,8 +299,8 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     iv[19] = 0xFFFFFFFF  # instID[0]
     _rtc_intersect1(scene, rec.ctypes.data)
     if iv[18] == 0xFFFFFFFF:
-        return np.float32(np.inf), -1, np.float32(0.0), np.float32(0.0)
-    return rec[8], np.int64(iv[17]), rec[15], rec[16]
+        return EmbreeHit(np.float32(np.inf), np.int64(-1), np.float32(0.0), np.float32(0.0))
+    return EmbreeHit(rec[8], np.int64(iv[17]), rec[15], rec[16])
 
 
 @helper
@@ -329,14 +331,14 @@ def intersect_batch(scene, o, d, tfar, t_out, prim_out, u_out, v_out):
     rec = scratch()
     for i in range(o.shape[0]):
         # float64 arguments (exact for float32 input): the specialisation the kernels use
-        t, p, u, v = intersect1(
+        h = intersect1(
             scene, rec, _f(o[i, 0]), _f(o[i, 1]), _f(o[i, 2]), _f(d[i, 0]), _f(d[i, 1]),
             _f(d[i, 2]), _f(tfar[i]),
         )  # fmt: skip
-        t_out[i] = t
-        prim_out[i] = p
-        u_out[i] = u
-        v_out[i] = v
+        t_out[i] = h.t
+        prim_out[i] = h.tri
+        u_out[i] = h.u
+        v_out[i] = h.v
 
 
 @njit(cache=True, nogil=True)
@@ -395,15 +397,15 @@ def intersect_rays(scene, pk, rec, rays, n, hits):
         cnt = min(W, n - s0)
         if cnt < PACKET_MIN:
             for r in range(s0, n):
-                t, p, u, v = intersect1(
+                h = intersect1(
                     scene, rec, rays[r, RAY_O], rays[r, RAY_O + 1], rays[r, RAY_O + 2],
                     rays[r, RAY_D], rays[r, RAY_D + 1], rays[r, RAY_D + 2], rays[r, RAY_TFAR],
                 )  # fmt: skip
-                hits[r, HIT_T] = t
-                hits[r, HIT_TRI] = p
-                hits[r, HIT_U] = u
-                hits[r, HIT_V] = v
-                if p >= 0:
+                hits[r, HIT_T] = h.t
+                hits[r, HIT_TRI] = h.tri
+                hits[r, HIT_U] = h.u
+                hits[r, HIT_V] = h.v
+                if h.tri >= 0:
                     hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = hit_normal(rec)
                 else:
                     hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = 0.0, 0.0, 1.0

@@ -229,6 +229,9 @@ class LightLists(NamedTuple):
 #: distance (inf: infinite lights), the radiance arriving (delta lights: the irradiance at
 #: normal incidence) and the solid-angle pdf (1 for delta lights, 0: invalid).
 LightSample = namedtuple("LightSample", "dx dy dz dist r g b pdf", module=__name__)
+#: Embree's closest hit of one ray (``kernels.embree.intersect1``): t float32 (inf: miss),
+#: primitive id int64 (-1: miss), barycentrics u, v float32.
+EmbreeHit = namedtuple("EmbreeHit", "t tri u v", module=__name__)
 #: A ray's closest hit (``kernels.trace.nb_trace``): t (inf: miss), triangle (-1: miss),
 #: Embree barycentrics u, v, unit geometric normal, rays traced for it.
 TraceHit = namedtuple("TraceHit", "t tri u v gx gy gz rays", module=__name__)

@@ -230,8 +230,8 @@ def _pass_through(scene, rec, tb, tri, u, v, dx, dy, dz, tfar, travelled, t):
     sc = tb.tri_offset[tri]
     qx, qy, qz = nb_offset(sc, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
     done = travelled + t
-    t2, tri2, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
-    return np.float64(t2), tri2, np.float64(u2), np.float64(v2), done
+    h = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+    return np.float64(h.t), h.tri, np.float64(h.u), np.float64(h.v), done
 
 
 @helper
@@ -239,7 +239,8 @@ def nb_trace(scene, rec, tb, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
     """:meth:`Tracer.intersect` for one ray: a :class:`~usdahd.bake.kernels.layout.TraceHit`
     (tri -1 on miss; the unit geometric normal from Embree's hit record, so no per-triangle
     table is read)."""
-    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    h = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    t, tri, u, v = h.t, h.tri, h.u, h.v
     rays = 1
     if not transmission:
         if tri < 0:
@@ -268,9 +269,9 @@ def nb_transmittance(scene, rec, tb, transmission, ox, oy, oz, dx, dy, dz, tfar)
     """:meth:`Tracer.transmittance` for one shadow ray: (fraction passing, rays traced)."""
     if not transmission:
         return (0.0 if embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar) else 1.0), 1
-    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    h = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
     rays = 1
-    t, u, v = np.float64(t), np.float64(u), np.float64(v)
+    t, tri, u, v = np.float64(h.t), h.tri, np.float64(h.u), np.float64(h.v)
     T = 1.0
     travelled = 0.0
     for _ in range(MAX_TRANSMIT):

@@ -350,6 +350,7 @@ class _NativeCtx:
         cfg.emissive_light = em
         cfg.strategy = STRATEGIES.index(strategy)
         cfg.linked = has_light_linking(scene.lights)
+        cfg.shadow_linked = any(lt.shadow_meshes is not None for lt in scene.lights)
         cfg.texel_mesh = -1 if mesh is None else int(mesh)
         self.tb = tracer.native_tables()
         self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces

@@ -21,6 +21,7 @@ from usdahd.bake.kernels.cache import helper
 from usdahd.bake.kernels.layout import (
     CFG_LINKED,
     CFG_REGRESSION,
+    CFG_SHADOW_LINKED,
     CFG_STRATEGY,
     CFG_TEXEL_MESH,
     CFG_TRANSMISSION,
@@ -232,6 +233,7 @@ def native_pass(scene, tb, lt, lists, cfg, tex, ids, pts, rng_state, do_delta, a
     r2h, r2n = pts.r2h, pts.r2n
     s = r2h.shape[0]
     linked, tmesh = cfg[CFG_LINKED] != 0.0, cfg[CFG_TEXEL_MESH]
+    shadow_linked = cfg[CFG_SHADOW_LINKED] != 0.0
     transmission = cfg[CFG_TRANSMISSION] != 0.0
     regression = cfg[CFG_REGRESSION] != 0.0
     mode = int(cfg[CFG_STRATEGY])
@@ -343,8 +345,8 @@ def native_pass(scene, tb, lt, lists, cfg, tex, ids, pts, rng_state, do_delta, a
                     slight[ns] = j
                     ns += 1
             if ns:
-                traced += shadow_rays(scene, pk, rec, tb, lt, transmission, linked, st, srays,
-                                      slight, ns, occ)  # fmt: skip
+                traced += shadow_rays(scene, pk, rec, tb, lt, transmission, shadow_linked, st,
+                                      srays, slight, ns, occ)  # fmt: skip
                 for q in range(ns):
                     tr = occ[q]
                     if not (tr > 0.0):

@@ -283,7 +283,8 @@ class NativeTables(NamedTuple):
 #: the scene has transmissive materials (0/1), has emission (0/1), the estimator is
 #: "regression" (0/1), index of the emissive-triangles light (-1: none), strategy (index in
 #: ``integrate.STRATEGIES``), some light is linked (0/1: light or shadow linking, checked only
-#: then), the scene mesh of the texels (-1: none; the receiver for light linking).
+#: then), some light is shadow-linked (0/1: shadow rays one at a time), the scene mesh of the
+#: texels (-1: none; the receiver for light linking).
 CONFIG = Row.of(
     "integrator configuration",
     "CFG_",
@@ -296,6 +297,7 @@ CONFIG = Row.of(
         ("emissive_light", 1),
         ("strategy", 1),
         ("linked", 1),
+        ("shadow_linked", 1),
         ("texel_mesh", 1),
     ],
 )

@@ -15,6 +15,7 @@ from usdahd.bake.kernels.layout import (
     CFG_EMISSION,
     CFG_EMISSIVE_LIGHT,
     CFG_LINKED,
+    CFG_SHADOW_LINKED,
     CFG_STRATEGY,
     CFG_TRANSMISSION,
     HIT_NG,
@@ -90,6 +91,7 @@ def trace_paths(scene, tb, lt, lists, cfg, n, work):
     srays, sval, sidx, slight, occ, R = (work.srays, work.sval, work.sidx, work.slight,
                                          work.occ, work.R)  # fmt: skip
     linked = cfg[CFG_LINKED] != 0.0
+    shadow_linked = cfg[CFG_SHADOW_LINKED] != 0.0
     nee_idx, visible_idx, area_idx = lists.nee, lists.visible, lists.area
     tri_mat, mat_const, mat_tex = tb.tri_material, tb.mat_const, tb.mat_tex
     bounces = int(cfg[CFG_BOUNCES])
@@ -276,8 +278,8 @@ def trace_paths(scene, tb, lt, lists, cfg, n, work):
             R[k, 1] += Lg
             R[k, 2] += Lb
         if ns:
-            traced += shadow_rays(scene, pk, rec, tb, lt, transmission, linked, st, srays, slight,
-                                  ns, occ)  # fmt: skip
+            traced += shadow_rays(scene, pk, rec, tb, lt, transmission, shadow_linked, st, srays,
+                                  slight, ns, occ)  # fmt: skip
             for q in range(ns):
                 tr = occ[q]  # the fraction of the light's sample that arrives
                 if tr > 0.0:

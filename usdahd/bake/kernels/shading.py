@@ -216,11 +216,11 @@ def visibility(scene, rec, tb, lt, q, transmission, st, ox, oy, oz, dx, dy, dz, 
 
 
 @helper
-def shadow_rays(scene, pk, rec, tb, lt, transmission, linked, st, srays, slight, n, out):
+def shadow_rays(scene, pk, rec, tb, lt, transmission, shadow_linked, st, srays, slight, n, out):
     """Visibility of the queued shadow rays ``srays[:n]`` (of the lights ``slight[:n]``) into
-    ``out[:n]``: 16-ray packets (``nb_transmittance_rays``) unless a light is linked, then
-    one ray at a time through :func:`visibility`. returns rays traced."""
-    if not linked:
+    ``out[:n]``: 16-ray packets (``nb_transmittance_rays``) unless some light is
+    shadow-linked, then one ray at a time through :func:`visibility`. returns rays traced."""
+    if not shadow_linked:
         return nb_transmittance_rays(scene, pk, rec, tb, transmission, srays, n, out)
     total = 0
     for r in range(n):

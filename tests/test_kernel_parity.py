@@ -314,7 +314,7 @@ def _nb_shadows(o, p, d, dist):
 
 
 def test_shadow1_equals_reference_shadow():
-    """``_shadow1`` is the reference's ``_shadow`` (finite lights aimed at the sampled point
+    """``shading.shadow1`` is the reference's ``_shadow`` (finite lights aimed at the sampled point
     and shortened, infinite ones keep d)."""
     rng = np.random.default_rng(5)
     m = 1000

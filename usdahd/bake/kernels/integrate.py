@@ -239,7 +239,7 @@ def native_pass(scene, tb, lt, lists, cfg, tex, ids, pts, rng_state, do_delta, a
     mode = int(cfg[CFG_STRATEGY])
     n_area = area_idx.shape[0]
     every = n_area <= ALL_LIGHTS_MAX  # every light gets every texel light sample
-    # else each sample picks one by the bound at the texel (PATH_SEL -2: _nee_pick over
+    # else each sample picks one by the bound at the texel (PATH_SEL -2: shading.nee_pick over
     # ``lists.area`` at PATH_X, for the MIS of the hemisphere rays)
     sel_area = 1.0 if every else -2.0
     rec, pk, st, Y, G, H = work.rec, work.pk, work.st, work.Y, work.G, work.H

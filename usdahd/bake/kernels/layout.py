@@ -225,7 +225,7 @@ class LightLists(NamedTuple):
     area: np.ndarray
 
 
-#: A light sample (``light_sample``, ``_nee_sample``): unit direction towards the light,
+#: A light sample (``light_sample``, ``shading.nee_sample``): unit direction towards the light,
 #: distance (inf: infinite lights), the radiance arriving (delta lights: the irradiance at
 #: normal incidence) and the solid-angle pdf (1 for delta lights, 0: invalid).
 LightSample = namedtuple("LightSample", "dx dy dz dist r g b pdf", module=__name__)
@@ -308,7 +308,7 @@ MODE_MIS, MODE_BSDF, MODE_NEE = 0, 1, 2
 
 #: The per-path state rows ``ps`` (s, PATH_COLS) float64 of the wavefront: origin, direction,
 #: throughput, pdf of the direction, selection probability of the NEE light it is paired with
-#: (-1: the vertex selection of ``_nee_pick`` over ``lists.nee`` at the surface point the ray
+#: (-1: the vertex selection of ``shading.nee_pick`` over ``lists.nee`` at the surface point the ray
 #: left, PATH_X; -2: the texel's, over ``lists.area``, when it has more than ALL_LIGHTS_MAX
 #: lights), reflections so far, sample index, the point the ray left, the scene mesh of that
 #: point (the receiver for light linking; -1: none).

@@ -86,7 +86,7 @@ def selection_pmf(bounds, p: np.ndarray, floor: float) -> np.ndarray:
     of the lights (``Light.bound()``), at points ``p`` (m, 3):
     ``floor / n + (1 - floor) * importance / sum(importance)`` (uniform where every importance
     is 0), so every light keeps at least ``floor / n`` and its sample weight stays bounded.
-    The numba twin is ``usdahd.bake.kernels.integrate._nee_pick`` / ``_nee_sel``."""
+    The numba twin is ``usdahd.bake.kernels.shading.nee_pick`` / ``nee_sel``."""
     n = len(bounds)
     imp = np.stack([b.importance(p) for b in bounds], axis=1)
     tot = imp.sum(axis=1, keepdims=True)

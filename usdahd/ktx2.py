@@ -218,12 +218,14 @@ def _encoder():
     return ispc_texcomp
 
 
-def _bc7(rgba: np.ndarray) -> bytes:
-    """(h, w, 4) uint8 -> BC7 blocks (ISPCTextureCompressor, all channels weigh the same)."""
+def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
+    """(h, w, 4) uint8 -> BC7 blocks (ISPCTextureCompressor, all channels weigh the same; the
+    ``alpha_`` profile when A holds data, as the opaque ones write A = 255)."""
     t = _encoder()
     p = np.ascontiguousarray(_pad4(rgba))
     surf = t.RGBASurface(p.tobytes(), p.shape[1], p.shape[0], p.shape[1] * 4)
-    return t.compress_blocks_bc7(surf, t.BC7EncSettings.from_profile(BC7_PROFILE))
+    prof = ("alpha_" if alpha else "") + BC7_PROFILE
+    return t.compress_blocks_bc7(surf, t.BC7EncSettings.from_profile(prof))
 
 
 def _bc6h(rgba: np.ndarray) -> bytes:
@@ -261,7 +263,8 @@ def encode_levels(levels, fmt: str, compression: str = "none") -> tuple[int, lis
     if fmt == "unorm8":
         pxs = [_rgba(img, np.uint8, 255) for img, _ in levels]
         if bc:
-            return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p) for p in pxs]
+            alpha = levels[0][0].shape[-1] == 4
+            return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]
         return VK_FORMAT_R8G8B8A8_UNORM, [p.tobytes() for p in pxs]
     raise ImageError(f"no KTX2 encoding for texture format {fmt!r}")
 

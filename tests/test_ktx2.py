@@ -255,3 +255,31 @@ def test_the_default_encoding_holds_within_two_percent(tmp_path, capsys, name):
     err, b0, _, _, formats = _errors(tmp_path / name.replace(".usda", ".lightmaps.usda"))
     assert formats == LOSSLESS and err <= 0.02, (err, formats)
     assert b0 == 12  # hhd/luminance: I_z RGBA16F (8) + direction RGBA8 (4)
+
+
+def test_block_compressed_container_as_a_subprocess(tmp_path):
+    """`usdahd bake --container ktx2-bc` in a subprocess: BC6H I_z, BC7 directions, 1 B/texel
+    each, reported per prim in --json; a bad --container value is a usage error (exit 2)."""
+    import os
+    import subprocess
+
+    import usdahd
+
+    shutil.copy(ROOT / "samples" / "open_plane.usda", tmp_path / "open_plane.usda")
+    env = dict(os.environ, PYTHONPATH=str(Path(usdahd.__file__).resolve().parents[1]))
+    base = [sys.executable, "-m", "usdahd", "bake", str(tmp_path / "open_plane.usda")]
+    fast = ["--resolution", "8", "--samples", "4", "--bounces", "0", "--json"]
+    proc = subprocess.run(
+        [*base, *fast, "--container", "ktx2-bc"], capture_output=True, text=True, env=env
+    )
+    assert proc.returncode == 0, proc.stderr
+    prims = json.loads(proc.stdout)["prims"]
+    assert prims and all(p["ktx2"]["iz"]["vk_format"] == 131 for p in prims)
+    assert all(p["ktx2"]["direction"]["vk_format"] == 145 for p in prims)
+    for p in prims:
+        f = KR.read(p["ktx2"]["direction"]["path"])
+        assert f["vk_format"] == 145 and p["ktx2"]["direction"]["bytes_per_texel"] == 1
+    proc = subprocess.run(
+        [*base, *fast, "--container", "ktx3"], capture_output=True, text=True, env=env
+    )
+    assert proc.returncode == 2 and "ktx2-bc" in proc.stderr + proc.stdout

@@ -128,7 +128,7 @@ def section(result: dict) -> str:
     res, spp = result["resolution"], result["samples"]
     out = [
         BEGIN,
-        "## KTX2 engine containers (`usdahd bake --container ktx2`)",
+        "## KTX2 engine containers (`usdahd bake --container ktx2|ktx2-bc`)",
         "",
         f"Each stage baked once at {res}x{res}, {spp} samples, default bounces, then every "
         "variant refitted from the SH sidecar (0 rays: the `rays` column counts the refits' "
@@ -143,6 +143,8 @@ def section(result: dict) -> str:
         "the full chart-aware mip chain. "
         f"Run: `{result.get('command', DEFAULT_COMMAND)}` "
         f"({result['seconds']:.0f} s here).",
+        "",
+        *_summary(result["rows"]),
         "",
         "| stage | model | ratio | container | rays | rel. RMSE | BC7 code RMSE "
         "| B/texel level 0 | B/texel chain |",
@@ -173,6 +175,26 @@ def section(result: dict) -> str:
         END,
     ]
     return "\n".join(out) + "\n"
+
+
+def _summary(rows: list) -> list[str]:
+    """The default model's worst case per container (the 2 % bound of issue 39)."""
+    from usdahd.pipeline.settings import DEFAULTS
+
+    model = DEFAULTS["model"]
+    ratio = DEFAULTS["ratio"] or models.get(model).RATIOS[0]
+    out = []
+    for container in CONTAINERS:
+        key = (model, ratio, container)
+        sel = [r for r in rows if (r["model"], r["ratio"], r["container"]) == key]
+        if sel:
+            worst = max(sel, key=lambda r: r["rel_rmse"])
+            out.append(
+                f"- Default encoding ({model}/{ratio}), `--container {container}`: worst rel. RMSE "
+                f"{worst['rel_rmse']:.3g} ({worst['stage']}) over {len(sel)} stages, "
+                f"{worst['bytes_level0']:.0f} B/texel at level 0."
+            )
+    return out
 
 
 def splice(text: str, block: str) -> str:

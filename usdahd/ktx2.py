@@ -17,7 +17,7 @@ one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-b
   macOS and Windows abi3 wheels): the only BC6H encoder on the package index, and its BC7
   ("slow" profile) halves etcpak's error on the IrradZ directions (hhd/rgb on pillar_room:
   0.53 vs 7.49 relRMSE). BC6H uses the "slow" profile (2.2 s per 512 x 512 here; "veryslow"
-  4.7 s for no gain on the lightmaps measured).
+  4.7 s for the same result on the ramps and noise tried).
 
 The codes keep their meaning (the biases of docs/schema.md apply to the decoded bytes).
 

@@ -220,7 +220,21 @@ def fill_invalid(
 # SH frame rotation
 
 
-_ROT_DIRS = None
+def _sh_quadratic_forms() -> tuple[np.ndarray, np.ndarray]:
+    """Band 1 and 2 of the real SH basis as forms in the direction d: Y_k(d) = a_k . d for
+    k = 1..3 (rows of the (3, 3) array), Y_k(d) = d^T A_k d for k = 4..8 ((5, 3, 3) traceless
+    symmetric matrices, so Y20 = C20 (3 z^2 - 1) = C20 (2 z^2 - x^2 - y^2) on the sphere)."""
+    a = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]) * shmod.C1
+    q = np.zeros((5, 3, 3))
+    q[0, 0, 1] = q[0, 1, 0] = 0.5 * shmod.C2  # C2 x y
+    q[1, 1, 2] = q[1, 2, 1] = -0.5 * shmod.C2  # -C2 y z
+    q[2] = np.diag([-1.0, -1.0, 2.0]) * shmod.C20  # C20 (3 z^2 - 1)
+    q[3, 0, 2] = q[3, 2, 0] = -0.5 * shmod.C2  # -C2 x z
+    q[4] = np.diag([1.0, -1.0, 0.0]) * shmod.C22  # C22 (x^2 - y^2)
+    return a, q
+
+
+_FORMS = _sh_quadratic_forms()
 
 
 def sh_frame_matrices(frames: np.ndarray) -> np.ndarray:
@@ -228,16 +242,28 @@ def sh_frame_matrices(frames: np.ndarray) -> np.ndarray:
 
     frames : (n, 3, 3) rows t, b, n (``local = frame @ world``), any orthonormal frame
     (mirrored ones too). f_world(d) = f_local(frame d); M is orthogonal, so ``M.T`` maps back.
-    Computed exactly by projection: M = pinv(Y(D)) Y(frame D) on 64 directions D.
+    Exact, in closed form: band 0 is invariant; band 1 is a linear form a_k . d, so
+    Y_k(F d) = (F^T a_k) . d and M_jk = a_j . F^T a_k / |a_j|^2; band 2 is a quadratic form
+    d^T A_k d with traceless symmetric A_k, which the SH basis spans orthogonally under the
+    Frobenius product, so M_jk = <A_j, F^T A_k F> / <A_j, A_j> (trace F^T A F = trace A = 0
+    for any orthonormal F, mirrored or not). Equal to a least-squares projection on sampled
+    directions up to rounding (tests/test_post.py), at a fraction of its cost.
     """
-    global _ROT_DIRS
-    if _ROT_DIRS is None:
-        dirs = shmod.fibonacci_sphere(64)
-        _ROT_DIRS = (dirs, np.linalg.pinv(shmod.basis(dirs)))
-    dirs, pinv = _ROT_DIRS
+    a, q = _FORMS
     f = np.asarray(frames, dtype=np.float64)
-    rotated = np.einsum("nij,kj->nki", f, dirs)  # frame @ d
-    return np.einsum("ak,nkb->nab", pinv, shmod.basis(rotated))
+    n = len(f)
+    m = np.zeros((n, 9, 9))
+    m[:, 0, 0] = 1.0
+    # M1_jk = a_j^T F^T a_k / |a_j|^2 = sum_ab F_ba a_j[a] a_k[b] / C1^2: one (n, 9) x (9, 9)
+    w1 = np.einsum("ja,kb->bajk", a, a).reshape(9, 9) / shmod.C1**2
+    m[:, 1:4, 1:4] = (f.reshape(n, 9) @ w1).reshape(n, 3, 3)
+    # M2_jk = sum A_j[i, l] F_ai F_bl A_k[a, b] / |A_j|^2 with K[(a, b), (i, l)] = F_ai F_bl
+    q9 = q.reshape(5, 9)
+    k = (f[:, :, None, :, None] * f[:, None, :, None, :]).reshape(n * 9, 9)
+    x = (k @ q9.T).reshape(n, 9, 5).transpose(0, 2, 1).reshape(n * 5, 9)  # [n, j, (a, b)]
+    norm = np.einsum("ja,ja->j", q9, q9)
+    m[:, 4:, 4:] = (x @ q9.T).reshape(n, 5, 5) / norm[None, :, None]
+    return m
 
 
 # --------------------------------------------------------------------------------------------
@@ -484,8 +510,6 @@ def stitch(
     *,
     rotate: bool | None = None,
     data_weight: float = 0.01,
-    max_iterations: int = 500,
-    tolerance: float = 1e-10,
 ):
     """Make bilinear lookups agree across seams, changing texels as little as possible.
 
@@ -498,9 +522,14 @@ def stitch(
     minimize sum_samples (A_s x - B_s x)^2 + data_weight * sum_texels (x - x0)^2, where A_s, B_s
     are the bilinear lookups of a seam sample on its two sides (taps on uncovered texels are
     dropped and the rest renormalized, as dilation will fill them from the same texels).
-    Conjugate gradients, Jacobi preconditioned. Only texels under a seam tap change.
-    Returns arrays like ``values`` (new objects).
+    The normal equations (Q + data_weight I) x = data_weight x0 are solved exactly by one
+    sparse Cholesky factorisation shared by every channel (:mod:`usdahd.numerics.cholesky`,
+    nested-dissection order on the texels' 3-D positions): the work follows the number of
+    texels under seam taps, not the number of channels times an iteration count.
+    Only texels under a seam tap change. Returns arrays like ``values`` (new objects).
     """
+    from usdahd.numerics import cholesky
+
     vals, txs, single = _as_lists(values, texels)
     rotate = _auto_rotate(vals, rotate)
     if data_weight <= 0:
@@ -516,42 +545,25 @@ def stitch(
     lc = lc.reshape(cols.shape)
     x0, mats, mesh_of, local = _gather_world(vals, txs, rows, offsets, rotate)
     m = len(rows)
-    # normal matrix Q = sum_s c_s c_s^T as sorted COO
+    # normal matrix Q = sum_s c_s c_s^T as sorted COO (row-major: CSR), plus data_weight I
     ok = lc >= 0
-    ii = np.repeat(lc[:, :, None], 8, axis=2)[ok[:, :, None] & ok[:, None, :]]
-    jj = np.repeat(lc[:, None, :], 8, axis=1)[ok[:, :, None] & ok[:, None, :]]
-    vv = (signed[:, :, None] * signed[:, None, :])[ok[:, :, None] & ok[:, None, :]]
-    key, kinv = np.unique(ii * m + jj, return_inverse=True)
-    qv = np.bincount(kinv.ravel(), weights=vv, minlength=len(key))
+    pair = ok[:, :, None] & ok[:, None, :]
+    ii = np.repeat(lc[:, :, None], 8, axis=2)[pair]
+    jj = np.repeat(lc[:, None, :], 8, axis=1)[pair]
+    vv = (signed[:, :, None] * signed[:, None, :])[pair]
+    diag_keys = np.arange(m, dtype=np.int64) * (m + 1)
+    key, kinv = np.unique(np.concatenate([ii * m + jj, diag_keys]), return_inverse=True)
+    qv = np.bincount(
+        kinv.ravel(), weights=np.concatenate([vv, np.full(m, data_weight)]), minlength=len(key)
+    )
     qi, qj = key // m, key % m
-    starts = np.searchsorted(qi, np.arange(m))
-    diag = data_weight + np.bincount(qi[qi == qj], weights=qv[qi == qj], minlength=m)
-
-    def matvec(x):
-        prod = qv[:, None] * x[qj]
-        return data_weight * x + np.add.reduceat(prod, starts, axis=0)
-
-    b = data_weight * x0
-    x = x0.copy()
-    r = b - matvec(x)
-    z = r / diag[:, None]
-    p = z.copy()
-    rz = np.einsum("mk,mk->k", r, z)
-    norm_b = np.maximum(np.einsum("mk,mk->k", b, b), 1e-300)
-    for _ in range(max_iterations):
-        if (np.einsum("mk,mk->k", r, r) <= tolerance**2 * norm_b).all():
-            break
-        ap = matvec(p)
-        alpha = rz / np.where(
-            np.abs(np.einsum("mk,mk->k", p, ap)) > 0, np.einsum("mk,mk->k", p, ap), 1.0
-        )
-        x += alpha * p
-        r -= alpha * ap
-        z = r / diag[:, None]
-        rz_new = np.einsum("mk,mk->k", r, z)
-        beta = rz_new / np.where(rz != 0, rz, 1.0)
-        p = z + beta * p
-        rz = rz_new
+    indptr = np.searchsorted(qi, np.arange(m + 1))
+    position = np.zeros((m, 3))
+    for mi in np.unique(mesh_of):
+        sel = mesh_of == mi
+        position[sel] = txs[mi].position[local[sel]]
+    perm = cholesky.nested_dissection(position, indptr, qj)
+    x = cholesky.factor(indptr, qj, qv, perm).solve(data_weight * x0)
 
     for mi in np.unique(mesh_of):
         sel = mesh_of == mi

@@ -570,8 +570,6 @@ def stitch(
     only where the taps' normals do: on a curved surface sampled by small charts the decoded
     I_z stepped by ~3 % of its level across seams (``python -m benchmarks.seams step``).
     """
-    from usdahd.numerics import cholesky
-
     vals, txs, single = _as_lists(values, texels)
     rotate = _auto_rotate(vals, rotate)
     if data_weight <= 0:
@@ -580,6 +578,8 @@ def stitch(
     cols, signed, offsets = _seam_system(vals, txs, seams)
     if len(cols) == 0:
         return out[0] if single else out
+    from usdahd.numerics import cholesky  # numba kernels: loaded only when there are seams
+
     flat_cols = cols.ravel()
     rows, inv = np.unique(flat_cols[flat_cols >= 0], return_inverse=True)
     lc = np.full(flat_cols.shape, -1, np.int64)

@@ -49,6 +49,7 @@ def nested_dissection(position, indptr, indices, leaf: int = LEAF) -> np.ndarray
     indptr = np.asarray(indptr, np.int64)
     indices = np.asarray(indices, np.int64)
     side = np.zeros(n, np.int64)  # stamp of the half a vertex was put in last
+    mark = np.zeros(n, np.int64)  # stamp of the part whose separator a vertex joined
     order: list[np.ndarray] = []
     stamp = 0
     # explicit stack of (nodes, is_separator); popped LIFO, so push (sep, right, left)
@@ -66,10 +67,10 @@ def nested_dissection(position, indptr, indices, leaf: int = LEAF) -> np.ndarray
         stamp += 1
         side[right] = stamp
         owner, nb = _neighbours(indptr, indices, left)
-        cut = np.zeros(n, bool)
-        cut[owner[side[nb] == stamp]] = True
-        sep = left[cut[left]]
-        left = left[~cut[left]]
+        mark[owner[side[nb] == stamp]] = stamp  # no O(n) array per part: stamps
+        cut = mark[left] == stamp
+        sep = left[cut]
+        left = left[~cut]
         stack.append((sep, True))
         stack.append((right, False))
         stack.append((left, False))

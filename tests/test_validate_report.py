@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -293,3 +294,171 @@ def test_prim_lines_of_a_usda_layer():
         "/World/Last": 19,
         "/Proto": 23,
     }
+
+
+# ------------------------------------------------------------------- the CI jobs of docs/ci.md
+
+CI_DOC = ROOT / "docs" / "ci.md"
+
+
+def _ci_jobs() -> tuple[dict, dict]:
+    """(GitHub Actions job, GitLab CI job) parsed from docs/ci.md's two YAML blocks."""
+    import yaml
+
+    blocks = re.findall(r"```yaml\n(.*?)```", CI_DOC.read_text(encoding="utf-8"), re.S)
+    assert len(blocks) == 2, "docs/ci.md: a GitHub Actions and a GitLab CI block"
+    gh, gl = (yaml.safe_load(b) for b in blocks)
+    return gh["jobs"]["validate"], gl["usdahd-validate"]
+
+
+def _scripts() -> dict[str, list[str]]:
+    gh, gl = _ci_jobs()
+    (step,) = [s for s in gh["steps"] if s.get("name") == "usdahd validate"]
+    return {
+        "github": [ln for ln in step["run"].splitlines() if ln.strip()],
+        "gitlab": list(gl["script"]),
+    }
+
+
+def _readme_install() -> str:
+    """The install part of the README's quick start (before ``&& usdahd warmup``)."""
+    blocks = re.findall(r"```sh\n(.*?)```", (ROOT / "README.md").read_text("utf-8"), re.S)
+    return blocks[0].strip().split(" && usdahd warmup")[0]
+
+
+def _validate_part(lines: list[str]) -> list[str]:
+    start = lines.index("mkdir -p reports")
+    return lines[start:]
+
+
+def test_ci_jobs_install_with_the_readme_command_cache_numba_and_publish():
+    gh, gl = _ci_jobs()
+    scripts = _scripts()
+    assert scripts["github"] == scripts["gitlab"]  # the two jobs run the same lines
+    lines = scripts["gitlab"]
+    assert lines[0] == f"cd usdahd && {_readme_install()} && cd .."
+    assert lines[2] == "usdahd warmup" and "os.utime" in lines[1]
+    assert gh["env"]["NUMBA_CACHE_DIR"].endswith(".cache/numba")
+    (cache,) = [s for s in gh["steps"] if s.get("uses", "").startswith("actions/cache")]
+    assert cache["with"]["path"] == ".cache/numba"
+    assert gl["variables"]["NUMBA_CACHE_DIR"] == "$CI_PROJECT_DIR/.cache/numba"
+    assert ".cache/numba" in gl["cache"]["paths"]
+    uses = {s.get("uses", "").split("@")[0]: s for s in gh["steps"]}
+    assert uses["github/codeql-action/upload-sarif"]["with"]["sarif_file"].endswith(".sarif")
+    assert uses["github/codeql-action/upload-sarif"]["if"] == "always()"
+    assert uses["mikepenz/action-junit-report"]["with"]["report_paths"].endswith(".xml")
+    assert gl["artifacts"]["reports"]["junit"] == "reports/usdahd.xml"
+    assert gl["artifacts"]["when"] == "always"
+
+
+def test_stable_mtimes_line_is_deterministic_and_follows_content(tmp_path):
+    """The CI jobs' os.utime line gives each file a time from its content: equal on every
+    runner for the same usdahd, new for a changed file (numba recompiles it)."""
+    line = _scripts()["gitlab"][1]
+    code = line.split("python -c '", 1)[1].rstrip("'")
+    pkg = tmp_path / "usdahd"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("X = 1\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path))
+    times = []
+    for text_ in ("X = 1\n", "X = 1\n", "X = 2\n"):
+        (pkg / "a.py").write_text(text_)
+        subprocess.run([sys.executable, "-c", code], env=env, check=True, cwd=tmp_path)
+        times.append(os.stat(pkg / "a.py").st_mtime)
+    assert times[0] == times[1] != times[2] and times[0] == int(times[0])
+
+
+@pytest.fixture(scope="module")
+def ci_workspace(tmp_path_factory):
+    """An asset-repository folder with a small real bake at the jobs' $USDAHD_STAGE."""
+    _gh, gl = _ci_jobs()
+    stage = Path(gl["variables"]["USDAHD_STAGE"])
+    top = tmp_path_factory.mktemp("ci")
+    src = top / stage.parent / "cornell_box.usda"
+    src.parent.mkdir(parents=True)
+    src.write_bytes((ROOT / "samples" / "cornell_box.usda").read_bytes())
+    args = ["bake", str(src), "-o", str(top / stage), "--resolution", "8", "--samples", "8"]
+    assert cli.main([*args, "--quiet"]) == 0
+    return top, str(stage)
+
+
+@pytest.mark.parametrize("system", ["github", "gitlab"])
+def test_ci_job_script_runs_verbatim_and_its_reports_pass_the_schemas(
+    ci_workspace, system, junit_schemas
+):
+    """The job's validate lines, verbatim, in the workspace with this environment's usdahd
+    (the install lines are the README's, checked above; the slow test below runs them)."""
+    top, stage = ci_workspace
+    reports = top / "reports"
+    if reports.exists():
+        for p in reports.iterdir():
+            p.unlink()
+    env = dict(os.environ, USDAHD_STAGE=stage)
+    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env["PATH"]
+    script = "\n".join(_validate_part(_scripts()[system]))
+    proc = subprocess.run(
+        ["bash", "-e", "-c", script], cwd=top, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    root = check_junit(reports / "usdahd.xml", junit_schemas)
+    cases = _junit_cases(root)
+    prims = {c for c, _ in cases if c != "/"}
+    assert len(prims) == 7 and len(cases) == 7 * len(V.RULE_NAMES) + 1 + len(V.BUILTIN_VALIDATORS)
+    assert set(cases.values()) == {"pass"}
+    doc = json.loads((reports / "usdahd.sarif").read_text())
+    check_sarif(doc)
+    art = doc["runs"][0]["artifacts"][0]["location"]
+    assert (art["uri"], art["uriBaseId"]) == (stage, "%SRCROOT%")
+    assert {r["level"] for r in doc["runs"][0]["results"]} <= {"note", "none"}
+
+
+@pytest.mark.slow
+def test_ci_job_runs_whole_in_a_fresh_venv_and_the_second_run_hits_the_numba_cache(
+    ci_workspace, tmp_path, junit_schemas
+):
+    """The GitLab job's script, every line, in a fresh virtualenv from a copy of this checkout
+    at usdahd/ and a fresh NUMBA_CACHE_DIR; then again after deleting the virtualenv (a new
+    runner with the restored cache): the second ``usdahd warmup`` compiles nothing."""
+    import shutil
+
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("needs git and a git checkout")
+    top, stage = ci_workspace
+    work = tmp_path / "project"
+    shutil.copytree(top / Path(stage).parts[0], work / Path(stage).parts[0])
+    files = subprocess.run(
+        ["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True
+    ).stdout.split(b"\0")
+    for rel in (f.decode() for f in files if f):
+        if (ROOT / rel).is_file():
+            (work / "usdahd" / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / rel, work / "usdahd" / rel)
+    _gh, gl = _ci_jobs()
+    env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
+    env["PATH"] = os.pathsep.join(
+        p for p in env["PATH"].split(os.pathsep) if not p.startswith(str(Path(sys.prefix)))
+    )
+    env.update(USDAHD_STAGE=stage, CI_PROJECT_DIR=str(work))
+    env["NUMBA_CACHE_DIR"] = gl["variables"]["NUMBA_CACHE_DIR"].replace(
+        "$CI_PROJECT_DIR", str(work)
+    )
+    script = "\n".join(gl["script"])
+    outs = []
+    for _ in range(2):
+        shutil.rmtree(work / "usdahd" / ".venv", ignore_errors=True)
+        shutil.rmtree(work / "reports", ignore_errors=True)
+        proc = subprocess.run(
+            ["bash", "-e", "-c", script],
+            cwd=work,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=3000,
+        )
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        check_junit(work / "reports" / "usdahd.xml", junit_schemas)
+        check_sarif(json.loads((work / "reports" / "usdahd.sarif").read_text()))
+        outs.append(proc.stdout)
+    assert "usdahd warmup: compiled" in outs[0]
+    assert "loaded from numba's cache" in outs[1] and "usdahd warmup: compiled" not in outs[1]

@@ -212,6 +212,17 @@ def check_encoding_error(prim) -> list[Finding]:
         f"{stats['texel_relative_rmse_mean']:.3g}, max {stats['texel_relative_rmse_max']:.3g} "
         f"at texel ({x}, {y})"
     )
+    if res.model in IRRADZ:
+        # Texels lit from below their tangent plane: I_z <= 0 while the hemisphere is lit;
+        # an IrradZ model stores max(I_z, 0) and decodes them black.
+        below = (shm.iz(sh).max(axis=1) <= 0.0) & (scale > 0)
+        stats["below_horizon_texels"] = int(below.sum())
+    loose = (
+        model_total > MODEL_RMSE_NOTE
+        or total > OPTIONS.model_rmse_warning
+        or float(np.mean(~(per_texel <= OPTIONS.model_rmse_warning))) > OPTIONS.model_texel_share
+    )
+    advice = _closer_models(sh, target, scale, res.model, model_total) if loose else ""
     if not math.isfinite(q_total) or q_total > OPTIONS.rmse_warning:
         qx, qy = int(bake.xy[idx[qw], 0]), int(bake.xy[idx[qw], 1])
         r.warning(
@@ -222,11 +233,82 @@ def check_encoding_error(prim) -> list[Finding]:
             "factors), or re-bake the prim",
             **stats,
         )
-    else:
-        hint = (
-            "; the model fits this lighting loosely, hhd or sh_l2 fit closer"
-            if model_total > MODEL_RMSE_NOTE
+    over = float(np.mean(~(per_texel <= OPTIONS.model_rmse_warning)))  # NaN counts as over
+    stats["texel_share_above_warning"] = over
+    if (
+        not math.isfinite(total)
+        or total > OPTIONS.model_rmse_warning
+        or over > OPTIONS.model_texel_share
+    ):
+        below = stats.get("below_horizon_texels", 0)
+        why = (
+            f"; {below} of {idx.size} texels receive their light from below their tangent "
+            f"plane (I_z <= 0), which {res.model} stores as 0 and decodes black"
+            if below
             else ""
         )
+        r.warning(
+            "HighModelError",
+            f"{msg}: the decoded irradiance is off by more than its own mean (relative RMSE "
+            f"above {OPTIONS.model_rmse_warning:g}) on the prim or on {100 * over:.3g}% of its "
+            f"texels (more than {100 * OPTIONS.model_texel_share:g}%), so the shading a "
+            f"renderer gets from this bake is wrong there{why}{advice}",
+            "re-bake the prim with a model that fits its lighting"
+            + (" (see above)" if advice else "")
+            + "; if light reaches it from below its surface, check the mesh's normals and "
+            "for light leaking through thin geometry",
+            **stats,
+        )
+    elif math.isfinite(q_total) and q_total <= OPTIONS.rmse_warning:
+        hint = ""
+        if model_total > MODEL_RMSE_NOTE:
+            hint = f"; the model fits this lighting loosely (above {MODEL_RMSE_NOTE:g})" + (
+                advice or ""
+            )
         r.info("EncodingError", msg + hint, **stats)
     return r.out
+
+
+#: Models the EncodingError advice measures against the bake's model (never the model in use):
+#: sh_l2 represents the sidecar's irradiance exactly (both are L2 SH), hhd is the default
+#: directional model.
+ADVICE_MODELS = ("sh_l2", "hhd")
+#: Texels the advice refits (evenly spaced among the rule's texels): cheap next to the rule.
+ADVICE_TEXELS = 512
+#: A model is said to fit closer when its relative RMSE is below this fraction of the bake's.
+ADVICE_FRACTION = 0.8
+
+
+def _closer_models(sh, target, scale, model: str, model_rmse: float) -> str:
+    """'; measured on N of these texels, M (x) fits closer' for every ADVICE_MODELS entry other
+    than ``model`` whose unquantized fit has a relative RMSE below ADVICE_FRACTION of the
+    bake's model on the same texels; '' when none does (no model is recommended unmeasured)."""
+    n = len(sh)
+    pick = np.linspace(0, n - 1, min(n, ADVICE_TEXELS)).astype(np.int64)
+    sub, tgt, sc = sh[pick], target[pick], scale[pick]
+    dirs = shm.fibonacci_sphere(OPTIONS.rmse_normals, hemisphere=True)
+    normals = np.broadcast_to(dirs, (len(pick),) + dirs.shape)
+    found = {}
+    for name in (model, *ADVICE_MODELS):
+        if name in found:
+            continue
+        try:
+            mod = models.get(name)
+            with np.errstate(all="ignore"):
+                fitted = models.fit(sub, name)
+                got = mod.evaluate(models.representable(fitted, mod), normals)
+            found[name] = _relative_rmse(got.astype(np.float64), tgt, sc)[1]
+        except Exception:  # a model that cannot be fitted here is not advised
+            continue
+    own = found.get(model, model_rmse)
+    closer = [
+        f"{m} ({v:.3g})"
+        for m, v in found.items()
+        if m != model and math.isfinite(v) and v < ADVICE_FRACTION * own
+    ]
+    if not closer:
+        return ""
+    return (
+        f"; measured on {len(pick)} of these texels ({model} {own:.3g}): "
+        f"{' and '.join(closer)} {'fits' if len(closer) == 1 else 'fit'} closer"
+    )

@@ -146,9 +146,18 @@ def write_image(path: Path, data: np.ndarray, *, channels=None, color_space: str
 
 
 def bake(
-    directory: Path, *, model: str = "hhd", ratio: str | None = None, uvs=None, seed: int = 0
+    directory: Path,
+    *,
+    model: str = "hhd",
+    ratio: str | None = None,
+    uvs=None,
+    seed: int = 0,
+    sh_fn=None,
 ) -> Path:
-    """Write a synthetic, consistent bake into ``directory``; returns the override layer."""
+    """Write a synthetic, consistent bake into ``directory``; returns the override layer.
+
+    sh_fn : ``(n, rng) -> (n, 3, 9)`` radiance SH of the covered texels (default
+    :func:`hemispherical_sh`)."""
     from usdahd import pipeline
     from usdahd.numerics.raster import rasterize_uv
     from usdahd.scene.hashing import content_hash, scene_hash_parts
@@ -165,7 +174,7 @@ def bake(
     ids = rasterize_uv(tris, RESOLUTION, conservative=False).ids
     ys, xs = ids // w, ids % w
     rng = np.random.default_rng(seed)
-    sh = hemispherical_sh(len(xs), rng)
+    sh = (sh_fn or hemispherical_sh)(len(xs), rng)
     mod = models.get(model)
     ratio = ratio or mod.RATIOS[0]
     fitted = models.fit(sh, model, ratio=ratio)

@@ -18,23 +18,11 @@ from pxr import Usd
 
 from usdahd import cli
 from usdahd import validate as V
-from usdahd.numerics import sh as shm
 from usdahd.validate import irradiance
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "data" / "validate"))
 import make_assets as MA  # noqa: E402
-
-_DIRS, _WTS = shm.sphere_quadrature(32)
-_BASIS = shm.basis(_DIRS) * _WTS[:, None]
-
-
-def _lobe_sh(lz: float, rng) -> np.ndarray:
-    """(3, 9) radiance SH of a narrow lobe at elevation z = lz plus a faint uniform sky."""
-    phi = rng.uniform(0, 2 * np.pi)
-    d = np.array([np.sqrt(1 - lz * lz) * np.cos(phi), np.sqrt(1 - lz * lz) * np.sin(phi), lz])
-    rad = np.full((len(_DIRS), 3), 0.01) + 3.0 * np.maximum(_DIRS @ d, 0.0)[:, None] ** 64
-    return rad.T @ _BASIS
 
 
 def from_below(share: float):
@@ -43,8 +31,8 @@ def from_below(share: float):
 
     def fn(n, rng):
         sh = MA.hemispherical_sh(n, rng)
-        for t in np.nonzero(rng.uniform(size=n) < share)[0]:
-            sh[t] = _lobe_sh(-0.3, rng)
+        pick = np.nonzero(rng.uniform(size=n) < share)[0]
+        sh[pick] = MA.below_horizon_sh(len(pick), rng)
         return sh
 
     return fn

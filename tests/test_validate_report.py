@@ -31,7 +31,14 @@ sys.path.insert(0, str(ROOT / "tests" / "data" / "validate"))
 import make_assets as MA  # noqa: E402
 
 #: defects with one finding of each kind: clean, error, warning, a rule that cannot run.
-CASES = ("clean", "corrupted_iz", "mirrored_directions", "missing_file", "moved_light")
+CASES = (
+    "clean",
+    "corrupted_iz",
+    "light_from_below",
+    "mirrored_directions",
+    "missing_file",
+    "moved_light",
+)
 
 
 @pytest.fixture(scope="module")
@@ -155,12 +162,12 @@ def R_findings(layer: str):
 
 
 def test_strict_makes_warnings_junit_failures(assets, tmp_path, capsys, junit_schemas):
-    layer = str(assets["mirrored_directions"])
+    layer = str(assets["light_from_below"])
     xml = tmp_path / "v.xml"
     assert _run([layer, "--format", "junit", "-o", str(xml)], capsys)[0] == 0
     cases = _junit_cases(check_junit(xml, junit_schemas))
     assert cases[(MA.PRIM, "EncodingError")] == "pass"
-    assert "HighEncodingError" in ET.parse(xml).getroot().find("testsuite/system-out").text
+    assert "HighModelError" in ET.parse(xml).getroot().find("testsuite/system-out").text
     assert _run([layer, "--strict", "--format", "junit", "-o", str(xml)], capsys)[0] == 1
     cases = _junit_cases(check_junit(xml, junit_schemas))
     assert cases[(MA.PRIM, "EncodingError")] == "failure"

@@ -25,51 +25,217 @@ TOLERANCE_SLACK = 0.02
 
 def _step(codes: np.ndarray, up: bool) -> np.ndarray:
     """Each stored code moved by one code step: the next float16, or the 8-bit code +-1."""
-    if codes.dtype == np.float16:
-        toward = np.float16(np.inf if up else -np.inf)
+    if np.issubdtype(codes.dtype, np.floating):
+        toward = codes.dtype.type(np.inf if up else -np.inf)
         out = np.nextafter(codes, toward)
-        return np.where(np.isfinite(out), out, codes).astype(np.float16)
-    c = codes.astype(np.int16) + (1 if up else -1)
-    return np.clip(c, 0, 255).astype(codes.dtype)
+        return np.where(np.isfinite(out), out, codes).astype(codes.dtype)
+    info = np.iinfo(codes.dtype)
+    c = codes.astype(np.int32) + (1 if up else -1)
+    return np.clip(c, info.min, info.max).astype(codes.dtype)
+
+
+def check_normals() -> np.ndarray:
+    """(1, 3) tangent-space normals IzCheck compares the decode at: z only, where the
+    first-order quantization bound holds (measured: 0.90-0.98 of it on fresh default bakes of
+    every model). Off z the bound is not rigorous (the clamp of max(0, n . d) and C_d =
+    I_z (1 - w_a) / d_z are far from linear in the 8-bit direction codes: at 50 and 80 degrees
+    fresh ahd and hhd bakes measured up to 1.37 of it), so the codes that I(z) does not see
+    (IrradZ direction and ratio, ...) are checked by re-encoding instead (:func:`code_check`).
+    """
+    return np.array([[0.0, 0.0, 1.0]])
+
+
+#: Relative noise added to the sidecar SH to find codes that sit on a rounding boundary (a
+#: float32-level difference of the fit, e.g. another CPU's FMA, may round them either way):
+#: 16x float32's epsilon.
+AMBIGUITY_NOISE = 1e-6
+
+
+def code_check(bake: Bake) -> tuple[dict, bool]:
+    """Stored codes against the codes the model's encoder gives the sidecar SH (refit with the
+    bake's ratio and solver, then ``encode``, as the baker does): role -> (n, c) bool mask of
+    codes that differ and are not on a rounding boundary; and whether the check ran.
+
+    A code on a rounding boundary (its re-encode changes when the SH moves by AMBIGUITY_NOISE,
+    two seeded perturbations) may be either neighbour. The check needs the encoder that wrote
+    the bake: a bake by another usdahd version (Staleness warns ``OtherGenerator``) is not
+    checked this way (returns ({}, False)).
+    """
+    memo = bake.__dict__.get("_code_check")
+    if memo is not None:
+        return memo
+    memo = bake.__dict__["_code_check"] = _code_check(bake)
+    return memo
+
+
+def _code_check(bake: Bake) -> tuple[dict, bool]:
+    from usdahd._version import __version__
+
+    res = bake.results
+    if res.generator and res.generator.split(";")[0].strip() != f"usdahd {__version__}":
+        return {}, False
+
+    def encode(sh):
+        with np.errstate(all="ignore"):
+            fitted = models.fit(sh, res.model, ratio=res.ratio, solver=res.solver or None)
+            channels, _ = bake.mod.encode(fitted.params, ratio=res.ratio)
+        return {r: np.asarray(c).reshape(len(sh), -1) for r, c in channels.items()}
+
+    def same(a, b):
+        if np.issubdtype(a.dtype, np.floating):  # bitwise (NaN == NaN, -0 != +0 is fine)
+            return a.view(np.uint16 if a.itemsize == 2 else np.uint32) == b.astype(a.dtype).view(
+                np.uint16 if a.itemsize == 2 else np.uint32
+            )
+        return a == b.astype(a.dtype)
+
+    want = encode(bake.sh)
+    out, pending = {}, False
+    for role, stored in bake.channels.items():
+        lay = bake.layout[role]
+        keep = np.array([c != "reserved" for c in lay.codes])
+        bad = ~same(stored, want[role]) & keep[None, :] & bake.valid[:, None]
+        out[role] = bad
+        pending |= bool(bad.any())
+    if not pending:
+        return out, True
+    # A texture whose file no longer has the digest the bake recorded is Textures' finding
+    # (TextureReplaced, naming the file): its codes are not judged here too.
+    from usdahd.usd import schema
+
+    for role, mask in out.items():
+        digest = res.digests.get(role)
+        if mask.any() and digest:
+            try:
+                replaced = schema.file_digest(res.textures[role]) != digest
+            except OSError:
+                replaced = True
+            if replaced:
+                mask[:] = False
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        noisy = bake.sh * (1.0 + AMBIGUITY_NOISE * rng.standard_normal(bake.sh.shape))
+        alt = encode(noisy)
+        for role, stored in bake.channels.items():
+            out[role] &= ~same(stored, alt[role])
+    return out, True
+
+
+#: Texels per chunk of IzCheck's work (memory stays O(chunk) for big lightmaps).
+CHUNK = 32768
+
+
+def _at(bake: Bake, channels: dict, normals: np.ndarray, sl=slice(None)) -> np.ndarray:
+    """Decoded I(n) (m, k, 3) float64 at ``normals`` (k, 3) of the stored channels of the texels
+    ``sl`` (as an engine computes it)."""
+    chans = {r: c[sl] for r, c in channels.items()}
+    params = bake.mod.decode(chans, ratio=bake.results.ratio, factors=bake.factors)
+    m = len(next(iter(chans.values())))
+    return bake.mod.evaluate(params, np.broadcast_to(normals, (m,) + normals.shape)).astype(
+        np.float64
+    )
 
 
 def _at_z(bake: Bake, channels: dict) -> np.ndarray:
     """Decoded I(n = z) (n, 3) float64 of stored channels (as an engine computes it)."""
-    params = bake.mod.decode(channels, ratio=bake.results.ratio, factors=bake.factors)
-    z = np.zeros((len(bake.xy), 3))
-    z[:, 2] = 1.0
-    return bake.mod.evaluate(params, z).astype(np.float64)
+    return _at(bake, channels, np.array([[0.0, 0.0, 1.0]]))[:, 0]
 
 
-def quantization_tolerance(bake: Bake, got: np.ndarray | None = None) -> np.ndarray:
-    """Per texel and colour, how far the decoded I(z) may lie from the unquantized fit: (n, 3).
+def channel_steps(bake: Bake):
+    """Yield (role, channel index, channels with that channel moved one code step up, ... down)
+    for every stored channel that is not reserved."""
+    for role, codes in bake.channels.items():
+        for j, code in enumerate(bake.layout[role].codes):
+            if code == "reserved":
+                continue
+            moved = []
+            for up in (True, False):
+                c = codes.copy()
+                c[:, j] = _step(codes[:, j], up)
+                moved.append({**bake.channels, role: c})
+            yield role, j, moved[0], moved[1]
+
+
+def sensitivities(bake: Bake, normals: np.ndarray, sl=slice(None)):
+    """[(role, j, (m, k, 3) |I(n; code_j +- 1 step) - I(n)| (the larger side))] of the texels
+    ``sl``: how much one code step of each stored channel moves the decode at each normal."""
+    base = _at(bake, bake.channels, normals, sl)
+    out = []
+    for role, j, up, down in channel_steps(bake):
+        worst = np.zeros_like(base)
+        for moved in (up, down):
+            with np.errstate(all="ignore"):
+                diff = np.abs(_at(bake, moved, normals, sl) - base)
+            worst = np.maximum(worst, np.where(np.isfinite(diff), diff, 0.0))
+        out.append((role, j, worst))
+    return out
+
+
+def quantization_tolerance(
+    bake: Bake, got: np.ndarray | None = None, normals: np.ndarray | None = None, sl=slice(None)
+) -> np.ndarray:
+    """Per texel (and normal) and colour, how far the decoded I(n) may lie from the unquantized
+    fit: (n, 3) at z, or (n, k, 3) at ``normals``.
 
     Derived from the storage, not guessed: every stored code c_j is the rounding of the exact
     value to the nearest code (half a code step away at most), so to first order
-    ``|I(z) - I_exact(z)| <= sum_j 0.5 |I(z; c_j + 1 step) - I(z)|`` (the larger of the two
+    ``|I(n) - I_exact(n)| <= sum_j 0.5 |I(n; c_j + 1 step) - I(n)|`` (the larger of the two
     one-sided differences). One step is the next float16 (an ULP, 2^-11 relative at most, times
     the decode scale) or one 8-bit code; every channel of every texture enters, so a model
-    whose I(z) involves several coefficients or an 8-bit direction gets the sum of their
-    quantization errors at z. Plus TOLERANCE_SLACK of that. docs/validate.md, IzCheck.
+    whose I(n) involves several coefficients or an 8-bit direction gets the sum of their
+    quantization errors at n. Plus TOLERANCE_SLACK of that. docs/validate.md, IzCheck.
     """
-    base = _at_z(bake, bake.channels) if got is None else got
-    tol = np.zeros_like(base)
-    for role, codes in bake.channels.items():
-        lay = bake.layout[role]
-        for j, code in enumerate(lay.codes):
-            if code == "reserved":
-                continue
-            worst = np.zeros_like(base)
-            for up in (True, False):
-                moved = dict(bake.channels)
-                c = codes.copy()
-                c[:, j] = _step(codes[:, j], up)
-                moved[role] = c
-                with np.errstate(all="ignore"):
-                    diff = np.abs(_at_z(bake, moved) - base)
-                worst = np.maximum(worst, np.where(np.isfinite(diff), diff, 0.0))
-            tol += 0.5 * worst
-    return tol * (1.0 + TOLERANCE_SLACK)
+    at_z = normals is None
+    normals = np.array([[0.0, 0.0, 1.0]]) if at_z else normals
+    tol = None
+    for _role, _j, worst in sensitivities(bake, normals, sl):
+        tol = 0.5 * worst if tol is None else tol + 0.5 * worst
+    if tol is None:
+        tol = np.zeros_like(_at(bake, bake.channels, normals, sl))
+    tol = tol * (1.0 + TOLERANCE_SLACK)
+    return tol[:, 0] if at_z else tol
+
+
+def _reference(bake: Bake, normals: np.ndarray, sl=slice(None)) -> np.ndarray:
+    """The unquantized I(n) (m, k, 3) the decode is compared with: the model refitted to the
+    sidecar SH (same ratio and solver), clamped to what its textures can represent, at every
+    normal; for IrradZ models at z the sidecar's own ``max(I_z, 0)`` (the fit stores negative
+    SH ringing as 0)."""
+    res = bake.results
+    sh = bake.sh[sl]
+    with np.errstate(all="ignore"):
+        fitted = models.fit(sh, res.model, ratio=res.ratio, solver=res.solver or None)
+        params = models.representable(fitted, bake.mod)
+        ref = bake.mod.evaluate(params, np.broadcast_to(normals, (len(sh),) + normals.shape))
+        ref = ref.astype(np.float64)
+        if res.model in IRRADZ:
+            ref[:, 0] = np.maximum(shm.iz(sh), 0.0)
+    return ref
+
+
+def _suspect(bake: Bake, i: int, normals: np.ndarray, ref: np.ndarray, allowed: np.ndarray):
+    """(role, channel name, code, code it should be) of the one code step that best explains
+    texel ``i``'s mismatch (brings its worst error / tolerance lowest), or None when no single
+    step brings it within the tolerance."""
+    sl = slice(i, i + 1)
+    best, found = None, None
+    with np.errstate(all="ignore"):
+        for role, j, up, down in channel_steps(bake):
+            for moved in (up, down):
+                err = np.abs(_at(bake, moved, normals, sl)[0] - ref)
+                r = float(np.max(np.where(allowed > 0, err / np.maximum(allowed, 1e-300), 0.0)))
+                if np.isfinite(r) and (best is None or r < best):
+                    name = bake.layout[role].channels[j]
+                    best = r
+                    found = (role, name, bake.channels[role][i, j], moved[role][i, j])
+    return found if best is not None and best <= 1.0 else None
+
+
+def _show(code) -> str:
+    return (
+        f"{float(code):.6g}"
+        if np.issubdtype(np.asarray(code).dtype, np.floating)
+        else str(int(code))
+    )
 
 
 def check_iz(prim) -> list[Finding]:
@@ -79,64 +245,140 @@ def check_iz(prim) -> list[Finding]:
     if bake is None:
         return r.out
     res = bake.results
-    z = np.array([0.0, 0.0, 1.0])
-    with np.errstate(all="ignore"):
-        got = _at_z(bake, bake.channels)
-        if res.model in IRRADZ:
-            ref = np.maximum(shm.iz(bake.sh), 0.0)  # the fit stores max(I_z, 0) (SH ringing)
-            what = "I_z"
-        else:
-            fitted = models.fit(bake.sh, res.model, ratio=res.ratio, solver=res.solver or None)
-            params = models.representable(fitted, bake.mod)
-            zz = np.broadcast_to(z, bake.sh.shape[:-2] + (3,))
-            ref = bake.mod.evaluate(params, zz).astype(np.float64)
-            what = f"{res.model} irradiance at n = z"
-        allowed = quantization_tolerance(bake, got)
-    if OPTIONS.iz_tolerance is not None:  # --tolerance: a plain relative tolerance instead
-        allowed = np.broadcast_to(
-            float(OPTIONS.iz_tolerance) * np.abs(ref).max(axis=1, keepdims=True), ref.shape
+    normals = check_normals()
+    n = len(bake.xy)
+    what = "I_z" if res.model in IRRADZ else f"{res.model} irradiance at n = z"
+    # Per texel: finite, failing, worst error / tolerance, max relative error, relative tolerance.
+    finite = np.zeros(n, bool)
+    fail = np.zeros(n, bool)
+    ratio_t = np.zeros(n)
+    rel_t = np.zeros(n)
+    reltol_t = np.zeros(n)
+    bright = np.zeros(n)
+    worst_normal = np.zeros(n, np.int64)
+    for a in range(0, n, CHUNK):
+        sl = slice(a, min(a + CHUNK, n))
+        with np.errstate(all="ignore"):
+            got = _at(bake, bake.channels, normals, sl)
+            ref = _reference(bake, normals, sl)
+            if OPTIONS.iz_tolerance is not None:  # --tolerance: a plain relative tolerance
+                scale = np.abs(ref).max(axis=2, keepdims=True)
+                allowed = np.broadcast_to(float(OPTIONS.iz_tolerance) * scale, ref.shape)
+            else:
+                allowed = quantization_tolerance(bake, got, normals, sl)
+        # Texels TexelValues rejects (non-finite values, d_z below the floor) are its findings.
+        ok = bake.valid[sl] & np.isfinite(got).all(axis=(1, 2)) & np.isfinite(ref).all(axis=(1, 2))
+        err = np.where(ok[:, None, None], np.abs(got - ref), 0.0)
+        # Relative figures against the texel's brightest reference value (a black channel or
+        # normal next to a bright one is judged relative to the bright one).
+        denom = np.maximum(np.where(ok[:, None, None], np.abs(ref), 0.0).max(axis=(1, 2)), 1e-30)
+        ratio = np.where(
+            allowed > 0,
+            err / np.where(allowed > 0, allowed, 1.0),
+            np.where(err > 0, np.inf, 0.0),
         )
-    # Texels TexelValues rejects (non-finite values, d_z below the floor) are its findings.
-    ok = bake.valid & np.isfinite(got).all(axis=1) & np.isfinite(ref).all(axis=1)
-    n_skip = int((~ok).sum())
-    if not ok.any():
+        finite[sl] = ok
+        fail[sl] = ok & (err > allowed).any(axis=(1, 2))
+        rmax = ratio.reshape(len(ok), -1)
+        ratio_t[sl] = np.where(ok, rmax.max(axis=1), 0.0)
+        worst_normal[sl] = rmax.argmax(axis=1) // 3
+        rel_t[sl] = np.where(ok, err.max(axis=(1, 2)) / denom, 0.0)
+        reltol_t[sl] = np.where(ok, (allowed / denom[:, None, None]).max(axis=(1, 2)), 0.0)
+        bright[sl] = np.where(ok, denom, 0.0)
+    n_skip = int((~finite).sum())
+    if not finite.any():
         r.skipped("no texel decodes to finite values (TexelValues)")
         return r.out
-    err = np.where(ok[:, None], np.abs(got - ref), 0.0)
-    # Relative figures against the texel's brightest channel (a black channel next to a bright
-    # one is judged relative to the bright one).
-    denom = np.maximum(np.abs(ref).max(axis=1, keepdims=True), 1e-30)
-    relerr = err / denom
-    lit = ok & (denom[:, 0] > 1e-6 * denom[ok].max())  # texels bright enough for a ratio
-    reltol = np.where(lit[:, None], allowed / denom, 0.0)
-    fail = ok & (err > allowed).any(axis=1)
-    ratio = np.where(
-        allowed > 0, err / np.where(allowed > 0, allowed, 1.0), np.where(err > 0, np.inf, 0.0)
-    )
-    worst = int(np.argmax(ratio.max(axis=1))) if fail.any() else int(np.argmax(relerr.max(axis=1)))
+    bad_codes, codes_checked = code_check(bake) if OPTIONS.iz_tolerance is None else ({}, False)
+    code_texels = np.zeros(n, bool)
+    for mask in bad_codes.values():
+        code_texels |= mask.any(axis=1)
+    lit = finite & (bright > 1e-6 * bright[finite].max())  # texels bright enough for a ratio
+    worst = int(np.argmax(np.where(fail, ratio_t, -1.0))) if fail.any() else int(np.argmax(rel_t))
     x, y = _texel(bake, worst)
     stats = dict(
-        texels=int(ok.sum()),
+        texels=int(finite.sum()),
         failing=int(fail.sum()),
-        max_relative=float(relerr.max()),
-        mean_relative=float(relerr[ok].mean()),
+        normals=len(normals),
+        max_relative=float(rel_t.max()),
+        mean_relative=float(rel_t[finite].mean()),
         worst_texel=(x, y),
-        tolerance=float(reltol[lit].max()) if lit.any() else 0.0,
-        tolerance_median=float(np.median(reltol[lit].max(axis=1))) if lit.any() else 0.0,
-        worst_error_over_tolerance=float(ratio[ok].max()),
+        worst_normal=normals[int(worst_normal[worst])].round(4).tolist(),
+        tolerance=float(reltol_t[lit].max()) if lit.any() else 0.0,
+        tolerance_median=float(np.median(reltol_t[lit])) if lit.any() else 0.0,
+        worst_error_over_tolerance=float(ratio_t[finite].max()),
         skipped_nonfinite=n_skip,
+        codes_checked=codes_checked,
+        code_mismatches=int(code_texels.sum()),
+    )
+    codes = (
+        "; every stored code equals the encoder's for the sidecar SH"
+        if codes_checked and not code_texels.any()
+        else ""
+        if codes_checked
+        else "; codes not re-encoded (written by another usdahd or --tolerance given)"
     )
     summary = (
-        f"{what} vs the SH sidecar over {stats['texels']} covered texels: max relative error "
-        f"{stats['max_relative']:.3g}, mean {stats['mean_relative']:.3g}, worst at texel "
-        f"({x}, {y}); tolerance from the quantization up to {stats['tolerance']:.3g} relative "
-        f"(median {stats['tolerance_median']:.3g}), worst error "
-        f"{stats['worst_error_over_tolerance']:.3g} of it"
+        f"{what} vs the SH sidecar over "
+        f"{stats['texels']} covered texels: max relative error {stats['max_relative']:.3g}, "
+        f"mean {stats['mean_relative']:.3g}, worst at texel ({x}, {y}); tolerance from the "
+        f"quantization up to {stats['tolerance']:.3g} relative (median "
+        f"{stats['tolerance_median']:.3g}), worst error "
+        f"{stats['worst_error_over_tolerance']:.3g} of it{codes}"
     )
+
+    def code_at(i):
+        """(role, channel, stored, expected) of texel i's first mismatching code, or None."""
+        for role, mask in bad_codes.items():
+            js = np.nonzero(mask[i])[0]
+            if js.size:
+                j = int(js[0])
+                return role, bake.layout[role].channels[j], bake.channels[role][i, j]
+        return None
+
+    if not fail.any() and code_texels.any():
+        i = int(np.argmax(code_texels))
+        cx, cy = _texel(bake, i)
+        role, name, code = code_at(i)
+        stats.update(suspect_role=role, suspect_channel=name, first_code_texel=(cx, cy))
+        r.error(
+            "CodeMismatch",
+            f"{stats['code_mismatches']} texel(s) hold a code the encoder does not give their "
+            f"SH sidecar values, first at texel ({cx}, {cy}): {role} texture channel {name} "
+            f"holds {_show(code)} (I_z is within the tolerance: {summary})",
+            "re-bake the prim; a texture was edited or corrupted (or the sidecar replaced)",
+            **stats,
+        )
+        return r.out
     if fail.any():
+        sl = slice(worst, worst + 1)
+        with np.errstate(all="ignore"):
+            ref = _reference(bake, normals, sl)[0]
+            allowed = (
+                quantization_tolerance(bake, None, normals, sl)[0]
+                if OPTIONS.iz_tolerance is None
+                else float(OPTIONS.iz_tolerance) * np.abs(ref).max(axis=1, keepdims=True)
+            )
+        hint = ""
+        if code_texels[worst]:
+            role, name, code = code_at(worst)
+            stats.update(suspect_role=role, suspect_channel=name)
+            hint = (
+                f"; at texel ({x}, {y}) {role} texture channel {name} holds {_show(code)}, "
+                "not the code the encoder gives the sidecar SH"
+            )
+        else:
+            suspect = _suspect(bake, worst, normals, ref, allowed)
+            if suspect is not None:
+                role, name, code, should = suspect
+                stats.update(suspect_role=role, suspect_channel=name)
+                hint = (
+                    f"; at texel ({x}, {y}) one code explains it: {role} texture channel "
+                    f"{name} holds {_show(code)} where {_show(should)} fits"
+                )
         r.error(
             "IzMismatch",
-            f"{stats['failing']} texel(s) exceed the tolerance: {summary}",
+            f"{stats['failing']} texel(s) exceed the tolerance: {summary}{hint}",
             "re-bake the prim; a texture was edited, corrupted or written with another "
             "quantization than the schema declares",
             **stats,
@@ -170,9 +412,17 @@ def check_encoding_error(prim) -> list[Finding]:
     bake = load_for(r, prim, sidecar="")
     if bake is None:
         return r.out
-    idx = np.nonzero(bake.valid & np.isfinite(bake.sh).all(axis=(1, 2)))[0]
+    # Texels holding codes the encoder does not give their SH are IzCheck's findings.
+    bad_codes, _ran = code_check(bake)
+    corrupt = np.zeros(len(bake.xy), bool)
+    for mask in bad_codes.values():
+        corrupt |= mask.any(axis=1)
+    idx = np.nonzero(bake.valid & ~corrupt & np.isfinite(bake.sh).all(axis=(1, 2)))[0]
     if idx.size == 0:
-        r.skipped("no valid covered texel")
+        r.skipped(
+            "no valid covered texel"
+            + (" with the encoder's codes for its SH (see IzCheck)" if corrupt.any() else "")
+        )
         return r.out
     if idx.size > OPTIONS.rmse_max_texels:
         idx = idx[np.linspace(0, idx.size - 1, OPTIONS.rmse_max_texels).astype(np.int64)]

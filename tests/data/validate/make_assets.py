@@ -118,6 +118,21 @@ def hemispherical_sh(n: int, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
+def below_horizon_sh(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3, 9) radiance SH of a narrow lobe 17 degrees *below* the tangent plane plus a faint
+    sky: light an IrradZ model (which stores max(I_z, 0)) decodes black."""
+    dirs, wts = shm.sphere_quadrature(32)
+    basis = shm.basis(dirs) * wts[:, None]
+    out = np.empty((n, 3, 9))
+    for t in range(n):
+        phi = rng.uniform(0, 2 * np.pi)
+        lz = -0.3
+        d = np.array([np.sqrt(1 - lz * lz) * np.cos(phi), np.sqrt(1 - lz * lz) * np.sin(phi), lz])
+        rad = np.full((len(dirs), 3), 0.01) + 3.0 * np.maximum(dirs @ d, 0.0)[:, None] ** 64
+        out[t] = rad.T @ basis
+    return out
+
+
 # ------------------------------------------------------------------------------------ images
 
 
@@ -340,7 +355,8 @@ DEFECTS = {
     "nan_texel": ("TexelValues", nan_texel),
     "horizon_direction": ("TexelValues", horizon_direction),
     "corrupted_iz": ("IzCheck", corrupted_iz),
-    "mirrored_directions": ("EncodingError", mirrored_directions),
+    "mirrored_directions": ("IzCheck", mirrored_directions),
+    "light_from_below": ("EncodingError", {"sh": "below"}),
     "moved_light": ("Staleness", moved_light),
     "replaced_texture": ("Textures", replaced_texture),
     "overlapping_uvs": ("UVSet", {"uvs": "overlap"}),
@@ -357,6 +373,8 @@ def make_bad(directory: Path, defect: str, clean: Path | None = None) -> Path:
     with broken inputs for defects that must be baked in (UVs)."""
     directory = Path(directory)
     _rule, how = DEFECTS[defect]
+    if isinstance(how, dict) and "sh" in how:
+        return bake(directory, sh_fn=below_horizon_sh)
     if isinstance(how, dict):
         uvs = grid_uvs(overlap=how["uvs"] == "overlap", outside=how["uvs"] == "outside")
         return bake(directory, uvs=uvs)

@@ -189,7 +189,8 @@ def bake(
     ids = rasterize_uv(tris, RESOLUTION, conservative=False).ids
     ys, xs = ids // w, ids % w
     rng = np.random.default_rng(seed)
-    sh = (sh_fn or hemispherical_sh)(len(xs), rng)
+    # float32, as the baker fits it and stores it in the sidecar
+    sh = (sh_fn or hemispherical_sh)(len(xs), rng).astype(np.float32)
     mod = models.get(model)
     ratio = ratio or mod.RATIOS[0]
     fitted = models.fit(sh, model, ratio=ratio)

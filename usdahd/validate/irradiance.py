@@ -70,6 +70,28 @@ def code_check(bake: Bake) -> tuple[dict, bool]:
     return memo
 
 
+def refit(bake: Bake, sel=slice(None)):
+    """The model refitted to the sidecar's float32 SH (what the baker fits; same ratio and
+    solver), computed once per bake and shared by IzCheck and EncodingError; the texels
+    ``sel`` (a slice or an index array) of it."""
+    fitted = bake.__dict__.get("_refit")
+    if fitted is None:
+        res = bake.results
+        with np.errstate(all="ignore"):
+            fitted = models.fit(
+                bake.sh.astype(np.float32), res.model, ratio=res.ratio, solver=res.solver or None
+            )
+        bake.__dict__["_refit"] = fitted
+    if isinstance(sel, slice) and sel == slice(None):
+        return fitted
+    return models.Fit(
+        model=fitted.model,
+        ratio=fitted.ratio,
+        solver=fitted.solver,
+        params={k: np.asarray(v)[sel] for k, v in fitted.params.items()},
+    )
+
+
 def _code_check(bake: Bake) -> tuple[dict, bool]:
     from usdahd._version import __version__
 
@@ -91,7 +113,9 @@ def _code_check(bake: Bake) -> tuple[dict, bool]:
             )
         return a == b.astype(a.dtype)
 
-    want = encode(bake.sh)
+    with np.errstate(all="ignore"):
+        channels, _ = bake.mod.encode(refit(bake).params, ratio=res.ratio)
+    want = {r: np.asarray(c).reshape(len(bake.sh), -1) for r, c in channels.items()}
     out, pending = {}, False
     for role, stored in bake.channels.items():
         lay = bake.layout[role]
@@ -213,8 +237,7 @@ def _reference(bake: Bake, normals: np.ndarray, sl=slice(None)) -> np.ndarray:
     res = bake.results
     sh = bake.sh[sl]
     with np.errstate(all="ignore"):
-        fitted = models.fit(sh, res.model, ratio=res.ratio, solver=res.solver or None)
-        params = models.representable(fitted, bake.mod)
+        params = models.representable(refit(bake, sl), bake.mod)
         ref = bake.mod.evaluate(params, np.broadcast_to(normals, (len(sh),) + normals.shape))
         ref = ref.astype(np.float64)
         if res.model in IRRADZ:
@@ -446,8 +469,7 @@ def check_encoding_error(prim) -> list[Finding]:
         target = shm.irradiance(sh[:, None], dirs[None])  # (n, d, 3)
         normals = np.broadcast_to(dirs, (idx.size,) + dirs.shape)
         got = bake.mod.evaluate(params, normals).astype(np.float64)
-        fitted = models.fit(sh, res.model, ratio=res.ratio, solver=res.solver or None)
-        exact = bake.mod.evaluate(models.representable(fitted, bake.mod), normals)
+        exact = bake.mod.evaluate(models.representable(refit(bake, idx), bake.mod), normals)
         exact = exact.astype(np.float64)
     scale = np.abs(target).mean(axis=(1, 2))
     per_texel, total = _relative_rmse(got, target, scale)

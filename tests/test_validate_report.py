@@ -469,3 +469,15 @@ def test_ci_job_runs_whole_in_a_fresh_venv_and_the_second_run_hits_the_numba_cac
         outs.append(proc.stdout)
     assert "usdahd warmup: compiled" in outs[0]
     assert "loaded from numba's cache" in outs[1] and "usdahd warmup: compiled" not in outs[1]
+
+
+def test_prim_selection_reports_only_the_selected_prims(ci_workspace, capsys, junit_schemas):
+    top, stage = ci_workspace
+    xml = top / "selected.xml"
+    floor = "/World/Geometry/Floor"
+    args = [str(top / stage), "--prim", floor, "--format", "junit", "-o", str(xml), "--json"]
+    code, out = _run(args, capsys)
+    assert code == 0 and json.loads(out)["prims"] == [floor]
+    cases = _junit_cases(check_junit(xml, junit_schemas))
+    assert {c for c, _ in cases} == {floor, "/"}
+    assert sum(c == floor for c, _ in cases) == len(V.RULE_NAMES)

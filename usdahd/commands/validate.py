@@ -239,6 +239,9 @@ def run(args) -> int:
     for ln in report.stderr:  # our own stderr output (progress, notices) is passed on as it was
         print(ln, file=sys.stderr)
     code = exit_code(findings, args.strict)
+    if args.prim:  # the reports' test cases are the prims that were validated
+        under = [q.rstrip("/") for q in args.prim]
+        baked = [p for p in baked if any(p == q or p.startswith(q + "/") for q in under)]
     summary = R.Summary(
         stage=args.stage,
         findings=findings,

@@ -9,6 +9,12 @@ findings are the ones any UsdValidation run with our plugin path reports. One li
 
 Exit status: 0 clean, 1 errors (warnings too with ``--strict``), 2 the stage could not be
 validated (unreadable stage, validators missing, a rule that crashed).
+
+Reports (:mod:`usdahd.validate.report`, docs/ci.md): ``--format text|json|junit|sarif`` and
+``-o FILE``, both repeatable and paired in order; with ``-o`` each report is written atomically
+to its file and stdout keeps the findings (text, or JSON with ``--json``); without ``-o`` one
+``--format`` replaces the text on stdout. Usage errors of these flags are raised before the
+validation runs.
 """
 
 from __future__ import annotations

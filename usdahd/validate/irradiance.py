@@ -501,10 +501,12 @@ def check_encoding_error(prim) -> list[Finding]:
         # an IrradZ model stores max(I_z, 0) and decodes them black.
         below = (shm.iz(sh).max(axis=1) <= 0.0) & (scale > 0)
         stats["below_horizon_texels"] = int(below.sum())
+    over = float(np.mean(~(per_texel <= OPTIONS.model_rmse_warning)))  # NaN counts as over
+    stats["texel_share_above_warning"] = over
     loose = (
         model_total > MODEL_RMSE_NOTE
         or total > OPTIONS.model_rmse_warning
-        or float(np.mean(~(per_texel <= OPTIONS.model_rmse_warning))) > OPTIONS.model_texel_share
+        or over > OPTIONS.model_texel_share
     )
     advice = _closer_models(sh, target, scale, res.model, model_total) if loose else ""
     if not math.isfinite(q_total) or q_total > OPTIONS.rmse_warning:
@@ -517,8 +519,6 @@ def check_encoding_error(prim) -> list[Finding]:
             "factors), or re-bake the prim",
             **stats,
         )
-    over = float(np.mean(~(per_texel <= OPTIONS.model_rmse_warning)))  # NaN counts as over
-    stats["texel_share_above_warning"] = over
     if (
         not math.isfinite(total)
         or total > OPTIONS.model_rmse_warning

@@ -64,9 +64,9 @@ def test_pluginfo_declares_every_rule_with_its_description():
     assert plug["Type"] == "python" and plug["Name"] == V.PLUGIN_NAME
     declared = plug["Info"]["Validators"]
     # + the opt-in Retrace rule (own keyword; checked in tests/test_retrace.py)
-    assert list(declared) == [*V.RULE_NAMES, V.STAGE_RULE.name, "Retrace"]
-    stage_rule = declared[V.STAGE_RULE.name]  # a stage validator: no schema type
-    assert stage_rule == {"doc": V.STAGE_RULE.description, "keywords": [V.KEYWORD]}
+    assert list(declared) == [*V.RULE_NAMES, *(r.name for r in V.STAGE_RULES), "Retrace"]
+    for rule in V.STAGE_RULES:  # stage validators: no schema type
+        assert declared[rule.name] == {"doc": rule.description, "keywords": [V.KEYWORD]}
     schema_types = json.loads(
         (ROOT / "plugins/usdAhd/resources/plugInfo.json").read_text().split("\n", 3)[3]
     )["Plugins"][0]["Info"]["Types"]
@@ -83,8 +83,10 @@ def test_pluginfo_declares_every_rule_with_its_description():
 def test_validators_registered_under_the_keyword():
     reg = UsdValidation.ValidationRegistry()
     names = {m.name for m in reg.GetValidatorMetadataForKeyword(V.KEYWORD)}
-    assert names == {V.validator_name(r) for r in [*V.RULE_NAMES, V.STAGE_RULE.name]}
-    assert reg.GetOrLoadValidatorByName(V.validator_name(V.STAGE_RULE.name)) is not None
+    stage_rules = [r.name for r in V.STAGE_RULES]
+    assert names == {V.validator_name(r) for r in [*V.RULE_NAMES, *stage_rules]}
+    for r in stage_rules:
+        assert reg.GetOrLoadValidatorByName(V.validator_name(r)) is not None
     for r in V.RULE_NAMES:
         assert reg.GetOrLoadValidatorByName(V.validator_name(r)) is not None
     assert V.register() == []  # idempotent

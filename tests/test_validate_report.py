@@ -130,7 +130,7 @@ def test_junit_and_sarif_reports_are_valid_and_say_what_the_text_says(
     check_sarif(doc)
     (run,) = doc["runs"]
     rules = {r["id"]: r for r in run["tool"]["driver"]["rules"]}
-    for rule in V.RULES:  # rule metadata = the rule docs (the plugInfo doc strings)
+    for rule in (*V.RULES, *V.STAGE_RULES):  # rule metadata = the rule docs (plugInfo docs)
         assert rules[rule.name]["shortDescription"]["text"] == rule.description
     assert len(run["results"]) == len(found)
     want = {"error": "error", "warning": "warning", "info": "note"}
@@ -411,7 +411,8 @@ def test_ci_job_script_runs_verbatim_and_its_reports_pass_the_schemas(
     root = check_junit(reports / "usdahd.xml", junit_schemas)
     cases = _junit_cases(root)
     prims = {c for c, _ in cases if c != "/"}
-    assert len(prims) == 7 and len(cases) == 7 * len(V.RULE_NAMES) + 1 + len(V.BUILTIN_VALIDATORS)
+    stage_rules = len(V.STAGE_RULES) + len(V.BUILTIN_VALIDATORS)
+    assert len(prims) == 7 and len(cases) == 7 * len(V.RULE_NAMES) + stage_rules
     assert set(cases.values()) == {"pass"}
     doc = json.loads((reports / "usdahd.sarif").read_text())
     check_sarif(doc)
@@ -481,3 +482,35 @@ def test_prim_selection_reports_only_the_selected_prims(ci_workspace, capsys, ju
     cases = _junit_cases(check_junit(xml, junit_schemas))
     assert {c for c, _ in cases} == {floor, "/"}
     assert sum(c == floor for c, _ in cases) == len(V.RULE_NAMES)
+
+
+def test_reports_of_an_imperfect_stage(tmp_path, capsys, junit_schemas):
+    """The production stage with broken arcs in unselected variants (tests/test_composition.py):
+    its Composition warnings are SARIF warnings with the rule's doc, and the JUnit report
+    (valid, passing: warnings without --strict) lists them in system-out."""
+    import shutil
+
+    for p in (ROOT / "tests" / "data" / "production").glob("variant_*.usda"):
+        shutil.copy(p, tmp_path / p.name)
+    src = tmp_path / "variant_unselected.usda"
+    args = ["bake", str(src), "--resolution", "8", "--samples", "8", "--bounces", "1", "-q"]
+    assert cli.main(args) == 0
+    capsys.readouterr()
+    layer = tmp_path / "variant_unselected.lightmaps.usda"
+    xml, sarif = tmp_path / "v.xml", tmp_path / "v.sarif"
+    fmt = ["--format", "junit", "-o", str(xml), "--format", "sarif", "-o", str(sarif)]
+    code, _ = _run([str(layer), *fmt], capsys)
+    assert code == 0
+    root = check_junit(xml, junit_schemas)
+    assert set(_junit_cases(root).values()) == {"pass"}
+    assert "Composition:" in root.find("testsuite/system-out").text
+    doc = json.loads(sarif.read_text())
+    check_sarif(doc)
+    run = doc["runs"][0]
+    comp = [r for r in run["results"] if r["ruleId"] == "Composition"]
+    levels = {r["properties"]["code"]: r["level"] for r in comp}
+    assert "warning" in levels.values() and set(levels.values()) <= {"warning", "note"}, levels
+    rule = run["tool"]["driver"]["rules"][comp[0]["ruleIndex"]]
+    assert rule["shortDescription"]["text"] == V.COMPOSITION_RULE.description
+    assert _run([str(layer), "--strict", *fmt], capsys)[0] == 1
+    assert "failure" in set(_junit_cases(check_junit(xml, junit_schemas)).values())

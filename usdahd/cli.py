@@ -32,6 +32,7 @@ COMMANDS = {
     "plugin-path": "usdahd.commands.plugin_path",
     "preview": "usdahd.commands.preview",
     "warmup": "usdahd.commands.warmup",
+    "export": "usdahd.commands.export",
 }
 
 
@@ -97,7 +98,8 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
     """(one-line message, exit code) for an exception a user can cause.
 
     UsdAhdError carries its own; OS errors name the file and the fix; pxr's Tf.ErrorException
-    keeps its first line. Anything else is an internal error (exit 2, "please report").
+    gives USD's messages, whole, without the C++ location in front of them. Anything else is
+    an internal error (exit 2, "please report").
     """
     if isinstance(exc, UsdAhdError):
         return str(exc), exc.exit_code
@@ -121,8 +123,9 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
         }.get(exc.errno, "check the path and re-run")
         return (f"{where}: {what}; {fix}" if where else f"{what}; {fix}"), 2
     if type(exc).__module__.startswith("pxr") or type(exc).__name__ == "ErrorException":
-        text = str(exc).strip().splitlines()
-        return f"USD: {text[0][:300] if text else type(exc).__name__}", 2
+        from usdahd.usd.diagnostics import exception_causes  # USD's messages, whole, no C++ site
+
+        return f"USD: {'; '.join(exception_causes(exc))}", 2
     return (
         f"internal error {type(exc).__name__}: {str(exc)[:300]} (please report a bug; "
         "set USDAHD_DEBUG=1 for the traceback)",
@@ -140,6 +143,28 @@ def _error(command: str, message: str, code: int, as_json: bool) -> int:
     return code
 
 
+def _run_captured(args, command: str) -> int:
+    """Run the command with USD's own diagnostics trapped (usdahd.usd.diagnostics): none is
+    printed raw; each one usdahd did not report in its own words is printed once when the
+    command ends, ``usdahd CMD: warning: USD: <message>`` on stderr (not with -qq)."""
+    if command not in ("bake", "validate", "preview", "export"):  # the commands reading stages
+        return int(args.func(args) or 0)
+    from usdahd.usd import diagnostics
+
+    diags = []
+    try:
+        with diagnostics.capture() as diags:
+            return int(args.func(args) or 0)
+    finally:
+        if int(getattr(args, "quiet", 0) or 0) < 2:
+            from usdahd import progress
+
+            progress.clear_line()
+            diagnostics.report(
+                diags, lambda line: print(f"usdahd {command}: warning: {line}", file=sys.stderr)
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
@@ -155,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         command = args.command
         as_json = bool(getattr(args, "json", False))
-        return int(args.func(args) or 0)
+        return _run_captured(args, command)
     except KeyboardInterrupt:
         from usdahd import progress
 

@@ -181,13 +181,82 @@ def write(
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
             raise ImageError(f"{path}: OpenImageIO cannot write {ext} files: {oiio.geterror()}")
+        errors = []
         try:
             if not out.open(str(tmp), spec):
-                raise ImageError(f"{path}: cannot open for writing: {out.geterror()}")
+                raise ImageError(
+                    f"{path}: cannot open for writing: {_first_line(out.geterror())}; "
+                    + _write_fix(path)
+                )
             if not out.write_image(np.ascontiguousarray(pixels)):
-                raise ImageError(f"{path}: write failed: {out.geterror()}")
+                errors.append(out.geterror() or "write_image failed")
+            elif out.has_error:  # libpng's writer reports a short write only here
+                errors.append(out.geterror())
         finally:
-            out.close()
+            # close() writes the last blocks (the PNG's end, a TIFF's directory): its result
+            # and any error it leaves are the write's too (issue 40).
+            if not out.close():
+                errors.append("close failed")
+            if out.has_error:
+                errors.append(out.geterror())
+        # OpenImageIO's TIFF writer always reports this when DateTime is empty (as written
+        # here, for reproducible files); the image directory itself is written.
+        benign = "TIFFWriteCustomDirectory() of the Exif data"
+        errors = [e for e in errors if e and e.strip() and e.strip() != f"failed {benign}"]
+        if not errors and _disk_full(str(tmp)):
+            # OpenImageIO does not report a failed final flush (fclose): a file that ran into
+            # a full disk on its last block looks written. No block left = maybe cut short.
+            errors.append("no space left on the disk after writing it")
+        if errors:
+            raise ImageError(
+                f"{path}: could not write the image ({_first_line(errors[0])}); " + _write_fix(path)
+            )
+
+
+def _disk_full(path: str) -> bool:
+    """No whole block is left on the file system holding ``path`` (for this user)."""
+    try:
+        st = os.statvfs(os.path.dirname(os.path.abspath(path)))
+    except OSError:
+        return False
+    avail = st.f_bfree if os.geteuid() == 0 else st.f_bavail
+    return st.f_blocks > 0 and avail * st.f_frsize < max(st.f_bsize, st.f_frsize)
+
+
+def _first_line(text: str) -> str:
+    lines = (text or "").strip().splitlines()
+    return lines[0][:200] if lines else "unknown error"
+
+
+def _write_fix(path: str) -> str:
+    """What to do when ``path`` could not be written: names a full disk when it is one."""
+    import shutil
+
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        free = None
+    if free is not None and free < 4 * 2**20:
+        return f"the disk is full ({free // 1024} KiB free in {folder}): free space and re-run"
+    if not os.access(folder, os.W_OK):
+        return f"{folder} is not writable: fix its permissions or write elsewhere"
+    return "check free space and permissions of the folder and re-run"
+
+
+def _check_size(path: str, spec, itemsize: int, error: type = ImageError) -> None:
+    """``error`` when the pixels the header declares exceed the memory budget
+    (:mod:`usdahd.budget`), before they are decoded."""
+    from usdahd import budget
+
+    size = int(spec.width) * int(spec.height) * max(1, int(spec.depth)) * int(spec.nchannels)
+    budget.check(
+        size * itemsize,
+        f"{path}: the image ({spec.width} x {spec.height} pixels, {spec.nchannels} channels) "
+        "decodes to",
+        "resize the image or raise the budget",
+        error=error,
+    )
 
 
 def _source_date() -> str:
@@ -232,6 +301,7 @@ def read(path: str | os.PathLike, *, channels: tuple[str, ...] | list[str] | Non
         fmt = {v: k for k, v in _OIIO_TYPES.items()}.get(base)
         if fmt is None:
             fmt = "float"
+        _check_size(path, spec, np.dtype(FORMAT_DTYPES[fmt]).itemsize)
         pixels = inp.read_image(0, 0, 0, spec.nchannels, _OIIO_TYPES[fmt])
         if pixels is None:
             raise ImageError(f"{path}: cannot decode pixels: {inp.geterror()}")
@@ -284,6 +354,7 @@ def read_native(path: str | os.PathLike, label: str | None = None):
         raise OSError(oiio.geterror() or f"OpenImageIO cannot open {label}")
     try:
         spec = inp.spec()
+        _check_size(label, spec, max(1, spec.format.size()), error=OSError)
         data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
         if data is None:
             raise OSError(inp.geterror() or f"OpenImageIO cannot read the pixels of {label}")
@@ -319,6 +390,7 @@ def read_texels(path: str | os.PathLike) -> tuple[np.ndarray | None, str]:
         raise ImageError(oiio.geterror()[:200])
     try:
         spec = inp.spec()
+        _check_size(os.fspath(path), spec, 4)
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         fmt = str(spec.format)
     finally:

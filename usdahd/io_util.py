@@ -21,12 +21,15 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
     (OpenImageIO, USD) see the right one.
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{target.stem}.",
-        suffix=suffix if suffix is not None else target.suffix,
-        dir=target.parent,
-    )
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{target.stem}.",
+            suffix=suffix if suffix is not None else target.suffix,
+            dir=target.parent,
+        )
+    except OSError as exc:
+        raise _naming(exc, target) from None
     os.close(fd)
     # mkstemp creates 0600; give the file the permissions a plain open() would (umask).
     umask = os.umask(0)
@@ -35,10 +38,20 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
     try:
         yield Path(tmp)
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):  # name the file the user asked for, not the temp file
+            raise _naming(exc, target) from None
         raise
+
+
+def _naming(exc: OSError, target: Path) -> OSError:
+    """``exc`` (same type and errno) naming ``target``: the CLI's message (usdahd.cli
+    describe_error) then names the file that could not be written and the fix."""
+    if exc.errno is None:
+        return exc
+    return type(exc)(exc.errno, exc.strerror or str(exc), str(target))
 
 
 def atomic_write_bytes(path, data: bytes) -> None:

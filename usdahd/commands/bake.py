@@ -24,7 +24,8 @@ def add_parser(sub):
             "(--dry-run runs the checks and reports the texel total). Textures get new "
             "content-addressed names and the layer's atomic replace commits the bake, so a "
             "killed or failed bake leaves the previous one valid; a second bake of the same "
-            "output waits for the first (lock file .LAYER.lock)."
+            "output waits for the first, up to --lock-timeout (lock file .LAYER.lock beside "
+            "the layer while a bake runs)."
         ),
     )
     a = p.add_argument
@@ -95,6 +96,15 @@ def add_parser(sub):
         help="trace in tiles on the existing Dask cluster whose scheduler is at ADDRESS "
         "(tcp://HOST:8786); workers need the same usdahd version (docs/scaling.md)",
     )
+    a(
+        "--lock-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="give up (exit 2) when another bake of the same output still holds its lock "
+        "after SECONDS (default 3600: 3x the longest real-scene bake measured, so a healthy "
+        "bake is waited for and a hung or stopped one frees a farm slot within the hour; 0: "
+        "do not wait; inf: wait as long as it takes)",
+    )
     a("--force", action="store_true", help="re-bake prims even if unchanged")
     a("--dry-run", action="store_true", help="report what would be baked; write nothing")
     p.set_defaults(func=run)
@@ -115,6 +125,10 @@ def run(args) -> int:
             f"--resolution {args.resolution} exceeds the maximum {MAX_RESOLUTION} "
             f"({args.resolution}^2 texels of SH would need "
             f"{args.resolution**2 * 27 * 4 / 2**30:.0f} GiB); bake at most {MAX_RESOLUTION}"
+        )
+    if args.lock_timeout is not None and not args.lock_timeout >= 0:
+        raise UsageError(
+            f"--lock-timeout must be >= 0 seconds (inf waits forever), got {args.lock_timeout}"
         )
     if args.texel_density is not None and not args.texel_density > 0:
         raise UsageError(f"--texel-density must be > 0, got {args.texel_density}")
@@ -148,13 +162,14 @@ def run(args) -> int:
         quiet=args.quiet,
         workers=args.workers,
         scheduler=args.scheduler,
+        lock_timeout=args.lock_timeout,
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)
-    emit(args, report, lambda: _print_report(report))
+    emit(args, report, lambda: _print_report(report, notes=quiet == 0))
     if not args.json and quiet == 1:
-        # --quiet hides progress and the per-prim lines, not warnings: they go to stderr
-        # (-qq hides them too).
+        # --quiet keeps the per-prim results on stdout and hides progress; warnings go to
+        # stderr (-qq hides them and the results too).
         for w in _all_warnings(report):
             print(f"warning: {w}", file=sys.stderr)
     # Failures reach stderr even with --quiet or --json: CI logs must show why it exited 1.
@@ -172,7 +187,9 @@ def _all_warnings(report) -> list[str]:
     return out + list(report.get("warnings", []))
 
 
-def _print_report(report) -> None:
+def _print_report(report, notes: bool = True) -> None:
+    """The result lines; ``notes`` False (-q): without the warnings and notes (stderr has
+    the warnings)."""
     planned = 0
     for p in report["prims"]:
         if p["status"] == "skipped":
@@ -194,13 +211,13 @@ def _print_report(report) -> None:
                     else ""
                 )
             )
-        for w in p.get("warnings", []):
+        for w in p.get("warnings", []) if notes else []:
             print(f"  warning: {w}")
-        for n in p.get("notes", []):
+        for n in p.get("notes", []) if notes else []:
             print(f"  note: {n}")
-    for w in report.get("warnings", []):
+    for w in report.get("warnings", []) if notes else []:
         print(f"warning: {w}")
-    for n in report.get("notes", []):
+    for n in report.get("notes", []) if notes else []:
         print(f"note: {n}")
     if planned or "texels_total" in report and report.get("dry_run"):
         total = report.get("texels_total", 0)

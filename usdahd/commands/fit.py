@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from usdahd import models
+from usdahd import budget, models
 from usdahd.commands.output import emit
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh as shmod
@@ -108,8 +108,10 @@ class ShSource:
             shape, fortran, dtype = _read_header(fh)
         self.shape, self.dtype = tuple(shape), np.dtype(dtype)
         self._check_dtype()
-        self._array = np.load(f, mmap_mode="r", allow_pickle=False)
         self._fortran = fortran
+        self._inflated = None
+        self._check_shape()  # before mapping: np.load checks the size against the file
+        self._array = np.load(f, mmap_mode="r", allow_pickle=False)
 
     def _open_npz(self, f: Path) -> None:
         self._zip = zipfile.ZipFile(f)
@@ -117,10 +119,14 @@ class ShSource:
         if "sh.npy" not in names:
             found = [n[:-4] if n.endswith(".npy") else n for n in names]
             raise InputError(f"{self.path}: .npz has no array named 'sh' (has {found})")
+        info = self._zip.getinfo("sh.npy")
+        # Only the member's header is inflated here (a few hundred bytes); its declared size and
+        # the array's are checked against the memory budget (_check) before any data is read.
         with self._zip.open("sh.npy") as fh:
             shape, fortran, dtype = _read_header(fh)
             self._offset = fh.tell()
         self.shape, self.dtype, self._fortran = tuple(shape), np.dtype(dtype), fortran
+        self._inflated = int(info.file_size)
         self._check_dtype()
         self._array = None
 
@@ -138,6 +144,9 @@ class ShSource:
             )
 
     def _check(self) -> None:
+        self._check_shape()
+
+    def _check_shape(self) -> None:
         if len(self.shape) < 2 or self.shape[-2:] != (3, 9):
             raise InputError(
                 f"{self.path}: expected shape (..., 3, 9) (RGB x 9 SH coefficients), got "
@@ -153,11 +162,28 @@ class ShSource:
                 f"{self.path}: {self.n} texels is above the limit of {MAX_ELEMENTS // 27}; "
                 "split the file"
             )
-        if self._fortran and self.n > 1 and len(self.shape) > 2:
-            raise InputError(
-                f"{self.path}: stored in Fortran order; save it with np.save(path, "
-                "np.ascontiguousarray(sh))"
-            )
+        # The memory budget (usdahd.budget), checked on the sizes the file declares before
+        # anything is inflated or allocated: the fit holds up to the array's float64 size (the
+        # fitted parameters with -o; the whole array for Fortran order), and an .npz member is
+        # inflated up to its declared size.
+        member = "the 'sh' array" if self._inflated is not None else "the array"
+        member += f" (shape {self.shape}, {self.dtype})"
+        need = self.n * 27 * max(8, self.dtype.itemsize)
+        what = f"{member} needs"
+        if self._inflated is not None and self._inflated >= need:
+            need, what = self._inflated, f"{member} inflates to"
+        budget.check(
+            need,
+            f"{self.path}: {what}",
+            "split the file (usdahd fit streams each file in chunks) or raise the budget",
+        )
+        if self._inflated is not None:
+            stored = self.n * 27 * self.dtype.itemsize + self._offset
+            if self._inflated < stored:
+                raise InputError(
+                    f"{self.path}: the 'sh' array is truncated ({self._inflated} bytes in the "
+                    f"archive, its header declares {stored}); re-save the file"
+                )
 
     def chunks(self, size: int | None = None):
         """Yield (start, (k, 3, 9) float64) over the texels (``size`` each, default
@@ -168,7 +194,22 @@ class ShSource:
         if self._zip is not None:
             fh = self._zip.open("sh.npy")
             fh.read(self._offset)
-        flat = None if self._array is None else np.asarray(self._array).reshape(-1, 3, 9)
+        if self._fortran and self.n > 1 and len(self.shape) > 2:
+            # Fortran order: texels are not contiguous, so the array is converted once to C
+            # order (float64, within the budget _check verified).
+            if self._array is None:
+                data = fh.read(self.n * row)
+                if len(data) != self.n * row:
+                    fh.close()
+                    raise InputError(f"{self.path}: the 'sh' array is truncated")
+                fh.close()
+                fh = None
+                arr = np.frombuffer(data, self.dtype).reshape(self.shape, order="F")
+            else:
+                arr = self._array
+            flat = np.ascontiguousarray(arr, dtype=np.float64).reshape(-1, 3, 9)
+        else:
+            flat = None if self._array is None else np.asarray(self._array).reshape(-1, 3, 9)
         try:
             for start in range(0, self.n, size):
                 k = min(size, self.n - start)

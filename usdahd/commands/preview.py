@@ -184,13 +184,27 @@ def _check(args) -> Path:
     return out
 
 
+def _composition_warnings(args, stage) -> None:
+    """The stage's composition problems, once each on stderr (not with -qq): the preview
+    draws what composed (a broken arc in an unselected variant changes nothing it shows)."""
+    if int(args.quiet or 0) >= 2:
+        return
+    from usdahd.usd.stage import composition_warnings
+
+    def warn(msg):
+        print(f"usdahd preview: warning: {msg}", file=sys.stderr)
+
+    composition_warnings(stage, str(args.stage), warn)
+
+
 def run_atlas(args, out: Path) -> int:
     """``--atlas``: the contact sheet (:mod:`usdahd.preview.atlas`)."""
     from usdahd import images
     from usdahd.preview import atlas
     from usdahd.validate.run import validate_file
 
-    _, meshes, _ = baked_meshes(args.stage)
+    stage, meshes, _ = baked_meshes(args.stage)
+    _composition_warnings(args, stage)
     findings = validate_file(str(args.stage)).findings
     img, info = atlas.contact_sheet(meshes, findings)
     images.write(out, img, color_space="srgb_rec709_scene")
@@ -221,8 +235,10 @@ def run(args) -> int:
     w, h = args.size or (640, 480)
     gpu = None if args.backend == "embree" else device(args.backend)  # before any long work
     summary = gpu[0].summary if gpu else "embree (primary rays, numpy decoders)"
-    print(f"usdahd preview: {summary}", file=sys.stderr)
+    if not args.quiet:
+        print(f"usdahd preview: {summary}", file=sys.stderr)
     stage, meshes, up = baked_meshes(args.stage)
+    _composition_warnings(args, stage)
     viewproj = view_projection(stage, meshes, up, args.camera, w / h)
     surfaces = None
     if args.model_view:

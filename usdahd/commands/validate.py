@@ -116,7 +116,8 @@ def list_rules(out=None) -> None:
     width = max(len(r.name) for r in v.RULES)
     for r in v.RULES:
         print(f"{r.name:<{width}}  {r.description}", file=out)
-    print(f"{v.STAGE_RULE.name:<{width}}  {v.STAGE_RULE.description} (per stage)", file=out)
+    for rule in v.STAGE_RULES:  # Lightmapped, Composition
+        print(f"{rule.name:<{width}}  {rule.description} (per stage)", file=out)
     from usdahd.validate import retrace as rt
 
     print(f"{rt.RULE:<{width}}  {rt.DESCRIPTION} (--retrace N)", file=out)
@@ -253,7 +254,7 @@ def run(args) -> int:
         findings=findings,
         prims=baked,
         prim_rules=[*v.RULE_NAMES, *([rt.RULE] if retrace is not None else [])],
-        stage_rules=[v.STAGE_RULE.name, *v.BUILTIN_VALIDATORS],
+        stage_rules=[*(r.name for r in v.STAGE_RULES), *v.BUILTIN_VALIDATORS],
         rule_docs=rule_docs(),
         exit_code=code,
         strict=args.strict,
@@ -277,7 +278,7 @@ def run(args) -> int:
             f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
         )
         for n in usd_notes[:10]:
-            print(f"  usd: {n[:300]}", file=sys.stderr)
+            print(f"  usd: {n}", file=sys.stderr)  # whole: the cause ends the message
     if not args.quiet:
         print(R.summary_line(summary), file=sys.stderr)
     return code
@@ -290,7 +291,7 @@ def rule_docs() -> dict[str, str]:
     from usdahd.usd.validation import validator_doc
     from usdahd.validate import retrace as rt
 
-    docs = {r.name: r.description for r in (*v.RULES, v.STAGE_RULE)}
+    docs = {r.name: r.description for r in (*v.RULES, *v.STAGE_RULES)}
     docs[rt.RULE] = rt.DESCRIPTION
     for name in v.BUILTIN_VALIDATORS:
         docs[name] = validator_doc(name)

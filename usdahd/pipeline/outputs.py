@@ -18,7 +18,7 @@ import numpy as np
 
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
-from usdahd.usd.author import referenced_assets
+from usdahd.usd.author import layer_assets, referenced_assets
 
 #: Folder beside the output layer that holds its textures.
 LIGHTMAPS_DIR = "lightmaps"
@@ -140,14 +140,20 @@ def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
             ktx, ktx_final = staged.with_suffix(".ktx2"), final.with_suffix(".ktx2")
             if ktx.is_file():
                 _fsync(ktx)
-                os.replace(ktx, ktx_final)
+                try:
+                    os.replace(ktx, ktx_final)
+                except OSError as exc:
+                    raise _write_error(ktx_final, exc, "cannot commit the KTX2 container") from None
                 entry = job.report.get("ktx2", {}).get(role)
                 if entry is not None:
                     entry["path"] = str(ktx_final)
-            if final.is_file() and not final.is_symlink():
-                staged.unlink()  # same content already there
-            else:
-                os.replace(staged, final)
+            try:
+                if final.is_file() and not final.is_symlink():
+                    staged.unlink()  # same content already there
+                else:
+                    os.replace(staged, final)
+            except OSError as exc:
+                raise _write_error(final, exc, f"cannot commit the new {role} texture") from None
             job.results.textures[role] = str(final)
             _fault("first_texture_committed")
     if jobs:
@@ -162,7 +168,7 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
     removed = []
     folder = out.parent / LIGHTMAPS_DIR
     prefix = layer_prefix(out)
-    refs = None if staged_only else referenced_assets(out)
+    refs = None if staged_only else _layer_refs(out)
     owned = _owned_pattern(out)
     layer_tmp = re.compile(
         r"\." + re.escape(out.stem) + r"\.[A-Za-z0-9_]{8}" + re.escape(out.suffix)
@@ -190,6 +196,29 @@ def cleanup_outputs(out: Path, *, staged_only: bool = False) -> list[str]:
         except OSError:
             pass
     return removed
+
+
+#: The assets of the layers this process committed, keyed by (path, inode, mtime, size): the
+#: cleanup after a bake reads them from the layer it just built instead of re-parsing the file
+#: (a text layer of millions of authored normals costs GBs to parse, issue 40).
+_COMMITTED_REFS: dict[str, tuple[tuple, set[Path]]] = {}
+
+
+def _stat_key(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
+
+
+def _layer_refs(out: Path) -> set[Path] | None:
+    """:func:`referenced_assets` of ``out``, from the commit's record when the file is still
+    the one this process wrote."""
+    known = _COMMITTED_REFS.get(str(out))
+    if known is not None and known[0] == _stat_key(out):
+        return set(known[1])
+    return referenced_assets(out)
 
 
 def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
@@ -225,38 +254,146 @@ def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
     return removed
 
 
+#: Default of ``usdahd bake --lock-timeout`` (seconds a bake waits for another bake of the same
+#: output to finish). One hour: the largest real scene measured here (sponza, 2 M triangles)
+#: bakes in 20 min at the defaults (docs/scenes.md), so a healthy concurrent bake is waited for
+#: with a 3x margin (then this one plans against its layer and skips what it baked), while a
+#: holder that is hung or stopped frees the farm slot within the hour, with exit 2, instead of
+#: blocking it for good. ``--lock-timeout 0`` gives up at once, ``inf`` waits as long as it takes.
+DEFAULT_LOCK_TIMEOUT = 3600.0
+#: Seconds between two attempts to take a busy lock.
+_LOCK_POLL = 0.2
+
+
+def lock_path(out: Path) -> Path:
+    """The lock file of the output layer ``out`` (exists only while a bake holds it)."""
+    return out.parent / f".{out.name}.lock"
+
+
+def _holder(fd: int) -> dict:
+    """Who holds the lock, as its holder wrote it (host, pid, since); {} when unreadable."""
+    import json
+
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode("utf-8", "replace") or "{}")
+    except (OSError, ValueError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _describe_holder(info: dict) -> str:
+    """``pid 123 on host farm7, since 2026-12-05 20:49:01 UTC (35 s ago), stopped``."""
+    import socket
+
+    pid, host = info.get("pid"), info.get("host")
+    if not pid:
+        return "holder unknown"
+    text = f"pid {pid} on host {host or '?'}"
+    since = info.get("unix")
+    if isinstance(since, (int, float)):
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(since))
+        text += f", since {stamp} ({max(0.0, time.time() - since):.0f} s ago)"
+    if host == socket.gethostname():
+        try:
+            with open(f"/proc/{int(pid)}/stat") as f:
+                state = f.read().rsplit(")", 1)[1].split()[0]
+            if state in ("T", "t"):
+                text += ", stopped (SIGSTOP or Ctrl-Z: SIGCONT resumes it)"
+        except (OSError, ValueError, IndexError):
+            if not Path(f"/proc/{pid}").exists():
+                text += ", no longer running (a process it started still holds the lock)"
+    return text
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """The open lock ``fd`` is still the file at ``path`` (a finishing bake removes its lock
+    file: a waiter that locked the removed file must start again on the new one)."""
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
 @contextlib.contextmanager
 def output_lock(out: Path, opts: BakeOptions):
-    """Hold an exclusive lock on ``.<output name>.lock`` beside the output layer.
+    """Hold an exclusive lock on ``.<output name>.lock`` beside the output layer while baking.
 
-    A second bake of the same output waits (printing who holds it) until the first has
-    committed and cleaned up, then plans against the layer the first one wrote.
+    The lock is ``flock`` on that file: the kernel releases it when its holder exits, however
+    it exits, so a dead holder never blocks. The holder writes its host, pid and start time
+    into the file; a second bake of the same output prints them and waits up to
+    ``opts.lock_timeout`` seconds (default :data:`DEFAULT_LOCK_TIMEOUT`), then gives up with
+    OutputError (exit 2) naming the holder. When the bake ends the holder removes the file
+    while still holding it (a waiter re-checks that the file it locked is still the one at the
+    path, else starts again), so nothing is left beside the layer; a SIGKILLed bake leaves it
+    until the next bake of that output.
     """
     import fcntl
+    import json
+    import socket
 
     from usdahd.errors import OutputError
 
-    path = out.parent / f".{out.name}.lock"
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot create the bake lock ({exc.strerror})") from None
-    try:
+    timeout = opts.lock_timeout if opts.lock_timeout is not None else DEFAULT_LOCK_TIMEOUT
+    path = lock_path(out)
+    t0 = time.monotonic()
+    announced = False
+    while True:
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        except OSError as exc:
+            raise OutputError(
+                f"{path}: cannot create the bake lock ({exc.strerror}); make {out.parent} "
+                "writable or choose another output with -o"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
-            _warn(
-                opts,
-                f"another usdahd bake (pid {holder}) is writing {out}; waiting for it to finish…",
-            )
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            who = _describe_holder(_holder(fd))
+            os.close(fd)
+            waited = time.monotonic() - t0
+            if waited >= timeout:
+                raise OutputError(
+                    f"{out}: another usdahd bake ({who}) still holds the lock {path.name} after "
+                    f"{waited:.0f} s (--lock-timeout {timeout:g}); wait for it to finish, stop "
+                    "it if it is hung, or re-run with a longer --lock-timeout"
+                ) from None
+            if not announced:
+                _warn(
+                    opts,
+                    f"another usdahd bake ({who}) is writing {out}; waiting for it to finish "
+                    f"(giving up after {timeout:g} s, --lock-timeout)…",
+                )
+                announced = True
+            time.sleep(min(_LOCK_POLL, max(0.0, timeout - waited)))
+            continue
+        except BaseException:
+            os.close(fd)
+            raise
+        if not _same_file(fd, path):  # locked a file its holder removed: take the new one
+            os.close(fd)
+            continue
+        break
+    try:
+        info = {
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "unix": round(time.time(), 3),
+            "output": str(out),
+        }
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
         yield
     finally:
-        os.close(fd)
+        try:
+            if _same_file(fd, path):
+                os.unlink(path)  # still holding it: waiters re-check and start again
+        except OSError:
+            pass  # a read-only folder: the file stays, harmless (the lock is the flock)
+        finally:
+            os.close(fd)
 
 
 #: Fault-injection points of a bake, in order (tests/test_faults.py kills a bake at each).
@@ -305,7 +442,10 @@ def _author_layer(
 
     out.parent.mkdir(parents=True, exist_ok=True)
     layer = author.build_layer(src, out, source_stage, jobs, scenario)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
+    except OSError as exc:
+        raise _write_error(out, exc, f"cannot create a file in {out.parent}") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -316,11 +456,42 @@ def _author_layer(
         _fsync(tmp)
         _fault("layer_exported")
         new = tmp.read_bytes()
+        refs = layer_assets(layer, out.parent)
         if out.is_file() and out.read_bytes() == new:
+            _COMMITTED_REFS[str(out)] = (_stat_key(out), refs)
             return False
-        os.replace(tmp, out)  # the commit point
+        try:
+            os.replace(tmp, out)  # the commit point
+        except OSError as exc:
+            raise _write_error(out, exc, "cannot replace the output layer") from None
         _fsync(out.parent, directory=True)
+        _COMMITTED_REFS[str(out)] = (_stat_key(out), refs)
         return True
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _write_error(path: Path, exc: OSError, what: str):
+    """OutputError naming ``path`` (the file the user knows, never a temp name), why, and the
+    fix, for an OSError writing it; the previous bake is intact when this is raised."""
+    import errno
+
+    from usdahd.errors import OutputError
+
+    why = exc.strerror or str(exc)
+    if exc.errno == errno.EPERM:
+        fix = (
+            f"{path.name} or its folder is protected against changes (an immutable file: "
+            f"lsattr shows 'i'; `chattr -i {path}` as root clears it), or choose another "
+            "output with -o"
+        )
+    elif exc.errno == errno.EACCES:
+        fix = f"make {path.parent} writable or choose another output with -o"
+    elif exc.errno == errno.EROFS:
+        fix = f"{path.parent} is on a read-only file system: choose another output with -o"
+    elif exc.errno == errno.ENOSPC:
+        fix = "the disk is full: free space and re-run"
+    else:
+        fix = "check the folder and re-run, or choose another output with -o"
+    return OutputError(f"{path}: {what} ({why}); {fix} (the previous bake is intact)")

@@ -74,6 +74,9 @@ class BakeOptions:
     #: identical to a plain bake, so neither is a bake setting (not in the content hash).
     workers: int | None = None
     scheduler: str | None = None
+    #: Seconds to wait for another bake of the same output (None: the default,
+    #: usdahd.pipeline.outputs.DEFAULT_LOCK_TIMEOUT); not a bake setting either.
+    lock_timeout: float | None = None
 
 
 def _authored_inputs(prim) -> dict:

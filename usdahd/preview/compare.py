@@ -35,7 +35,6 @@ numpy only here; the tracer and integrator are imported when a reference is trac
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import math
 
@@ -87,11 +86,9 @@ def visible_points(meshes, viewproj: np.ndarray, size, scene):
     """
     from usdahd.bake.trace import Tracer
     from usdahd.bake.types import Texels
-    from usdahd.preview.raytrace import front_hits, primary_rays
+    from usdahd.preview.raytrace import front_hits, primary_rays, subset_scene
 
-    sc = copy.copy(scene)
-    sc.meshes = [m for m, *_ in meshes]
-    tracer = Tracer(sc)
+    tracer = Tracer(subset_scene(scene, [m for m, *_ in meshes]))
     try:
         o, d = primary_rays(viewproj, size)
         hit = front_hits(tracer, o, d)

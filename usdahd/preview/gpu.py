@@ -9,16 +9,50 @@ CPU, or a GPU) or says what to install.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
+import tempfile
 
 import numpy as np
 
 from usdahd.errors import UsageError
 
 INSTALL_HINT = (
-    "usdahd preview renders through wgpu on a Vulkan device; install one: "
-    "pip install wgpu, and for the CPU apt-get install mesa-vulkan-drivers libvulkan1"
+    "usdahd preview renders through wgpu (installed with usdahd) on a Vulkan device; for the "
+    "CPU: apt-get install mesa-vulkan-drivers libvulkan1"
 )
+#: Lines the Vulkan loader and Mesa's window-system code print to stderr while an adapter is
+#: found, which say nothing about an offscreen render (``XDG_RUNTIME_DIR`` is a Wayland
+#: session's folder; a headless preview needs none). Dropped; every other line is passed on.
+NOISE = ("XDG_RUNTIME_DIR is invalid or not set",)
+
+
+@contextlib.contextmanager
+def _filtered_stderr():
+    """Run the block with file descriptor 2 captured (native code writes there directly);
+    afterwards pass each line on to stderr except the NOISE lines."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2: nothing to filter
+        yield
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", errors="replace")
+            for line in text.splitlines():
+                if line.strip() and not any(n in line for n in NOISE):
+                    print(line, file=sys.stderr)
+
+
 FACTORS = (
     "izScale",
     "ambientScale",
@@ -43,7 +77,8 @@ def device(backend: str = "wgpu"):
     """(adapter, device) for wgpu, or None when ``backend`` is "auto" and there is no Vulkan
     adapter (one line on stderr says what to install). UsageError when "wgpu" has none."""
     try:
-        adapter = request_adapter()
+        with _filtered_stderr():
+            adapter = request_adapter()
         why = "no Vulkan adapter found"
     except ImportError:
         adapter, why = None, "wgpu is not installed"
@@ -54,7 +89,8 @@ def device(backend: str = "wgpu"):
         raise UsageError(f"{why}; {INSTALL_HINT}")
     # float32-filterable: the --model-view material textures keep float32 texels (else half)
     wanted = [f for f in ("float32-filterable",) if f in adapter.features]
-    return adapter, adapter.request_device_sync(required_features=wanted)
+    with _filtered_stderr():
+        return adapter, adapter.request_device_sync(required_features=wanted)
 
 
 _SHADER = """

@@ -87,6 +87,23 @@ def bilinear(pixels: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bot * fy
 
 
+def subset_scene(scene, meshes):
+    """A shallow copy of ``scene`` holding only ``meshes`` (MeshData of that stage, matched by
+    prim path), its per-mesh lists (``texcoords``) re-indexed to match: the tracer reads a
+    mesh's material texcoords by its index (a textured mesh after an unbaked one would
+    otherwise get another mesh's texcoords: IndexError, or silently wrong albedo)."""
+    index = {m.path: i for i, m in enumerate(scene.meshes)}
+    sc = copy.copy(scene)
+    sc.meshes = list(meshes)
+    sc.texcoords = [
+        scene.texcoords[index[m.path]]
+        if m.path in index and index[m.path] < len(scene.texcoords)
+        else {}
+        for m in meshes
+    ]
+    return sc
+
+
 def render(scene, items, viewproj: np.ndarray, size, surfaces=None, frames=None) -> np.ndarray:
     """Embree image (H, W, 4) float32 of ``items`` [(mesh, model, ratio, textures, factors)]:
     linear normalized irradiance, alpha 1 on covered pixels. ``scene`` (a usdahd Scene) supplies
@@ -105,9 +122,7 @@ def render(scene, items, viewproj: np.ndarray, size, surfaces=None, frames=None)
     from usdahd.preview import classic
 
     w, h = size
-    sc = copy.copy(scene)
-    sc.meshes = [it[0] for it in items]
-    tracer = Tracer(sc)
+    tracer = Tracer(subset_scene(scene, [it[0] for it in items]))
     try:
         o, d = primary_rays(viewproj, size)
         hit = front_hits(tracer, o, d)

@@ -9,13 +9,23 @@ import numpy as np
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
+#: Linear value the median covered luminance maps to: photographic middle grey (an 18 % card),
+#: so half the visible surface is darker and half brighter than mid-grey whatever the light
+#: level; keyed on the maximum (or the 99th percentile) a few bright pixels set the exposure
+#: and an evenly lit view came out near white (issue 37).
+KEY = 0.18
+
+
 def tonemap(image: np.ndarray, exposure_stops: float = 0.0) -> tuple[np.ndarray, float]:
-    """(H, W, 4) linear -> (H, W, 3) uint8 sRGB and the scale applied (99th percentile of the
-    covered luminance -> 0.9, times 2^stops)."""
+    """(H, W, 4) linear -> (H, W, 3) uint8 sRGB and the scale applied (the median of the
+    covered luminance -> KEY, times 2^stops)."""
     covered = image[..., 3] > 0
     lum = image[..., :3] @ LUMA
-    ref = float(np.percentile(lum[covered], 99)) if covered.any() else 0.0
-    scale = (0.9 / ref if ref > 0 else 1.0) * 2.0**exposure_stops
+    lit = lum[covered & np.isfinite(lum)]
+    ref = float(np.median(lit)) if lit.size else 0.0
+    if not ref > 0 and lit.size:  # mostly black: key on what is lit
+        ref = float(np.median(lit[lit > 0])) if (lit > 0).any() else 0.0
+    scale = (KEY / ref if ref > 0 else 1.0) * 2.0**exposure_stops
     return tonemap_with(image, scale), scale
 
 

@@ -206,15 +206,27 @@ def referenced_assets(out: Path, anonymous: bool = False) -> set[Path] | None:
             return None
     except Exception:
         return None
+    return layer_assets(layer, out.parent)
+
+
+def layer_assets(layer: Sdf.Layer, folder: Path) -> set[Path]:
+    """Resolved paths (relative to ``folder``) of the assets ``layer``'s attributes name as
+    default values. Only asset-typed values are read: converting a large array (a mesh's
+    computed normals, millions of corners) to Python cost GBs for nothing (issue 40)."""
     found: set[Path] = set()
+    asset_types = (Sdf.ValueTypeNames.Asset, Sdf.ValueTypeNames.AssetArray)
 
     def visit(path):
         spec = layer.GetObjectAtPath(path)
-        if isinstance(spec, Sdf.AttributeSpec) and spec.default is not None:
+        if (
+            isinstance(spec, Sdf.AttributeSpec)
+            and spec.typeName in asset_types
+            and spec.default is not None
+        ):
             v = spec.default
             for a in v if hasattr(v, "__len__") and not isinstance(v, str) else [v]:
                 if isinstance(a, Sdf.AssetPath) and a.path:
-                    found.add((out.parent / a.path).resolve())
+                    found.add((folder / a.path).resolve())
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
     return found

@@ -112,6 +112,24 @@ def _check_binding(prim, out: StageFindings) -> None:
     for target in rel.GetTargets():
         tp = stage.GetPrimAtPath(target)
         path = str(prim.GetPath())
+        if not tp or not tp.IsA(UsdShade.Material):
+            from usdahd.usd.materialx import find_mtlx  # the MaterialX library, lazily
+
+            src = find_mtlx(stage, target)
+            if src is not None:
+                # A material from a .mtlx file USD could not compose (no usdMtlx in the
+                # usd-core wheel): the material reader reads the file itself and reports it
+                # once; only a file it cannot read either is a finding here, once per file.
+                msg = (
+                    f"{src.file}: MaterialX file could not be composed (USD: the usd-core "
+                    f"wheel has no usdMtlx plugin; usdahd: {src.reason}); prims bound to its "
+                    f"materials (e.g. {path} -> {target}) get the default material (grey "
+                    f"0.18, no emission). Fix: the MaterialX file, or the reference to it in "
+                    f"{src.layer}"
+                )
+                if src.reason and not any(w.startswith(f"{src.file}:") for w in out.warnings):
+                    out.warnings.append(msg)
+                continue
         if not tp:
             out.warnings.append(
                 f"{path}: material:binding targets {target}, which does not exist: the "

@@ -271,7 +271,8 @@ class GeometryReader:
         texcoords = {}
         if not implicit:
             uv = self._primvar2(prim, self.uv_name, topo, corners, path)
-            for mi in np.unique(face_mat):
+            used = np.flatnonzero(np.bincount(face_mat)) if face_mat.min() >= 0 else face_mat
+            for mi in np.unique(used):  # bincount first: O(faces), not a sort or hash of all
                 name = self.mats.materials[mi].texcoord
                 if (
                     any(
@@ -527,7 +528,8 @@ def drop_degenerate(wp, topo, corners, path, warn):
     keep = area2 > DEGENERATE_AREA_REL * diag * diag
     n_bad = int((~keep).sum())
     if n_bad and keep.any():
-        faces = len(np.unique(topo.face[~keep]))
+        dropped = topo.face[~keep]  # non-decreasing (fan triangles in face order): O(n) count
+        faces = 1 + int(np.count_nonzero(np.diff(dropped)))
         warn(
             f"{path}: {n_bad} degenerate (zero-area) triangles in {faces} faces dropped "
             "(repeated or collinear points)"

@@ -1,4 +1,11 @@
-"""Materials: UsdShade binding, UsdPreviewSurface, UsdUVTexture, UsdTransform2d, colour spaces.
+"""Materials: UsdShade binding, UsdPreviewSurface, MaterialX, UsdUVTexture, UsdTransform2d,
+displayColor, colour spaces.
+
+MaterialX surfaces (the ``mtlx`` render context, preferred when authored) and ``.mtlx``
+files that USD cannot compose are read through :mod:`usdahd.usd.materialx`; a material
+that reads primvars of the bound prim (displayColor through a UsdPrimvarReader_float3) is
+one table entry per distinct value (:meth:`MaterialReader._indexed`); a texture that cannot
+be read is replaced by a named value (:meth:`MaterialReader.report_unreadable`).
 
 :class:`MaterialReader` builds the material table of a stage (:class:`usdahd.scene.types.Material`,
 one per bound material, or one per displayColor for unbound prims): the ``full`` binding
@@ -25,20 +32,32 @@ import math
 import numpy as np
 from pxr import UsdGeom, UsdShade
 
-from usdahd import images
-from usdahd.errors import ImageError, StageError
+from usdahd.errors import StageError
 from usdahd.scene.types import MAX_RADIANCE, Material, Texture
-from usdahd.usd import assets
-from usdahd.usd.checks import asset_problem  # regular file, size limit (issue 18)
-from usdahd.usd.stage import fmt_values, one_line
+from usdahd.usd import materialx
+from usdahd.usd.stage import fmt_values
+from usdahd.usd.textures import (  # re-exported: the texture half of this module
+    LINEAR_SPACE,
+    albedo_times_metal,
+    read_image,
+    sanitize_image,
+    source_color_space,
+    texture_channels,
+    to_rgb,
+)
 
 __all__ = [
     "DEFAULT_ALBEDO",
     "LINEAR_SPACE",
     "MaterialReader",
     "SubsetError",
+    "albedo_times_metal",
     "read_image",
+    "sanitize_image",
     "source_color_space",
+    "tex_path",
+    "texture_channels",
+    "to_rgb",
 ]
 
 #: UsdPreviewSurface diffuseColor fallback.
@@ -66,13 +85,17 @@ class MaterialReader:
         self._textures: dict = {}
         self.tc_transforms: dict = {}  # derived texcoord name -> (primvar, A (2,2), b (2,))
         self.unhonoured: dict[str, list[str]] = {}  # UsdPreviewSurface input -> materials
+        self._deps: dict[str, list[str]] = {}  # material -> primvars it reads from the prim
+        self._used: list[str] | None = None  # primvars read while reading one material
+        self._prim = None  # the gprim a material is being read for
+        self._mtlx: dict = {}  # binding target -> materialx.MtlxSource or None
 
     def face_materials(self, prim, n_faces, path):
         """(n_faces,) int32 material index of each face of a gprim: its bound material, and
         the GeomSubsets' bindings over it. Raises SubsetError for out-of-range indices."""
         api = UsdShade.MaterialBindingAPI(prim)
         # A baker renders final quality: the "full" binding, else the all-purpose one.
-        base = self.material_index(api.ComputeBoundMaterial(UsdShade.Tokens.full)[0], prim)
+        base = self.material_index(*api.ComputeBoundMaterial(UsdShade.Tokens.full), prim=prim)
         fm = np.full(n_faces, base, np.int32)
         for subset in api.GetMaterialBindSubsets():
             ind = self.get(subset.GetIndicesAttr())
@@ -85,20 +108,29 @@ class MaterialReader:
                     "fix the subset"
                 )
             sub = UsdShade.MaterialBindingAPI(subset.GetPrim())
-            mat = sub.ComputeBoundMaterial(UsdShade.Tokens.full)[0]
-            fm[ind] = self.material_index(mat, prim)
+            fm[ind] = self.material_index(
+                *sub.ComputeBoundMaterial(UsdShade.Tokens.full), prim=prim
+            )
         return fm
 
-    def material_index(self, mat, prim):
-        """Index of a UsdShade.Material in ``materials`` (read the first time it is bound);
-        no material: one material per distinct displayColor (mean), else DEFAULT_ALBEDO."""
+    def material_index(self, mat, rel=None, prim=None):
+        """Index of a UsdShade.Material in ``materials`` for the gprim ``prim`` (read the
+        first time it is bound; again per distinct value of the primvars it reads, e.g.
+        displayColor through a UsdPrimvarReader_float3). No material: a binding to a
+        material of a ``.mtlx`` file USD could not compose (``rel``, the binding) is read
+        from the file (:mod:`usdahd.usd.materialx`); else one material per distinct
+        displayColor (mean), else DEFAULT_ALBEDO."""
+        if prim is None:  # material_index(mat, prim): the former signature
+            rel, prim = None, rel
         if not mat:
+            src = self._mtlx_binding(rel)
+            if src is not None:
+                key = f"<{src[1].file}>{src[1].material}"  # instances share it
+                return self._indexed(key, prim, lambda: self._read_mtlx_file(*src, prim))
             color = DEFAULT_ALBEDO
-            dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
-            if dc and dc.HasValue():
-                v = dc.ComputeFlattened(self.ctx.time)
-                if v is not None and len(v):
-                    color = tuple(np.asarray(v, np.float64).reshape(-1, 3).mean(axis=0))
+            v = self.primvar_value(prim, "displayColor", None, str(prim.GetPath()))
+            if v is not None:
+                color = tuple(float(x) for x in v)
             key = f"<displayColor {np.round(color, 6).tolist()}>"
             if key not in self._mat_index:
                 self._mat_index[key] = len(self.materials)
@@ -107,22 +139,169 @@ class MaterialReader:
                 )
             return self._mat_index[key]
         key = str(mat.GetPath())
+        return self._indexed(key, prim, lambda: self._read_material(mat))
+
+    def _indexed(self, base: str, prim, read) -> int:
+        """The index of material ``base`` as read for ``prim``: one entry per distinct
+        value of the primvars the material reads from the prim (none: one entry)."""
+        deps = self._deps.get(base)
+        if deps is not None:
+            key = base + (repr([self._dep_value(prim, d) for d in deps]) if deps else "")
+            if key in self._mat_index:
+                return self._mat_index[key]
+        self._used, self._prim = [], prim
+        try:
+            m = read()
+        finally:
+            used, self._used, self._prim = self._used, [], None
+        deps = sorted(set(used))
+        self._deps[base] = deps
+        key = base + (repr([self._dep_value(prim, d) for d in deps]) if deps else "")
         if key not in self._mat_index:
             self._mat_index[key] = len(self.materials)
-            self.materials.append(self._read_material(mat))
+            self.materials.append(m)
         return self._mat_index[key]
+
+    def _dep_value(self, prim, name):
+        v = self._primvar_mean(prim, name)
+        return None if v is None else np.round(v, 7).tolist()
+
+    def _primvar_mean(self, prim, name):
+        """(mean value (n,) float64, number of distinct values) of a primvar, or None."""
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name) if prim is not None else None
+        if not pv or not pv.HasValue():
+            return None
+        v = pv.ComputeFlattened(self.ctx.time)
+        if v is None or len(v) == 0:
+            return None
+        a = np.asarray(v, np.float64)
+        a = a.reshape(len(v), -1)
+        return a.mean(axis=0)
+
+    def primvar_value(self, prim, name: str, fallback, mat_name: str):
+        """The value of primvar ``name`` of ``prim`` as a material reads it (a primvar
+        reader, displayColor of an unbound mesh): its mean when it varies over the mesh
+        (warned: a Lambertian material is one colour per material in the bake), else
+        ``fallback``. Records the dependency (see :meth:`_indexed`)."""
+        if self._used is not None:
+            self._used.append(name)
+        v = self._primvar_mean(prim, name)
+        if v is None:
+            return fallback
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+        flat = np.asarray(pv.ComputeFlattened(self.ctx.time), np.float64).reshape(-1, v.size)
+        if len(flat) > 1 and np.ptp(flat, axis=0).max() > 1e-6:
+            self.warn(
+                f"{prim.GetPath()}: primvars:{name} varies over the mesh ({len(flat)} values, "
+                f"{pv.GetInterpolation()}); {mat_name} uses its mean {fmt_values(v)} for the "
+                "whole prim. Fix: bake the colours into a texture, or split the mesh by colour",
+                key=f"pv-varies:{prim.GetPath()}:{name}",
+            )
+        return v
+
+    def _mtlx_binding(self, rel):
+        """(target path, MtlxSource) when the binding ``rel`` targets a prim that a ``.mtlx``
+        reference should have provided, else None."""
+        if not rel:
+            return None
+        stage = self.ctx.stage
+        for t in rel.GetTargets():
+            tp = stage.GetPrimAtPath(t)
+            if tp and tp.IsA(UsdShade.Material):
+                continue
+            src = self._mtlx_binding_of(t)
+            if src is not None:
+                return str(t), src
+        return None
+
+    def _mtlx_binding_of(self, path):
+        key = str(path)
+        if key not in self._mtlx:
+            self._mtlx[key] = materialx.find_mtlx(self.ctx.stage, path)
+        return self._mtlx[key]
+
+    def _read_mtlx_file(self, target: str, src, prim) -> Material:
+        """The material ``target`` read from its ``.mtlx`` document (see materialx)."""
+        out = Material(target, np.array(DEFAULT_ALBEDO, np.float32), np.zeros(3, np.float32))
+        node, err = (None, src.reason) if src.reason else materialx.mtlx_surface(src)
+        if node is None:
+            self.warn(
+                f"{prim.GetPath()}: material:binding targets {target}, which comes from "
+                f"{src.file}: MaterialX file could not be composed (USD: usd-core has no "
+                f"usdMtlx plugin; usdahd: {err}); the default material (grey 0.18, no "
+                "emission) is used. Fix: the MaterialX file or the reference to it "
+                f"in {src.layer}",
+                key=f"mtlx-bad:{target}",
+            )
+            return out
+        self.warn(
+            f"{src.file}: MaterialX file could not be composed by USD (the usd-core wheel has "
+            "no usdMtlx file-format plugin); usdahd reads the materials bound from it "
+            f"(e.g. {target}) with the MaterialX library",
+            key=f"mtlx-read:{src.file}",
+        )
+        return self._read_surface_node(node, target)
+
+    def _read_surface_node(self, node, name: str) -> Material:
+        """A Material from a MaterialX surface node (UsdNode or MtlxNode)."""
+        g = materialx.Graph(self, self._prim, name)
+        terms = materialx.surface_terms(g, node)
+        out = Material(name, np.array(DEFAULT_ALBEDO, np.float32), np.zeros(3, np.float32))
+        tcs = []
+        for field, sig in (("albedo", terms["albedo"]), ("emission", terms["emission"])):
+            if sig.tex is not None:
+                setattr(out, f"{field}_tex", sig.tex)
+                tcs.append(sig.tc)
+            else:
+                setattr(out, field, np.asarray(sig.const, np.float32)[:3].copy())
+        op = terms["opacity"]
+        if op.tex is not None:
+            out.opacity_tex = op.tex
+            tcs.append(op.tc)
+        else:
+            out.opacity = float(np.ravel(op.const)[0])
+        out.opacity_threshold = terms["opacity_threshold"]
+        kind = materialx.SURFACES[node.id]
+        for what, v in terms["ignored"]:
+            self.unhonoured.setdefault(f"{kind} {what} = {v}", []).append(name)
+        self._check_material(out)
+        if tcs:
+            out.texcoord = tcs[0]
+            if len(set(tcs)) > 1:
+                self.warn(
+                    f"{name}: textures read different texcoords {sorted(set(tcs))}; using "
+                    f"'{tcs[0]}' for all. Fix: read all through one texcoord"
+                )
+        return out
 
     def _read_material(self, mat):
         name = str(mat.GetPath())
         out = Material(name, np.array(DEFAULT_ALBEDO, np.float32), np.zeros(3, np.float32))
-        shader = mat.ComputeSurfaceSource()[0]
+        # A renderer with MaterialX (Storm, Karma, RenderMan, Omniverse) renders the "mtlx"
+        # render context when the material has one, else the universal one.
+        shader = mat.ComputeSurfaceSource("mtlx")[0]
+        sid = str(shader.GetShaderId() or "") if shader else None
+        if sid and sid not in materialx.SURFACES and sid != "UsdPreviewSurface":
+            universal = mat.ComputeSurfaceSource()[0]
+            if universal and universal.GetShaderId() == "UsdPreviewSurface":
+                shader, sid = universal, "UsdPreviewSurface"
         if not shader:
-            self.warn(f"{name}: no surface shader; albedo {DEFAULT_ALBEDO}")
-            return out
-        sid = shader.GetIdAttr().Get() if shader.GetIdAttr() else None
-        if sid != "UsdPreviewSurface":
+            src = self._mtlx_binding_of(mat.GetPath())
+            if src is not None:  # a Material prim whose .mtlx reference did not compose
+                return self._read_mtlx_file(name, src, self._prim)
             self.warn(
-                f"{name}: surface shader {sid} is not UsdPreviewSurface; albedo {DEFAULT_ALBEDO}",
+                f"{name}: no surface shader (outputs:surface or outputs:mtlx:surface); the "
+                f"bake uses albedo {fmt_values(DEFAULT_ALBEDO)}. Fix: connect a surface"
+            )
+            return out
+        if sid in materialx.SURFACES and sid != "ND_UsdPreviewSurface_surfaceshader":
+            return self._read_surface_node(materialx.UsdNode(shader, self.get), name)
+        if sid not in ("UsdPreviewSurface", "ND_UsdPreviewSurface_surfaceshader"):
+            self.warn(
+                f"{name}: surface shader {shader.GetPath()} is {sid}, which the bake does not "
+                f"read (it reads UsdPreviewSurface, {', '.join(materialx.SURFACES)}); albedo "
+                f"{fmt_values(DEFAULT_ALBEDO)}. Fix: add a UsdPreviewSurface in the universal "
+                "render context",
                 key=f"shader:{name}",
             )
             return out
@@ -136,8 +315,7 @@ class MaterialReader:
         )
         op, out.opacity_tex = self._input(shader, "opacity", 1.0, name, tc_names)
         out.opacity = float(np.ravel(op)[0])
-        thr = shader.GetInput("opacityThreshold")
-        out.opacity_threshold = float(self.get(thr.GetAttr(), 0.0)) if thr else 0.0
+        out.opacity_threshold = float(self._uniform(shader, "opacityThreshold", 0.0))
         self._check_material(out)
         self._metallic(shader, out, *metal)
         self._unhonoured_inputs(shader, name)
@@ -158,8 +336,7 @@ class MaterialReader:
         bake cannot apply is warned (naming the material and the fix); an unreadable texture
         gives its ``fallback`` (a constant metallic, applied by :meth:`_metallic`); not
         connected: (None, None)."""
-        wf = shader.GetInput("useSpecularWorkflow")
-        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+        if int(self._uniform(shader, "useSpecularWorkflow", 0)) == 1:
             return None, None
         inp = shader.GetInput("metallic")
         if not inp or not inp.HasConnectedSource():
@@ -214,8 +391,7 @@ class MaterialReader:
         scale and bias (exact: bilinear filtering commutes with the affine map). A metallic
         texture (``metal_tex``, :meth:`_metallic_texture`) becomes part of the albedo
         texture (:func:`albedo_times_metal`); an unreadable one gives its ``fallback``."""
-        wf = shader.GetInput("useSpecularWorkflow")
-        if wf and int(self.get(wf.GetAttr(), 0) or 0) == 1:
+        if int(self._uniform(shader, "useSpecularWorkflow", 0)) == 1:
             return
         inp = shader.GetInput("metallic")
         if not inp:
@@ -244,6 +420,16 @@ class MaterialReader:
             tex.scale[:3] *= k
             tex.bias[:3] *= k
 
+    def _uniform(self, shader, name: str, default: float) -> float:
+        """An unconnected shader input's value, through NodeGraph / Material interface
+        inputs (usdMtlx writes those), else ``default``."""
+        port = materialx.UsdNode(shader, self.get).port(name)
+        if port is None or port.src is not None or port.value is None:
+            return default
+        if isinstance(port.value, str):
+            return default
+        return float(np.ravel(np.asarray(port.value, np.float64))[0])
+
     def _unhonoured_inputs(self, shader, name) -> None:
         """Record the UsdPreviewSurface inputs that change the diffuse response and that the
         baker ignores (a Lambertian bake of the base layer); see material_warnings."""
@@ -253,18 +439,19 @@ class MaterialReader:
             "occlusion": 1.0,
             "clearcoat": 0.0,
         }
+        node = materialx.UsdNode(shader, self.get)
         for inp_name, value in neutral.items():
-            inp = shader.GetInput(inp_name)
-            if not inp:
+            port = node.port(inp_name)  # through NodeGraph / Material interface inputs
+            if port is None:
                 continue
-            if inp.HasConnectedSource():
-                self.unhonoured.setdefault(f"{inp_name} (connected)", []).append(name)
+            if port.src is not None:
+                what = f"UsdPreviewSurface {inp_name} (connected)"
+                self.unhonoured.setdefault(what, []).append(name)
                 continue
-            if not inp.GetAttr().HasAuthoredValue():
-                continue
-            v = self.get(inp.GetAttr())
+            v = port.value
             if v is not None and not np.allclose(np.asarray(v, np.float64), value):
-                self.unhonoured.setdefault(f"{inp_name} = {fmt_values(v)}", []).append(name)
+                what = f"UsdPreviewSurface {inp_name} = {fmt_values(v)}"
+                self.unhonoured.setdefault(what, []).append(name)
 
     def material_warnings(self) -> None:
         """One warning per stage and unhonoured UsdPreviewSurface input, naming materials."""
@@ -273,7 +460,7 @@ class MaterialReader:
             more = f" and {len(mats) - 3} more" if len(mats) > 3 else ""
             fix = " (the bake shades the flat diffuse base layer)"
             self.warn(
-                f"UsdPreviewSurface {what} is not honoured by the bake in {len(mats)} "
+                f"{what} is not honoured by the bake in {len(mats)} "
                 f"materials ({', '.join(mats[:3])}{more}){fix}",
                 key=f"unhonoured:{what}",
             )
@@ -317,34 +504,95 @@ class MaterialReader:
                 setattr(out, key, min(max(v, 0.0), 1.0))
 
     def _input(self, shader, inp_name, fallback, mat_name, tc_names):
-        inp = shader.GetInput(inp_name)
+        """(constant, Texture or None) of a UsdPreviewSurface input: its value, a
+        UsdUVTexture, or any other node (a primvar reader, MaterialX nodes: evaluated by
+        usdahd.usd.materialx.Graph), followed through NodeGraph outputs."""
         fb = np.array(fallback, np.float32)
-        if not inp:
+        usd_node = materialx.UsdNode(shader, self.get)
+        port = usd_node.port(inp_name)
+        if port is None:
             return fb, None
-        src = inp.GetConnectedSources()[0] if inp.HasConnectedSource() else []
-        if not src:
-            v = self.get(inp.GetAttr())
-            return (fb if v is None else np.array(v, np.float32)), None
-        info = src[0]
-        tex_shader = UsdShade.Shader(info.source.GetPrim())
-        out_name = str(info.sourceName)
-        sid = tex_shader.GetIdAttr().Get() if tex_shader.GetIdAttr() else None
-        if sid != "UsdUVTexture":
-            self.warn(
-                f"{mat_name}: {inp_name} connected to {sid}; using its fallback",
-                key=f"conn:{mat_name}:{inp_name}",
-            )
-            return fb, None
-        tex = self._texture(tex_shader, out_name, mat_name)
+        if port.src is None:
+            v = port.value
+            return (fb if v is None or isinstance(v, str) else np.array(v, np.float32)), None
+        src = port.src
+        out_name = port.out
+        if src.id not in ("UsdUVTexture", "ND_UsdUVTexture", "ND_UsdUVTexture_23"):
+            g = materialx.Graph(self, self._prim, mat_name)
+            g.surface = (usd_node, inp_name)
+            sig = g.node(src, out_name, fb, f"{shader.GetPath()}.inputs:{inp_name}")
+            if sig is None:
+                return fb, None
+            if sig.tex is None:
+                return materialx._fit(sig.const, fb.size), None
+            tc_names.append(sig.tc)
+            return fb, sig.tex
+        tex_shader = src.shader
+        tex, reason = self._texture(tex_shader, out_name, mat_name)
         if tex is None:
             fbi = tex_shader.GetInput("fallback")
-            f4 = np.array(
-                self.get(fbi.GetAttr(), (0, 0, 0, 1)) if fbi else (0, 0, 0, 1), np.float32
-            )
+            authored = bool(fbi) and fbi.GetAttr().HasAuthoredValue()
+            f4 = self.get(fbi.GetAttr(), (0, 0, 0, 1)) if fbi else (0, 0, 0, 1)
+            f4 = np.array(f4, np.float32)
             ch = texture_channels(out_name)
-            return (f4[list(ch)] if len(ch) == fb.size else fb), None
+            value = f4[list(ch)] if len(ch) == fb.size else fb
+            what = f"inputs:fallback of {tex_shader.GetPath()}"
+            if not authored:
+                what = f"the default inputs:fallback of UsdUVTexture {fmt_values(f4)}"
+            if reason is None:  # no file authored: the fallback, as USD renders it
+                return value, None
+            if inp_name == "diffuseColor" and not authored:
+                g = materialx.Graph(self, self._prim, mat_name)
+                g.surface = (usd_node, inp_name)
+                value, what = g.substitute(fb)
+                value = materialx._fit(value, fb.size)
+            self.report_unreadable(
+                self._prim,
+                mat_name,
+                f"{tex_shader.GetPath()}",
+                tex_path(tex_shader),
+                reason,
+                value,
+                what,
+                inp_name,
+            )
+            return value, None
         tc_names.append(self._texcoord_name(tex_shader, mat_name))
         return fb, tex
+
+    def graph_uvtexture(self, g, node, out):
+        """A UsdUVTexture reached from a MaterialX graph (usdahd.usd.materialx.Graph)."""
+        if not isinstance(node, materialx.UsdNode):
+            return None
+        tex, reason = self._texture(node.shader, out, g.name)
+        if tex is None:
+            return None
+        tc = self._texcoord_name(node.shader, g.name)
+        g.tcs.append(tc)
+        return materialx.Sig(tex=tex, tc=tc)
+
+    def image_texture(self, path, colorspace, owner):
+        """(Texture of a MaterialX image node's file (rgb(a) channels, scale 1, bias 0), or
+        None, the reason it cannot be read). ``colorspace`` : the file input's colour
+        space (MaterialX ``colorspace`` / USD ``colorSpace``; "" applies Hydra's rule)."""
+        if "<UDIM>" in path:
+            return None, "UDIM textures are not supported"
+        data, reason = self._read_image(path, "auto", owner, colorspace)
+        if data is None:
+            return None, reason
+        one = np.ones(4, np.float32)
+        return Texture(path, data, one, np.zeros(4, np.float32), (0, 1, 2)), ""
+
+    def report_unreadable(self, prim, mat_name, node, file, reason, value, what, inp=""):
+        """The warning for a texture that cannot be read: prim, file, value used, fix."""
+        who = f"{prim.GetPath()}: " if prim is not None else ""
+        for_ = f"{mat_name}" + (f" inputs:{inp}" if inp else "")
+        self.warn(
+            f"{who}cannot read texture {file} ({node}: {reason}); {for_} uses "
+            f"{fmt_values(value)} ({what}) instead. Fix: make the file readable (a path "
+            "that resolves, a format OpenImageIO decodes) or author the colour you want",
+            key=f"unreadable:{file}:{mat_name}:{inp}",
+        )
 
     def _texcoord_name(self, tex_shader, mat_name) -> str:
         """The texcoord a UsdUVTexture reads: the primvar of its UsdPrimvarReader_float2,
@@ -397,21 +645,24 @@ class MaterialReader:
         return name
 
     def _texture(self, tex_shader, out_name, mat_name):
+        """(Texture, "") of a UsdUVTexture, or (None, why it cannot be read; None when no
+        file is authored)."""
         fin = tex_shader.GetInput("file")
         asset = self.get(fin.GetAttr()) if fin else None
-        if asset is None:
-            return None
+        if asset is None or not (asset.path or asset.resolvedPath):
+            return None, None
         path = asset.resolvedPath or asset.path
         if "<UDIM>" in (asset.path or ""):
-            self.warn(f"{mat_name}: UDIM textures are not supported ({asset.path}); fallback used")
-            return None
+            return None, "UDIM textures are not supported"
+        if not asset.resolvedPath:
+            return None, f"it does not exist: the asset path @{asset.path}@ does not resolve"
         cs = tex_shader.GetInput("sourceColorSpace")
         cs = str(self.get(cs.GetAttr(), "auto")) if cs else "auto"
         fattr = fin.GetAttr()
         file_cs = str(fattr.GetColorSpace()) if fattr.HasColorSpace() else ""
-        data = self._read_image(path, cs, mat_name, file_cs)
+        data, reason = self._read_image(path, cs, mat_name, file_cs)
         if data is None:
-            return None
+            return None, reason
 
         def vec4(n, d):
             i = tex_shader.GetInput(n)
@@ -430,196 +681,39 @@ class MaterialReader:
             vec4("bias", (0, 0, 0, 0)),
             texture_channels(out_name),
             (wrap[0], wrap[1]),
-        )
+        ), ""
 
     def _read_image(self, path, colorspace, owner, file_colorspace=""):
+        """(linear texels or None, why not): read once per path and colour space. Why a
+        file cannot be read is returned for the caller's message (which names the value
+        used instead); other warnings (colour space) are warned here."""
         key = (path, colorspace, file_colorspace)
         if key in self._textures:
             return self._textures[key]
-        data = read_image(
-            path, colorspace, lambda m: self.warn(f"{owner}: {m}"), file_colorspace=file_colorspace
-        )
+        problems: list[str] = []
+
+        def warn(m):
+            if "fallback used" in m:
+                m = m.replace("; fallback used", "")
+                for head in (f"cannot read texture {path}", f"cannot decode texture {path}"):
+                    m = m.replace(head, "cannot decode it" if "decode" in head else "")
+                m = m.strip()
+                m = m[1:].strip() if m.startswith(":") else m
+                m = m[1:-1] if m.startswith("(") and m.endswith(")") else m
+                problems.append(m or "unreadable")
+            else:
+                self.warn(f"{owner}: {m}")
+
+        data = read_image(path, colorspace, warn, file_colorspace=file_colorspace)
         if data is not None:
             data = sanitize_image(data, f"{owner}: {path}", self.warn)
-        self._textures[key] = data
-        return data
+        reason = problems[0] if problems else ("cannot be decoded" if data is None else "")
+        self._textures[key] = (data, reason)
+        return data, reason
 
 
-def _outputs_on_grid(tex: Texture, h: int, w: int) -> np.ndarray:
-    """The UsdUVTexture output (``Texture.outputs``) of ``tex`` at the texel centres of an
-    h x w grid over [0, 1]^2, (h, w, len(channels)) float32: the texels themselves when the
-    texture is h x w, else its bilinear lookup (``Texture.sample``, its wrap modes)."""
-    if tex.data.shape[:2] == (h, w):
-        return tex.outputs()
-    out = np.empty((h, w, len(tex.channels)), np.float32)
-    u = (np.arange(w, dtype=np.float64) + 0.5) / w
-    rows = max(1, (1 << 20) // w)
-    for r0 in range(0, h, rows):
-        r = np.arange(r0, min(h, r0 + rows), dtype=np.float64)
-        v = 1.0 - (r + 0.5) / h
-        uv = np.stack(np.broadcast_arrays(u[None, :], v[:, None]), axis=-1).reshape(-1, 2)
-        out[r0 : r0 + len(r)] = tex.sample(uv).reshape(len(r), w, -1)
-    return out
-
-
-def albedo_times_metal(mat: Material, metal: Texture, warn) -> Texture:
-    """The albedo texture of a material whose ``inputs:metallic`` is a texture: diffuse
-    albedo = diffuseColor x (1 - metallic), on a common texel grid.
-
-    mat : the material, with its diffuseColor constant (``albedo``) or texture
-    (``albedo_tex``, reading the same texcoord as ``metal``: :meth:`MaterialReader
-    ._metallic_texture`); metal : the metallic UsdUVTexture (one channel selected; its
-    scale, bias, wrap modes and colour space already applied as for any texture).
-
-    Returns a texture with scale 1, bias 0, rgb, whose texels are the product. The grid is
-    the metallic texture's (constant diffuseColor), else per axis the larger of the two
-    resolutions; each texture is evaluated at the grid's texel centres by its own bilinear
-    lookup (its texels when it has the grid's resolution). What is exact and what is not:
-
-    - constant diffuseColor: exact everywhere (c x (1 - m) is affine in m, and bilinear
-      filtering commutes with it), apart from the clamp of metallic to [0, 1], applied per
-      texel rather than after filtering (warned when a texel is outside).
-    - diffuseColor texture: exact at the common grid's texel centres. Between them the
-      kernel filters the product bilinearly where a renderer multiplies two filtered values;
-      the difference is second order (zero where either texture is constant over the
-      texel cell). A texture of lower resolution than the grid is resampled bilinearly.
-    - wrap modes: the diffuse texture's; when the metallic texture's differ, outside
-      [0, 1] metallic follows the diffuse texture's mode (warned).
-    """
-    name = mat.name
-    d = mat.albedo_tex
-    if d is None:
-        h, w = metal.data.shape[:2]
-        wrap = metal.wrap
-    else:
-        h = max(d.data.shape[0], metal.data.shape[0])
-        w = max(d.data.shape[1], metal.data.shape[1])
-        wrap = d.wrap
-        if tuple(metal.wrap) != tuple(d.wrap):
-            warn(
-                f"{name}: the metallic texture {metal.path} wraps {tuple(metal.wrap)} but the "
-                f"diffuseColor texture {d.path} wraps {tuple(d.wrap)}; the combined albedo "
-                "texture uses the diffuse texture's modes (outside [0, 1] metallic follows "
-                "them). Fix: author the same wrapS/wrapT on both"
-            )
-    m = _outputs_on_grid(metal, h, w)[..., 0]
-    bad = ~((m >= 0.0) & (m <= 1.0))
-    if bad.any():
-        warn(
-            f"{name}: {int(bad.sum())} texels of the metallic texture {metal.path} are outside "
-            f"[0, 1] after scale and bias ({float(np.nanmin(m)):g} .. {float(np.nanmax(m)):g}); "
-            "clamped. Fix: the texture's values or its inputs:scale / inputs:bias"
-        )
-        m = np.clip(np.nan_to_num(m, nan=0.0), 0.0, 1.0)
-    k = (np.float32(1.0) - m.astype(np.float32))[..., None]
-    if d is None:
-        data = np.asarray(mat.albedo, np.float32)[None, None, :3] * k
-        path = metal.path
-    else:
-        dv = np.clip(_outputs_on_grid(d, h, w), 0.0, 1.0)
-        data = np.broadcast_to(dv, (h, w, 3)) * k if dv.shape[2] == 1 else dv[..., :3] * k
-        path = d.path
-    return Texture(
-        path,
-        np.ascontiguousarray(data, np.float32),
-        np.ones(4, np.float32),
-        np.zeros(4, np.float32),
-        (0, 1, 2),
-        tuple(wrap),
-    )
-
-
-def sanitize_image(data, label, warn):
-    """Replace NaN/Inf and negative texels by 0 (with a warning); data : (h, w, c) float32."""
-    bad = ~np.isfinite(data)
-    neg = np.isfinite(data) & (data < 0)
-    if bad.any() or neg.any():
-        warn(
-            f"{label}: {int(bad.sum())} NaN/Inf and {int(neg.sum())} negative texel values "
-            "replaced by 0"
-        )
-        data = np.where(bad | neg, np.float32(0), data).astype(np.float32)
-    return data
-
-
-def texture_channels(out_name: str) -> tuple[int, ...]:
-    """Channel indices a UsdUVTexture output selects (``rgb`` -> (0, 1, 2), ``a`` -> (3,))."""
-    return {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(out_name, (0, 1, 2))
-
-
-def to_rgb(img):
-    """(h, w, c) -> (h, w, 3): the first three channels, or grey replicated."""
-    if img.shape[2] >= 3:
-        return img[..., :3]
-    return np.repeat(img[..., :1], 3, axis=2)
-
-
-#: The colour space the baker works in (Gf.ColorSpaceNames / OpenImageIO's built-in config).
-LINEAR_SPACE = "lin_rec709_scene"
-#: Source colour spaces that need no conversion (data, or already the working space).
-_NO_CONVERSION = ("raw", "data", "lin_rec709_scene", "lin_rec709", "linear", "lin_srgb")
-
-
-def source_color_space(colorspace: str, file_colorspace: str, fmt: str, nchannels: int):
-    """The colour space a texture's texels are in, or None for data (no conversion).
-
-    colorspace : UsdUVTexture ``inputs:sourceColorSpace`` (``raw``, ``sRGB`` or ``auto``);
-    file_colorspace : ``colorSpace`` metadata authored on ``inputs:file`` (or "");
-    fmt : OpenImageIO pixel format of the file; nchannels : its channel count.
-    ``raw`` and ``sRGB`` are explicit. ``auto`` takes the file's colorSpace metadata when
-    authored, else Hydra's rule (HioImage): an 8-bit image with 3 or 4 channels is sRGB,
-    anything else (1- or 2-channel masks, 16-bit, float) is linear.
-    """
-    if colorspace == "raw":
-        return None
-    if colorspace == "sRGB":
-        return "srgb_rec709_scene"
-    if file_colorspace:
-        return None if file_colorspace in _NO_CONVERSION else file_colorspace
-    if fmt == "uint8" and nchannels in (3, 4):
-        return "srgb_rec709_scene"
-    return None
-
-
-def read_image(path: str, colorspace: str = "auto", warn=None, file_colorspace: str = ""):
-    """Read an image as linear float32 (h, w, c), or None (with a warning).
-
-    path : a resolved asset path: a file, or an asset inside a usdz package / from a studio
-    resolver (read through USD's asset resolver, usdahd.usd.assets).
-    colorspace, file_colorspace : see :func:`source_color_space`; the conversion to
-    lin_rec709_scene is OpenImageIO's (``ImageBufAlgo.colorconvert``, usdahd.images).
-    """
-    problem = asset_problem(path)
-    if problem:
-        if warn:
-            warn(f"cannot read texture {path}: it {problem}; fallback used")
-        return None
-    try:
-        with assets.local_file(path) as local:
-            try:
-                data, fmt = images.read_texels(local)
-            except ImageError as exc:
-                if warn:
-                    warn(f"cannot read texture {path} ({exc}); fallback used")
-                return None
-    except OSError as exc:
-        if warn:
-            warn(f"cannot read texture {path} ({one_line(exc, 200)}); fallback used")
-        return None
-    if data is None:
-        if warn:
-            warn(f"cannot decode texture {path}; fallback used")
-        return None
-    if colorspace not in ("raw", "sRGB", "auto") and warn:
-        warn(f"texture {path}: unknown sourceColorSpace {colorspace!r}; treated as auto")
-    space = source_color_space(colorspace, file_colorspace, fmt, data.shape[2])
-    if space is not None:
-        try:
-            data = images.convert_color(data, space, LINEAR_SPACE)
-        except ImageError as exc:
-            if warn:
-                warn(
-                    f"texture {path}: OpenImageIO cannot convert colour space {space!r} to "
-                    f"{LINEAR_SPACE} ({one_line(exc, 150)}); texels read unconverted"
-                )
-    return data
+def tex_path(tex_shader) -> str:
+    """The authored file of a UsdUVTexture, for messages."""
+    fin = tex_shader.GetInput("file")
+    a = fin.Get() if fin else None
+    return (a.resolvedPath or a.path) if a is not None else ""

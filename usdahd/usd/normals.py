@@ -126,13 +126,62 @@ def compute_normals(points, counts, indices, rule: str = RULE_CREASE, left_hande
     if rule not in (RULE_CREASE, RULE_SMOOTH):
         raise ValueError(f"unknown normals rule {rule!r}; expected one of {RULES[1:]}")
     idx = np.asarray(indices, np.int64)
+    counts = np.asarray(counts, np.int64)
+    dead = collapsed_faces(points, counts, idx)
+    if not dead.any():
+        return _normals(points, counts, idx, rule, left_handed)[0]
+    # Faces whose corners all sit on one position have a zero normal and zero angles: they add
+    # nothing to any other corner, so the rule runs on the other faces alone (a million such
+    # triangles cost seconds and ~100 MB instead of GBs, issue 40) and their corners take the
+    # fallback below (identical to running the rule on the whole mesh).
+    live = np.repeat(~dead, counts)
+    out = np.empty((len(idx), 3), np.float32)
+    out[live], weighted = _normals(points, counts[~dead], idx[live], rule, left_handed)
+    return _fallback(out, live, idx, weighted)
+
+
+def collapsed_faces(points, counts, idx) -> np.ndarray:
+    """(f,) bool: faces of 3 or more corners that all sit on one position (repeated indices or
+    coincident points): zero area whatever the transform. Vectorised, O(corners) memory."""
+    p = np.asarray(points, np.float64)
+    nf = len(counts)
+    if nf == 0 or len(idx) == 0:
+        return np.zeros(nf, bool)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    # each corner's face's first point (a face of 0 corners repeats nothing)
+    first = np.repeat(idx[np.minimum(start, len(idx) - 1)], counts)
+    moved = np.zeros(len(idx), bool)
+    for j in range(3):
+        moved |= p[idx, j] != p[first, j]
+    face = np.repeat(np.arange(nf), counts)
+    return (counts >= 3) & (np.bincount(face, weights=moved, minlength=nf) == 0)
+
+
+def _fallback(out, live, idx, weighted) -> np.ndarray:
+    """``out`` with the corners not in ``live`` set as :func:`_normals` sets corners of
+    zero-area faces: the angle-weighted average of the live corners at their point, else +Z."""
+    nv = int(idx.max()) + 1
+    live_idx = idx[live]
+    vsum = np.zeros((nv, 3))
+    for j in range(3):
+        vsum[:, j] = np.bincount(live_idx, weights=weighted[:, j], minlength=nv)
+    # per point, then gathered (a million dead corners usually sit on a few points)
+    la = np.linalg.norm(vsum, axis=1, keepdims=True)
+    alt = np.where(la > 1e-300, vsum / np.where(la > 0, la, 1.0), [0.0, 0.0, 1.0])
+    out[~live] = (alt / 1.0).astype(np.float32)[idx[~live]]
+    return out
+
+
+def _normals(points, counts, idx, rule, left_handed):
+    """:func:`compute_normals` on every face: ((c, 3) float32 normals, (c, 3) float64 each
+    corner's angle-weighted face normal)."""
     fn, ang, face = polygon_frames(points, counts, idx)
     if left_handed:
         fn = -fn
     c = len(idx)
     out = np.zeros((c, 3))
     if c == 0:
-        return out.astype(np.float32)
+        return out.astype(np.float32), out
     cos_limit = math.cos(math.radians(min(CREASE_ANGLE_DEG + CREASE_MARGIN_DEG, 180.0)))
     weighted = fn[face] * ang[:, None]  # (c, 3) each corner's contribution to its point
     if rule == RULE_SMOOTH:
@@ -144,16 +193,22 @@ def compute_normals(points, counts, indices, rule: str = RULE_CREASE, left_hande
     else:
         # Every pair (corner a, corner b) at the same point: a gathers b when their faces'
         # normals are within the crease angle (sorted by point; k^2 pairs for k corners).
-        order = np.argsort(idx, kind="stable")
+        # Corners of zero-area faces (normal 0) neither gather nor are gathered (their dot
+        # with any normal is 0), so they are left out of the pairs: a million degenerate
+        # triangles on one point would otherwise be 10^12 pairs (issue 40); their corners
+        # take the fallback below, as before.
+        live = np.flatnonzero(np.any(fn != 0.0, axis=1)[face])
+        order = live[np.argsort(idx[live], kind="stable")]
         sv = idx[order]
+        n_live = len(order)
         bounds = np.flatnonzero(np.diff(sv)) + 1
-        gstart = np.concatenate([[0], bounds])
-        gsize = np.diff(np.concatenate([gstart, [c]]))
+        gstart = np.concatenate([[0], bounds]) if n_live else np.zeros(0, np.int64)
+        gsize = np.diff(np.concatenate([gstart, [n_live]]))
         k = np.repeat(gsize, gsize)  # group size at each sorted position
         s = np.repeat(gstart, gsize)  # group start at each sorted position
         cum = np.cumsum(k)
         pos = 0
-        while pos < c:
+        while pos < n_live:
             end = int(np.searchsorted(cum, (cum[pos - 1] if pos else 0) + _CHUNK_PAIRS, "right"))
             end = max(end, pos + 1)
             kk = k[pos:end]
@@ -179,7 +234,7 @@ def compute_normals(points, counts, indices, rule: str = RULE_CREASE, left_hande
         alt = np.where(la > 1e-300, alt / np.where(la > 0, la, 1.0), [0.0, 0.0, 1.0])
         out[bad] = alt
         ln[bad] = 1.0
-    return (out / ln).astype(np.float32)
+    return (out / ln).astype(np.float32), weighted
 
 
 def to_world(normals, m3):
@@ -204,6 +259,7 @@ __all__ = [
     "RULE_CREASE",
     "RULE_SMOOTH",
     "RULE_VERSION",
+    "collapsed_faces",
     "compute_normals",
     "polygon_frames",
     "rule_for_scheme",

@@ -74,13 +74,19 @@ def open_stage(path, *, reload: bool = True):
         cached = Sdf.Layer.Find(path)
         if cached is not None:
             cached.Reload(force=True)
+    from usdahd.usd import diagnostics
+
+    # USD's own messages (the composition errors it prints as "Warning: in _ReportErrors ...")
+    # are trapped: composition problems are reported once by composition_warnings / the
+    # Composition rule, the rest by the command that captures around this (usdahd.cli).
     try:
-        stage = Usd.Stage.Open(path)
+        with diagnostics.capture(forward=True):
+            stage = Usd.Stage.Open(path)
     except UnicodeDecodeError:  # USD's message quotes the undecodable bytes
         raise StageError(utf8_problem(path)) from None
-    except Exception as exc:  # pxr raises Tf.ErrorException with a long message
-        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise StageError(f"{path}: not a readable USD stage ({first})") from None
+    except Exception as exc:  # pxr raises Tf.ErrorException with the errors it posted
+        cause = "; ".join(diagnostics.exception_causes(exc))
+        raise StageError(f"{path}: not a readable USD stage ({cause})") from None
     if stage is None:
         raise StageError(f"{path}: not a readable USD stage")
     return stage
@@ -137,17 +143,52 @@ def up_axis(stage, warn) -> str:
 
 
 def composition_warnings(stage, source, warn) -> None:
-    """Composition errors USD recovered from: cycles raise StageError, the rest warn."""
-    try:
-        errors = stage.GetCompositionErrors()
-    except AttributeError:  # pragma: no cover - USD < 23.11
-        return
-    for err in errors:
-        name = type(err).__name__
-        msg = one_line(err)
-        if "Cycle" in name:
+    """Composition problems (:func:`usdahd.usd.composition.problems`), each once with its
+    cause: a cycle raises StageError, the rest warn (the bake still runs: an arc USD could not
+    compose is missing from the scene; an unselected variant's broken arc is not composed at
+    all)."""
+    from usdahd.usd import composition
+
+    meshes = [
+        str(p.GetPath())
+        for p in Usd.PrimRange.Stage(stage)  # instance proxies are occluders, never baked
+        if p.IsA(UsdGeom.Mesh)
+    ]
+    for prob in composition.problems(stage, meshes):
+        if prob.cycle:
             raise StageError(
-                f"{source}: composition cycle ({msg}); remove the reference, payload or "
+                f"{source}: composition cycle ({prob.cause}); remove the reference, payload or "
                 "sublayer that points back to a layer already being composed"
             )
-        warn(f"{source}: composition error, that part of the scene is missing: {msg}")
+        if prob.variant:
+            warn(f"{source}: <{prob.prim}>: {prob.message()}")
+            continue
+        if prob.is_materialx and not prob.baked:
+            if _reads_materialx():
+                continue  # the material reader names the file once where a binding uses it
+            warn(f"{source}: <{prob.prim}>: {prob.message()}")
+            continue
+        n = len(prob.baked)
+        touched = (
+            f"{n} mesh(es) under it ({', '.join(prob.baked[:3])}{', ...' if n > 3 else ''}) "
+            "are read without it"
+            if n
+            else "no mesh is composed from it"
+        )
+        also = (
+            f" (also on {len(prob.also)} more prim(s): <{prob.also[0]}>, ...)" if prob.also else ""
+        )
+        warn(
+            f"{source}: composition error, that part of the scene is missing ({touched}): "
+            f"<{prob.prim}>: {prob.cause}{also}. Fix: repair or remove the arc (the file it "
+            "names must exist and be a USD layer)"
+        )
+
+
+def _reads_materialx() -> bool:
+    """Whether usdahd's MaterialX reader (usdahd.usd.materialx, issue 37) is installed: it
+    reads materials from ``.mtlx`` files USD cannot compose and reports each such file itself,
+    so the bake does not report the composition error a second time."""
+    import importlib.util
+
+    return importlib.util.find_spec("usdahd.usd.materialx") is not None

@@ -31,6 +31,8 @@ Rules (see docs/validate.md for what each checks and how to fix it):
 ``Staleness``      the stored content hash still matches the stage.
 ``UVSet``          the lightmap UV primvar exists, lies in [0, 1], does not overlap.
 ``Lightmapped``    (per stage) at least one prim has AhdLightmapAPI.
+``Composition``    (per stage) composition problems once each: warnings unless a baked prim
+                   is composed through them (``composition``).
 
 Every finding message ends with what to do. Tolerances live in :class:`Options` (module-level
 :data:`OPTIONS`, changed by ``usdahd validate --tolerance`` and friends).
@@ -42,6 +44,7 @@ from __future__ import annotations
 from usdahd import models  # noqa: F401  (V.models in tests)
 from usdahd.numerics import sh as shm  # noqa: F401
 from usdahd.usd import schema  # noqa: F401
+from usdahd.validate.composition import check_composition  # noqa: F401
 from usdahd.validate.findings import (  # noqa: F401
     FINDING_DATA,
     Finding,
@@ -98,11 +101,13 @@ from usdahd.validate.plugin import (  # noqa: F401
 )
 from usdahd.validate.registry import (  # noqa: F401
     BUILTIN_VALIDATORS,
+    COMPOSITION_RULE,
     KEYWORD,
     PLUGIN_NAME,
     RULE_NAMES,
     RULES,
     STAGE_RULE,
+    STAGE_RULES,
     Rule,
     validator_name,
 )

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 from usdahd.usd import schema
 from usdahd.usd import validation as usd_validation
+from usdahd.validate.composition import check_composition
 from usdahd.validate.findings import FINDING_DATA, Finding
 from usdahd.validate.irradiance import check_encoding_error, check_iz
 from usdahd.validate.loading import _LOCK
-from usdahd.validate.registry import RULE_NAMES, STAGE_RULE, validator_name
+from usdahd.validate.registry import COMPOSITION_RULE, RULE_NAMES, STAGE_RULE, validator_name
 from usdahd.validate.schema_values import check_schema_values
 from usdahd.validate.staleness import check_staleness
 from usdahd.validate.texel_values import check_texel_values
@@ -89,6 +90,9 @@ def register() -> list[str]:
     name = validator_name(STAGE_RULE.name)
     if usd_validation.register_validator(name, _stage_task, stage=True):
         done.append(name)
+    name = validator_name(COMPOSITION_RULE.name)
+    if usd_validation.register_validator(name, _composition_task, stage=True):
+        done.append(name)
     return done
 
 
@@ -114,3 +118,22 @@ def check_lightmapped(stage) -> list[Finding]:
 
 #: The UsdValidation stage task of Lightmapped.
 _stage_task = usd_validation.stage_task(STAGE_RULE.name, check_lightmapped)
+
+
+def _recorded_stage(check):
+    """``check(stage)``, keeping each finding's data in FINDING_DATA (see :func:`_recorded`)."""
+
+    def run(stage):
+        found = check(stage)
+        with _LOCK:
+            for f in found:
+                FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
+        return found
+
+    return run
+
+
+#: The UsdValidation stage task of Composition.
+_composition_task = usd_validation.stage_task(
+    COMPOSITION_RULE.name, _recorded_stage(check_composition)
+)

@@ -10,10 +10,11 @@ from dataclasses import dataclass
 PLUGIN_NAME = "usdahd.validate"
 KEYWORD = "UsdAhdValidators"
 #: Built-in validators that matter for a baked stage, run by ``usdahd validate`` too.
+#: (usdValidation:CompositionErrorTest is replaced by our Composition rule, which tells composition
+#: errors that touch a baked prim (errors) from the rest (warnings).)
 BUILTIN_VALIDATORS = (
     "usdUtilsValidators:MissingReferenceValidator",
     "usdValidation:AttributeTypeMismatch",
-    "usdValidation:CompositionErrorTest",
 )
 
 
@@ -70,6 +71,18 @@ STAGE_RULE = Rule(
     "At least one prim of the stage has AhdLightmapAPI applied, so a CI job pointed at the "
     "source stage instead of its baked override layer fails.",
 )
+
+
+#: The second stage rule: composition problems, warnings unless a baked prim goes through them
+#: (usdahd.validate.composition).
+COMPOSITION_RULE = Rule(
+    "Composition",
+    "Composition problems of the stage (arcs USD could not compose, broken arcs in unselected "
+    "variants) are reported once each: errors when a baked prim is composed through them, "
+    "warnings otherwise.",
+)
+#: Every stage rule (UsdValidation stage validators: no schema type, run once per stage).
+STAGE_RULES = (STAGE_RULE, COMPOSITION_RULE)
 
 
 def validator_name(rule: str) -> str:

@@ -305,6 +305,7 @@ def sarif(s: Summary) -> str:
     rule_ids = list(dict.fromkeys([*s.prim_rules, *s.stage_rules, *(f.rule for f in s.findings)]))
     default_level = {r: "error" for r in rule_ids}
     default_level["EncodingError"] = "warning"
+    default_level["Composition"] = "warning"  # errors only when a baked prim goes through it
     rules = [_rule_descriptor(r, s.rule_docs.get(r, ""), default_level[r]) for r in rule_ids]
     index = {r: i for i, r in enumerate(rule_ids)}
     artifact = {"uri": uri, **({"uriBaseId": base} if base else {})}

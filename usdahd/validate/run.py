@@ -11,31 +11,38 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from usdahd.usd import schema
+from usdahd.usd import diagnostics, schema
 from usdahd.usd import validation as usd_validation
 from usdahd.usd.stage import open_stage
+from usdahd.validate.composition import check_composition
 from usdahd.validate.findings import Finding, finding_from_usd
 from usdahd.validate.plugin import check_lightmapped
 from usdahd.validate.registry import (
     BUILTIN_VALIDATORS,
+    COMPOSITION_RULE,
     KEYWORD,
     RULE_NAMES,
-    STAGE_RULE,
+    STAGE_RULES,
     validator_name,
 )
+
+#: The built-in validator that walks every layer a stage depends on, unselected variants
+#: included, and raises (pxr's Tf.ErrorException: no findings at all) on one that does not
+#: parse; validate_stage then runs without it (the Composition rule names that layer).
+DEPENDENCY_VALIDATOR = "usdUtilsValidators:MissingReferenceValidator"
 
 SEVERITY_ORDER = {"error": 0, "warning": 1, "info": 2}
 
 
-def context(retrace: bool = False):
-    """The ValidationContext ``usdahd validate`` uses: our keyword plus the built-ins (plus the
-    opt-in Retrace validator with ``retrace``). Raises StageError when ours are not
+def context(retrace: bool = False, builtins=BUILTIN_VALIDATORS):
+    """The ValidationContext ``usdahd validate`` uses: our keyword plus the ``builtins`` (plus
+    the opt-in Retrace validator with ``retrace``). Raises StageError when ours are not
     registered."""
     from usdahd.validate import retrace as rt
 
-    required = [validator_name(r) for r in (*RULE_NAMES, STAGE_RULE.name)]
+    required = [validator_name(r) for r in (*RULE_NAMES, *(r.name for r in STAGE_RULES))]
     extra = rt.validator_name() if retrace else None
-    return usd_validation.context(KEYWORD, required, BUILTIN_VALIDATORS, extra)
+    return usd_validation.context(KEYWORD, required, builtins, extra)
 
 
 def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False) -> list[Finding]:
@@ -48,12 +55,59 @@ def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False)
     so an API caller pointed at the wrong stage gets the same failure as ``usdahd validate``.
     Raises UsageError for a ``prims`` path that is not on the stage.
     """
-    errors = usd_validation.run_context(context(retrace), stage, prims)
+    try:
+        errors = usd_validation.run_context(context(retrace), stage, prims)
+        skipped = None
+    except Exception as exc:
+        if not diagnostics.is_usd_error(exc):
+            raise
+        skipped = "; ".join(diagnostics.exception_causes(exc))
+        rest = tuple(b for b in BUILTIN_VALIDATORS if b != DEPENDENCY_VALIDATOR)
+        errors = usd_validation.run_context(context(retrace, rest), stage, prims)
     findings = [finding_from_usd(e) for e in errors]
     if not any(f.code == "NoAhdLightmapAPI" for f in findings):
         findings = check_lightmapped(stage) + findings
+    if prims and not any(f.rule == COMPOSITION_RULE.name for f in findings):
+        findings = check_composition(stage) + findings  # stage validators skip a --prim run
+    if skipped is not None:
+        findings.append(_dependency_skipped(skipped))
+    findings = _drop_restated(findings)
     findings.sort(key=lambda f: (f.prim, SEVERITY_ORDER.get(f.severity, 3), f.rule, f.code))
     return findings
+
+
+def _dependency_skipped(cause: str) -> Finding:
+    name = DEPENDENCY_VALIDATOR.split(":", 1)[1]
+    return Finding(
+        COMPOSITION_RULE.name,
+        "info",
+        "/",
+        "DependencyCheckSkipped",
+        f"USD's {name} stopped on a layer that does not parse ({cause}) and was left out of "
+        "this run: asset paths outside the lightmaps (material textures) are not checked for "
+        "existence on this stage; the Composition warnings name that layer. Fix: repair or "
+        "remove the arc to it",
+    )
+
+
+def _drop_restated(findings: list) -> list:
+    """Drop MissingReferenceValidator's ``UnresolvableDependency`` for a layer a Composition
+    finding reports (a missing layer in an unselected variant: one problem, one finding)."""
+    reported = {
+        os.path.normpath(str(f.data.get("resolved") or f.data.get("asset")))
+        for f in findings
+        if f.rule == COMPOSITION_RULE.name and (f.data.get("resolved") or f.data.get("asset"))
+    }
+    if not reported:
+        return findings
+    out = []
+    for f in findings:
+        if f.code == "UnresolvableDependency":
+            quoted = f.message.split("'")
+            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in reported:
+                continue
+        out.append(f)
+    return out
 
 
 def dedupe(findings: list, stage_dir: Path) -> list:
@@ -99,15 +153,30 @@ def validate_file(path: str, prims: list[str] | None = None, retrace: bool = Fal
     or without ``prims``. Raises StageError (unreadable stage, validators missing) and
     UsageError.
     """
-    with usd_validation.captured_stderr_fd() as lines:
+    with usd_validation.captured_stderr_fd() as lines, diagnostics.capture() as usd:
         stage = open_stage(path)
         baked = [str(p.GetPath()) for p in schema.prims_with_api(stage)]
         findings = validate_stage(stage, prims, retrace=retrace)
     findings = dedupe(findings, Path(path).resolve().parent)
-    usd = [ln for ln in lines if usd_validation.is_usd_diagnostic(ln)]
+    # USD's own messages: trapped on this thread, printed (secondary threads) to fd 2; each
+    # once, without those a finding already reports (composition errors, the dependency walk's
+    # messages about layers the Composition rule names).
+    reported = [
+        str(v)
+        for f in findings
+        if f.rule == COMPOSITION_RULE.name
+        for k, v in f.data.items()
+        if k in ("asset", "resolved")
+    ]
+    notes = []
+    for d in [*usd, *diagnostics.from_stderr_lines(lines)]:
+        if d.restates_composition or any(r and r in d.message for r in reported):
+            continue
+        if d.message not in notes:
+            notes.append(d.message)
     return Report(
         findings,
         baked,
-        sorted({usd_validation.usd_diagnostic(ln) for ln in usd}),
+        sorted(notes),
         [ln for ln in lines if not usd_validation.is_usd_diagnostic(ln)],
     )

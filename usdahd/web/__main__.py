@@ -1,0 +1,5 @@
+import sys
+
+from usdahd.web import main
+
+sys.exit(main())

@@ -1,7 +1,10 @@
 """A KTX 2.0 reader written from the Khronos KTX 2.0 specification, independent of usdahd.ktx2,
-with texture2ddecoder (Perfare's Texture2DDecoder) decoding the BC7 blocks.
+with texture2ddecoder (Perfare's Texture2DDecoder) decoding the BC7 blocks and Mesa's BC6H
+decoder (lavapipe, through wgpu: a texture of format bc6h-rgb-ufloat read by a compute shader)
+the BC6H blocks to float. texture2ddecoder's own BC6H decoder clamps to 8 bits in [0, 1]
+(``half_to_u8``), so it cannot read HDR back; :func:`bc6h_u8` exposes it for a cross-check.
 
-Used by tests/test_ktx2.py and benchmarks/ktx2_bench.py; imports numpy and texture2ddecoder only.
+Used by tests/test_ktx2.py and benchmarks/ktx2_bench.py; imports numpy, texture2ddecoder and wgpu.
 """
 
 from __future__ import annotations
@@ -13,13 +16,80 @@ from pathlib import Path
 import numpy as np
 
 KTX2_IDENTIFIER = bytes([0xAB, 0x4B, 0x54, 0x58, 0x20, 0x32, 0x30, 0xBB, 0x0D, 0x0A, 0x1A, 0x0A])
+VK_R8G8B8A8_UNORM = 37
 VK_R16G16B16A16_SFLOAT = 97
+VK_BC6H_UFLOAT_BLOCK = 131
 VK_BC7_UNORM_BLOCK = 145
+
+_LOAD = """
+@group(0) @binding(0) var t: texture_2d<f32>;
+@group(0) @binding(1) var<storage, read_write> o: array<vec4<f32>>;
+@compute @workgroup_size(1) fn main(@builtin(global_invocation_id) g: vec3<u32>) {
+  let d = textureDimensions(t);
+  o[g.y * d.x + g.x] = textureLoad(t, vec2<i32>(i32(g.x), i32(g.y)), 0);
+}"""
+_DEVICE = []
+
+
+def _device():
+    if not _DEVICE:
+        import wgpu
+
+        adapter = wgpu.gpu.request_adapter_sync(power_preference="high-performance")
+        if adapter is None or "texture-compression-bc" not in adapter.features:
+            raise RuntimeError("no Vulkan adapter with BC textures (mesa-vulkan-drivers)")
+        _DEVICE.append(adapter.request_device_sync(required_features=["texture-compression-bc"]))
+    return _DEVICE[0]
+
+
+def bc6h_float(blocks: bytes, w: int, h: int) -> np.ndarray:
+    """BC6H_UFLOAT blocks -> (h, w, 4) float32 through the Vulkan driver's decoder."""
+    import wgpu
+
+    dev = _device()
+    bw, bh = math.ceil(w / 4), math.ceil(h / 4)
+    usage = wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST
+    size = (4 * bw, 4 * bh, 1)
+    tex = dev.create_texture(size=size, format="bc6h-rgb-ufloat", usage=usage)
+    layout = {"bytes_per_row": bw * 16, "rows_per_image": bh}
+    dev.queue.write_texture({"texture": tex}, blocks, layout, size)
+    out = dev.create_buffer(
+        size=16 * 16 * bw * bh, usage=wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC
+    )
+    module = dev.create_shader_module(code=_LOAD)
+    pipe = dev.create_compute_pipeline(
+        layout="auto", compute={"module": module, "entry_point": "main"}
+    )
+    group = dev.create_bind_group(
+        layout=pipe.get_bind_group_layout(0),
+        entries=[
+            {"binding": 0, "resource": tex.create_view()},
+            {"binding": 1, "resource": {"buffer": out}},
+        ],
+    )
+    enc = dev.create_command_encoder()
+    cp = enc.begin_compute_pass()
+    cp.set_pipeline(pipe)
+    cp.set_bind_group(0, group)
+    cp.dispatch_workgroups(4 * bw, 4 * bh)
+    cp.end()
+    dev.queue.submit([enc.finish()])
+    px = np.frombuffer(dev.queue.read_buffer(out), np.float32).reshape(4 * bh, 4 * bw, 4)
+    return px[:h, :w]
+
+
+def bc6h_u8(blocks: bytes, w: int, h: int) -> np.ndarray:
+    """BC6H_UFLOAT blocks -> (h, w, 4) uint8 RGBA by texture2ddecoder (clamped to [0, 1])."""
+    import texture2ddecoder
+
+    bw, bh = math.ceil(w / 4), math.ceil(h / 4)
+    bgra = texture2ddecoder.decode_bc6(blocks, 4 * bw, 4 * bh)
+    return np.frombuffer(bgra, np.uint8).reshape(4 * bh, 4 * bw, 4)[..., [2, 1, 0, 3]][:h, :w]
 
 
 def read(path: str | Path) -> dict:
     """Parse a KTX2 file: header fields, DFD basic block, key/values and every mip level decoded
-    to (h, w, 4) float16 (RGBA16F) or uint8 (BC7, RGBA)."""
+    to (h, w, 4): float16 (RGBA16F), float32 (BC6H, Mesa's decoder) or uint8 (RGBA8, BC7)."""
     import texture2ddecoder
 
     data = Path(path).read_bytes()
@@ -56,6 +126,12 @@ def read(path: str | Path) -> dict:
         if vk == VK_R16G16B16A16_SFLOAT:
             assert length == lw * lh * 8 == ulength
             images.append(np.frombuffer(raw, np.float16).reshape(lh, lw, 4))
+        elif vk == VK_R8G8B8A8_UNORM:
+            assert length == lw * lh * 4 == ulength
+            images.append(np.frombuffer(raw, np.uint8).reshape(lh, lw, 4))
+        elif vk == VK_BC6H_UFLOAT_BLOCK:
+            assert length == math.ceil(lw / 4) * math.ceil(lh / 4) * 16
+            images.append(bc6h_float(raw, lw, lh))
         elif vk == VK_BC7_UNORM_BLOCK:
             bw, bh = math.ceil(lw / 4), math.ceil(lh / 4)
             assert length == bw * bh * 16
@@ -86,4 +162,5 @@ def read(path: str | Path) -> dict:
         },
         "kv": kv,
         "images": images,
+        "raw": [data[off : off + length] for off, length, _ in index],
     }

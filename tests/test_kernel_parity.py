@@ -24,7 +24,14 @@ from numba import njit
 from usdahd.bake import reference as R
 from usdahd.bake.kernels import integrate as KI
 from usdahd.bake.kernels import lights as K
-from usdahd.bake.kernels.layout import MODE_BSDF, MODE_MIS, MODE_NEE, NativeTables
+from usdahd.bake.kernels import shading as KS
+from usdahd.bake.kernels.layout import (
+    LIGHT_PARAMS,
+    MODE_BSDF,
+    MODE_MIS,
+    MODE_NEE,
+    NativeTables,
+)
 from usdahd.bake.kernels.trace import nb_offset, nb_texture
 from usdahd.bake.trace import Tracer, pack_textures
 from usdahd.numerics import sh
@@ -148,7 +155,9 @@ def test_numba_texture_equals_texture_sample(channels, c, wrap):
         (wrap, wrap),
     )
     uv = rng.uniform(-1.5, 2.5, (500, 2))
-    tb = NativeTables(*(None,) * 9, *pack_textures([tex]))
+    tex_data, tex_info, tex_chan, tex_sb = pack_textures([tex])
+    fields = dict(tex_data=tex_data, tex_info=tex_info, tex_chan=tex_chan, tex_sb=tex_sb)
+    tb = NativeTables(**{f: fields.get(f) for f in NativeTables._fields})
     got = _nb_tex(tb, 0, uv)[:, : len(channels)]
     np.testing.assert_allclose(got, tex.sample(uv), rtol=1e-6, atol=1e-6)
 
@@ -172,8 +181,7 @@ def test_native_result_equals_numpy_result(regression):
     ref, bf_ref = acc.result("regression" if regression else "mc")
     out = np.empty((n, 3, 9), np.float32)
     bf = np.empty(n, np.float32)
-    native_result(np.arange(n), acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
-                   regression, out, bf)  # fmt: skip
+    native_result(np.arange(n), acc.arrays, regression, out, bf)
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-5)  # float32 rounding
     np.testing.assert_array_equal(bf, bf_ref)
 
@@ -261,14 +269,14 @@ def _nb_cones(axis, omc, u):
 
 
 def test_cone_equals_scene_cone_dirs():
-    """The kernel's cone sampler (sphere and distant lights) is ``scene.lights._cone_dirs``,
+    """The kernel's cone sampler (sphere and distant lights) is ``scene.lights.cone_dirs``,
     down to tiny cones (1 - cos = 1e-12, the stable form both use)."""
     rng = np.random.default_rng(3)
     m = 2000
     axis = _unit(rng, m)
     omc = 10.0 ** rng.uniform(-12, 0.3, m)
     u = rng.random((m, 2))
-    ref = L._cone_dirs(axis, omc, u)
+    ref = L.cone_dirs(axis, omc, u)
     np.testing.assert_allclose(_nb_cones(axis, omc, u), ref, rtol=REL, atol=REL)
 
 
@@ -277,8 +285,8 @@ def _nb_weights(mode, pa, pb):
     wl = np.zeros(pa.shape[0])
     wb = np.zeros(pa.shape[0])
     for i in range(pa.shape[0]):
-        wl[i] = KI._wl(mode, pa[i], pb[i])
-        wb[i] = KI._wb(mode, pb[i], pa[i])
+        wl[i] = KS.w_light(mode, pa[i], pb[i])
+        wb[i] = KS.w_bsdf(mode, pb[i], pa[i])
     return wl, wb
 
 
@@ -300,13 +308,13 @@ def test_mis_weights_equal_reference(strategy):
 def _nb_shadows(o, p, d, dist):
     out = np.zeros((o.shape[0], 4))
     for i in range(o.shape[0]):
-        out[i] = KI._shadow1(o[i, 0], o[i, 1], o[i, 2], p[i, 0], p[i, 1], p[i, 2],
+        out[i] = KS.shadow1(o[i, 0], o[i, 1], o[i, 2], p[i, 0], p[i, 1], p[i, 2],
                              d[i, 0], d[i, 1], d[i, 2], dist[i])  # fmt: skip
     return out
 
 
 def test_shadow1_equals_reference_shadow():
-    """``_shadow1`` is the reference's ``_shadow`` (finite lights aimed at the sampled point
+    """``shading.shadow1`` is the reference's ``_shadow`` (finite lights aimed at the sampled point
     and shortened, infinite ones keep d)."""
     rng = np.random.default_rng(5)
     m = 1000
@@ -349,17 +357,17 @@ def test_helper_called_from_python_raises_instead_of_crashing():
     raises TypeError naming the function and the fix, even once compiled for a numba caller."""
     from usdahd.bake.kernels.cache import HelperDispatcher
 
-    assert isinstance(KI._pw, HelperDispatcher)
-    with pytest.raises(TypeError, match=r"integrate\._pw is a numba kernel helper .* @njit"):
-        KI._pw(1.0, 2.0)
+    assert isinstance(KS.power, HelperDispatcher)
+    with pytest.raises(TypeError, match=r"shading\.power is a numba kernel helper .* @njit"):
+        KS.power(1.0, 2.0)
 
     @njit(cache=False)
     def call(a, b):
-        return KI._pw(a, b)
+        return KS.power(a, b)
 
     assert call(1.0, 1.0) == 0.5  # from numba code it works
     with pytest.raises(TypeError, match="call it from @njit code"):
-        KI._pw(1.0, 1.0)  # now compiled for (float64, float64): still no call from Python
+        KS.power(1.0, 1.0)  # now compiled for (float64, float64): still no call from Python
 
 
 def test_helpers_compile_one_specialisation_per_argument_types():
@@ -410,10 +418,11 @@ def test_numba_light_importance_equals_bound(light):
     par[K.PAR_IMP_CENTER : K.PAR_IMP_CENTER + 3] = b.center
     par[K.PAR_IMP_NORMAL : K.PAR_IMP_NORMAL + 3] = b.normal
     if not isinstance(light, L.EmissiveTriangles):  # pack_lights writes the same slots
-        np.testing.assert_array_equal(
-            K.pack_lights([light]).par[0],
-            np.where(np.arange(K.N_PAR) >= K.PAR_IMP_FALLOFF, par, K.pack_lights([light]).par[0]),
-        )
+        imp = np.zeros(K.N_PAR, bool)
+        for f in ("imp_falloff", "imp_scale", "imp_r2", "imp_cap", "imp_center", "imp_normal"):
+            o = LIGHT_PARAMS.offset[f]
+            imp[o : o + LIGHT_PARAMS.width[f]] = True
+        np.testing.assert_array_equal(K.pack_lights([light]).par[0][imp], par[imp])
     np.testing.assert_allclose(_nb_importance(par, p), b.importance(p), rtol=REL)
     assert np.all(b.importance(p) >= 0)
 
@@ -425,9 +434,9 @@ def _nb_selection(par, nee_idx, p, u):
     ps = np.zeros(m)
     sel = np.zeros((m, n))
     for i in range(m):
-        q[i], ps[i] = KI._nee_pick(par, nee_idx, p[i, 0], p[i, 1], p[i, 2], u[i])
+        q[i], ps[i] = KS.nee_pick(par, nee_idx, p[i, 0], p[i, 1], p[i, 2], u[i])
         for j in range(n):
-            sel[i, j] = KI._nee_sel(par, nee_idx, nee_idx[j], p[i, 0], p[i, 1], p[i, 2])
+            sel[i, j] = KS.nee_sel(par, nee_idx, nee_idx[j], p[i, 0], p[i, 1], p[i, 2])
     return q, ps, sel
 
 
@@ -449,3 +458,49 @@ def test_vertex_light_selection_equals_selection_pmf():
     col = np.minimum((u[:, None] >= np.cumsum(pmf, axis=1)).sum(axis=1), len(nee_idx) - 1)
     np.testing.assert_array_equal(q, nee_idx[col])
     np.testing.assert_allclose(ps, pmf[np.arange(len(p)), col], rtol=REL)
+
+
+# ----------------------------------------------------------------------------- declared records
+
+
+def test_light_rows_are_declared_per_kind_without_overlap():
+    """Every light kind's fields (LIGHT_PARAMS, from each class's FIELDS) occupy disjoint
+    slots inside the row, a field name has one offset for every kind, and the generated
+    constants are those offsets."""
+    from usdahd.bake.kernels import layout
+
+    rec = layout.LIGHT_PARAMS
+    assert set(rec.variants) == {cls.KIND for cls in L.PACKED_LIGHTS}
+    for kind, names in rec.variants.items():
+        slots = np.zeros(rec.size, int)
+        for f in names:
+            slots[rec.offset[f] : rec.offset[f] + rec.width[f]] += 1
+        assert slots.max() == 1, kind
+    for i, cls in enumerate(L.PACKED_LIGHTS):
+        assert getattr(layout, "KIND_" + cls.KIND.upper()) == i
+        for f, w in cls.FIELDS:
+            assert getattr(layout, "PAR_" + f.upper()) == rec.offset[f] and rec.width[f] == w
+
+
+def test_a_light_row_refuses_a_foreign_field_and_reports_a_missing_one():
+    """A wrong slot is an error, not plausible wrong light: a kind's view refuses another
+    kind's field, and packing raises when a declared field stays unwritten."""
+    rec = LIGHT_PARAMS
+    row = np.zeros(rec.size)
+    view = rec.view(row, "sphere")
+    view.radius = 0.5
+    assert row[K.PAR_RADIUS] == 0.5
+    with pytest.raises(AttributeError, match="no field 'ex'"):
+        view.ex = np.ones(3)  # a rect light's field
+    with pytest.raises(ValueError, match=r"sphere.*not written.*radius"):
+        rec.pack(np.zeros(rec.size), "sphere", lambda v: setattr(v, "center", np.ones(3)))
+
+
+def test_overlapping_declarations_are_refused():
+    from usdahd.bake.kernels.layout import Row
+
+    with pytest.raises(ValueError, match="widths"):
+        Row.union("r", "R_", [("a", 1)], {"x": [("b", 3)], "y": [("b", 2)]})
+    r = Row.union("r", "R_", [("a", 1)], {"x": [("b", 3), ("c", 1)], "y": [("c", 1), ("d", 2)]})
+    assert r.offset["c"] not in range(r.offset["b"], r.offset["b"] + 3)
+    assert r.offset["d"] not in (r.offset["c"], r.offset["c"] - 1)

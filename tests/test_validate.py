@@ -141,8 +141,13 @@ def test_bad_asset_details(assets):
     assert stale.data["changed"] == ["lights"]
     tok = _ours(_findings(assets["bogus_token"]))[0]
     assert tok.code == "TokenNotAllowed" and "ahdLightmap:ratio" in tok.message
-    enc = _ours(_findings(assets["mirrored_directions"]))[0]
-    assert enc.severity == "warning" and enc.data["quantization_rmse"] > V.OPTIONS.rmse_warning
+    mir = _ours(_findings(assets["mirrored_directions"]))
+    assert [(f.rule, f.code, f.data["suspect_role"]) for f in mir] == [
+        ("IzCheck", "CodeMismatch", "direction")
+    ]
+    enc = _ours(_findings(assets["light_from_below"]))[0]
+    assert (enc.severity, enc.code) == ("warning", "HighModelError")
+    assert enc.data["relative_rmse"] > V.OPTIONS.model_rmse_warning
     rep = _ours(_findings(assets["replaced_texture"]))
     assert [(f.code, f.data["property"]) for f in rep] == [
         ("TextureReplaced", "ahdLightmap:texture:direction")
@@ -302,8 +307,8 @@ def test_cli_exit_codes_and_output(assets, capsys):
     out = capsys.readouterr().out
     assert f"<{MA.PRIM}> IzCheck:" in out and "Fix:" in out
     # warnings pass unless --strict
-    assert cli.main(["validate", str(assets["mirrored_directions"])]) == 0
-    assert cli.main(["validate", "--strict", str(assets["mirrored_directions"])]) == 1
+    assert cli.main(["validate", str(assets["light_from_below"])]) == 0
+    assert cli.main(["validate", "--strict", str(assets["light_from_below"])]) == 1
     # a looser tolerance accepts the 1% corruption
     assert cli.main(["validate", "--tolerance", "0.02", str(assets["corrupted_iz"])]) == 0
     assert V.OPTIONS.iz_tolerance is None  # restored

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from usdahd import cli, models
 
 REPO = Path(__file__).resolve().parents[1]
@@ -19,6 +21,9 @@ BAKE_KERNELS = {
     "usdahd.bake.kernels.integrate.native_result",
     "usdahd.bake.kernels.embree.intersect_batch",
     "usdahd.models.irradz.kernel._fit_kernel",
+    "usdahd.numerics.noise._tile_stats_numba",
+    "usdahd.numerics.cholesky._chol",
+    "usdahd.numerics.cholesky._solve",
 }
 
 
@@ -59,3 +64,18 @@ def test_warmup_text_output_says_what_it_did(capsys):
     # after the test above (or any earlier run) everything comes from the cache
     assert out.startswith("usdahd warmup: ")
     assert "kernels" in out and ("compiled" in out or "loaded from numba's cache" in out)
+
+
+def test_warmup_in_one_process_reports_the_same_kernels(capsys):
+    assert cli.main(["warmup", "--json", "--jobs", "1"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["jobs"] == 1 and report["second_process_seconds"] is None
+    assert BAKE_KERNELS <= set(report["compiled"]) | set(report["loaded"])
+    assert 0 < report["bake_seconds"] <= report["seconds"]
+
+
+def test_warmup_jobs_out_of_range_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["warmup", "--jobs", "3"])
+    assert exc.value.code == 2
+    assert "--jobs" in capsys.readouterr().err

@@ -1,14 +1,25 @@
 """Engine container: KTX 2.0 files with chart-aware mip chains (``usdahd bake --container ktx2``).
 
-Per lightmap texture (docs/schema.md layout) one ``<name>.<role>.ktx2`` beside the EXR/PNG:
+Per lightmap texture (docs/schema.md layout) one ``<name>.<role>.ktx2`` beside the EXR/PNG, in
+one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-bc``):
 
-- 8-bit textures (directions, ratios, 8-bit sh_l1): **BC7** (``VK_FORMAT_BC7_UNORM_BLOCK``),
-  encoded by etcpak (the maintained BC1-BC7 encoder on the package index), 1 byte per texel;
-  RGB textures get A = 255. The codes keep their meaning (the biases of docs/schema.md apply
-  to the decoded bytes).
-- float16 textures: **RGBA16F** (``VK_FORMAT_R16G16B16A16_SFLOAT``), the same half values
-  with A = 1, 8 bytes per texel: no maintained BC6H encoder is on the index, and BC6H has no
-  sign bit for the signed SH coefficients of the linear models anyway (BC6H_SFLOAT aside).
+- ``"none"`` (``ktx2``, the default): the stored values as they are, so an engine decodes
+  exactly what the EXR/PNG hold: float16 textures ``VK_FORMAT_R16G16B16A16_SFLOAT`` (A = 1,
+  8 bytes per texel), 8-bit textures ``VK_FORMAT_R8G8B8A8_UNORM`` (A = 255 for RGB, 4 bytes per
+  texel). Measured (docs/benchmarks.md): block compression of the IrradZ ``direction``
+  texture moves (u, v) codes near the horizon, where ``C_d = I_z (1 - w_a) / d_z`` magnifies
+  every step, by 50-750 % relRMSE of irradiance on pillar_room, so lossless is the default.
+- ``"bc"`` (``ktx2-bc``): block-compressed, 1 byte per texel. Non-negative float16 textures
+  (I_z, ambient, C_d, hemisphere, ...) ``VK_FORMAT_BC6H_UFLOAT_BLOCK``; float16 textures with a
+  negative value (the signed SH / HL2 / ambient-cube coefficients) stay RGBA16F, as no signed
+  BC6H encoder is on the package index; 8-bit textures ``VK_FORMAT_BC7_UNORM_BLOCK``. The
+  encoder is ispc-texcomp (Python bindings of Intel's ISPCTextureCompressor, MIT; manylinux,
+  macOS and Windows abi3 wheels): the only BC6H encoder on the package index, and its BC7
+  ("slow" profile) halves etcpak's error on the IrradZ directions (hhd/rgb on pillar_room:
+  0.53 vs 7.49 relRMSE). BC6H uses the "slow" profile (2.2 s per 512 x 512 here; "veryslow"
+  4.7 s for the same result on the ramps and noise tried).
+
+The codes keep their meaning (the biases of docs/schema.md apply to the decoded bytes).
 
 Mips must not bleed across charts: level k+1 is built from level k by averaging, per coarse
 texel, only the covered fine texels of the chart that covers most of them (ties: the lower
@@ -23,7 +34,7 @@ The container follows the KTX 2.0 specification (Khronos): identifier, header, i
 index (level 0 first, data stored smallest level first, each level aligned to
 lcm(texel block size, 4)), a Basic Data Format Descriptor, key/value data (``KTXwriter``,
 ``KTXorientation = rd``: row 0 is the top, like the PNG/EXR) and no supercompression. numpy
-and etcpak only; every write is atomic.
+(and ispc-texcomp for ``"bc"``) only; every write is atomic.
 """
 
 from __future__ import annotations
@@ -39,17 +50,33 @@ from usdahd.errors import ImageError
 from usdahd.io_util import atomic_path
 
 IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
+VK_FORMAT_R8G8B8A8_UNORM = 37
 VK_FORMAT_R16G16B16A16_SFLOAT = 97
+VK_FORMAT_BC6H_UFLOAT_BLOCK = 131
 VK_FORMAT_BC7_UNORM_BLOCK = 145
+#: the compressions of write(): "none" (lossless, ``--container ktx2``), "bc" (``ktx2-bc``)
+COMPRESSIONS = ("none", "bc")
+#: ISPCTextureCompressor profiles (speed/quality measured in the module docstring)
+BC6H_PROFILE = "slow"
+BC7_PROFILE = "slow"
 #: Basic DFD colour models and channel ids (Khronos Data Format Specification 1.3).
 KHR_DF_MODEL_RGBSDA = 1
+KHR_DF_MODEL_BC6H = 133
 KHR_DF_MODEL_BC7 = 134
 KHR_DF_PRIMARIES_BT709 = 1
 KHR_DF_TRANSFER_LINEAR = 1
 KHR_DF_SAMPLE_DATATYPE_FLOAT = 0x80
 KHR_DF_SAMPLE_DATATYPE_SIGNED = 0x40
-#: bytes per texel (RGBA16F) / per 4 x 4 block (BC7)
-BLOCK_BYTES = {VK_FORMAT_R16G16B16A16_SFLOAT: 8, VK_FORMAT_BC7_UNORM_BLOCK: 16}
+#: bytes per texel (RGBA8, RGBA16F) / per 4 x 4 block (BC6H, BC7)
+BLOCK_BYTES = {
+    VK_FORMAT_R8G8B8A8_UNORM: 4,
+    VK_FORMAT_R16G16B16A16_SFLOAT: 8,
+    VK_FORMAT_BC6H_UFLOAT_BLOCK: 16,
+    VK_FORMAT_BC7_UNORM_BLOCK: 16,
+}
+BLOCK_FORMATS = (VK_FORMAT_BC6H_UFLOAT_BLOCK, VK_FORMAT_BC7_UNORM_BLOCK)
+#: typeSize of the KTX2 header: 1 for bytes and blocks, 2 for float16
+TYPE_SIZE = {VK_FORMAT_R16G16B16A16_SFLOAT: 2}
 
 
 def mip_chain(
@@ -122,6 +149,17 @@ def _dfd(vk_format: int) -> bytes:
     if vk_format == VK_FORMAT_BC7_UNORM_BLOCK:
         model, dims, plane0 = KHR_DF_MODEL_BC7, (3, 3, 0, 0), 16
         samples = [struct.pack("<HBB4BII", 0, 127, 0, 0, 0, 0, 0, 0, 0xFFFFFFFF)]
+    elif vk_format == VK_FORMAT_BC6H_UFLOAT_BLOCK:
+        # one 128-bit sample, channel 0 (BC6H colour), float, unsigned: lower 0.0, upper 1.0
+        model, dims, plane0 = KHR_DF_MODEL_BC6H, (3, 3, 0, 0), 16
+        qual = KHR_DF_SAMPLE_DATATYPE_FLOAT
+        samples = [struct.pack("<HBB4BII", 0, 127, qual, 0, 0, 0, 0, 0, 0x3F800000)]
+    elif vk_format == VK_FORMAT_R8G8B8A8_UNORM:
+        model, dims, plane0 = KHR_DF_MODEL_RGBSDA, (0, 0, 0, 0), 4
+        samples = [
+            struct.pack("<HBB4BII", 8 * i, 7, cid, 0, 0, 0, 0, 0, 255)
+            for i, cid in enumerate((0, 1, 2, 15))
+        ]
     elif vk_format == VK_FORMAT_R16G16B16A16_SFLOAT:
         model, dims, plane0 = KHR_DF_MODEL_RGBSDA, (0, 0, 0, 0), 8
         qual = KHR_DF_SAMPLE_DATATYPE_FLOAT | KHR_DF_SAMPLE_DATATYPE_SIGNED
@@ -163,42 +201,71 @@ def _kvd(pairs: dict[str, str]) -> bytes:
     return out
 
 
-def _bc7(rgba: np.ndarray) -> bytes:
-    """(h, w, 4) uint8 -> BC7 blocks (edges replicated up to a multiple of 4)."""
-    import etcpak
-
-    h, w = rgba.shape[:2]
-    ph, pw = -h % 4, -w % 4
-    if ph or pw:
-        rgba = np.pad(rgba, ((0, ph), (0, pw), (0, 0)), mode="edge")
-    p = etcpak.BC7CompressBlockParams()
-    p.init_linear_weights()  # data, not colour: every channel weighs the same
-    p.m_perceptual = False
-    p.m_uber_level = 2
-    p.m_max_partitions = 64
-    p.m_try_least_squares = True
-    return etcpak.compress_bc7(np.ascontiguousarray(rgba).tobytes(), w + pw, h + ph, p)
+def _pad4(px: np.ndarray) -> np.ndarray:
+    """Edges replicated up to a multiple of 4 (whole blocks)."""
+    h, w = px.shape[:2]
+    return np.pad(px, ((0, -h % 4), (0, -w % 4), (0, 0)), mode="edge")
 
 
-def encode_levels(levels, fmt: str) -> tuple[int, list[bytes]]:
+def _encoder():
+    try:
+        import ispc_texcomp
+    except ImportError:
+        raise ImageError(
+            "KTX2 block compression (--container ktx2-bc) needs ispc-texcomp (the BC6H/BC7 "
+            "encoder): pip install 'usdahd[ktx2]'"
+        ) from None
+    return ispc_texcomp
+
+
+def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
+    """(h, w, 4) uint8 -> BC7 blocks (ISPCTextureCompressor, all channels weigh the same; the
+    ``alpha_`` profile when A holds data, as the opaque ones write A = 255)."""
+    t = _encoder()
+    p = np.ascontiguousarray(_pad4(rgba))
+    surf = t.RGBASurface(p.tobytes(), p.shape[1], p.shape[0], p.shape[1] * 4)
+    prof = ("alpha_" if alpha else "") + BC7_PROFILE
+    return t.compress_blocks_bc7(surf, t.BC7EncSettings.from_profile(prof))
+
+
+def _bc6h(rgba: np.ndarray) -> bytes:
+    """(h, w, 4) float16 >= 0 -> BC6H_UF16 blocks (ISPCTextureCompressor)."""
+    t = _encoder()
+    p = np.ascontiguousarray(_pad4(rgba))
+    surf = t.RGBASurface(p.tobytes(), p.shape[1], p.shape[0], p.shape[1] * 8)
+    return t.compress_blocks_bc6h(surf, t.BC6HEncSettings.from_profile(BC6H_PROFILE))
+
+
+def _rgba(img: np.ndarray, dtype, one) -> np.ndarray:
+    h, w, c = img.shape
+    px = np.full((h, w, 4), one, dtype)
+    if dtype == np.uint8:
+        px[..., :c] = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    else:
+        px[..., :c] = img.astype(np.float16)
+    return px
+
+
+def encode_levels(levels, fmt: str, compression: str = "none") -> tuple[int, list[bytes]]:
     """Mip levels [(image (h, w, c) float64, mask)] -> (VkFormat, level payloads).
 
-    fmt : "half" -> RGBA16F (A = 1); "unorm8" -> BC7 of the rounded codes (A = 255 for RGB)."""
-    out = []
+    fmt "half": RGBA16F (A = 1), or with compression "bc" BC6H_UFLOAT when no value is negative
+    (RGBA16F otherwise); fmt "unorm8": RGBA8 of the rounded codes (A = 255 for RGB), or BC7
+    with compression "bc"."""
+    if compression not in COMPRESSIONS:
+        raise ImageError(f"KTX2 compression must be one of {COMPRESSIONS}, got {compression!r}")
+    bc = compression == "bc"
     if fmt == "half":
-        for img, _ in levels:
-            h, w, c = img.shape
-            px = np.ones((h, w, 4), np.float16)
-            px[..., :c] = img.astype(np.float16)
-            out.append(px.tobytes())
-        return VK_FORMAT_R16G16B16A16_SFLOAT, out
+        pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
+        if bc and all(not (p < 0).any() for p in pxs):
+            return VK_FORMAT_BC6H_UFLOAT_BLOCK, [_bc6h(p) for p in pxs]
+        return VK_FORMAT_R16G16B16A16_SFLOAT, [p.tobytes() for p in pxs]
     if fmt == "unorm8":
-        for img, _ in levels:
-            h, w, c = img.shape
-            px = np.full((h, w, 4), 255, np.uint8)
-            px[..., :c] = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-            out.append(_bc7(px))
-        return VK_FORMAT_BC7_UNORM_BLOCK, out
+        pxs = [_rgba(img, np.uint8, 255) for img, _ in levels]
+        if bc:
+            alpha = levels[0][0].shape[-1] == 4
+            return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]
+        return VK_FORMAT_R8G8B8A8_UNORM, [p.tobytes() for p in pxs]
     raise ImageError(f"no KTX2 encoding for texture format {fmt!r}")
 
 
@@ -209,12 +276,14 @@ def write(
     charts: np.ndarray,
     fmt: str,
     *,
+    compression: str = "none",
     attributes: dict[str, str] | None = None,
 ) -> dict:
     """Write one lightmap texture as KTX2 with its chart-aware mip chain (atomically).
 
     image : (h, w, 3|4) stored values (float16 or uint8); mask, charts : (h, w) coverage and
-    chart ids. fmt : the layout format ("half" or "unorm8"). attributes : extra key/value
+    chart ids. fmt : the layout format ("half" or "unorm8"). compression : "none" (lossless
+    RGBA16F / RGBA8) or "bc" (BC6H / BC7, see the module docstring). attributes : extra key/value
     pairs (e.g. ``usdahd:packing``). returns {"vk_format", "levels", "bytes", "bytes_per_texel"}.
     """
     image = np.asarray(image)
@@ -222,7 +291,7 @@ def write(
         raise ImageError(f"{path}: KTX2 textures have 3 or 4 channels, got {image.shape}")
     h, w = image.shape[:2]
     levels = mip_chain(image.astype(np.float64), mask, charts)
-    vk, payloads = encode_levels(levels, fmt)
+    vk, payloads = encode_levels(levels, fmt, compression)
     dfd = _dfd(vk)
     kv = {"KTXwriter": f"usdahd {__version__}", "KTXorientation": "rd"}
     kv.update(attributes or {})
@@ -244,9 +313,7 @@ def write(
         offsets[i] = pos
         blob += payloads[i]
         pos += len(payloads[i])
-    head = IDENTIFIER + struct.pack(
-        "<9I", vk, 1 if vk == VK_FORMAT_BC7_UNORM_BLOCK else 2, w, h, 0, 0, 1, n, 0
-    )
+    head = IDENTIFIER + struct.pack("<9I", vk, TYPE_SIZE.get(vk, 1), w, h, 0, 0, 1, n, 0)
     head += struct.pack("<4I2Q", dfd_off, len(dfd), kvd_off, len(kvd), 0, 0)
     for i in range(n):
         head += struct.pack("<3Q", offsets[i], len(payloads[i]), len(payloads[i]))

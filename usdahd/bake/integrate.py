@@ -70,16 +70,12 @@ import numpy as np
 
 from usdahd.bake.kernels.integrate import native_pass, native_result, native_work
 from usdahd.bake.kernels.layout import (
-    CFG_BOUNCES,
-    CFG_EMISSION,
-    CFG_EMISSIVE_LIGHT,
-    CFG_EPS,
     CFG_LEN,
     CFG_REGRESSION,
-    CFG_STRATEGY,
-    CFG_TRANSMISSION,
-    LightArrays,
+    CONFIG,
     LightLists,
+    PassPoints,
+    TexelArrays,
 )
 from usdahd.bake.kernels.lights import pack_lights
 from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_linking
@@ -174,11 +170,9 @@ def bake_texels(
     if n == 0:
         return out, _stats(tracer, rays0, t0, invalid, backfrac, used, 0, iz_var, iz_halves)
     passes, per_pass = _passes(samples, adaptive)
-    # the native kernel has no light linking yet: linked stages take the numpy path (with the
-    # same tracer's batch queries)
     native = uses_native(scene, getattr(tracer, "backend", "embreex"))
     if native:
-        ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy)
+        ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
     chunk = chunk_texels(samples, adaptive, native)
     offsets = tracer.texel_offsets(texels, mesh)  # ray-origin offset per texel
     est_rays_per_sample = None
@@ -304,8 +298,8 @@ def _passes(samples: int, adaptive: bool) -> tuple[int, int]:
 
 def uses_native(scene, backend: str) -> bool:
     """Whether :func:`bake_texels` runs the native kernel for ``scene`` on a tracer of
-    ``backend`` (not for light-linked stages, which take the numpy path)."""
-    return backend == "native" and not has_light_linking(scene.lights)
+    ``backend`` (every stage on the "native" backend, light-linked ones included)."""
+    return backend == "native"
 
 
 def chunk_texels(samples: int, adaptive: bool, native: bool) -> int:
@@ -333,13 +327,11 @@ def _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
 class _NativeCtx:
     """Drives :func:`native_pass` over the tracer's threads (backend "native")."""
 
-    def __init__(self, scene, tracer, bounces, estimator, strategy="mis"):
+    def __init__(self, scene, tracer, bounces, estimator, strategy="mis", mesh=None):
         self.tr = tracer
         lights = LightGroups(scene.lights, tracer)
         order = {id(lt): i for i, lt in enumerate(lights.all)}
-        tab = pack_lights(lights.all)
-        self.lt = LightArrays(tab.kind, tab.par, tab.img, tab.pmf, tab.cdf, tab.delta,
-                              tab.infinite, tab.sampled)  # fmt: skip
+        self.lt = pack_lights(lights.all, len(scene.meshes))
 
         def ids(group):
             return np.array([order[id(lt)] for lt in group], np.int64)
@@ -349,35 +341,36 @@ class _NativeCtx:
         )
         em = order[id(lights.emissive)] if lights.emissive is not None else -1
         self.cfg = np.zeros(CFG_LEN, np.float64)
-        self.cfg[CFG_BOUNCES] = bounces
-        self.cfg[CFG_EPS] = tracer.offset_eps
-        self.cfg[CFG_TRANSMISSION] = tracer.has_transmission
-        self.cfg[CFG_EMISSION] = tracer.has_emission
-        self.cfg[CFG_REGRESSION] = estimator == "regression"
-        self.cfg[CFG_EMISSIVE_LIGHT] = em
-        self.cfg[CFG_STRATEGY] = STRATEGIES.index(strategy)
+        cfg = CONFIG.view(self.cfg)
+        cfg.bounces = bounces
+        cfg.eps = tracer.offset_eps
+        cfg.transmission = tracer.has_transmission
+        cfg.emission = tracer.has_emission
+        cfg.regression = estimator == "regression"
+        cfg.emissive_light = em
+        cfg.strategy = STRATEGIES.index(strategy)
+        cfg.linked = has_light_linking(scene.lights)
+        cfg.shadow_linked = any(lt.shadow_meshes is not None for lt in scene.lights)
+        cfg.texel_mesh = -1 if mesh is None else int(mesh)
         self.tb = tracer.native_tables()
         self.rays_per_sample = 1 + (1 if lights.area else 0) + 3 * bounces
 
     def start_chunk(self, P, NG, F, E, rng):
-        self.P, self.NG, self.F, self.E = P, NG, np.ascontiguousarray(F), E
+        self.tex = TexelArrays(P=P, NG=NG, F=np.ascontiguousarray(F), E=E)
         self.state = rng.integers(0, np.iinfo(np.uint64).max, len(P), dtype=np.uint64,
                                   endpoint=True)  # fmt: skip
+        self.n = len(P)
 
     def native_pass(self, s, offset, acc, active, do_delta):
         r2h = r2_sequence(s, offset)
         r2h = np.c_[r2h, np.cos(_TWO_PI * r2h[:, 1]), np.sin(_TWO_PI * r2h[:, 1])]
-        r2n = r2_sequence(s, offset + 7919)
-        arrays = (acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back, acc.y_sum,
-                  acc.y_sq, acc.y_half)  # fmt: skip
+        pts = PassPoints(r2h=r2h, r2n=r2_sequence(s, offset + 7919))
         handle = self.tr.native_handle
 
         def run(ids):
             work = native_work(s)
-            return native_pass(
-                handle, self.tb, self.lt, self.lists, self.cfg, ids, self.P, self.NG, self.F,
-                self.E, s, r2h, r2n, self.state, do_delta, arrays, work,
-            )  # fmt: skip
+            return native_pass(handle, self.tb, self.lt, self.lists, self.cfg, self.tex, ids,
+                               pts, self.state, do_delta, acc.arrays, work)  # fmt: skip
 
         rays = self.tr.run_parallel(run, np.asarray(active, np.int64))
         self.tr.rays_traced += int(sum(rays))
@@ -389,8 +382,7 @@ class _NativeCtx:
         reg = bool(self.cfg[CFG_REGRESSION])
 
         def run(ids):
-            native_result(ids, acc.gram, acc.hemi, acc.nee, acc.delta, acc.count, acc.back,
-                           reg, out, bf)  # fmt: skip
+            native_result(ids, acc.arrays, reg, out, bf)
 
         self.tr.run_parallel(run, np.arange(n, dtype=np.int64))
         return out, bf

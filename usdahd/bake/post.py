@@ -35,6 +35,9 @@ SEAM_UV_EPS = 1e-3
 #: Default maximum angle between the shading normals on the two sides of a seam; sharper
 #: creases are real lighting discontinuities and are not stitched.
 SEAM_MAX_NORMAL_ANGLE = 30.0
+#: SH coefficients stitched in each texel's own tangent frame rather than in world space:
+#: Y10 (I_z) and Y20, which a rotation about the normal leaves unchanged (see :func:`stitch`).
+LOCAL_COEFFS = (2, 6)
 
 
 # --------------------------------------------------------------------------------------------
@@ -220,7 +223,21 @@ def fill_invalid(
 # SH frame rotation
 
 
-_ROT_DIRS = None
+def _sh_quadratic_forms() -> tuple[np.ndarray, np.ndarray]:
+    """Band 1 and 2 of the real SH basis as forms in the direction d: Y_k(d) = a_k . d for
+    k = 1..3 (rows of the (3, 3) array), Y_k(d) = d^T A_k d for k = 4..8 ((5, 3, 3) traceless
+    symmetric matrices, so Y20 = C20 (3 z^2 - 1) = C20 (2 z^2 - x^2 - y^2) on the sphere)."""
+    a = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]) * shmod.C1
+    q = np.zeros((5, 3, 3))
+    q[0, 0, 1] = q[0, 1, 0] = 0.5 * shmod.C2  # C2 x y
+    q[1, 1, 2] = q[1, 2, 1] = -0.5 * shmod.C2  # -C2 y z
+    q[2] = np.diag([-1.0, -1.0, 2.0]) * shmod.C20  # C20 (3 z^2 - 1)
+    q[3, 0, 2] = q[3, 2, 0] = -0.5 * shmod.C2  # -C2 x z
+    q[4] = np.diag([1.0, -1.0, 0.0]) * shmod.C22  # C22 (x^2 - y^2)
+    return a, q
+
+
+_FORMS = _sh_quadratic_forms()
 
 
 def sh_frame_matrices(frames: np.ndarray) -> np.ndarray:
@@ -228,16 +245,28 @@ def sh_frame_matrices(frames: np.ndarray) -> np.ndarray:
 
     frames : (n, 3, 3) rows t, b, n (``local = frame @ world``), any orthonormal frame
     (mirrored ones too). f_world(d) = f_local(frame d); M is orthogonal, so ``M.T`` maps back.
-    Computed exactly by projection: M = pinv(Y(D)) Y(frame D) on 64 directions D.
+    Exact, in closed form: band 0 is invariant; band 1 is a linear form a_k . d, so
+    Y_k(F d) = (F^T a_k) . d and M_jk = a_j . F^T a_k / |a_j|^2; band 2 is a quadratic form
+    d^T A_k d with traceless symmetric A_k, which the SH basis spans orthogonally under the
+    Frobenius product, so M_jk = <A_j, F^T A_k F> / <A_j, A_j> (trace F^T A F = trace A = 0
+    for any orthonormal F, mirrored or not). Equal to a least-squares projection on sampled
+    directions up to rounding (tests/test_post.py), at a fraction of its cost.
     """
-    global _ROT_DIRS
-    if _ROT_DIRS is None:
-        dirs = shmod.fibonacci_sphere(64)
-        _ROT_DIRS = (dirs, np.linalg.pinv(shmod.basis(dirs)))
-    dirs, pinv = _ROT_DIRS
+    a, q = _FORMS
     f = np.asarray(frames, dtype=np.float64)
-    rotated = np.einsum("nij,kj->nki", f, dirs)  # frame @ d
-    return np.einsum("ak,nkb->nab", pinv, shmod.basis(rotated))
+    n = len(f)
+    m = np.zeros((n, 9, 9))
+    m[:, 0, 0] = 1.0
+    # M1_jk = a_j^T F^T a_k / |a_j|^2 = sum_ab F_ba a_j[a] a_k[b] / C1^2: one (n, 9) x (9, 9)
+    w1 = np.einsum("ja,kb->bajk", a, a).reshape(9, 9) / shmod.C1**2
+    m[:, 1:4, 1:4] = (f.reshape(n, 9) @ w1).reshape(n, 3, 3)
+    # M2_jk = sum A_j[i, l] F_ai F_bl A_k[a, b] / |A_j|^2 with K[(a, b), (i, l)] = F_ai F_bl
+    q9 = q.reshape(5, 9)
+    k = (f[:, :, None, :, None] * f[:, None, :, None, :]).reshape(n * 9, 9)
+    x = (k @ q9.T).reshape(n, 9, 5).transpose(0, 2, 1).reshape(n * 5, 9)  # [n, j, (a, b)]
+    norm = np.einsum("ja,ja->j", q9, q9)
+    m[:, 4:, 4:] = (x @ q9.T).reshape(n, 5, 5) / norm[None, :, None]
+    return m
 
 
 # --------------------------------------------------------------------------------------------
@@ -285,6 +314,20 @@ def _bilinear_taps(p: np.ndarray, res) -> tuple[np.ndarray, np.ndarray]:
     return np.where(inside[..., None], taps, 0), np.where(inside, wts, 0.0)
 
 
+def _weld(keys: np.ndarray) -> np.ndarray:
+    """Index of each row of ``keys (n, 3)`` int64 among the distinct rows in lexicographic
+    order (what ``np.unique(keys, axis=0, return_inverse=True)`` returns, by one lexsort)."""
+    if len(keys) == 0:
+        return np.zeros(0, np.int64)
+    order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))
+    k = keys[order]
+    new = np.ones(len(k), bool)
+    new[1:] = (k[1:] != k[:-1]).any(axis=1)
+    out = np.empty(len(k), np.int64)
+    out[order] = np.cumsum(new) - 1
+    return out
+
+
 def find_seams(
     meshes: MeshData | list[MeshData],
     resolutions,
@@ -318,56 +361,73 @@ def find_seams(
     all_pts = np.concatenate([np.asarray(m.points, np.float64) for m in meshes])
     diag = float(np.linalg.norm(all_pts.max(0) - all_pts.min(0))) if len(all_pts) else 1.0
     tol = weld_tolerance if weld_tolerance is not None else 1e-6 * max(diag, 1e-30)
-    _, welded = np.unique(np.round(all_pts / tol).astype(np.int64), axis=0, return_inverse=True)
-    welded = welded.ravel()
+    welded = _weld(np.round(all_pts / tol).astype(np.int64))
     offsets = np.cumsum([0] + [len(m.points) for m in meshes])
 
-    he = {k: [] for k in ("mesh", "a", "b", "pa", "pb", "na", "nb", "p3a", "p3b")}
-    for mi, m in enumerate(meshes):
-        tri = np.asarray(m.triangles, np.int64)
-        px = uv_to_pixel(m.uv, resolutions[mi])
-        nrm = np.asarray(m.normals, np.float64)
-        nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-30)
-        pts = np.asarray(m.points, np.float64)
-        for i in range(3):
-            j = (i + 1) % 3
-            he["mesh"].append(np.full(len(tri), mi))
-            he["a"].append(welded[offsets[mi] + tri[:, i]])
-            he["b"].append(welded[offsets[mi] + tri[:, j]])
-            he["pa"].append(px[:, i])
-            he["pb"].append(px[:, j])
-            he["na"].append(nrm[:, i])
-            he["nb"].append(nrm[:, j])
-            he["p3a"].append(pts[tri[:, i]])
-            he["p3b"].append(pts[tri[:, j]])
-    he = {k: np.concatenate(v) for k, v in he.items()}
-    keep = he["a"] != he["b"]
-    he = {k: v[keep] for k, v in he.items()}
-    swap = he["a"] > he["b"]
-    for x, y in (("a", "b"), ("pa", "pb"), ("na", "nb"), ("p3a", "p3b")):
-        lo = np.where(swap[:, None] if he[x].ndim > 1 else swap, he[y], he[x])
-        hi = np.where(swap[:, None] if he[x].ndim > 1 else swap, he[x], he[y])
-        he[x], he[y] = lo, hi
-    order = np.lexsort((he["b"], he["a"]))
-    he = {k: v[order] for k, v in he.items()}
-    same_edge = (he["a"][1:] == he["a"][:-1]) & (he["b"][1:] == he["b"][:-1])
+    # Half-edges, mesh by mesh, corner i -> i + 1 of every triangle (corner-major): the order
+    # fixes which two half-edges pair up on an edge shared by more than two triangles.
+    tri_off = np.cumsum([0] + [len(m.triangles) for m in meshes])
+    tri_mesh = np.repeat(np.arange(len(meshes)), np.diff(tri_off))
+    wtri = np.concatenate(
+        [welded[offsets[mi] + np.asarray(m.triangles, np.int64)] for mi, m in enumerate(meshes)]
+    ).reshape(-1, 3)
+    corner = np.concatenate(
+        [np.repeat(np.arange(3), n) for n in np.diff(tri_off)]
+    )  # corner i of each half-edge
+    tri = np.concatenate(
+        [np.tile(np.arange(lo, hi), 3) for lo, hi in zip(tri_off[:-1], tri_off[1:], strict=True)]
+    )
+    a_ = wtri[tri, corner]
+    b_ = wtri[tri, (corner + 1) % 3]
+    keep = np.nonzero(a_ != b_)[0]
+    tri, corner, a_, b_ = tri[keep], corner[keep], a_[keep], b_[keep]
+    lo, hi = np.minimum(a_, b_), np.maximum(a_, b_)
+    # one int64 key per 3-D edge; a stable sort keeps equal edges in half-edge order
+    order = np.argsort(lo * (int(welded.max(initial=0)) + 1) + hi, kind="stable")
+    tri, corner, lo, hi, swap = tri[order], corner[order], lo[order], hi[order], (a_ > b_)[order]
+    same_edge = (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1])
     i0 = np.nonzero(same_edge)[0]  # pairs (i0, i0 + 1) of half-edges of one 3-D edge
     i1 = i0 + 1
-    differs = he["mesh"][i0] != he["mesh"][i1]
+    # per-corner attributes, gathered for the paired half-edges only; endpoint "a" is the
+    # lower welded vertex of the edge (the two half-edges run in opposite directions)
+    px = np.concatenate([uv_to_pixel(m.uv, resolutions[mi]) for mi, m in enumerate(meshes)])
+    nrm = np.concatenate([np.asarray(m.normals, np.float64) for m in meshes])
+    pts = np.concatenate([np.asarray(m.points, np.float64)[m.triangles] for m in meshes])
+
+    def ends(h):
+        t, c = tri[h], corner[h]
+        ca = np.where(swap[h], (c + 1) % 3, c)
+        cb = np.where(swap[h], c, (c + 1) % 3)
+        return t, ca, cb
+
+    (t0_, a0, b0), (t1_, a1, b1) = ends(i0), ends(i1)
+
+    def unit(v):
+        return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
+
+    differs = tri_mesh[t0_] != tri_mesh[t1_]
     uv_gap = np.maximum(
-        np.linalg.norm(he["pa"][i0] - he["pa"][i1], axis=1),
-        np.linalg.norm(he["pb"][i0] - he["pb"][i1], axis=1),
+        np.linalg.norm(px[t0_, a0] - px[t1_, a1], axis=1),
+        np.linalg.norm(px[t0_, b0] - px[t1_, b1], axis=1),
     )
     differs |= uv_gap > SEAM_UV_EPS
     cos_max = np.cos(np.radians(max_normal_angle))
-    smooth = (np.einsum("ki,ki->k", he["na"][i0], he["na"][i1]) >= cos_max) & (
-        np.einsum("ki,ki->k", he["nb"][i0], he["nb"][i1]) >= cos_max
+    smooth = (np.einsum("ki,ki->k", unit(nrm[t0_, a0]), unit(nrm[t1_, a1])) >= cos_max) & (
+        np.einsum("ki,ki->k", unit(nrm[t0_, b0]), unit(nrm[t1_, b1])) >= cos_max
     )
-    sel = differs & smooth
-    i0, i1 = i0[sel], i1[sel]
-    if len(i0) == 0:
+    sel = np.nonzero(differs & smooth)[0]
+    if len(sel) == 0:
         return _empty_seams(resolutions)
-
+    t0_, a0, b0, t1_, a1, b1 = (v[sel] for v in (t0_, a0, b0, t1_, a1, b1))
+    he = {
+        "mesh": np.concatenate([tri_mesh[t0_], tri_mesh[t1_]]),
+        "pa": np.concatenate([px[t0_, a0], px[t1_, a1]]),
+        "pb": np.concatenate([px[t0_, b0], px[t1_, b1]]),
+        "p3a": pts[t0_, a0],
+        "p3b": pts[t0_, b0],
+    }
+    i0 = np.arange(len(sel))
+    i1 = i0 + len(sel)
     len_a = np.linalg.norm(he["pb"][i0] - he["pa"][i0], axis=1)
     len_b = np.linalg.norm(he["pb"][i1] - he["pa"][i1], axis=1)
     count = np.maximum(1, np.ceil(samples_per_texel * np.maximum(len_a, len_b))).astype(np.int64)
@@ -484,8 +544,6 @@ def stitch(
     *,
     rotate: bool | None = None,
     data_weight: float = 0.01,
-    max_iterations: int = 500,
-    tolerance: float = 1e-10,
 ):
     """Make bilinear lookups agree across seams, changing texels as little as possible.
 
@@ -498,8 +556,19 @@ def stitch(
     minimize sum_samples (A_s x - B_s x)^2 + data_weight * sum_texels (x - x0)^2, where A_s, B_s
     are the bilinear lookups of a seam sample on its two sides (taps on uncovered texels are
     dropped and the rest renormalized, as dilation will fill them from the same texels).
-    Conjugate gradients, Jacobi preconditioned. Only texels under a seam tap change.
-    Returns arrays like ``values`` (new objects).
+    The normal equations (Q + data_weight I) x = data_weight x0 are solved exactly by one
+    sparse Cholesky factorisation shared by every channel (:mod:`usdahd.numerics.cholesky`,
+    nested-dissection order on the texels' 3-D positions): the work follows the number of
+    texels under seam taps, not the number of channels times an iteration count.
+    Only texels under a seam tap change. Returns arrays like ``values`` (new objects).
+
+    With rotation, Y10 and Y20 (:data:`LOCAL_COEFFS`) are then solved again in each texel's
+    own frame (the same factorisation) and replace the world-space result: a viewer
+    interpolates the stored coefficients and evaluates them at the pixel's normal, so across a
+    seam (where both sides share the normal, their tangents differ by a rotation about it)
+    these two, invariant under that rotation, must agree as stored. In world space they agree
+    only where the taps' normals do: on a curved surface sampled by small charts the decoded
+    I_z stepped by ~3 % of its level across seams (``python -m benchmarks.seams step``).
     """
     vals, txs, single = _as_lists(values, texels)
     rotate = _auto_rotate(vals, rotate)
@@ -509,6 +578,8 @@ def stitch(
     cols, signed, offsets = _seam_system(vals, txs, seams)
     if len(cols) == 0:
         return out[0] if single else out
+    from usdahd.numerics import cholesky  # numba kernels: loaded only when there are seams
+
     flat_cols = cols.ravel()
     rows, inv = np.unique(flat_cols[flat_cols >= 0], return_inverse=True)
     lc = np.full(flat_cols.shape, -1, np.int64)
@@ -516,47 +587,36 @@ def stitch(
     lc = lc.reshape(cols.shape)
     x0, mats, mesh_of, local = _gather_world(vals, txs, rows, offsets, rotate)
     m = len(rows)
-    # normal matrix Q = sum_s c_s c_s^T as sorted COO
+    # normal matrix Q = sum_s c_s c_s^T as sorted COO (row-major: CSR), plus data_weight I
     ok = lc >= 0
-    ii = np.repeat(lc[:, :, None], 8, axis=2)[ok[:, :, None] & ok[:, None, :]]
-    jj = np.repeat(lc[:, None, :], 8, axis=1)[ok[:, :, None] & ok[:, None, :]]
-    vv = (signed[:, :, None] * signed[:, None, :])[ok[:, :, None] & ok[:, None, :]]
-    key, kinv = np.unique(ii * m + jj, return_inverse=True)
-    qv = np.bincount(kinv.ravel(), weights=vv, minlength=len(key))
+    pair = ok[:, :, None] & ok[:, None, :]
+    ii = np.repeat(lc[:, :, None], 8, axis=2)[pair]
+    jj = np.repeat(lc[:, None, :], 8, axis=1)[pair]
+    vv = (signed[:, :, None] * signed[:, None, :])[pair]
+    diag_keys = np.arange(m, dtype=np.int64) * (m + 1)
+    key, kinv = np.unique(np.concatenate([ii * m + jj, diag_keys]), return_inverse=True)
+    qv = np.bincount(
+        kinv.ravel(), weights=np.concatenate([vv, np.full(m, data_weight)]), minlength=len(key)
+    )
     qi, qj = key // m, key % m
-    starts = np.searchsorted(qi, np.arange(m))
-    diag = data_weight + np.bincount(qi[qi == qj], weights=qv[qi == qj], minlength=m)
-
-    def matvec(x):
-        prod = qv[:, None] * x[qj]
-        return data_weight * x + np.add.reduceat(prod, starts, axis=0)
-
-    b = data_weight * x0
-    x = x0.copy()
-    r = b - matvec(x)
-    z = r / diag[:, None]
-    p = z.copy()
-    rz = np.einsum("mk,mk->k", r, z)
-    norm_b = np.maximum(np.einsum("mk,mk->k", b, b), 1e-300)
-    for _ in range(max_iterations):
-        if (np.einsum("mk,mk->k", r, r) <= tolerance**2 * norm_b).all():
-            break
-        ap = matvec(p)
-        alpha = rz / np.where(
-            np.abs(np.einsum("mk,mk->k", p, ap)) > 0, np.einsum("mk,mk->k", p, ap), 1.0
-        )
-        x += alpha * p
-        r -= alpha * ap
-        z = r / diag[:, None]
-        rz_new = np.einsum("mk,mk->k", r, z)
-        beta = rz_new / np.where(rz != 0, rz, 1.0)
-        p = z + beta * p
-        rz = rz_new
+    indptr = np.searchsorted(qi, np.arange(m + 1))
+    position = np.zeros((m, 3))
+    for mi in np.unique(mesh_of):
+        sel = mesh_of == mi
+        position[sel] = txs[mi].position[local[sel]]
+    perm = cholesky.nested_dissection(position, indptr, qj)
+    solver = cholesky.factor(indptr, qj, qv, perm)
+    x = solver.solve(data_weight * x0)
+    if rotate:  # I_z and c20 as the viewer interpolates them: in each texel's own frame
+        inv = (np.arange(3)[:, None] * 9 + np.array(LOCAL_COEFFS)[None]).ravel()
+        x0_local = _gather_world(vals, txs, rows, offsets, False)[0][:, inv]
+        x_local = solver.solve(data_weight * x0_local)
 
     for mi in np.unique(mesh_of):
         sel = mesh_of == mi
         v = x[sel].reshape(-1, *vals[mi].shape[1:])
         if rotate:
             v = np.einsum("nba,ncb->nca", mats[sel], v)  # M^T: world -> tangent
+            v[:, :, LOCAL_COEFFS] = x_local[sel].reshape(-1, 3, len(LOCAL_COEFFS))
         out[mi][local[sel]] = v.astype(out[mi].dtype)
     return out[0] if single else out

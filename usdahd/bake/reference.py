@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.bake.kernels.layout import AccumArrays
 from usdahd.numerics import sh as shmod
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 from usdahd.numerics.sampling import (
@@ -75,21 +76,17 @@ class LightGroups:
 
 
 class Accum:
-    """Per-texel running sums (so passes and estimators combine)."""
+    """Per-texel running sums (so passes and estimators combine): the arrays of
+    :class:`usdahd.bake.kernels.layout.AccumArrays` (``acc.gram``, ``acc.count``, ...; the
+    tuple itself, as the native kernel takes it, is ``acc.arrays``)."""
 
     def __init__(self, n):
-        self.gram = np.zeros((n, 9, 9))  # sum Y Y^T / p over hemisphere samples
-        self.hemi = np.zeros((n, 3, 9))  # sum L Y / p over hemisphere samples
-        self.nee = np.zeros((n, 3, 9))  # sum of light-sample contributions
-        self.delta = np.zeros((n, 3, 9))  # exact delta-light terms (not divided by S)
-        self.count = np.zeros(n, np.int32)
-        self.back = np.zeros(n, np.int64)
-        self.y_sum = np.zeros(n)  # per-sample luminance Iz estimates (for adaptivity)
-        self.y_sq = np.zeros(n)
-        # the even-numbered samples of every pass (sample k of a pass, k even): their sum and
-        # count, for the two-halves variance estimate (iz_variance_halves)
-        self.y_half = np.zeros(n)
-        self.n_half = np.zeros(n, np.int32)
+        self.arrays = AccumArrays.alloc(n=n)
+
+    def __getattr__(self, name):
+        if name == "arrays":  # not yet set (e.g. during unpickling)
+            raise AttributeError(name)
+        return getattr(self.arrays, name)
 
     def converged(self, active, tol):
         c = self.count[active].astype(np.float64)
@@ -168,7 +165,8 @@ class ReferenceCtx:
     def direct_delta(self, P, NG, F, E, acc):
         """Exact contribution of delta lights: one shadow ray per texel and light."""
         for lt in self.lights.delta:
-            d, dist, val, _ = lt.sample(P, np.zeros((len(P), 2)))
+            ls = lt.sample(P, np.zeros((len(P), 2)))
+            d, dist, val = ls.dirs, ls.dist, ls.value
             loc = to_local(d, F)
             ok = (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NG) > 0)
             ok &= self._lit(lt, np.full(len(P), self.texel_mesh))
@@ -263,7 +261,8 @@ class ReferenceCtx:
                 uj = u[idx]
             if len(idx) == 0:
                 continue
-            d, dist, val, pdf = lt.sample(Pf[idx], uj)
+            ls = lt.sample(Pf[idx], uj)
+            d, dist, val, pdf = ls.dirs, ls.dist, ls.value, ls.pdf
             loc = to_local(d, Ff[idx])
             ok = (pdf > 0) & (loc[:, 2] > 0) & (np.einsum("ij,ij->i", d, NGf[idx]) > 0)
             ok &= np.any(val > 0, axis=1) & self._lit(lt, np.full(len(idx), self.texel_mesh))
@@ -300,7 +299,8 @@ class ReferenceCtx:
         tri = hits["tri"]
         miss = tri < 0
         for lt in self.lights.visible:
-            hit, tl, rad = lt.intersect(o, d)
+            lh = lt.intersect(o, d)
+            hit, tl, rad = lh.hit, lh.t, lh.radiance
             if self.cast.get(id(lt)) is None:
                 vis = hit & (miss if lt.infinite else (tl < t))
             else:  # shadow-linked: only casting meshes may stand between the ray and the light
@@ -374,7 +374,8 @@ class ReferenceCtx:
                 idx = np.nonzero(pick == j)[0]
                 if len(idx) == 0:
                     continue
-                d, dist, val, pdf = lt.sample(p[idx], uu[idx])
+                ls = lt.sample(p[idx], uu[idx])
+                d, dist, val, pdf = ls.dirs, ls.dist, ls.value, ls.pdf
                 cos = np.einsum("ij,ij->i", d, ns[idx])
                 ok = (cos > 0) & (np.einsum("ij,ij->i", d, gn[idx]) > 0) & (pdf > 0)
                 ok &= np.any(val > 0, axis=1) & self._lit(lt, mesh[idx])

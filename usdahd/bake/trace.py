@@ -443,6 +443,7 @@ class Tracer:
             mat_const,
             mat_tex,
             *pack_textures(textures),
+            tri_mesh=np.ascontiguousarray(self.tri_mesh, np.int32),
         )
         return self._tables
 

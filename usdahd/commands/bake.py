@@ -73,9 +73,11 @@ def add_parser(sub):
     )
     a(
         "--container",
-        choices=["files", "ktx2"],
+        choices=["files", "ktx2", "ktx2-bc"],
         help="files: EXR/PNG textures (default); ktx2: also a KTX2 per texture with a "
-        "chart-aware mip chain, BC7 for 8-bit data, RGBA16F for HDR (needs etcpak)",
+        "chart-aware mip chain, lossless (RGBA8 / RGBA16F); ktx2-bc: the same block-compressed, "
+        "BC7 for 8-bit data, BC6H for HDR (needs ispc-texcomp; error per model in "
+        "docs/benchmarks.md)",
     )
     a(
         "--no-unwrap",

@@ -9,13 +9,21 @@ findings are the ones any UsdValidation run with our plugin path reports. One li
 
 Exit status: 0 clean, 1 errors (warnings too with ``--strict``), 2 the stage could not be
 validated (unreadable stage, validators missing, a rule that crashed).
+
+Reports (:mod:`usdahd.validate.report`, docs/ci.md): ``--format text|json|junit|sarif`` and
+``-o FILE``, both repeatable and paired in order; with ``-o`` each report is written atomically
+to its file and stdout keeps the findings (text, or JSON with ``--json``); without ``-o`` one
+``--format`` replaces the text on stdout. Usage errors of these flags are raised before the
+validation runs.
 """
 
 from __future__ import annotations
 
-import json
+import os
 import sys
+import time
 
+from usdahd._version import __version__
 from usdahd.errors import UsageError
 
 
@@ -78,6 +86,24 @@ def add_parser(sub):
         metavar="SEED",
         help="random stream of the retrace (texel choice and tracing; default 0)",
     )
+    p.add_argument(
+        "--format",
+        action="append",
+        default=None,
+        choices=("text", "json", "junit", "sarif"),
+        help="report format: text (default), json (= --json), junit (JUnit XML, one test case "
+        "per prim x rule) or sarif (SARIF 2.1.0); repeatable, paired in order with -o "
+        "(docs/ci.md)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        action="append",
+        default=None,
+        metavar="FILE",
+        help="write the report of the matching --format to FILE (atomically) and keep the "
+        "findings on stdout; repeatable: --format junit -o v.xml --format sarif -o v.sarif",
+    )
     p.add_argument("--list-rules", action="store_true", help="list the rules and exit")
     p.set_defaults(func=run)
     return p
@@ -103,8 +129,46 @@ def list_rules(out=None) -> None:
 
 
 def format_finding(f) -> str:
-    where = f.prim if f.prim.startswith("@") else f"<{f.prim}>" if f.prim else "<stage>"
-    return f"{f.severity:<7} {where} {f.rule}: {f.message}"
+    from usdahd.validate.report import format_finding as fmt
+
+    return fmt(f)
+
+
+def _reports(args) -> tuple[str | None, list[tuple[str, str]]]:
+    """(format printed on stdout or None for the default, [(format, file)] to write).
+
+    Without -o one --format replaces the text on stdout; with -o each --format goes to its
+    file (paired in order) and stdout keeps the findings (text, or JSON with --json)."""
+    formats, outputs = list(args.format or []), list(args.output or [])
+    if not outputs:
+        if len(formats) > 1:
+            raise UsageError(
+                f"--format given {len(formats)} times without -o: only one report fits on "
+                "stdout; pair each --format with -o FILE"
+            )
+        fmt = formats[0] if formats else None
+        if args.json and fmt not in (None, "json"):
+            raise UsageError(
+                f"--json and --format {fmt} both want stdout: write the {fmt} report to a file "
+                f"with -o FILE"
+            )
+        return fmt, []
+    if len(formats) != len(outputs):
+        raise UsageError(
+            f"{len(formats)} --format for {len(outputs)} -o: give one --format before each -o "
+            "(--format junit -o v.xml --format sarif -o v.sarif)"
+        )
+    if len(set(outputs)) != len(outputs):
+        raise UsageError("-o: the same file given twice; give each report its own file")
+    for f in outputs:
+        if os.path.isdir(f):
+            raise UsageError(f"-o {f}: is a directory; give a file name (e.g. {f}/validate.xml)")
+        parent = os.path.dirname(os.path.abspath(f))
+        if not os.path.isdir(parent):
+            raise UsageError(f"-o {f}: the folder {parent} does not exist; create it first")
+        if not os.access(parent, os.W_OK):
+            raise UsageError(f"-o {f}: the folder {parent} is not writable; choose another -o")
+    return None, list(zip(formats, outputs))
 
 
 def exit_code(findings, strict: bool) -> int:
@@ -156,6 +220,7 @@ def run(args) -> int:
     from usdahd.validate import retrace as rt
 
     retrace = _retrace_options(args, rt)
+    stdout_format, files = _reports(args)  # usage errors before the (long) validation
     old = (v.OPTIONS.iz_tolerance, v.OPTIONS.rmse_warning)
     old_rt = rt.OPTIONS
     if args.tolerance is not None:
@@ -166,8 +231,10 @@ def run(args) -> int:
         if not args.rmse_threshold > 0:
             raise UsageError(f"--rmse-threshold {args.rmse_threshold}: must be > 0")
         v.OPTIONS.rmse_warning = args.rmse_threshold
+    from usdahd.validate import report as R
     from usdahd.validate.run import validate_file
 
+    started = time.perf_counter()
     try:
         if retrace is not None:
             rt.OPTIONS = retrace
@@ -179,27 +246,33 @@ def run(args) -> int:
     for ln in report.stderr:  # our own stderr output (progress, notices) is passed on as it was
         print(ln, file=sys.stderr)
     code = exit_code(findings, args.strict)
-    counts = {s: sum(f.severity == s for f in findings) for s in ("error", "warning", "info")}
-    if args.json:
-        print(
-            json.dumps(
-                {
-                    "stage": args.stage,
-                    "prims": baked,
-                    "findings": v.findings_json(findings),
-                    "counts": counts,
-                    "usd_diagnostics": usd_notes,
-                    "exit_code": code,
-                },
-                indent=2,
-                sort_keys=True,
-            )
-        )
+    if args.prim:  # the reports' test cases are the prims that were validated
+        under = [q.rstrip("/") for q in args.prim]
+        baked = [p for p in baked if any(p == q or p.startswith(q + "/") for q in under)]
+    summary = R.Summary(
+        stage=args.stage,
+        findings=findings,
+        prims=baked,
+        prim_rules=[*v.RULE_NAMES, *([rt.RULE] if retrace is not None else [])],
+        stage_rules=[*(r.name for r in v.STAGE_RULES), *v.BUILTIN_VALIDATORS],
+        rule_docs=rule_docs(),
+        exit_code=code,
+        strict=args.strict,
+        seconds=time.perf_counter() - started,
+        usd_diagnostics=usd_notes,
+        version=__version__,
+    )
+    for fmt, path in files:
+        R.write_atomic(path, R.render(fmt, summary))
+        if not args.quiet:
+            print(f"wrote the {fmt} report to {path}", file=sys.stderr)
+    if args.json or stdout_format == "json":
+        print(R.json_report(summary))
         return code
-    for f in findings:
-        if args.quiet and f.severity == "info":
-            continue
-        print(format_finding(f))
+    if stdout_format in ("junit", "sarif"):
+        sys.stdout.write(R.render(stdout_format, summary))
+    else:
+        sys.stdout.write(R.text(summary, quiet=bool(args.quiet)))
     if usd_notes and not args.quiet:
         print(
             f"note: USD printed {len(usd_notes)} diagnostic(s) while validating:", file=sys.stderr
@@ -207,11 +280,19 @@ def run(args) -> int:
         for n in usd_notes[:10]:
             print(f"  usd: {n}", file=sys.stderr)  # whole: the cause ends the message
     if not args.quiet:
-        status = "FAILED" if code else "ok"
-        note = "" if baked else " (no prim has AhdLightmapAPI)"
-        print(
-            f"{args.stage}: {status}: {counts['error']} error(s), {counts['warning']} "
-            f"warning(s), {counts['info']} note(s) on {len(baked)} lightmapped prim(s){note}",
-            file=sys.stderr,
-        )
+        print(R.summary_line(summary), file=sys.stderr)
     return code
+
+
+def rule_docs() -> dict[str, str]:
+    """Rule id -> one-sentence description: ours from the registry (the plugInfo docs), USD's
+    built-ins from USD's validation registry."""
+    from usdahd import validate as v
+    from usdahd.usd.validation import validator_doc
+    from usdahd.validate import retrace as rt
+
+    docs = {r.name: r.description for r in (*v.RULES, *v.STAGE_RULES)}
+    docs[rt.RULE] = rt.DESCRIPTION
+    for name in v.BUILTIN_VALIDATORS:
+        docs[name] = validator_doc(name)
+    return docs

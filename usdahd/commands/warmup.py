@@ -66,6 +66,14 @@ def add_parser(sub):
             "Prints how many kernels were compiled and how many came from the cache."
         ),
     )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        choices=(1, 2),
+        default=2,
+        help="2 (default): fit every model in a second process while the first bakes the "
+        "warm-up stage; 1: one process",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -105,54 +113,126 @@ def _fit_every_model() -> list[str]:
     return done
 
 
-def warmup(*, quiet: bool = False) -> dict:
-    """Compile or load every bake kernel; returns the report (kernels compiled / loaded)."""
-    from numba.core import event as ev
+def _solve_seams() -> None:
+    """Compile the seam solver (usdahd.numerics.cholesky): the warm-up quad has no seam."""
+    from usdahd.numerics import cholesky
 
+    indptr = np.array([0, 2, 4])
+    f = cholesky.factor(indptr, np.array([0, 1, 0, 1]), np.array([2.0, -1.0, -1.0, 2.0]), [1, 0])
+    f.solve(np.ones((2, 27)))
+
+
+class _Compiled:
+    """Names of the usdahd kernels numba compiles while this is open (numba's events)."""
+
+    def __enter__(self):
+        from numba.core import event as ev
+
+        names = self.names = set()
+
+        class _Listener(ev.Listener):
+            def on_start(self, event):
+                pass
+
+            def on_end(self, event):
+                f = event.data["dispatcher"].py_func
+                names.add(f"{f.__module__}.{f.__qualname__}")
+
+        self._listener = _Listener()
+        ev.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        from numba.core import event as ev
+
+        ev.unregister("numba:compile", self._listener)
+
+
+def _noise_stats() -> None:
+    """Compile the denoiser's noise statistics (usdahd.numerics.noise) on a small canvas."""
+    from usdahd.numerics import noise
+
+    img = np.random.default_rng(0).normal(size=(12, 12, 27))
+    noise.tile_stats(img, np.ones((12, 12), bool), 6)
+
+
+def _second_worker() -> tuple[list[str], list[str], list[str], tuple[float, float]]:
+    """The second process of ``--jobs 2``: the kernels a bake needs after tracing (every
+    model's fit, the noise statistics, the seam solver), compiled while the first process
+    compiles the tracing kernels; returns (fits, kernels compiled, kernels ready, (wall, CPU
+    seconds))."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    with _Compiled() as c:
+        fits = _fit_every_model()
+        _noise_stats()
+        _solve_seams()
+    times = (time.perf_counter() - t0, time.process_time() - c0)
+    return fits, sorted(c.names), sorted(_kernels()), times
+
+
+def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
+    """Compile or load every bake kernel; returns the report (kernels compiled / loaded).
+
+    jobs : 2 compiles the kernels a bake runs after tracing (fit, noise statistics, seam
+        solver) in a second process while this one bakes the warm-up stage, whose tracing
+        kernels take most of the compile time; the bake then loads the others from numba's
+        cache (cache files are per kernel and written atomically; a kernel the bake reaches
+        first is compiled by both, harmlessly). 1 does everything here, one after the other.
+    """
     from usdahd.pipeline.run import bake
     from usdahd.pipeline.settings import BakeOptions
 
-    compiled: set[str] = set()
+    t0, c0 = time.perf_counter(), time.process_time()
+    pool = child = None
+    if jobs > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
 
-    class _Listener(ev.Listener):
-        def on_start(self, event):
-            pass
-
-        def on_end(self, event):
-            f = event.data["dispatcher"].py_func
-            compiled.add(f"{f.__module__}.{f.__qualname__}")
-
-    listener = _Listener()
-    ev.register("numba:compile", listener)
-    t0 = time.perf_counter()
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        child = pool.submit(_second_worker)
     try:
-        with tempfile.TemporaryDirectory(prefix="usdahd-warmup-") as tmp:
-            stage = Path(tmp) / "warmup.usda"
-            stage.write_text(STAGE)
-            opts = BakeOptions(resolution=RESOLUTION, samples=SAMPLES, quiet=quiet)
-            result = bake(stage, opts)
-            if result.get("exit_code", 0) != 0:
-                from usdahd.errors import BakeError
+        with _Compiled() as c:
+            with tempfile.TemporaryDirectory(prefix="usdahd-warmup-") as tmp:
+                stage = Path(tmp) / "warmup.usda"
+                stage.write_text(STAGE)
+                opts = BakeOptions(resolution=RESOLUTION, samples=SAMPLES, quiet=quiet)
+                result = bake(stage, opts)
+                if result.get("exit_code", 0) != 0:
+                    from usdahd.errors import BakeError
 
-                raise BakeError(f"warm-up bake failed: {json.dumps(result)[:400]}")
-        fits = _fit_every_model()
+                    raise BakeError(f"warm-up bake failed: {json.dumps(result)[:400]}")
+            t_bake = (time.perf_counter() - t0, time.process_time() - c0)
+            if child is None:
+                fits = _fit_every_model()
+                _noise_stats()
+                _solve_seams()
+                child_compiled, child_ready, t_child = set(), set(), None
+        if child is not None:
+            fits, cc, cr, t_child = child.result()
+            child_compiled, child_ready = set(cc), set(cr)
     finally:
-        ev.unregister("numba:compile", listener)
-    ready = _kernels()
-    usd = sorted(k for k in compiled if k.startswith("usdahd"))
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    compiled = {k for k in c.names | child_compiled if k.startswith("usdahd")}
+    ready = _kernels() | child_ready
     return {
         "command": "warmup",
         "exit_code": 0,
         "seconds": round(time.perf_counter() - t0, 2),
-        "compiled": usd,
-        "loaded": sorted(ready - set(usd)),
+        "jobs": jobs,
+        "bake_seconds": round(t_bake[0], 2),
+        "bake_cpu_seconds": round(t_bake[1], 2),
+        "second_process_seconds": None if t_child is None else round(t_child[0], 2),
+        "second_process_cpu_seconds": None if t_child is None else round(t_child[1], 2),
+        "compiled": sorted(compiled),
+        "loaded": sorted(ready - compiled),
         "fits": fits,
     }
 
 
 def run(args) -> int:
     quiet = bool(getattr(args, "quiet", 0))
-    report = warmup(quiet=quiet)
+    report = warmup(quiet=quiet, jobs=getattr(args, "jobs", 2))
     if getattr(args, "json", False):
         print(json.dumps(report, indent=2))
         return 0

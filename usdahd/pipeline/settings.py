@@ -21,7 +21,7 @@ DEFAULTS = {
     "samples": 256,
     "bounces": 64,  # a safety cap: paths end by Russian roulette (integrate.DEFAULT_BOUNCES)
     "padding": 4,
-    "container": "files",  # "ktx2": also write KTX2 engine containers (usdahd.ktx2)
+    "container": "files",  # "ktx2" / "ktx2-bc": also write KTX2 engine containers (usdahd.ktx2)
 }
 #: Largest lightmap side we agree to allocate (memory: 16k^2 x 27 float32 = 27 GiB).
 MAX_RESOLUTION = 8192
@@ -149,15 +149,16 @@ def _check_options(opts: BakeOptions) -> None:
             models.check_choice(model, kind, value, allowed, FLAG_TEXT[kind], error=UsageError)
     if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
         raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
-    if opts.container not in (None, "files", "ktx2"):
-        raise UsageError(f"--container must be files or ktx2, got {opts.container!r}")
+    if opts.container not in (None, "files", "ktx2", "ktx2-bc"):
+        raise UsageError(f"--container must be files, ktx2 or ktx2-bc, got {opts.container!r}")
     from usdahd.pipeline import distributed
 
     distributed.require(opts.workers, opts.scheduler)  # before anything is read or traced
-    if opts.container == "ktx2":
+    if opts.container == "ktx2-bc":
         try:
-            import etcpak  # noqa: F401
+            import ispc_texcomp  # noqa: F401
         except ImportError:
             raise UsageError(
-                "--container ktx2 needs etcpak (the BC7 encoder): pip install 'usdahd[ktx2]'"
+                "--container ktx2-bc needs ispc-texcomp (the BC6H/BC7 encoder): "
+                "pip install 'usdahd[ktx2]'"
             ) from None

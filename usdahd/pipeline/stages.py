@@ -253,9 +253,9 @@ def _write_failure(prim_path: str, exc: Exception, out: Path) -> str:
     return f"{prim_path}: {text}" if prim_path not in text else text
 
 
-def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict) -> None:
-    """The KTX2 engine container of one texture (chart-aware mips, BC7 / RGBA16F), next to the
-    EXR/PNG; its key/value data carries the packing and decode factors."""
+def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict, bc: bool) -> None:
+    """The KTX2 engine container of one texture (chart-aware mips; lossless, or BC6H / BC7 with
+    ``bc``), next to the EXR/PNG; its key/value data carries the packing and decode factors."""
     from usdahd import ktx2
     from usdahd.bake import post
     from usdahd.bake.texels import chart_ids
@@ -265,7 +265,8 @@ def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict) -> None
     charts = post.to_image(job.texels, np.asarray(job.charts), fill=-1)
     kv = {"usdahd:packing": lay.packing, "usdahd:role": lay.role}
     kv.update({f"usdahd:{k}": repr(float(v)) for k, v in factors.items()})
-    info = ktx2.write(path, img, mask, charts, lay.format, attributes=kv)
+    comp = "bc" if bc else "none"
+    info = ktx2.write(path, img, mask, charts, lay.format, compression=comp, attributes=kv)
     job.report.setdefault("ktx2", {})[lay.role] = {"path": str(path), **info}
 
 
@@ -317,8 +318,9 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         )
         textures[lay.role] = str(path)
         digests[lay.role] = schema.file_digest(path)
-        if s.get("container") == "ktx2":
-            _write_ktx2(job, lay, img, mask, path.with_suffix(".ktx2"), factors)
+        if s.get("container") in ("ktx2", "ktx2-bc"):
+            bc = s["container"] == "ktx2-bc"
+            _write_ktx2(job, lay, img, mask, path.with_suffix(".ktx2"), factors, bc)
     # The SH sidecar (float32, with coverage) the validator checks I_z against.
     side = np.concatenate(
         [

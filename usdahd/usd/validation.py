@@ -212,3 +212,12 @@ def is_usd_diagnostic(line: str) -> bool:
 def usd_diagnostic(line: str) -> str:
     """``Warning: in F at line N of /path/x.cpp -- message`` -> ``message``."""
     return line.split(" -- ", 1)[1] if " -- " in line else line
+
+
+def validator_doc(name: str) -> str:
+    """The ``doc`` string of a registered validator (USD's built-ins have one), or ''."""
+    try:
+        meta = UsdValidation.ValidationRegistry().GetValidatorMetadata(name)
+    except Exception:
+        return ""
+    return str(getattr(meta, "doc", "") or "") if meta is not None else ""

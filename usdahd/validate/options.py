@@ -26,6 +26,16 @@ class Options:
         quantization error measured on the samples (hlsh, whose 8-bit w_a spans up to +-16:
         0.061; float16 models ~3e-4) and well below a wrong decode (order 1). The model's own
         fit error is reported, not warned about: it is a choice of model, not a defect.
+    model_rmse_warning : relative hemispherical RMSE of the decoded textures against the SH
+        irradiance (model fit and quantization together) above which EncodingError warns
+        (``HighModelError``): at 1 the error is as large as the irradiance itself, so the
+        shading is wrong whatever the cause (light from below the tangent plane, which IrradZ
+        models decode black, gives 1.2-1.4; fresh default bakes of the samples measure at most
+        0.24).
+    model_texel_share : share of a prim's texels whose own relative RMSE exceeds
+        model_rmse_warning above which EncodingError warns too: such a texel is shaded worse
+        than black; isolated ones occur on fresh bakes (contact shadows, grazing light: at most
+        0.64% of a prim of the Cornell box at 16 x 16, hhd), 5% (8x that) is a region.
     rmse_normals : normals of the hemispherical RMSE (spherical Fibonacci, upper hemisphere).
     rmse_max_texels : texels sampled (evenly) for the RMSE, so big lightmaps stay fast.
     uv_epsilon : UVs may leave [0, 1] by this much (float32 rounding of authored 0 and 1).
@@ -37,6 +47,8 @@ class Options:
 
     iz_tolerance: float | None = None
     rmse_warning: float = 0.25
+    model_rmse_warning: float = 1.0
+    model_texel_share: float = 0.05
     rmse_normals: int = 64
     rmse_max_texels: int = 20000
     uv_epsilon: float = 1e-5
@@ -45,7 +57,10 @@ class Options:
 
 
 OPTIONS = Options()
-#: Model fit RMSE above which the EncodingError note suggests a closer-fitting model.
+#: Model fit RMSE above which the EncodingError note says the model fits loosely and names the
+#: models measured to fit closer (never the model in use; usdahd.validate.irradiance
+#: ADVICE_MODELS): the quantization warning's threshold, so a note never calls a smaller
+#: error loose than the one the textures may add.
 MODEL_RMSE_NOTE = 0.25
 
 #: Relative rounding bound of a stored value by storage format (documentation and tests; IzCheck

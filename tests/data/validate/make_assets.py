@@ -118,6 +118,21 @@ def hemispherical_sh(n: int, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
+def below_horizon_sh(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3, 9) radiance SH of a narrow lobe 17 degrees *below* the tangent plane plus a faint
+    sky: light an IrradZ model (which stores max(I_z, 0)) decodes black."""
+    dirs, wts = shm.sphere_quadrature(32)
+    basis = shm.basis(dirs) * wts[:, None]
+    out = np.empty((n, 3, 9))
+    for t in range(n):
+        phi = rng.uniform(0, 2 * np.pi)
+        lz = -0.3
+        d = np.array([np.sqrt(1 - lz * lz) * np.cos(phi), np.sqrt(1 - lz * lz) * np.sin(phi), lz])
+        rad = np.full((len(dirs), 3), 0.01) + 3.0 * np.maximum(dirs @ d, 0.0)[:, None] ** 64
+        out[t] = rad.T @ basis
+    return out
+
+
 # ------------------------------------------------------------------------------------ images
 
 
@@ -146,9 +161,18 @@ def write_image(path: Path, data: np.ndarray, *, channels=None, color_space: str
 
 
 def bake(
-    directory: Path, *, model: str = "hhd", ratio: str | None = None, uvs=None, seed: int = 0
+    directory: Path,
+    *,
+    model: str = "hhd",
+    ratio: str | None = None,
+    uvs=None,
+    seed: int = 0,
+    sh_fn=None,
 ) -> Path:
-    """Write a synthetic, consistent bake into ``directory``; returns the override layer."""
+    """Write a synthetic, consistent bake into ``directory``; returns the override layer.
+
+    sh_fn : ``(n, rng) -> (n, 3, 9)`` radiance SH of the covered texels (default
+    :func:`hemispherical_sh`)."""
     from usdahd import pipeline
     from usdahd.numerics.raster import rasterize_uv
     from usdahd.scene.hashing import content_hash, scene_hash_parts
@@ -165,7 +189,8 @@ def bake(
     ids = rasterize_uv(tris, RESOLUTION, conservative=False).ids
     ys, xs = ids // w, ids % w
     rng = np.random.default_rng(seed)
-    sh = hemispherical_sh(len(xs), rng)
+    # float32, as the baker fits it and stores it in the sidecar
+    sh = (sh_fn or hemispherical_sh)(len(xs), rng).astype(np.float32)
     mod = models.get(model)
     ratio = ratio or mod.RATIOS[0]
     fitted = models.fit(sh, model, ratio=ratio)
@@ -331,7 +356,8 @@ DEFECTS = {
     "nan_texel": ("TexelValues", nan_texel),
     "horizon_direction": ("TexelValues", horizon_direction),
     "corrupted_iz": ("IzCheck", corrupted_iz),
-    "mirrored_directions": ("EncodingError", mirrored_directions),
+    "mirrored_directions": ("IzCheck", mirrored_directions),
+    "light_from_below": ("EncodingError", {"sh": "below"}),
     "moved_light": ("Staleness", moved_light),
     "replaced_texture": ("Textures", replaced_texture),
     "overlapping_uvs": ("UVSet", {"uvs": "overlap"}),
@@ -348,6 +374,8 @@ def make_bad(directory: Path, defect: str, clean: Path | None = None) -> Path:
     with broken inputs for defects that must be baked in (UVs)."""
     directory = Path(directory)
     _rule, how = DEFECTS[defect]
+    if isinstance(how, dict) and "sh" in how:
+        return bake(directory, sh_fn=below_horizon_sh)
     if isinstance(how, dict):
         uvs = grid_uvs(overlap=how["uvs"] == "overlap", outside=how["uvs"] == "outside")
         return bake(directory, uvs=uvs)

@@ -28,11 +28,13 @@ KERNEL_SOURCES = tuple(
         ("bake", "kernels", "cache.py"),
         ("bake", "kernels", "layout.py"),
         ("bake", "kernels", "lights.py"),
+        ("bake", "kernels", "shading.py"),
+        ("bake", "kernels", "paths.py"),
         ("bake", "kernels", "integrate.py"),
         ("bake", "reference.py"),
         ("numerics", "sampling.py"),
         ("numerics", "sh.py"),
-        ("scene", "lights.py"),
+        ("scene", "lights", "base.py"),
     )
 )
 

@@ -184,6 +184,17 @@ from numba.extending import intrinsic  # noqa: E402
 
 from usdahd.bake.kernels import cache  # noqa: E402, F401  (numba cache locators, before any @njit)
 from usdahd.bake.kernels.cache import helper  # noqa: E402
+from usdahd.bake.kernels.layout import (  # noqa: E402
+    HIT_NG,
+    HIT_T,
+    HIT_TRI,
+    HIT_U,
+    HIT_V,
+    RAY_D,
+    RAY_O,
+    RAY_TFAR,
+    EmbreeHit,
+)
 
 
 def _extern_call(name):
@@ -279,7 +290,8 @@ def _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar):
 def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     """Closest hit. rec : (RAYHIT_FLOATS,) float32 scratch (16-byte aligned).
 
-    returns (t, primID, u, v): t float32 (inf on miss), primID int64 (-1 on miss).
+    returns an :class:`~usdahd.bake.kernels.layout.EmbreeHit` (t float32, inf on miss;
+    tri int64, -1 on miss; u, v float32).
     """
     _set_ray(rec, ox, oy, oz, dx, dy, dz, tfar)
     iv = rec.view(np.uint32)
@@ -287,8 +299,8 @@ def intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar):
     iv[19] = 0xFFFFFFFF  # instID[0]
     _rtc_intersect1(scene, rec.ctypes.data)
     if iv[18] == 0xFFFFFFFF:
-        return np.float32(np.inf), -1, np.float32(0.0), np.float32(0.0)
-    return rec[8], np.int64(iv[17]), rec[15], rec[16]
+        return EmbreeHit(np.float32(np.inf), np.int64(-1), np.float32(0.0), np.float32(0.0))
+    return EmbreeHit(rec[8], np.int64(iv[17]), rec[15], rec[16])
 
 
 @helper
@@ -319,14 +331,14 @@ def intersect_batch(scene, o, d, tfar, t_out, prim_out, u_out, v_out):
     rec = scratch()
     for i in range(o.shape[0]):
         # float64 arguments (exact for float32 input): the specialisation the kernels use
-        t, p, u, v = intersect1(
+        h = intersect1(
             scene, rec, _f(o[i, 0]), _f(o[i, 1]), _f(o[i, 2]), _f(d[i, 0]), _f(d[i, 1]),
             _f(d[i, 2]), _f(tfar[i]),
         )  # fmt: skip
-        t_out[i] = t
-        prim_out[i] = p
-        u_out[i] = u
-        v_out[i] = v
+        t_out[i] = h.t
+        prim_out[i] = h.tri
+        u_out[i] = h.u
+        v_out[i] = h.v
 
 
 @njit(cache=True, nogil=True)
@@ -341,7 +353,8 @@ def occluded_batch(scene, o, d, tfar, out):
 
 
 # ------------------------------------------------------------------ packets
-# ``rays`` (m, 7) float64 rows: origin (3), unit direction (3), tfar (inf: unbounded); tnear 0.
+# ``rays`` (m, RAY_COLS) float64 rows (``layout.RAY``): origin, unit direction, tfar (inf:
+# unbounded); tnear 0. ``hits`` (m, HIT_COLS) float64 rows (``layout.HIT``).
 # Rays are traced PACKET at a time from the packet scratch ``pk`` (:func:`new_packet`); a last
 # packet with fewer than PACKET_MIN rays goes through the single-ray calls with ``rec``.
 
@@ -354,15 +367,15 @@ def _fill_packet(pk, rays, s0, cnt, with_hit):
     for j in range(W):
         if j < cnt:
             r = s0 + j
-            pk[j] = rays[r, 0]
-            pk[W + j] = rays[r, 1]
-            pk[2 * W + j] = rays[r, 2]
+            pk[j] = rays[r, RAY_O]
+            pk[W + j] = rays[r, RAY_O + 1]
+            pk[2 * W + j] = rays[r, RAY_O + 2]
             pk[3 * W + j] = 0.0
-            pk[4 * W + j] = rays[r, 3]
-            pk[5 * W + j] = rays[r, 4]
-            pk[6 * W + j] = rays[r, 5]
+            pk[4 * W + j] = rays[r, RAY_D]
+            pk[5 * W + j] = rays[r, RAY_D + 1]
+            pk[6 * W + j] = rays[r, RAY_D + 2]
             pk[7 * W + j] = 0.0
-            pk[8 * W + j] = rays[r, 6]
+            pk[8 * W + j] = rays[r, RAY_TFAR]
             iv[9 * W + j] = 0xFFFFFFFF
             iv[10 * W + j] = 0
             iv[11 * W + j] = 0
@@ -376,7 +389,7 @@ def _fill_packet(pk, rays, s0, cnt, with_hit):
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def intersect_rays(scene, pk, rec, rays, n, hits):
-    """Closest hits of ``rays[:n]`` into ``hits[:n]`` ((m, 7) float64 rows: t (inf on miss),
+    """Closest hits of ``rays[:n]`` into ``hits[:n]`` ((m, HIT_COLS) float64 rows: t (inf on miss),
     triangle id (-1 on miss), u, v, unit geometric normal (0, 0, 1 on miss))."""
     W = PACKET
     iv = pk.view(np.uint32)
@@ -384,41 +397,41 @@ def intersect_rays(scene, pk, rec, rays, n, hits):
         cnt = min(W, n - s0)
         if cnt < PACKET_MIN:
             for r in range(s0, n):
-                t, p, u, v = intersect1(
-                    scene, rec, rays[r, 0], rays[r, 1], rays[r, 2], rays[r, 3], rays[r, 4],
-                    rays[r, 5], rays[r, 6],
+                h = intersect1(
+                    scene, rec, rays[r, RAY_O], rays[r, RAY_O + 1], rays[r, RAY_O + 2],
+                    rays[r, RAY_D], rays[r, RAY_D + 1], rays[r, RAY_D + 2], rays[r, RAY_TFAR],
                 )  # fmt: skip
-                hits[r, 0] = t
-                hits[r, 1] = p
-                hits[r, 2] = u
-                hits[r, 3] = v
-                if p >= 0:
-                    hits[r, 4], hits[r, 5], hits[r, 6] = hit_normal(rec)
+                hits[r, HIT_T] = h.t
+                hits[r, HIT_TRI] = h.tri
+                hits[r, HIT_U] = h.u
+                hits[r, HIT_V] = h.v
+                if h.tri >= 0:
+                    hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = hit_normal(rec)
                 else:
-                    hits[r, 4], hits[r, 5], hits[r, 6] = 0.0, 0.0, 1.0
+                    hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = 0.0, 0.0, 1.0
             break
         _fill_packet(pk, rays, s0, cnt, np.int64(1))
         _rtc_intersect16(pk[22 * W :].ctypes.data, scene, pk.ctypes.data)
         for j in range(cnt):
             r = s0 + j
             if iv[18 * W + j] == 0xFFFFFFFF:
-                hits[r, 0] = np.inf
-                hits[r, 1] = -1.0
-                hits[r, 2] = hits[r, 3] = hits[r, 4] = hits[r, 5] = 0.0
-                hits[r, 6] = 1.0
+                hits[r, HIT_T] = np.inf
+                hits[r, HIT_TRI] = -1.0
+                hits[r, HIT_U] = hits[r, HIT_V] = hits[r, HIT_NG] = hits[r, HIT_NG + 1] = 0.0
+                hits[r, HIT_NG + 2] = 1.0
                 continue
-            hits[r, 0] = pk[8 * W + j]
-            hits[r, 1] = iv[17 * W + j]
-            hits[r, 2] = pk[15 * W + j]
-            hits[r, 3] = pk[16 * W + j]
+            hits[r, HIT_T] = pk[8 * W + j]
+            hits[r, HIT_TRI] = iv[17 * W + j]
+            hits[r, HIT_U] = pk[15 * W + j]
+            hits[r, HIT_V] = pk[16 * W + j]
             x = np.float64(pk[12 * W + j])
             y = np.float64(pk[13 * W + j])
             z = np.float64(pk[14 * W + j])
             ln = np.sqrt(x * x + y * y + z * z)
             if ln > 0.0:
-                hits[r, 4], hits[r, 5], hits[r, 6] = x / ln, y / ln, z / ln
+                hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = x / ln, y / ln, z / ln
             else:
-                hits[r, 4], hits[r, 5], hits[r, 6] = 0.0, 0.0, 1.0
+                hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = 0.0, 0.0, 1.0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -430,8 +443,8 @@ def occluded_rays(scene, pk, rec, rays, n, out):
         if cnt < PACKET_MIN:
             for r in range(s0, n):
                 out[r] = occluded1(
-                    scene, rec, rays[r, 0], rays[r, 1], rays[r, 2], rays[r, 3], rays[r, 4],
-                    rays[r, 5], rays[r, 6],
+                    scene, rec, rays[r, RAY_O], rays[r, RAY_O + 1], rays[r, RAY_O + 2],
+                    rays[r, RAY_D], rays[r, RAY_D + 1], rays[r, RAY_D + 2], rays[r, RAY_TFAR],
                 )  # fmt: skip
             break
         _fill_packet(pk, rays, s0, cnt, np.int64(0))

@@ -9,8 +9,6 @@ in :mod:`usdahd.bake.kernels.layout`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from usdahd.bake.kernels import cache  # noqa: F401  (numba cache locators, before any @njit)
@@ -20,10 +18,11 @@ from usdahd.bake.kernels.layout import (
     KIND_DISK,
     KIND_DISTANT,
     KIND_DOME,
-    KIND_EMISSIVE,
     KIND_POINT,
     KIND_RECT,
     KIND_SPHERE,
+    LIGHT_KINDS,
+    LIGHT_PARAMS,
     N_PAR,
     PAR_AREA,
     PAR_AXIS,
@@ -39,10 +38,6 @@ from usdahd.bake.kernels.layout import (
     PAR_DOME_ROT,
     PAR_DOME_TEXTURED,
     PAR_DOME_W,
-    PAR_EM_COUNT,
-    PAR_EM_PDF_AREA,
-    PAR_EM_TABLE,
-    PAR_EM_TRI,
     PAR_EX,
     PAR_EY,
     PAR_GINV,
@@ -59,125 +54,81 @@ from usdahd.bake.kernels.layout import (
     PAR_RADIANCE,
     PAR_RADIUS,
     PAR_RECT_ORTHO,
+    LightArrays,
+    LightSample,
 )
 from usdahd.numerics.sampling import SPHERICAL_RECT_MAX_SR, SPHERICAL_RECT_MIN_SR
-from usdahd.scene.lights import (
-    FALLOFF_CONSTANT,
-    FALLOFF_FRONT,
-    CylinderLight,
-    DistantLight,
-    DomeLight,
-    EmissiveTriangles,
-    PointLight,
-    RectLight,
-    SphereLight,
-    _PlanarLight,
-)
+from usdahd.scene.lights import FALLOFF_CONSTANT, FALLOFF_FRONT
 
 # ----------------------------------------------------------------------------- native tables
 # The same lights as flat arrays for the numba integrator (usdahd.bake.integrate), one scalar
 # routine per operation below mirroring the numpy methods of usdahd.scene.lights line by line.
-# The slots of ``par`` are named in usdahd.bake.kernels.layout (PAR_*).
+# Each light class declares and writes its own parameters (``FIELDS``, ``pack``).
 
 
-@dataclass
-class LightTable:
-    """Lights packed for numba: ``kind`` (L,) int64, ``par`` (L, N_PAR) float64, flags
-    ``delta``/``infinite``/``sampled`` (L,) bool, dome images ``img`` (P, 3) float64 and their
-    sampling tables ``pmf``/``cdf`` (P,) float64 (concatenated; offsets in ``par``)."""
+class LightBlocks:
+    """The per-pixel tables lights share (dome images and their sampling tables, emissive
+    triangle tables): ``add`` appends equal-length blocks and returns their offset. Row 0 is
+    a dummy (img 0, pmf 0, cdf 1), so no light's offset is 0."""
 
-    kind: np.ndarray
-    par: np.ndarray
-    delta: np.ndarray
-    infinite: np.ndarray
-    sampled: np.ndarray
-    img: np.ndarray
-    pmf: np.ndarray
-    cdf: np.ndarray
+    def __init__(self):
+        self.img, self.pmf, self.cdf = [np.zeros((1, 3))], [np.zeros(1)], [np.ones(1)]
+        self.size = 1
+
+    def add(self, img, pmf, cdf) -> int:
+        """Append (k, 3), (k,), (k,) blocks; returns the offset of their first row."""
+        at = self.size
+        self.img.append(img)
+        self.pmf.append(pmf)
+        self.cdf.append(cdf)
+        self.size += len(pmf)
+        return at
 
 
-def pack_lights(lights) -> LightTable:
-    """Flatten Light objects into a :class:`LightTable` (order preserved)."""
+def pack_lights(lights, n_meshes: int = 0) -> LightArrays:
+    """Flatten Light objects into :class:`~usdahd.bake.kernels.layout.LightArrays` (order
+    preserved): per light its kind, the common fields (radiance, selection bound) and the
+    fields its class declares and packs (:meth:`usdahd.scene.lights.Light.pack`); light
+    linking masks over ``n_meshes`` scene meshes (``lit_meshes`` / ``shadow_meshes``)."""
     n = len(lights)
+    kinds = {cls: i for i, cls in enumerate(LIGHT_KINDS)}
     kind = np.zeros(n, np.int64)
     par = np.zeros((max(n, 1), N_PAR))
-    imgs, pmfs, cdfs = [np.zeros((1, 3))], [np.zeros(1)], [np.ones(1)]
-    pix = 1
+    blocks = LightBlocks()
+    nm = max(int(n_meshes), 1)
+    recv = np.ones((max(n, 1), nm), bool)
+    cast = np.ones((max(n, 1), nm), bool)
+    shadow_linked = np.zeros(n, bool)
     for i, lt in enumerate(lights):
-        p = par[i]
-        p[PAR_RADIANCE : PAR_RADIANCE + 3] = lt.radiance
-        bd = lt.bound()
-        p[PAR_IMP_FALLOFF], p[PAR_IMP_SCALE], p[PAR_IMP_R2] = bd.falloff, bd.scale, bd.r2
-        p[PAR_IMP_CAP] = bd.cap
-        p[PAR_IMP_CENTER : PAR_IMP_CENTER + 3] = bd.center
-        p[PAR_IMP_NORMAL : PAR_IMP_NORMAL + 3] = bd.normal
-        if isinstance(lt, PointLight):
-            kind[i] = KIND_POINT
-            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
-        elif isinstance(lt, SphereLight):
-            kind[i] = KIND_SPHERE
-            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
-            p[PAR_RADIUS] = lt.radius
-        elif isinstance(lt, _PlanarLight):
-            kind[i] = KIND_RECT if isinstance(lt, RectLight) else KIND_DISK
-            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
-            p[PAR_EX : PAR_EX + 3] = lt.ex
-            p[PAR_EY : PAR_EY + 3] = lt.ey
-            p[PAR_NORMAL : PAR_NORMAL + 3] = lt.normal
-            p[PAR_AREA] = lt.area
-            p[PAR_GINV : PAR_GINV + 4] = lt._ginv.reshape(-1)
-            p[PAR_PLANE_N : PAR_PLANE_N + 3] = lt._pn
-            if isinstance(lt, RectLight):
-                p[PAR_RECT_ORTHO] = 1.0 if lt.orthogonal else 0.0
-        elif isinstance(lt, CylinderLight):
-            kind[i] = KIND_CYLINDER
-            p[PAR_CENTER : PAR_CENTER + 3] = lt.center
-            p[PAR_AXIS : PAR_AXIS + 3] = lt.axis
-            p[PAR_RADIUS], p[PAR_AREA], p[PAR_HALF_LENGTH] = lt.radius, lt.area, lt.half_length
-            p[PAR_CYL_E1 : PAR_CYL_E1 + 3] = lt._e1
-            p[PAR_CYL_E2 : PAR_CYL_E2 + 3] = lt._e2
-        elif isinstance(lt, DistantLight):
-            kind[i] = KIND_DISTANT
-            p[PAR_DIRECTION : PAR_DIRECTION + 3] = lt.direction
-            p[PAR_OMC], p[PAR_COS_MAX] = lt._omc, lt._cos_max
-        elif isinstance(lt, DomeLight):
-            kind[i] = KIND_DOME
-            p[PAR_DOME_ROT : PAR_DOME_ROT + 9] = np.asarray(lt.rotation, np.float64).reshape(-1)
-            if lt.image is not None:
-                h, w = lt._img.shape[:2]
-                p[PAR_DOME_TEXTURED] = 1.0
-                p[PAR_DOME_PMF] = p[PAR_DOME_PIX] = pix
-                p[PAR_DOME_INV_ROT : PAR_DOME_INV_ROT + 9] = lt._inv_rot.reshape(-1)
-                p[PAR_DOME_H], p[PAR_DOME_W] = h, w
-                imgs.append(lt._img[..., :3].reshape(-1, 3))
-                pmfs.append(lt._pmf)
-                cdfs.append(lt._cdf)
-                pix += h * w
-        elif isinstance(lt, EmissiveTriangles):
-            kind[i] = KIND_EMISSIVE
-            ne, nt = len(lt.tri), len(lt.pdf_area)
-            p[PAR_EM_TABLE], p[PAR_EM_COUNT] = pix, ne
-            pmfs.append(lt.pmf)
-            cdfs.append(lt.cdf)
-            p[PAR_EM_PDF_AREA] = pix + ne
-            pmfs.append(lt.pdf_area)
-            cdfs.append(np.zeros(nt))
-            p[PAR_EM_TRI] = pix + ne + nt
-            pmfs.append(lt.tri.astype(np.float64))
-            cdfs.append(np.zeros(ne))
-            imgs.append(np.zeros((2 * ne + nt, 3)))  # keeps the blocks' offsets aligned
-            pix += 2 * ne + nt
-        else:  # pragma: no cover - every light type is listed above
-            raise TypeError(f"no native form for {type(lt).__name__}")
-    return LightTable(
-        kind,
-        par,
-        np.array([bool(lt.delta) for lt in lights], bool),
-        np.array([bool(lt.infinite) for lt in lights], bool),
-        np.array([bool(lt.sampled) for lt in lights], bool),
-        np.ascontiguousarray(np.concatenate(imgs), np.float64),
-        np.concatenate(pmfs).astype(np.float64),
-        np.concatenate(cdfs).astype(np.float64),
+        kind[i] = kinds[type(lt)]
+
+        def fill(rec, lt=lt):
+            rec.radiance = lt.radiance
+            bd = lt.bound()
+            rec.imp_falloff, rec.imp_scale, rec.imp_r2 = bd.falloff, bd.scale, bd.r2
+            rec.imp_cap, rec.imp_center, rec.imp_normal = bd.cap, bd.center, bd.normal
+            lt.pack(rec, blocks)
+
+        LIGHT_PARAMS.pack(par[i], lt.KIND, fill)
+        if lt.lit_meshes is not None:
+            recv[i] = False
+            recv[i, np.asarray(lt.lit_meshes, np.int64)] = True
+        if lt.shadow_meshes is not None:
+            shadow_linked[i] = True
+            cast[i] = False
+            cast[i, np.asarray(lt.shadow_meshes, np.int64)] = True
+    return LightArrays(
+        kind=kind,
+        par=par,
+        img=np.ascontiguousarray(np.concatenate(blocks.img), np.float64),
+        pmf=np.concatenate(blocks.pmf).astype(np.float64),
+        cdf=np.concatenate(blocks.cdf).astype(np.float64),
+        delta=np.array([bool(lt.delta) for lt in lights], bool),
+        infinite=np.array([bool(lt.infinite) for lt in lights], bool),
+        sampled=np.array([bool(lt.sampled) for lt in lights], bool),
+        recv=recv,
+        shadow_linked=shadow_linked,
+        cast=cast,
     )
 
 
@@ -420,27 +371,27 @@ def search_right(cdf, base, n, u):
 @helper
 def _area_sample(p, wx, wy, wz, nx, ny, nz):
     """An area light's sample towards the point at offset (wx, wy, wz) from the query, whose
-    emitting side has normal n: (dx, dy, dz, dist, r, g, b, pdf) with the area-measure pdf
-    converted to solid angle (zero value and pdf from the back side)."""
+    emitting side has normal n: a :class:`~usdahd.bake.kernels.layout.LightSample` with the
+    area-measure pdf converted to solid angle (zero value and pdf from the back side)."""
     dist = np.sqrt(wx * wx + wy * wy + wz * wz)
     inv = 1.0 / max(dist, 1e-300)
     dx, dy, dz = wx * inv, wy * inv, wz * inv
     cos_l = -(dx * nx + dy * ny + dz * nz)
     if cos_l > 0.0:
         r, g, b = p[PAR_RADIANCE], p[PAR_RADIANCE + 1], p[PAR_RADIANCE + 2]
-        return dx, dy, dz, dist, r, g, b, dist * dist / (p[PAR_AREA] * cos_l)
-    return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+        return LightSample(dx, dy, dz, dist, r, g, b, dist * dist / (p[PAR_AREA] * cos_l))
+    return LightSample(dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0)
 
 
 @helper
 def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
-    """Scalar ``Light.sample``: returns (dx, dy, dz, dist, r, g, b, pdf)."""
+    """Scalar ``Light.sample``: a :class:`~usdahd.bake.kernels.layout.LightSample`."""
     if kind == KIND_POINT:
         wx, wy, wz = p[PAR_CENTER] - x, p[PAR_CENTER + 1] - y, p[PAR_CENTER + 2] - z
         dist = np.sqrt(wx * wx + wy * wy + wz * wz)
         inv = 1.0 / max(dist, 1e-300)
         s = 1.0 / max(dist * dist, 1e-300)
-        return (
+        return LightSample(
             wx * inv,
             wy * inv,
             wz * inv,
@@ -458,7 +409,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         if not np.isfinite(t):
             t = np.sqrt(d2)
         if outside:
-            return (
+            return LightSample(
                 dx,
                 dy,
                 dz,
@@ -468,7 +419,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
                 p[PAR_RADIANCE + 2],
                 1.0 / (TWO_PI * max(omc, 1e-300)),
             )
-        return dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0
+        return LightSample(dx, dy, dz, t, 0.0, 0.0, 0.0, 0.0)
     if kind == KIND_RECT and _rect_candidate(p, x, y, z):
         sr, qx, qy, qz = _sph_rect(p, x, y, z, _YES, u0, u1)  # one set-up: test, then sample
         if sr > 0.0 and sr <= SPHERICAL_RECT_MAX_SR:
@@ -477,7 +428,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
             inv = 1.0 / max(dist, 1e-300)
             dx, dy, dz = wx * inv, wy * inv, wz * inv
             if -(dx * p[PAR_NORMAL] + dy * p[PAR_NORMAL + 1] + dz * p[PAR_NORMAL + 2]) > 0.0:
-                return (
+                return LightSample(
                     dx,
                     dy,
                     dz,
@@ -487,7 +438,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
                     p[PAR_RADIANCE + 2],
                     1.0 / sr,
                 )
-            return dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0
+            return LightSample(dx, dy, dz, dist, 0.0, 0.0, 0.0, 0.0)
     if kind == KIND_RECT or kind == KIND_DISK:
         if kind == KIND_RECT:
             a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
@@ -519,7 +470,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         return _area_sample(p, wx, wy, wz, rx, ry, rz)
     if kind == KIND_DISTANT:
         if p[PAR_OMC] <= 0.0:
-            return (
+            return LightSample(
                 p[PAR_DIRECTION],
                 p[PAR_DIRECTION + 1],
                 p[PAR_DIRECTION + 2],
@@ -532,7 +483,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
         dx, dy, dz = _cone(
             p[PAR_DIRECTION], p[PAR_DIRECTION + 1], p[PAR_DIRECTION + 2], p[PAR_OMC], u0, u1
         )
-        return (
+        return LightSample(
             dx,
             dy,
             dz,
@@ -560,7 +511,7 @@ def light_sample(kind, p, img, pmf, cdf, x, y, z, u0, u1):
     dx, dy, dz = dx / ln, dy / ln, dz / ln
     pdf = pmf[base + idx] * (h * w) / (2.0 * np.pi * np.pi * max(np.sin(theta), 1e-12))
     q = int(p[PAR_DOME_PIX]) + idx
-    return (
+    return LightSample(
         dx,
         dy,
         dz,

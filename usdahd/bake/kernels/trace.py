@@ -17,12 +17,21 @@ from usdahd.bake.kernels import (
 )
 from usdahd.bake.kernels.cache import helper
 from usdahd.bake.kernels.layout import (
+    HIT_NG,
+    HIT_T,
+    HIT_TRI,
+    HIT_U,
+    HIT_V,
     MAT_ALBEDO,
     MAT_OPACITY,
     MAT_THRESHOLD,
+    RAY_D,
+    RAY_O,
+    RAY_TFAR,
     TEX_ALBEDO,
     TEX_EMISSION,
     TEX_OPACITY,
+    TraceHit,
 )
 from usdahd.bake.trace import MAX_TRANSMIT
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
@@ -33,7 +42,7 @@ from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 
 _U64 = np.uint64
 #: Tracer.offset's floor per unit of the point's largest coordinate (same product, same bits).
-_OFFSET_PER_UNIT = OFFSET_ULPS * FLT_EPS
+OFFSET_PER_UNIT = OFFSET_ULPS * FLT_EPS
 
 
 @helper
@@ -52,7 +61,7 @@ def nb_offset(scale, px, py, pz, nx, ny, nz, dx, dy, dz):
     """:meth:`Tracer.offset` for one ray (``scale``: the point's triangle's ``tri_offset``
     or the texel's own offset)."""
     s = 1.0 if nx * dx + ny * dy + nz * dz >= 0.0 else -1.0
-    sc = s * max(scale, _OFFSET_PER_UNIT * max(abs(px), abs(py), abs(pz)))
+    sc = s * max(scale, OFFSET_PER_UNIT * max(abs(px), abs(py), abs(pz)))
     return px + sc * nx, py + sc * ny, pz + sc * nz
 
 
@@ -221,22 +230,23 @@ def _pass_through(scene, rec, tb, tri, u, v, dx, dy, dz, tfar, travelled, t):
     sc = tb.tri_offset[tri]
     qx, qy, qz = nb_offset(sc, px, py, pz, g[tri, 0], g[tri, 1], g[tri, 2], dx, dy, dz)
     done = travelled + t
-    t2, tri2, u2, v2 = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
-    return np.float64(t2), tri2, np.float64(u2), np.float64(v2), done
+    h = embree.intersect1(scene, rec, qx, qy, qz, dx, dy, dz, tfar - done)
+    return np.float64(h.t), h.tri, np.float64(h.u), np.float64(h.v), done
 
 
 @helper
 def nb_trace(scene, rec, tb, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
-    """:meth:`Tracer.intersect` for one ray: (t, tri, u, v, gx, gy, gz, rays traced); tri -1
-    on miss; (gx, gy, gz) the hit's unit geometric normal (from Embree's hit record, so no
-    per-triangle table is read)."""
-    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    """:meth:`Tracer.intersect` for one ray: a :class:`~usdahd.bake.kernels.layout.TraceHit`
+    (tri -1 on miss; the unit geometric normal from Embree's hit record, so no per-triangle
+    table is read)."""
+    h = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    t, tri, u, v = h.t, h.tri, h.u, h.v
     rays = 1
     if not transmission:
         if tri < 0:
-            return np.inf, tri, 0.0, 0.0, 0.0, 0.0, 1.0, rays
+            return TraceHit(np.inf, tri, 0.0, 0.0, 0.0, 0.0, 1.0, rays)
         gx, gy, gz = embree.hit_normal(rec)
-        return np.float64(t), tri, np.float64(u), np.float64(v), gx, gy, gz, rays
+        return TraceHit(np.float64(t), tri, np.float64(u), np.float64(v), gx, gy, gz, rays)
     t = np.float64(t)
     u = np.float64(u)
     v = np.float64(v)
@@ -249,9 +259,9 @@ def nb_trace(scene, rec, tb, transmission, st, ox, oy, oz, dx, dy, dz, tfar):
         )
         rays += 1
     if tri < 0:
-        return np.inf, tri, u, v, 0.0, 0.0, 1.0, rays
+        return TraceHit(np.inf, tri, u, v, 0.0, 0.0, 1.0, rays)
     gx, gy, gz = embree.hit_normal(rec)
-    return np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays
+    return TraceHit(np.float64(np.float32(travelled + t)), tri, u, v, gx, gy, gz, rays)
 
 
 @helper
@@ -259,9 +269,9 @@ def nb_transmittance(scene, rec, tb, transmission, ox, oy, oz, dx, dy, dz, tfar)
     """:meth:`Tracer.transmittance` for one shadow ray: (fraction passing, rays traced)."""
     if not transmission:
         return (0.0 if embree.occluded1(scene, rec, ox, oy, oz, dx, dy, dz, tfar) else 1.0), 1
-    t, tri, u, v = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
+    h = embree.intersect1(scene, rec, ox, oy, oz, dx, dy, dz, tfar)
     rays = 1
-    t, u, v = np.float64(t), np.float64(u), np.float64(v)
+    t, tri, u, v = np.float64(h.t), h.tri, np.float64(h.u), np.float64(h.v)
     T = 1.0
     travelled = 0.0
     for _ in range(MAX_TRANSMIT):
@@ -289,8 +299,8 @@ def nb_transmittance_rays(scene, pk, rec, tb, transmission, rays, n, out):
     total = 0
     for r in range(n):
         tr, k = nb_transmittance(
-            scene, rec, tb, transmission, rays[r, 0], rays[r, 1], rays[r, 2],
-            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+            scene, rec, tb, transmission, rays[r, RAY_O], rays[r, RAY_O + 1], rays[r, RAY_O + 2],
+            rays[r, RAY_D], rays[r, RAY_D + 1], rays[r, RAY_D + 2], rays[r, RAY_TFAR],
         )  # fmt: skip
         out[r] = tr
         total += k
@@ -307,11 +317,12 @@ def nb_trace_rays(scene, pk, rec, tb, transmission, st, rays, n, hits):
         return n
     total = 0
     for r in range(n):
-        t, tri, u, v, gx, gy, gz, k = nb_trace(
-            scene, rec, tb, transmission, st, rays[r, 0], rays[r, 1], rays[r, 2],
-            rays[r, 3], rays[r, 4], rays[r, 5], rays[r, 6],
+        h = nb_trace(
+            scene, rec, tb, transmission, st, rays[r, RAY_O], rays[r, RAY_O + 1],
+            rays[r, RAY_O + 2], rays[r, RAY_D], rays[r, RAY_D + 1], rays[r, RAY_D + 2],
+            rays[r, RAY_TFAR],
         )  # fmt: skip
-        hits[r, 0], hits[r, 1], hits[r, 2], hits[r, 3] = t, tri, u, v
-        hits[r, 4], hits[r, 5], hits[r, 6] = gx, gy, gz
-        total += k
+        hits[r, HIT_T], hits[r, HIT_TRI], hits[r, HIT_U], hits[r, HIT_V] = h.t, h.tri, h.u, h.v
+        hits[r, HIT_NG], hits[r, HIT_NG + 1], hits[r, HIT_NG + 2] = h.gx, h.gy, h.gz
+        total += h.rays
     return total

@@ -1,5 +1,9 @@
 """UsdLux lights -> light objects in physical units: the one home of the light-unit rules.
 
+This package reads what every light shares (emission, unsupported inputs, linking); each
+light type has its own reader module (:data:`LIGHT_READERS`: ``sphere``, ``planar``,
+``cylinder``, ``distant``, ``dome``) beside its class in :mod:`usdahd.scene.lights`.
+
 docs/lights.md is the user's page for these rules (what is honoured, what is warned); this
 module implements them, and :mod:`usdahd.scene.lights` holds the light classes it builds (each
 stores its final world-space ``radiance`` (3,) float64, so the integrator never sees a UsdLux
@@ -50,10 +54,22 @@ from usdahd.errors import StageError
 from usdahd.scene import lights as L
 from usdahd.scene.types import MAX_RADIANCE
 from usdahd.usd.geometry import SINGULAR_DET_REL
-from usdahd.usd.materials import read_image, sanitize_image, to_rgb
-from usdahd.usd.stage import fmt_values, one_line
+from usdahd.usd.lights import cylinder, distant, dome, planar, sphere
+from usdahd.usd.stage import fmt_values
 
-__all__ = ["LightReader"]
+__all__ = ["LIGHT_READERS", "LightReader", "light_module"]
+
+#: The reader module of every supported light type (one module per light: ``SCHEMAS`` it
+#: reads, ``NEUTRAL_CONE``, ``read(reader, prim, path, L, m3, center, normalize)``).
+LIGHT_READERS = (sphere, planar, cylinder, distant, dome)
+
+
+def light_module(prim):
+    """The reader module of ``prim``'s light type (:data:`LIGHT_READERS`), or None."""
+    for module in LIGHT_READERS:
+        if any(prim.IsA(schema) for schema in module.SCHEMAS):
+            return module
+    return None
 
 
 class LightReader:
@@ -97,21 +113,14 @@ class LightReader:
                 "size or direction and is ignored"
             )
             return
-        if prim.IsA(UsdLux.SphereLight):
-            self._sphere(prim, path, rad, m3, c, normalize)
-        elif prim.IsA(UsdLux.RectLight) or prim.IsA(UsdLux.DiskLight):
-            self._planar(prim, path, rad, m3, c, normalize)
-        elif prim.IsA(UsdLux.CylinderLight):
-            self._cylinder(prim, path, rad, m3, c, normalize)
-        elif prim.IsA(UsdLux.DistantLight):
-            self._distant(prim, path, rad, m3, normalize)
-        elif prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
-            self._dome(prim, path, rad, m3)
-        else:
+        module = light_module(prim)
+        if module is None:
             self.warn(
                 f"{path}: light type {prim.GetTypeName()} is not supported (ignored)",
                 key=f"lt:{prim.GetTypeName()}",
             )
+            return
+        module.read(self, prim, path, rad, m3, c, normalize)
 
     def _emission_rule(self, prim, path, api):
         """(L, normalize): L = intensity x 2^exposure x color x diffuse (x blackbody), (3,)
@@ -181,12 +190,9 @@ class LightReader:
             cone = g(sh.GetShapingConeAngleAttr(), 90.0)
             focus = g(sh.GetShapingFocusAttr(), 0.0)
             ies = g(sh.GetShapingIesFileAttr())
-            planar = prim.IsA(UsdLux.RectLight) or prim.IsA(UsdLux.DiskLight)
-            limit = (
-                90.0
-                if planar or prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight)
-                else 180.0
-            )  # cones at least this wide restrict nothing
+            module = light_module(prim)
+            # cones at least this wide restrict nothing
+            limit = module.NEUTRAL_CONE if module is not None else 180.0
             if cone < limit or focus != 0.0:
                 self.warn(f"{path}: shaping (cone/focus) not supported (ignored)")
             if ies is not None and (ies.path or ""):
@@ -211,146 +217,7 @@ class LightReader:
             if a and a.HasAuthoredValue() and float(self.get(a, neutral)) != neutral:
                 self.warn(f"{path}: {name} is not supported (shadows reach any distance)")
 
-    # --------------------------------------------------------------------- per light type
-    def _sphere(self, prim, path, rad, m3, c, normalize) -> None:
-        """SphereLight: normalize divides by the world area 4 pi r^2; treatAsPoint (or radius
-        0) makes a point light of radiant intensity L pi r^2 (L itself for radius 0)."""
-        g = self.get
-        lt = UsdLux.SphereLight(prim)
-        r = float(g(lt.GetRadiusAttr(), 0.5))
-        sc = np.linalg.norm(m3, axis=1)
-        if np.ptp(sc) > 1e-4 * sc.max():
-            self.warn(f"{path}: non-uniform scale on a SphereLight; mean scale used")
-        rw = r * float(sc.mean())
-        if normalize and rw > 0:
-            rad = rad / (4.0 * np.pi * rw * rw)
-        if g(lt.GetTreatAsPointAttr(), False) or rw <= 0:
-            if rw <= 0:
-                self.warn(
-                    f"{path}: SphereLight radius 0: treated as a point light of "
-                    "radiant intensity = its radiance"
-                )
-                inten = rad
-            else:
-                inten = rad * np.pi * rw * rw
-            self._add_light(L.PointLight(path, inten, center=c))
-        else:
-            self._add_light(L.SphereLight(path, rad, center=c, radius=rw))
-
-    def _planar(self, prim, path, rad, m3, c, normalize) -> None:
-        """RectLight (width x height) and DiskLight (pi r^2): one-sided, emitting along their
-        -Z axis; normalize divides by the world-space area."""
-        g = self.get
-        inv_t = np.linalg.inv(m3).T
-        is_rect = prim.IsA(UsdLux.RectLight)
-        n = -(np.array([0, 0, 1.0]) @ inv_t)
-        n /= np.linalg.norm(n)
-        if is_rect:
-            lt = UsdLux.RectLight(prim)
-            w = float(g(lt.GetWidthAttr(), 1.0))
-            h = float(g(lt.GetHeightAttr(), 1.0))
-            ex, ey = 0.5 * w * m3[0], 0.5 * h * m3[1]
-            area = 4.0 * np.linalg.norm(np.cross(ex, ey))
-            tf = lt.GetTextureFileAttr()
-            if tf and tf.HasAuthoredValue() and self.get(tf):
-                self.warn(f"{path}: RectLight texture is not supported (uniform emission)")
-        else:
-            lt = UsdLux.DiskLight(prim)
-            r = float(g(lt.GetRadiusAttr(), 0.5))
-            ex, ey = r * m3[0], r * m3[1]
-            area = np.pi * np.linalg.norm(np.cross(ex, ey))
-        if area <= 0:
-            self.warn(f"{path}: zero-area light ignored")
-            return
-        if normalize:
-            rad = rad / area
-        cls = L.RectLight if is_rect else L.DiskLight
-        self._add_light(cls(path, rad, center=c, ex=ex, ey=ey, normal=n))
-
-    def _cylinder(self, prim, path, rad, m3, c, normalize) -> None:
-        """CylinderLight along its local X axis: normalize divides by the side area
-        2 pi r x length (world; the radius scaled by the mean of the Y and Z scales)."""
-        g = self.get
-        lt = UsdLux.CylinderLight(prim)
-        r = float(g(lt.GetRadiusAttr(), 0.5))
-        ln = float(g(lt.GetLengthAttr(), 1.0))
-        ax = m3[0]
-        hl = 0.5 * ln * np.linalg.norm(ax)
-        rw = r * 0.5 * (np.linalg.norm(m3[1]) + np.linalg.norm(m3[2]))
-        if g(lt.GetTreatAsLineAttr(), False):
-            self.warn(f"{path}: CylinderLight treatAsLine ignored (traced as a cylinder)")
-        area = 2 * np.pi * rw * 2 * hl
-        if area <= 0:
-            self.warn(f"{path}: zero-area light ignored")
-            return
-        if normalize:
-            rad = rad / area
-        self._add_light(
-            L.CylinderLight(
-                path, rad, center=c, axis=ax / np.linalg.norm(ax), half_length=hl, radius=rw
-            )
-        )
-
-    def _distant(self, prim, path, rad, m3, normalize) -> None:
-        """DistantLight towards its +Z: a disc of half angle angle/2; normalize makes the
-        intensity the illuminance at normal incidence (divides by pi sin^2(angle/2)); angle 0
-        is a delta light whose L is taken as that illuminance."""
-        lt = UsdLux.DistantLight(prim)
-        angle = float(self.get(lt.GetAngleAttr(), 0.53))
-        if not np.isfinite(angle) or angle < 0:
-            raise StageError(f"{path}: DistantLight angle {angle} must be >= 0")
-        half = math.radians(min(angle, 180.0)) / 2.0
-        d = np.array([0, 0, 1.0]) @ m3
-        d /= np.linalg.norm(d)
-        if half > 0:
-            if normalize:  # intensity is the illuminance at normal incidence
-                rad = rad / (np.pi * math.sin(half) ** 2)
-        elif not normalize:
-            self.warn(
-                f"{path}: DistantLight angle 0 without normalize: intensity taken "
-                "as illuminance at normal incidence"
-            )
-        self._add_light(L.DistantLight(path, rad, direction=d, half_angle=half))
-
-    def _dome(self, prim, path, rad, m3) -> None:
-        """DomeLight / DomeLight_1: radiance L times an optional latlong texture (read with the
-        ``auto`` colour space rule), rotated by the light's transform and pole axis."""
-        is1 = prim.IsA(UsdLux.DomeLight_1)
-        lt = UsdLux.DomeLight_1(prim) if is1 else UsdLux.DomeLight(prim)
-        if lt.GetPortalsRel().GetTargets():
-            self.warn(f"{path}: DomeLight portals are not supported (ignored)")
-        pole = "Y"
-        if is1:
-            pa = str(self.get(lt.GetPoleAxisAttr(), "scene"))
-            pole = self.ctx.up_axis if pa == "scene" else pa
-        p = np.eye(3) if pole == "Y" else np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
-        u, _, vt = np.linalg.svd(m3)
-        rot = (u @ vt).T @ p  # world = rot @ local (column vectors)
-        image = None
-        asset = self.get(lt.GetTextureFileAttr())
-        if asset is not None and (asset.path or ""):
-            fmt = str(self.get(lt.GetTextureFormatAttr(), "automatic"))
-            if fmt not in ("automatic", "latlong"):
-                self.warn(f"{path}: DomeLight textureFormat {fmt} not supported; uniform colour")
-            else:
-                problems = []
-                file = asset.resolvedPath or asset.path
-                if not asset.resolvedPath:
-                    problems.append("file not found")
-                else:
-                    ta = lt.GetTextureFileAttr()
-                    fcs = str(ta.GetColorSpace()) if ta.HasColorSpace() else ""
-                    image = read_image(file, "auto", problems.append, file_colorspace=fcs)
-                if image is None:
-                    raise StageError(
-                        f"{path}: DomeLight texture:file {asset.path} cannot be read "
-                        f"({one_line('; '.join(problems), 200)}); the environment would be "
-                        "wrong for every prim: fix the path or remove texture:file"
-                    )
-                image = sanitize_image(to_rgb(image), f"{path}: {asset.path}", self.warn)
-        self._add_light(L.DomeLight(path, rad, image=image, rotation=rot))
-
-    def _add_light(self, light):
+    def add_light(self, light):
         """Append a light after checking its final (area-normalized) emission."""
         peak = float(np.max(light.radiance))
         img = getattr(light, "image", None)

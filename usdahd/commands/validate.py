@@ -77,7 +77,7 @@ def add_parser(sub):
         type=int,
         default=None,
         metavar="S",
-        help="retrace samples per texel (default 4096, split into independent batches)",
+        help="retrace samples per texel (default 256, split into independent batches)",
     )
     p.add_argument(
         "--retrace-seed",

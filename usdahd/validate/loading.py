@@ -4,6 +4,7 @@ record (:func:`load_bake`).
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -48,6 +49,9 @@ class Image:
 
 _IMAGE_CACHE: OrderedDict = OrderedDict()
 _IMAGE_CACHE_SIZE = 16
+#: The cache also keeps at most this many bytes of pixels (the rules of one prim read its
+#: textures several times; a 1024^2 SH sidecar alone is 117 MB, so 16 of them were 1.9 GB).
+_IMAGE_CACHE_BYTES = 192 << 20
 _LOCK = threading.Lock()
 
 
@@ -66,14 +70,49 @@ def read_image(path: str) -> Image:
         if key is not None and key in _IMAGE_CACHE:
             _IMAGE_CACHE.move_to_end(key)
             return _IMAGE_CACHE[key]
-    with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
-        img = _read_local(local, path)
+    with _single_flight(("image", key)):  # UsdValidation runs rules in parallel threads
+        with _LOCK:
+            if key is not None and key in _IMAGE_CACHE:
+                return _IMAGE_CACHE[key]
+        with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
+            img = _read_local(local, path)
+        _cache_image(key, img)
+    return img
+
+
+def _cache_image(key, img) -> None:
     if key is not None:
         with _LOCK:
             _IMAGE_CACHE[key] = img
-            while len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE:
+            while len(_IMAGE_CACHE) > 1 and (
+                len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE
+                or sum(i.data.nbytes for i in _IMAGE_CACHE.values()) > _IMAGE_CACHE_BYTES
+            ):
                 _IMAGE_CACHE.popitem(last=False)
-    return img
+
+
+_FLIGHTS: dict = {}
+
+
+@contextlib.contextmanager
+def _single_flight(key):
+    """One thread at a time reads or decodes ``key``; the others wait and then find it in the
+    cache. UsdValidation runs the rules of a prim in parallel threads, and each of them loaded
+    the same bake at once (a 1024^2 bake twice in memory: the classroom's peak)."""
+    if key is None or (isinstance(key, tuple) and key[-1] is None):
+        yield
+        return
+    with _LOCK:
+        entry = _FLIGHTS.setdefault(key, [threading.Lock(), 0])
+        entry[1] += 1
+    try:
+        with entry[0]:
+            yield
+    finally:
+        with _LOCK:
+            entry[1] -= 1
+            if entry[1] == 0:
+                _FLIGHTS.pop(key, None)
 
 
 def _read_local(local: str, path: str) -> Image:
@@ -115,6 +154,9 @@ def decode_factors(results: schema.BakeResults) -> dict:
 
 
 _BAKE_CACHE: OrderedDict = OrderedDict()
+#: Decoded bakes kept: UsdValidation runs a prim's rules one after another, so the current and
+#: the previous prim suffice (a decoded 1024^2 bake is ~0.3 GB: float64 SH, channels, params).
+_BAKE_CACHE_SIZE = 1
 
 
 def _bake_key(prim, results) -> tuple:
@@ -151,11 +193,15 @@ def load_bake(prim) -> Bake:
         if key in _BAKE_CACHE:
             _BAKE_CACHE.move_to_end(key)
             return _BAKE_CACHE[key]
-    bake = _load_bake(results)
-    with _LOCK:
-        _BAKE_CACHE[key] = bake
-        while len(_BAKE_CACHE) > 4:
-            _BAKE_CACHE.popitem(last=False)
+    with _single_flight(("bake", key)):
+        with _LOCK:
+            if key in _BAKE_CACHE:
+                return _BAKE_CACHE[key]
+        bake = _load_bake(results)
+        with _LOCK:
+            _BAKE_CACHE[key] = bake
+            while len(_BAKE_CACHE) > _BAKE_CACHE_SIZE:
+                _BAKE_CACHE.popitem(last=False)
     return bake
 
 
@@ -199,10 +245,14 @@ def _load_bake(results) -> Bake:
         try:
             img = read_image(sc)
             if (img.width, img.height) == (w, h):
-                data = img.channels(schema.SH_SIDECAR_CHANNELS).astype(np.float64)
-                sh = data[..., :27].reshape(h, w, 3, 9)
-                cov = data[..., 27] > 0.5
-        except (OSError, KeyError):
+                names = schema.SH_SIDECAR_CHANNELS
+                idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures
+                cov = img.data[..., idx[27]] > 0.5
+                # float64 only at covered texels (the whole image in float64 was 8 bytes x
+                # 28 channels per texel: 235 MB for a 1024^2 map)
+                ys, xs = np.nonzero(cov)
+                sh = img.data[ys, xs][:, idx[:27]].astype(np.float64).reshape(-1, 3, 9)
+        except (OSError, KeyError, ValueError):
             sh = cov = None  # Textures reports it
     if cov is None:
         ys, xs = np.mgrid[0:h, 0:w]
@@ -230,6 +280,4 @@ def _load_bake(results) -> Bake:
             valid &= np.isfinite(v.reshape(len(xy), -1)).all(axis=1)
     if "direction" in params:
         valid &= params["direction"][:, 2] >= DZ_FLOOR
-    if sh is not None:
-        sh = sh[xy[:, 1], xy[:, 0]]
     return Bake(results, mod, layout, (w, h), xy, channels, params, sh, factors, valid)

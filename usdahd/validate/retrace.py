@@ -22,29 +22,31 @@ dropped.
 Baked I_z: from the float32 SH sidecar when it exists (``usdahd.sh.iz``; the encoding's
 quantization is IzCheck's job, not this rule's), else the decoded textures at n = z.
 
-Statistics (per RGB channel c, over the n usable texels; docs/validate.md has the derivation):
+Statistics (per RGB channel c, over the n usable texels; docs/validate.md has the derivation,
+the measured margin, the power curve and the cost):
 
 - The retrace runs in K independent batches of s samples (``K * s`` = the retrace samples;
   s is at most the bake's sample count when possible), giving per texel a mean ``r_i`` and a
-  sample variance ``v_i`` (K - 1 degrees of freedom).
+  sample variance ``v_i`` (K - 1 degrees of freedom). A prim with fewer candidate texels than
+  N spends the same budget N x S on the texels it has (:func:`texel_samples`).
 - Mean test: the ratio ``R = sum b_i / sum r_i`` with standard error
   ``SE = max(SE_emp, SE_model)``: ``SE_emp`` from the scatter of the linearised residuals
-  ``b_i - R r_i`` (it contains the bake's noise, whatever it is), ``SE_model`` from the
-  variances (bake noise bounded by the retrace's per-batch variance scaled to the bake's
-  sample count). A finding when ``|R - 1| > margin + q SE``, q the Student-t quantile with
-  n - 1 degrees of freedom at two-sided level ``alpha / 2`` Bonferroni-split over channels.
+  ``b_i - R r_i``, ``SE_model`` from the variances (bake noise bounded by the retrace's
+  per-batch variance scaled to the bake's sample count: a denoised bake's scatter hides its
+  raw noise, but the prim's mean keeps it, since the denoiser restores each chart's sum). A
+  finding when ``|R - 1| > margin + q SE``, margin the measured bound on the denoiser's
+  residual bias (:data:`DENOISE_BIAS_BOUND`), q the Student-t quantile with n - 1 degrees of
+  freedom at two-sided level ``alpha`` (0.01) Bonferroni-split over channels.
 - Per-texel test (texels whose 5 x 5 neighbourhood is covered by the same chart, so seam
-  stitching and gutter dilation did not touch them; skipped for denoised bakes): a *warning*
-  when ``|b_i - r_i| > margin max(r_i, 0.1 mean r) + q_t sqrt(v_i / K + v_b,i)``, q_t the
-  t quantile with K - 1 degrees of freedom at ``alpha / 2`` Bonferroni-split over texels and
-  channels, v_i no lower than the prim's pooled relative variance. A warning because bake
-  noise is heavy-tailed (fireflies) where rare paths carry much light: one texel beyond a
-  Gaussian bound is not proof of a defect. The mean test is robust to that (an isolated
-  firefly inflates the empirical standard error with it) and is the error.
-- False-alarm rate: at most ``alpha`` (default 1e-3) per prim for a bake whose mean is
-  within ``margin`` of the truth and whose per-texel noise does not exceed plain Monte Carlo
-  at its sample count (and, for the per-texel warning, is light-tailed); lower in practice
-  (the margin, conservative variance bounds).
+  stitching and gutter dilation did not touch them): a *warning* when
+  ``|b_i - r_i| > margin max(r_i, 0.1 mean r) + q_t sqrt(v_i / K + v_b,i)``, q_t the t
+  quantile with K - 1 degrees of freedom at ``alpha / 2`` Bonferroni-split over texels and
+  channels, v_i no lower than the prim's pooled relative variance, v_b scaled by
+  :data:`DENOISE_TEXEL_FACTOR` for denoised bakes. A warning because bake noise is
+  heavy-tailed (fireflies) where rare paths carry much light.
+- False-alarm rate: at most ``alpha`` per prim for a bake whose mean is within ``margin`` of
+  the truth and whose raw per-texel noise does not exceed plain Monte Carlo at its sample
+  count (and, for the per-texel warning, is light-tailed).
 
 The statistics (:func:`compare`, :func:`t_sf`, :func:`t_isf`) import only numpy; pxr and the
 baker are imported when a prim is checked.
@@ -86,6 +88,18 @@ MIN_TEXELS = 4
 #: A rasterised texel set that differs from the bake's coverage on more than this fraction
 #: means the UVs or resolution changed since the bake (Staleness reports it); skipped.
 COVERAGE_MISMATCH = 0.01
+#: Bound on the default bake's residual bias of the retraced mean (the denoiser's, the
+#: regression estimator's, the float32 sidecar's), relative: the margin of the mean test.
+#: Measured by ``benchmarks/retrace_power.py --bias`` (docs/validate.md, "Margin").
+DENOISE_BIAS_BOUND = 0.002
+#: Prims with fewer candidate texels than N spend the same path budget (N x S) on the texels
+#: they have, up to this many times S per texel.
+BUDGET_FACTOR = 16
+#: OIDN's blend weight ``g`` in usdahd.bake.denoise (docs/texels.md): a denoised texel moves
+#: from its raw estimate by at most about sqrt(g) of its noise deviation, so its error is at
+#: most (1 + sqrt(g)) raw deviations; the per-texel test scales the bake's variance by this
+#: squared for denoised bakes.
+DENOISE_TEXEL_FACTOR = (1.0 + math.sqrt(1.5)) ** 2
 
 
 @dataclass
@@ -94,22 +108,25 @@ class RetraceOptions:
 
     texels : random covered texel centres per prim (N); samples : retrace samples per texel,
         split into batches; seed : the retrace's random stream (texel choice and tracing);
-    margin : relative bias accepted before the statistics (legitimate differences: the bake's
-        regression estimator, denoising, float16 storage, seam stitching; a few 1e-3 here);
+    margin : relative bias accepted before the statistics (:data:`DENOISE_BIAS_BOUND`, the
+        measured bound on a default bake's residual bias: denoiser, regression estimator);
     alpha : false-alarm rate per prim (Bonferroni over channels and texels);
+    budget_factor : a prim with fewer than N candidate texels retraces all of them with up to
+        this many times S samples, spending at most N x S paths (:func:`texel_samples`);
     min_batches, max_batches : number of independent batches K (K - 1 degrees of freedom of
         the per-texel variance); bounces : the retrace's path cap; progress : callable(str) for
         progress lines (the CLI prints them on stderr) or None.
     """
 
-    texels: int = 64
-    samples: int = 4096
+    texels: int = 1024
+    samples: int = 256
     seed: int = 0
-    margin: float = 0.03
-    alpha: float = 1e-3
+    margin: float = DENOISE_BIAS_BOUND
+    alpha: float = 0.01
     min_batches: int = 16
     max_batches: int = 256
     bounces: int = RETRACE_BOUNCES
+    budget_factor: int = BUDGET_FACTOR
     progress: object = None
 
 
@@ -226,6 +243,7 @@ def compare(
     alpha: float,
     texel_mask: np.ndarray | None = None,
     adaptive_tol: float | None = None,
+    denoised: bool = False,
 ) -> dict:
     """The Retrace statistics of one prim.
 
@@ -233,7 +251,9 @@ def compare(
         estimates (K >= 2); bake_factor : :func:`bake_variance_factor`; margin, alpha : see
         :class:`RetraceOptions`; texel_mask : (n,) bool texels eligible for the per-texel test
         (None: all; an all-False mask disables it); adaptive_tol : the bake's adaptive
-        tolerance when it was adaptive (its texels may stop at that relative standard error).
+        tolerance when it was adaptive (its texels may stop at that relative standard error);
+        denoised : the bake was denoised (the per-texel bound scales the bake's variance by
+        :data:`DENOISE_TEXEL_FACTOR`).
     returns : dict with ``ratio``, ``se``, ``se_empirical``, ``se_model``, ``bound`` (3,) float
         (|R - 1| allowed), ``tested`` (3,) bool channels ratio-tested, ``mean_fail`` (3,) bool,
         ``q_mean``, ``q_texel`` floats, ``texel_fail`` (n, 3) bool, ``texel_excess`` (n, 3)
@@ -264,6 +284,10 @@ def compare(
         se_emp = np.sqrt(n / max(n - 1, 1) * (res * res).sum(axis=0)) / np.abs(sum_r)
         rr = np.where(tested, ratio, 1.0)
         se_mod = np.sqrt((v_b + rr * rr * v_r).sum(axis=0)) / np.abs(sum_r)
+    # The residual scatter holds the bake's per-texel noise whatever it is (and the
+    # retrace's), but not all of a denoised bake's: the denoiser lowers the scatter and keeps
+    # each chart's sum (docs/texels.md), so the prim's mean carries the raw noise. The
+    # variance model bounds that raw noise (plain Monte Carlo at the bake's sample count).
     se = np.maximum(se_emp, se_mod)
     q_mean = t_isf(0.5 * alpha / (2.0 * n_tested), max(n - 1, 1))
     bound = margin + q_mean * se
@@ -282,7 +306,7 @@ def compare(
         rel = np.where(level > 0, v / (level * level), 0.0)
     pooled = rel.mean(axis=0, keepdims=True)
     v_t = np.maximum(v, pooled * level * level)
-    v_bt = v_t * bake_factor
+    v_bt = v_t * bake_factor * (DENOISE_TEXEL_FACTOR if denoised else 1.0)
     if adaptive_tol is not None:
         v_bt = np.maximum(v_bt, (adaptive_tol * level) ** 2)
     allowed = margin * level + q_texel * np.sqrt(v_t / k + v_bt)
@@ -338,6 +362,16 @@ def interior_mask(xy: np.ndarray, chart: np.ndarray, resolution, radius: int = 2
         for dx in range(-radius, radius + 1):
             ok &= img[y + dy, x + dx] == img[y, x]
     return ok
+
+
+def texel_samples(picked: int, options: RetraceOptions) -> int:
+    """Samples per texel for a prim with ``picked`` texels: S, or for a prim with fewer
+    candidates than N the same budget N x S spread over them (at most budget_factor x S)."""
+    s = int(options.samples)
+    if picked <= 0 or picked >= int(options.texels):
+        return s
+    spread = (s * int(options.texels)) // picked
+    return max(s, min(spread, s * int(options.budget_factor)))
 
 
 def pick_texels(candidates: np.ndarray, count: int, seed: int) -> np.ndarray:
@@ -440,35 +474,35 @@ def check_retrace(prim, options: RetraceOptions | None = None) -> list:
         return _check(prim, options or OPTIONS)
 
 
-def _check(prim, opt: RetraceOptions) -> list:
+def _candidates(prim):
+    """The prim's retrace candidates: (bake, scene, tracer, mesh, texels, rows, candidates),
+    texels the bake's rasterised texels, rows their bake rows (-1 uncovered), candidates the
+    indices of covered, validly decoded texel centres the bake estimated; or a str saying why
+    the rule cannot run."""
     from usdahd import validate as V
-    from usdahd.bake import integrate
-    from usdahd.bake.texels import chart_ids, push_off_contacts, rasterize
+    from usdahd.bake.texels import push_off_contacts, rasterize
     from usdahd.errors import UsdAhdError
-
-    def skipped(why):
-        return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]
 
     path = str(prim.GetPath())
     try:
         bake = V.load_bake(prim)
     except V._Skip as why:
-        return skipped(str(why))
+        return str(why)
     res = bake.results
     uv_name = str(res.uv_primvar or res.settings.get("uv") or "st")
     try:
         scene, tracer = _TRACERS.get(prim.GetStage(), uv_name)
     except UsdAhdError as exc:
-        return skipped(f"the stage cannot be read as a scene ({exc}); see Staleness")
+        return f"the stage cannot be read as a scene ({exc}); see Staleness"
     mesh = next((m for m in scene.meshes if m.path == path), None)
     if mesh is None:
-        return skipped("the prim is not a visible mesh the baker would bake; see Staleness")
+        return "the prim is not a visible mesh the baker would bake; see Staleness"
     if mesh.uv is None:
-        return skipped(f"primvars:{uv_name} cannot be read as lightmap UVs; see UVSet")
+        return f"primvars:{uv_name} cannot be read as lightmap UVs; see UVSet"
     try:
         texels = rasterize(mesh, res.resolution)
     except UsdAhdError as exc:
-        return skipped(f"the lightmap UVs do not rasterise ({exc}); see UVSet")
+        return f"the lightmap UVs do not rasterise ({exc}); see UVSet"
     contact_invalid = np.zeros(len(texels), bool)
     if tracer is not None:  # the bake's sample points (moved off contacts, docs/texels.md)
         texels, contact_invalid = push_off_contacts(texels, mesh, tracer)
@@ -479,7 +513,7 @@ def _check(prim, opt: RetraceOptions) -> list:
     if bake.sh is not None:
         mism = int((rows < 0).sum()) + (len(bake.xy) - int((rows >= 0).sum()))
         if mism > COVERAGE_MISMATCH * max(len(bake.xy), 1):
-            return skipped(
+            return (
                 f"primvars:{uv_name} rasterised at {w}x{h} covers {len(texels)} texels but the "
                 f"bake covered {len(bake.xy)} ({mism} differ): the UVs changed since the bake; "
                 "see Staleness"
@@ -489,7 +523,30 @@ def _check(prim, opt: RetraceOptions) -> list:
     ok &= ~contact_invalid  # filled from neighbours in the bake, not estimated there
     candidates = np.nonzero(ok & texels.center_inside)[0]
     if len(candidates) < MIN_TEXELS:
-        return skipped(f"only {len(candidates)} covered texel centre(s) decode validly")
+        return f"only {len(candidates)} covered texel centre(s) decode validly"
+    return bake, scene, tracer, mesh, texels, rows, candidates
+
+
+def candidate_rows(prim) -> np.ndarray | None:
+    """Bake rows of the prim's retrace candidates (None when the rule would skip it)."""
+    got = _candidates(prim)
+    return None if isinstance(got, str) else got[5][got[6]]
+
+
+def _check(prim, opt: RetraceOptions) -> list:
+    from usdahd.bake import integrate
+    from usdahd.bake.texels import chart_ids
+
+    def skipped(why):
+        return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]
+
+    path = str(prim.GetPath())
+    got = _candidates(prim)
+    if isinstance(got, str):
+        return skipped(got)
+    bake, scene, tracer, mesh, texels, rows, candidates = got
+    res = bake.results
+    w, h = res.resolution
     seed = retrace_seed(opt.seed, path)
     pick = pick_texels(candidates, int(opt.texels), seed)
     charts = chart_ids(mesh)[texels.triangle]
@@ -498,7 +555,7 @@ def _check(prim, opt: RetraceOptions) -> list:
     baked = _baked_iz(bake, rows[pick])
     settings = res.settings or {}
     bake_samples = int(settings.get("samples") or 256)
-    k, s = batch_plan(int(opt.samples), bake_samples, opt)
+    k, s = batch_plan(texel_samples(len(pick), opt), bake_samples, opt)
     t0 = time.perf_counter()
     if opt.progress:
         opt.progress(f"retrace {path}: {len(pick)} texels x {k * s} samples ({k} batches)")
@@ -550,8 +607,9 @@ def _check(prim, opt: RetraceOptions) -> list:
         bake_factor=bake_variance_factor(s, bake_samples),
         margin=float(opt.margin),
         alpha=float(opt.alpha),
-        texel_mask=np.zeros(n, bool) if denoised else interior[use],
+        texel_mask=interior[use],
         adaptive_tol=adaptive,
+        denoised=denoised,
     )
     xy = sub.xy[use]
     return _report(prim, st, xy, baked[use], base, settings, opt, denoised, dark)
@@ -587,10 +645,15 @@ def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
         base,
         ratio=[float(x) if t else None for x, t in zip(ratio, tested)],
         standard_error=[float(x) if t else None for x, t in zip(se, tested)],
+        standard_error_empirical=[
+            float(x) if t else None for x, t in zip(st["se_empirical"], tested)
+        ],
+        standard_error_model=[float(x) if t else None for x, t in zip(st["se_model"], tested)],
         bound=[float(x) if t else None for x, t in zip(bound, tested)],
         margin=float(opt.margin),
         alpha=float(opt.alpha),
-        texels_per_texel_test=st["texels_tested"] if not denoised else 0,
+        texels_per_texel_test=st["texels_tested"],
+        denoised=denoised,
     )
     ratio_txt = ", ".join(
         f"{c} {ratio[i]:.4f} +- {se[i]:.2g}" for i, c in enumerate(CHANNELS) if tested[i]
@@ -665,7 +728,7 @@ def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
             )
         )
     if not out:
-        note = "" if not denoised else "; per-texel test off (denoised bake)"
+        note = "" if not denoised else "; denoised bake (per-texel bound widened)"
         if len(chans) < 3:
             note += f"; channels tested: {', '.join(chans) or 'none'}"
         out.append(_finding(prim, "info", "RetraceOk", head + note, **data))

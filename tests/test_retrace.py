@@ -381,7 +381,11 @@ def test_bounces_1_bake_of_the_closed_box_is_caught(cornell, capsys):
 def test_textures_and_sidecar_scaled_together_are_caught(cornell, capsys):
     scaled = _scaled_copy(cornell["default"], "scaled", 1.1)
     code, found = _validate(scaled, capsys)
-    assert code == 0, found  # consistent with their sidecar: IzCheck cannot see it
+    # I_z is consistent with the sidecar, so IzCheck's irradiance test passes; IzCheck's code
+    # test (a re-encode of the sidecar) may still see the few codes the rescale rounded
+    # differently, which is all the other rules may report
+    others = [f for f in found if f["severity"] == "error" and f["code"] != "CodeMismatch"]
+    assert not others, others
     code, found = _validate(scaled, capsys, *RETRACE)
     assert code == 1
     per_prim = _retrace(found)
@@ -391,7 +395,8 @@ def test_textures_and_sidecar_scaled_together_are_caught(cornell, capsys):
         assert mism and "brighter" in mism[0]["message"], (prim, fs)
         for r in mism[0]["data"]["ratio"]:
             assert 1.05 < r < 1.15
-    assert {f["rule"] for f in found if f["severity"] == "error"} == {RT.RULE}
+    errors = {f["rule"] for f in found if f["severity"] == "error" and f["code"] != "CodeMismatch"}
+    assert errors == {RT.RULE}
 
 
 def test_without_a_sidecar_the_decoded_textures_are_compared(cornell, capsys):

@@ -175,13 +175,13 @@ def test_too_many_charts_for_the_resolution_fail_at_once():
     v = m.vertices * (1.0 + 0.25 * rng.random((len(m.vertices), 1)))
     mesh = tx.mesh_from_arrays(v, m.faces, path="/bumpy")
     runs = []
-    real = unwrap_mod._run_xatlas
+    real = unwrap_mod._run_pack
 
     def counted(*a):
         runs.append(1)
         return real(*a)
 
-    unwrap_mod._run_xatlas, saved = counted, unwrap_mod._run_xatlas
+    unwrap_mod._run_pack, saved = counted, unwrap_mod._run_pack
     try:
         with pytest.raises(
             BakeError,
@@ -190,5 +190,5 @@ def test_too_many_charts_for_the_resolution_fail_at_once():
         ):
             unwrap(mesh, resolution=8, isolate=False)
     finally:
-        unwrap_mod._run_xatlas = saved
+        unwrap_mod._run_pack = saved
     assert len(runs) == 1

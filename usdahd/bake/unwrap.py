@@ -35,41 +35,349 @@ def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
 
 
-def _run_xatlas(points, triangles, texels_per_unit, padding):
-    """One xatlas run at a fixed texel density (single atlas; resolution left at 0)."""
+#: Pass 1 scales the mesh so its bounding-box diagonal is this long: xatlas's epsilons are
+#: absolute (a 0.3 mm triangle in metres would be below its area epsilon and dropped).
+NORMALIZED_DIAGONAL = 100.0
+#: Side (texels) pass 1 packs its charts into: only their shapes are kept, so it is small.
+CHART_PASS_SIDE = 1024
+#: Penetration (pass-1 texels) below which two UV triangles of a chart only touch.
+OVERLAP_EPS = 1e-4
+#: Pass 2 packs at this fraction of the asked density: xatlas rounds every chart's extent up
+#: to whole texels (stretching it), and a chart exactly n texels wide must not become n + 1
+#: through float rounding.
+SHRINK = 1.0 - 1e-5
+#: Gap (pass-1 texels) between charts laid side by side as pass 2's input.
+LAYOUT_GAP = 4.0
+
+
+def _signed_area2(uv: np.ndarray) -> np.ndarray:
+    """Twice the signed area of 2-D triangles (..., 3, 2)."""
+    e1 = uv[..., 1, :] - uv[..., 0, :]
+    e2 = uv[..., 2, :] - uv[..., 0, :]
+    return e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+
+
+def _overlaps(tri: np.ndarray, others: np.ndarray, eps: float = OVERLAP_EPS) -> bool:
+    """Whether the interior of the 2-D triangle ``tri`` (3, 2) overlaps the interior of any of
+    ``others`` (m, 3, 2) by more than ``eps`` (separating-axis test; shared edges and corners
+    only touch)."""
+    if len(others) == 0:
+        return False
+    lo, hi = tri.min(axis=0), tri.max(axis=0)
+    near = ((others.min(axis=1) < hi - eps) & (others.max(axis=1) > lo + eps)).all(axis=1)
+    o = others[near]
+    if len(o) == 0:
+        return False
+    sep = np.zeros(len(o), dtype=bool)
+    for j in range(3):
+        e = tri[(j + 1) % 3] - tri[j]
+        n = np.array([-e[1], e[0]])
+        length = np.hypot(*n)
+        if length == 0:
+            continue
+        n = n / length
+        a, b = tri @ n, o @ n
+        sep |= (b.min(axis=1) >= a.max() - eps) | (b.max(axis=1) <= a.min() + eps)
+    e = o[:, [1, 2, 0]] - o
+    n = np.stack([-e[..., 1], e[..., 0]], axis=-1)
+    length = np.hypot(n[..., 0], n[..., 1])
+    n = n / np.where(length > 0, length, 1.0)[..., None]
+    a = np.einsum("mjk,ik->mji", n, tri)
+    b = np.einsum("mjk,mik->mji", n, o)
+    axis_sep = (b.min(axis=2) >= a.max(axis=2) - eps) | (b.max(axis=2) <= a.min(axis=2) + eps)
+    sep |= (axis_sep & (length > 0)).any(axis=1)
+    return not bool(sep.all())
+
+
+def _unfold(pa, pb, pc, ua, ub, sign):
+    """The UV of ``c`` that lays the 3-D triangle (a, b, c) flat against the placed UV edge
+    (ua, ub) at that edge's scale, on the side giving the triangle (a, b, c) the signed UV
+    area ``sign``; None when the edge is degenerate."""
+    e, d = pb - pa, pc - pa
+    length = float(np.linalg.norm(e))
+    eu = ub - ua
+    length_uv = float(np.hypot(*eu))
+    if length <= 0 or length_uv <= 0:
+        return None
+    x = float(d @ e) / length
+    y = float(np.linalg.norm(np.cross(e, d))) / length
+    along = eu / length_uv
+    perp = np.array([-along[1], along[0]]) * (1.0 if sign > 0 else -1.0)
+    return ua + (length_uv / length) * (x * along + y * perp)
+
+
+def _project_polygon(points, tris, corner, scale):
+    """Per-corner UVs (k, 3, 2) of one polygon laid out on its own: its corners projected onto
+    the polygon's best-fit (Newell) plane at ``scale`` texels per unit, oriented as xatlas lays
+    out an unmirrored chart (clockwise in pass-1 texels, whose y axis points down)."""
+    p = points[tris]  # (k, 3, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]).sum(axis=0)
+    length = float(np.linalg.norm(n))
+    n = n / length if length > 0 else np.array([0.0, 0.0, 1.0])
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t = np.cross(helper, n)
+    t /= np.linalg.norm(t)
+    b = np.cross(n, t)
+    uv = np.stack([p @ t, -(p @ b)], axis=-1) * scale
+    return uv - uv.reshape(-1, 2).min(axis=0)
+
+
+def _extend_into(points, triangles, tris, corner, uv, labels, chart):
+    """Lay the triangles of one polygon (``tris``) that are not in ``chart`` out in that
+    chart's UV space, unfolded edge by edge from the polygon's triangles already in it, so
+    every corner of the polygon has one UV. Returns the polygon's (k, 3, 2) UVs or None when
+    that cannot be done (a triangle with no placed edge, a degenerate edge, a flipped
+    triangle, a corner with two UVs)."""
+    inside = labels[tris] == chart
+    placed: dict[int, np.ndarray] = {}
+    for i in tris[inside]:
+        for j in range(3):
+            c = int(corner[i, j])
+            if c in placed and not np.array_equal(placed[c], uv[i, j]):
+                return None
+            placed[c] = uv[i, j]
+    sign = 1.0 if _signed_area2(uv[tris[inside]]).sum() > 0 else -1.0
+    pending = [int(i) for i in tris[~inside]]
+    while pending:
+        left = []
+        for i in pending:
+            cs = [int(c) for c in corner[i]]
+            known = [c in placed for c in cs]
+            if all(known):
+                continue
+            if sum(known) < 2:
+                left.append(i)
+                continue
+            j = known.index(False)
+            a, b = (j + 1) % 3, (j + 2) % 3  # (a, b, j) keeps the triangle's cyclic order
+            v = triangles[i]
+            new = _unfold(
+                points[v[a]], points[v[b]], points[v[j]], placed[cs[a]], placed[cs[b]], sign
+            )
+            if new is None:
+                return None
+            placed[cs[j]] = new
+        if len(left) == len(pending):
+            return None
+        pending = left
+    out = np.array([[placed[int(c)] for c in corner[i]] for i in tris], dtype=np.float64)
+    area = _signed_area2(out)
+    if (area * sign <= 0).any():
+        return None
+    return out
+
+
+def _split_polygons(corner, face, key) -> np.ndarray:
+    """Polygons (sorted ids) with a corner that gets two different ``key`` rows (chart, u, v)
+    from two of its triangles: a faceVarying primvar cannot hold them."""
+    c = corner.reshape(-1)
+    k = key.reshape(len(c), -1)
+    order = np.lexsort((*k.T[::-1], c))
+    c, k = c[order], k[order]
+    differ = (c[1:] == c[:-1]) & (k[1:] != k[:-1]).any(axis=1)
+    tri = (order // 3)[1:][differ]
+    return np.unique(face[tri])
+
+
+def _destretch(uv, labels, tri_points, tpu):
+    """Undo xatlas's packing stretch of each pass-1 chart. xatlas scales every chart to a
+    whole number of texels along its packed x and y axes (``ceil(extent) / extent``, up to 2x
+    for a chart a texel wide), so pass-1 charts are stretched along the output axes. Per
+    chart, the axis scales (gx, gy) that best match the 3-D edge lengths at ``tpu`` texels per
+    unit (least squares on squared lengths) are applied, then the chart is rescaled so its UV
+    area is its surface area x tpu^2 (xatlas's own chart normalisation); charts where the fit
+    is singular are left as they are."""
+    uv = uv.copy()
+    du = (uv[:, [1, 2, 0]] - uv).reshape(-1, 2) ** 2  # squared edge components, 3 per tri
+    d3 = tri_points[:, [1, 2, 0]] - tri_points
+    target = (np.einsum("tij,tij->ti", d3, d3) * tpu * tpu).reshape(-1)
+    lab = np.repeat(labels, 3)
+    ok = lab >= 0
+    n = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
+    if n == 0:
+        return uv
+    m = np.zeros((n, 3))
+    r = np.zeros((n, 2))
+    np.add.at(m, lab[ok], np.stack([du[ok, 0] ** 2, du[ok, 0] * du[ok, 1], du[ok, 1] ** 2], 1))
+    np.add.at(r, lab[ok], np.stack([du[ok, 0] * target[ok], du[ok, 1] * target[ok]], 1))
+    det = m[:, 0] * m[:, 2] - m[:, 1] ** 2
+    good = det > 1e-9 * (m[:, 0] * m[:, 2] + 1e-300)
+    safe = np.where(good, det, 1.0)
+    a = (r[:, 0] * m[:, 2] - r[:, 1] * m[:, 1]) / safe
+    b = (r[:, 1] * m[:, 0] - r[:, 0] * m[:, 1]) / safe
+    good &= (a > 0) & (b > 0)
+    g = np.ones((n, 2))
+    g[good] = np.sqrt(np.stack([a[good], b[good]], 1))
+    t = labels >= 0
+    lo = np.full((n, 2), np.inf)
+    np.minimum.at(lo, np.repeat(labels[t], 3), uv[t].reshape(-1, 2))
+    origin = lo[labels[t]][:, None, :]
+    uv[t] = origin + (uv[t] - origin) * g[labels[t]][:, None, :]
+    # area normalisation, per chart
+    area_uv = np.zeros(n)
+    area_3d = np.zeros(n)
+    np.add.at(area_uv, labels[t], 0.5 * np.abs(_signed_area2(uv[t])))
+    cr = np.cross(d3[t, 0], -d3[t, 2])
+    np.add.at(area_3d, labels[t], 0.5 * np.linalg.norm(cr, axis=1) * tpu * tpu)
+    f = np.where(area_uv > 0, np.sqrt(area_3d / np.where(area_uv > 0, area_uv, 1.0)), 1.0)
+    uv[t] = origin + (uv[t] - origin) * f[labels[t]][:, None, None]
+    return uv
+
+
+def _chart_pass(points, triangles, corner, face, path):
+    """Pass 1: xatlas cuts the mesh into charts and parameterises them; every polygon that
+    xatlas cut through (its triangles in two charts) is made whole again, in the chart that
+    holds most of its area when it fits there without overlap, else as a chart of its own.
+
+    Returns (uv (t, 3, 2) float64 in pass-1 texels, labels (t,) int64 chart of each triangle,
+    scale: pass-1 texels per world unit, stats dict)."""
+    import xatlas
+
+    p = np.asarray(points, dtype=np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    k = NORMALIZED_DIAGONAL / max(float(np.linalg.norm(hi - lo)), 1e-30)
+    q = np.ascontiguousarray((p - lo) * k, dtype=np.float32)
+    tpu = CHART_PASS_SIDE * np.sqrt(PACK_EFFICIENCY / _world_area(q.astype(np.float64), triangles))
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(q, triangles)
+    pack = xatlas.PackOptions()
+    pack.padding = 0
+    pack.texels_per_unit = float(tpu)
+    pack.resolution = 0
+    pack.bruteForce = False
+    atlas.generate(xatlas.ChartOptions(), pack)
+    if atlas.atlas_count != 1:
+        raise BakeError(f"{path}: xatlas produced {atlas.atlas_count} atlases, expected 1")
+    vmap, idx, uvs = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64)
+    if idx.shape != triangles.shape or not np.array_equal(np.asarray(vmap)[idx], triangles):
+        raise BakeError(f"{path}: xatlas changed the triangle list; cannot map UVs back")
+    size = np.array([atlas.width, atlas.height], dtype=np.float64)
+    uv = np.asarray(uvs, dtype=np.float64)[idx] * size
+    vchart = np.asarray(atlas.get_mesh_vertex_assignment(0)[1], dtype=np.int64)
+    vchart[vchart >= 2**31] = -1  # "in no chart" (uint32 -1)
+    tchart = vchart[idx]
+    labels = np.where(
+        (tchart >= 0).all(axis=1) & (tchart == tchart[:, :1]).all(axis=1), tchart[:, 0], -1
+    )
+    uv = _destretch(uv, labels, q.astype(np.float64)[triangles], tpu)
+    corner = np.asarray(corner, dtype=np.int64)
+    face = np.asarray(face, dtype=np.int64)
+    key = np.concatenate(
+        [np.repeat(labels[:, None, None], 3, axis=1).astype(np.float64), uv], axis=2
+    )
+    split = _split_polygons(corner, face, key)
+    split = np.union1d(split, np.unique(face[labels < 0]))
+    stats = {
+        "charts_xatlas": int(atlas.chart_count),
+        "split_polygons": int(len(split)),
+        "extended": 0,
+        "own_chart": 0,
+    }
+    if len(split):
+        order = np.argsort(face, kind="stable")
+        starts = np.searchsorted(face[order], split)
+        ends = np.searchsorted(face[order], split, side="right")
+        world = 0.5 * np.linalg.norm(
+            np.cross(
+                p[triangles[:, 1]] - p[triangles[:, 0]], p[triangles[:, 2]] - p[triangles[:, 0]]
+            ),
+            axis=1,
+        )
+        next_label = int(labels.max()) + 1
+        for s, e in zip(starts, ends):
+            tris = order[s:e]
+            laid = None
+            charts = labels[tris]
+            if (charts >= 0).any():
+                ids = np.unique(charts[charts >= 0])
+                weight = np.array([world[tris[charts == c]].sum() for c in ids])
+                chart = int(ids[np.argmax(weight)])
+                laid = _extend_into(p, triangles, tris, corner, uv, labels, chart)
+                if laid is not None:
+                    moved = labels[tris] != chart
+                    others = uv[labels == chart]
+                    if any(_overlaps(t, others) for t in laid[moved]):
+                        laid = None
+            if laid is not None:
+                stats["extended"] += 1
+            else:
+                chart = next_label
+                next_label += 1
+                laid = _project_polygon(p, triangles[tris], corner[tris], k * tpu)
+                stats["own_chart"] += 1
+            labels[tris] = chart
+            uv[tris] = laid
+    return uv, labels, k * tpu, stats
+
+
+def _layout(uv, labels):
+    """Pass 2's input: the charts side by side (a grid of equal cells with LAYOUT_GAP between
+    them), so that no two charts share a UV value (xatlas finds a UV mesh's charts by shared
+    UV values), as an indexed UV mesh: (vertices (n, 2) float32, indices (t, 3) uint32)."""
+    _, lab = np.unique(labels, return_inverse=True)
+    lab = lab.ravel()
+    n = int(lab.max()) + 1
+    flat = uv.reshape(-1, 2)
+    lab3 = np.repeat(lab, 3)
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, lab3, flat)
+    np.maximum.at(hi, lab3, flat)
+    cell = float((hi - lo).max()) + LAYOUT_GAP
+    cols = int(np.ceil(np.sqrt(n)))
+    grid = np.stack([np.arange(n) % cols, np.arange(n) // cols], axis=1) * cell
+    moved = (flat - lo[lab3] + grid[lab3]).astype(np.float32)
+    rows = np.concatenate([lab3[:, None].astype(np.float64), moved.astype(np.float64)], axis=1)
+    unique, inverse = np.unique(rows, axis=0, return_inverse=True)
+    verts = np.ascontiguousarray(unique[:, 1:], dtype=np.float32)
+    return verts, np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
+
+
+def _run_pack(verts, indices, texels_per_unit, padding):
+    """Pass 2: xatlas packs the charts of the UV mesh at a fixed texel density (single atlas;
+    resolution left at 0). Returns (w, h, uv (t, 3, 2) float64 in texels, chart count)."""
     import xatlas
 
     atlas = xatlas.Atlas()
-    atlas.add_mesh(points, triangles)
-    chart_options = xatlas.ChartOptions()
+    atlas.add_uv_mesh(verts, indices)
     pack = xatlas.PackOptions()
     pack.padding = int(padding)
     pack.bilinear = True
     pack.texels_per_unit = float(texels_per_unit)
     pack.resolution = 0
     pack.bruteForce = False
-    atlas.generate(chart_options, pack)
+    atlas.generate(xatlas.ChartOptions(), pack)
     if atlas.atlas_count != 1:
         raise BakeError(f"xatlas produced {atlas.atlas_count} atlases, expected 1")
-    vmapping, indices, uvs = atlas.get_mesh(0)
-    return atlas.width, atlas.height, vmapping, indices, uvs, atlas.chart_count
+    vmap, idx, uvs = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64)
+    if not np.array_equal(idx, indices) or not np.array_equal(vmap, np.arange(len(verts))):
+        raise BakeError("xatlas changed the UV mesh while packing it")
+    vchart = np.asarray(atlas.get_mesh_vertex_assignment(0)[1], dtype=np.int64)
+    out = np.asarray(uvs, dtype=np.float64) * np.array([atlas.width, atlas.height], np.float64)
+    # a vertex of no chart belongs to zero-area triangles only (they cover no texel)
+    out[vchart >= 2**31] = 0.0
+    return atlas.width, atlas.height, out[idx], atlas.chart_count
 
 
-def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, path):
-    """The xatlas part of :func:`unwrap`: returns (w, h, vmap, idx, uvs, target)."""
+def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):
+    """The xatlas part of :func:`unwrap`: returns (w, h, uv (t, 3, 2) texels, target, stats)."""
+    uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
+    verts, indices = _layout(uv1, labels)
     if texels_per_unit is not None:
-        w, h, vmap, idx, uvs, _ = _run_xatlas(points, triangles, texels_per_unit, padding)
+        w, h, uv, _ = _run_pack(verts, indices, texels_per_unit / scale * SHRINK, padding)
         if max(w, h) > max_resolution:
             raise UsageError(
                 f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
                 f"above the maximum {max_resolution}; lower --texel-density"
             )
-        return w, h, vmap, idx, uvs, (w, h)
+        return w, h, uv, (w, h), stats
     area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
     tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
     best = None
     for _ in range(MAX_ATTEMPTS):
-        w, h, vmap, idx, uvs, charts = _run_xatlas(points, triangles, tpu, padding)
+        w, h, uv, charts = _run_pack(verts, indices, tpu / scale * SHRINK, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
             # every chart takes at least one texel and its padding: no scale fits them
             side = int(np.ceil(np.sqrt(charts) * (1 + padding)))
@@ -80,7 +388,7 @@ def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, p
             )
         fit = max(w / target[0], h / target[1])
         if fit <= 1.0:
-            best = (w, h, vmap, idx, uvs)
+            best = (w, h, uv)
             if fit > 0.9:
                 break
             tpu *= min(1.0 / fit, 1.5) * 0.98
@@ -93,7 +401,7 @@ def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, p
             f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
             f"(padding {padding}); raise --resolution"
         )
-    return (*best, target)
+    return (*best, target, stats)
 
 
 def _child_main() -> None:
@@ -286,6 +594,7 @@ def unwrap(
     padding: int = 2,
     max_resolution: int = MAX_RESOLUTION,
     isolate: bool = True,
+    info: dict | None = None,
 ) -> tuple[np.ndarray, tuple[int, int]]:
     """Unwrap ``mesh`` into one lightmap atlas.
 
@@ -340,19 +649,47 @@ def unwrap(
                 f"lightmap resolution {resolution!r} must be n or (w, h) in 1..{max_resolution}"
             )
 
-    args = (points, triangles, texels_per_unit, target, padding, max_resolution, mesh.path)
+    corner = np.ascontiguousarray(mesh.corner, dtype=np.int64)
+    face = np.ascontiguousarray(mesh.face, dtype=np.int64)
+    args = (
+        points,
+        triangles,
+        corner,
+        face,
+        texels_per_unit,
+        target,
+        padding,
+        max_resolution,
+        mesh.path,
+    )
     if isolate:
-        w, h, vmap, idx, uvs, target = _pack_isolated(args, mesh.path)
+        w, h, pix, target, stats = _pack_isolated(args, mesh.path)
     else:
-        w, h, vmap, idx, uvs, target = _pack(*args)
-
-    idx = np.asarray(idx, dtype=np.int64)
-    vmap = np.asarray(vmap, dtype=np.int64)
-    if idx.shape != triangles.shape or not np.array_equal(vmap[idx], triangles):
-        raise BakeError(f"{mesh.path}: xatlas changed the triangle list; cannot map UVs back")
-    # xatlas uvs are normalized by its own (w, h); pixel coords -> our lightmap of size target
-    pix = np.asarray(uvs, dtype=np.float64)[idx] * np.array([w, h], dtype=np.float64)
+        w, h, pix, target, stats = _pack(*args)
+    if info is not None:
+        info.update(stats)
+    # pixel coords (y down) -> our lightmap of size target
     uv = np.empty_like(pix)
     uv[..., 0] = pix[..., 0] / target[0]
     uv[..., 1] = 1.0 - pix[..., 1] / target[1]
-    return uv.astype(np.float32), (int(target[0]), int(target[1]))
+    uv = uv.astype(np.float32)
+    bad = unrepresentable_corners(corner, uv)
+    if bad:
+        raise BakeError(
+            f"{mesh.path}: the unwrap gives {bad} polygon corners two UVs, which a faceVarying "
+            "primvar cannot hold (a bug: please report it); author a lightmap UV set for this "
+            "mesh and pass it with --uv"
+        )
+    return uv, (int(target[0]), int(target[1]))
+
+
+def unrepresentable_corners(corner: np.ndarray, uv: np.ndarray) -> int:
+    """How many polygon corners (faceVertex indices, ``corner`` (t, 3)) get more than one
+    value from the per-triangle-corner ``uv`` (t, 3, 2): a faceVarying primvar holds one UV per
+    polygon corner, so those UVs cannot be authored as they are."""
+    c = np.asarray(corner, dtype=np.int64).reshape(-1)
+    v = np.asarray(uv).reshape(len(c), -1)
+    order = np.lexsort((*v.T[::-1], c))
+    c, v = c[order], v[order]
+    differ = (c[1:] == c[:-1]) & (v[1:] != v[:-1]).any(axis=1)
+    return int(len(np.unique(c[1:][differ])))

@@ -106,7 +106,7 @@ def _unfold(pa, pb, pc, ua, ub, sign):
     return ua + (length_uv / length) * (x * along + y * perp)
 
 
-def _project_polygon(points, tris, corner, scale):
+def _project_polygon(points, tris, scale):
     """Per-corner UVs (k, 3, 2) of one polygon laid out on its own: its corners projected onto
     the polygon's best-fit (Newell) plane at ``scale`` texels per unit, oriented as xatlas lays
     out an unmirrored chart (clockwise in pass-1 texels, whose y axis points down)."""
@@ -122,22 +122,12 @@ def _project_polygon(points, tris, corner, scale):
     return uv - uv.reshape(-1, 2).min(axis=0)
 
 
-def _extend_into(points, triangles, tris, corner, uv, labels, chart):
-    """Lay the triangles of one polygon (``tris``) that are not in ``chart`` out in that
-    chart's UV space, unfolded edge by edge from the polygon's triangles already in it, so
-    every corner of the polygon has one UV. Returns the polygon's (k, 3, 2) UVs or None when
-    that cannot be done (a triangle with no placed edge, a degenerate edge, a flipped
-    triangle, a corner with two UVs)."""
-    inside = labels[tris] == chart
-    placed: dict[int, np.ndarray] = {}
-    for i in tris[inside]:
-        for j in range(3):
-            c = int(corner[i, j])
-            if c in placed and not np.array_equal(placed[c], uv[i, j]):
-                return None
-            placed[c] = uv[i, j]
-    sign = 1.0 if _signed_area2(uv[tris[inside]]).sum() > 0 else -1.0
-    pending = [int(i) for i in tris[~inside]]
+def _grow(points, triangles, tris, corner, placed, sign):
+    """Complete ``placed`` (polygon corner -> UV) over the polygon's triangles ``tris``: each
+    triangle with two placed corners gets its third by :func:`_unfold`, until all are placed.
+    Returns the polygon's (k, 3, 2) UVs, or None when a triangle has no placed edge, an edge
+    is degenerate or a triangle comes out flipped (signed area not of ``sign``)."""
+    pending = [int(i) for i in tris]
     while pending:
         left = []
         for i in pending:
@@ -161,10 +151,53 @@ def _extend_into(points, triangles, tris, corner, uv, labels, chart):
             return None
         pending = left
     out = np.array([[placed[int(c)] for c in corner[i]] for i in tris], dtype=np.float64)
-    area = _signed_area2(out)
-    if (area * sign <= 0).any():
+    if (_signed_area2(out) * sign <= 0).any():
         return None
     return out
+
+
+def _extend_into(points, triangles, tris, corner, uv, labels, chart):
+    """Lay the triangles of one polygon (``tris``) that are not in ``chart`` out in that
+    chart's UV space, unfolded edge by edge from the polygon's triangles already in it, so
+    every corner of the polygon has one UV. Returns the polygon's (k, 3, 2) UVs or None when
+    that cannot be done (see :func:`_grow`; or a corner with two UVs in the chart)."""
+    inside = labels[tris] == chart
+    placed: dict[int, np.ndarray] = {}
+    for i in tris[inside]:
+        for j in range(3):
+            c = int(corner[i, j])
+            if c in placed and not np.array_equal(placed[c], uv[i, j]):
+                return None
+            placed[c] = uv[i, j]
+    sign = 1.0 if _signed_area2(uv[tris[inside]]).sum() > 0 else -1.0
+    return _grow(points, triangles, tris, corner, placed, sign)
+
+
+def _unfold_polygon(points, triangles, tris, corner, scale):
+    """One polygon laid out as a chart of its own: its largest triangle flat at ``scale``
+    texels per unit, the others unfolded from it edge by edge (every triangle keeps its 3-D
+    shape), oriented as xatlas lays out an unmirrored chart (negative signed area in pass-1
+    texels, whose y axis points down). None when that cannot be done (:func:`_grow`)."""
+    p = points[triangles[tris]]
+    area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    seed = int(np.argmax(area))
+    v = triangles[tris[seed]]
+    cs = [int(c) for c in corner[tris[seed]]]
+    length = float(np.linalg.norm(points[v[1]] - points[v[0]]))
+    if length <= 0:
+        return None
+    placed = {cs[0]: np.zeros(2), cs[1]: np.array([length * scale, 0.0])}
+    third = _unfold(points[v[0]], points[v[1]], points[v[2]], placed[cs[0]], placed[cs[1]], -1.0)
+    if third is None:
+        return None
+    placed[cs[2]] = third
+    out = _grow(points, triangles, tris, corner, placed, -1.0)
+    return None if out is None else out - out.reshape(-1, 2).min(axis=0)
+
+
+def _self_overlap(laid: np.ndarray) -> bool:
+    """Whether two of a polygon's UV triangles (k, 3, 2) overlap each other."""
+    return any(_overlaps(laid[i], np.delete(laid, i, axis=0)) for i in range(len(laid) - 1))
 
 
 def _split_polygons(corner, face, key) -> np.ndarray:
@@ -297,14 +330,18 @@ def _chart_pass(points, triangles, corner, face, path):
                 if laid is not None:
                     moved = labels[tris] != chart
                     others = uv[labels == chart]
-                    if any(_overlaps(t, others) for t in laid[moved]):
+                    if _self_overlap(laid) or any(_overlaps(t, others) for t in laid[moved]):
                         laid = None
             if laid is not None:
                 stats["extended"] += 1
             else:
                 chart = next_label
                 next_label += 1
-                laid = _project_polygon(p, triangles[tris], corner[tris], k * tpu)
+                laid = _unfold_polygon(p, triangles, tris, corner, k * tpu)
+                if laid is None or _self_overlap(laid):
+                    flat = _project_polygon(p, triangles[tris], k * tpu)
+                    if laid is None or not _self_overlap(flat):
+                        laid = flat
                 stats["own_chart"] += 1
             labels[tris] = chart
             uv[tris] = laid

@@ -182,6 +182,29 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
     return values[corner], tuple(int(r) for r in old.resolution)
 
 
+def _reused_unwrap_problem(mesh, uv: np.ndarray, res) -> tuple[str | None, Texels | None]:
+    """Check an unwrap read back from the previous output layer as an authored UV set is
+    checked (what the validator's UVSet rule checks): returns (problem or None, its texels).
+    An unwrap an older usdahd wrote can overlap itself: xatlas split polygons across charts
+    and the faceVarying primvar kept one UV per polygon corner."""
+    from usdahd.bake.texels import rasterize
+
+    if not np.isfinite(uv).all():
+        return "contains NaN or infinite UVs", None
+    if (uv < 0).any() or (uv > 1).any():
+        return "leaves [0, 1]", None
+    problem = _degenerate_uv_share(mesh, np.asarray(uv, np.float64), res)
+    if problem:
+        return problem, None
+    saved = mesh.uv
+    mesh.uv = uv
+    try:
+        texels = rasterize(mesh, res)
+    finally:
+        mesh.uv = saved
+    return _uv_problem(texels), texels
+
+
 def _plan(
     scene, index: int, mesh, stage, opts: BakeOptions, report: dict, prev=None, old_layer=None
 ) -> PrimJob:
@@ -249,6 +272,17 @@ def _plan(
             (prev or {}).get(mesh.path), old_layer, mesh, settings, settings["uv"]
         )
         if reuse is not None:
+            why, texels = _reused_unwrap_problem(mesh, *reuse)
+            if why:
+                report["warnings"].append(
+                    f"{mesh.path}: the xatlas unwrap {settings['uv']!r} authored by the "
+                    f"previous bake {why}, so it is not reused: unwrapped again into "
+                    f"{settings['uv']!r} (the re-bake replaces it)"
+                )
+                reuse = None
+            else:
+                job.texels = texels
+        if reuse is not None:
             mesh.uv, res = reuse
             job.unwrapped = True
             job.uv_primvar_values = mesh.uv
@@ -258,6 +292,7 @@ def _plan(
                 "authored by the previous bake (mesh unchanged)"
             )
         else:
+            mesh.uv = None
             _unwrap(job, mesh, settings, scene)
     settings["resolution"] = list(job.resolution)
     return job

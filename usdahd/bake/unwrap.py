@@ -392,10 +392,35 @@ def _run_pack(verts, indices, texels_per_unit, padding):
     if not np.array_equal(idx, indices) or not np.array_equal(vmap, np.arange(len(verts))):
         raise BakeError("xatlas changed the UV mesh while packing it")
     vchart = np.asarray(atlas.get_mesh_vertex_assignment(0)[1], dtype=np.int64)
+    vchart[vchart >= 2**31] = -1
     out = np.asarray(uvs, dtype=np.float64) * np.array([atlas.width, atlas.height], np.float64)
-    # a vertex of no chart belongs to zero-area triangles only (they cover no texel)
-    out[vchart >= 2**31] = 0.0
+    if (vchart < 0).any():
+        _place_ignored(verts, idx, vchart, out)
     return atlas.width, atlas.height, out[idx], atlas.chart_count
+
+
+def _place_ignored(verts, idx, vchart, out) -> None:
+    """xatlas ignores zero-area UV triangles when it packs a UV mesh and leaves the vertices
+    only they use where they were (in pass 2's input layout). Move each such vertex (in
+    ``out``, in place) by the affine map xatlas applied to the chart of a neighbouring
+    vertex (fitted on that chart's packed vertices), so the triangle stays a zero-area sliver
+    inside its chart; a triangle with no packed vertex at all collapses onto texel (0, 0)."""
+    lost = vchart < 0
+    faces = np.flatnonzero(lost[idx].any(axis=1))
+    for f in faces:
+        tri = idx[f]
+        charts = vchart[tri][vchart[tri] >= 0]
+        targets = tri[lost[tri]]
+        if len(charts) == 0:
+            out[targets] = 0.0
+            continue
+        members = np.flatnonzero(vchart == charts[0])
+        a = np.concatenate([verts[members].astype(np.float64), np.ones((len(members), 1))], 1)
+        m, *_ = np.linalg.lstsq(a, out[members], rcond=None)
+        src = np.concatenate([verts[targets].astype(np.float64), np.ones((len(targets), 1))], 1)
+        out[targets] = src @ m
+        lost[targets] = False
+        vchart[targets] = charts[0]
 
 
 def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):

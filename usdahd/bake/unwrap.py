@@ -7,6 +7,14 @@ and check the size that comes back.
 UV convention: xatlas's pixel y axis points down the image; our rows also count down from the
 top (``usdahd.bake.types``), so ``v = 1 - y / height``. With this flip xatlas charts come out
 counter-clockwise in UV (not mirrored), so tangent frames are right-handed.
+
+Polygons stay whole (issue 37): the UVs are authored as a faceVarying primvar, one UV per
+polygon corner, but xatlas charts triangles and cuts quads and n-gons between charts. Pass 1
+(:func:`_chart_pass`) lets xatlas chart and parameterise the triangles, then lays every polygon
+it cut out again inside one chart; pass 2 (:func:`_run_pack`) has xatlas pack those charts as
+a UV mesh. The result gives every polygon corner one UV (``unrepresentable_corners`` is 0), so
+the layer holds exactly the UVs the bake traced with. docs/texels.md has the why and the
+figures.
 """
 
 from __future__ import annotations
@@ -667,11 +675,14 @@ def unwrap(
     in a child process (it can segfault on some meshes; that becomes a BakeError).
 
     Returns ``uv : (t, 3, 2) float32`` per-corner lightmap UVs in [0, 1] (same triangle order as
-    ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``) and
+    ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``: the triangles
+    of one polygon (``mesh.face``) give each of its corners the same UV) and
     ``resolution : (w, h)``. xatlas lays out some charts mirrored (about 45 % on the castle
     scene); they are kept as they are (flipping a chart inside its bounding box made it overlap
     interlocking neighbours): their tangent frames are left-handed, b = -cross(n, t), as
     docs/texels.md specifies.
+    ``info``, when given, receives pass 1's counts: ``charts_xatlas``, ``split_polygons``
+    (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``.
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """

@@ -132,8 +132,9 @@ def _density_resolution(mesh, settings, scene, job: PrimJob) -> tuple[int, int]:
 def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     from usdahd.bake.unwrap import unwrap
 
+    info: dict = {}
     if settings["resolution"]:
-        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
+        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2, info=info)
     else:
         try:
             uv, res = unwrap(
@@ -141,6 +142,7 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 texels_per_unit=_texels_per_unit(settings, scene),
                 padding=2,
                 max_resolution=DENSITY_MAX_RESOLUTION,
+                info=info,
             )
         except UsageError:
             job.report.setdefault("warnings", []).append(
@@ -148,7 +150,13 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 f"{DENSITY_MAX_RESOLUTION}; packed into {DENSITY_MAX_RESOLUTION}x"
                 f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
             )
-            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2)
+            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2, info=info)
+    if info.get("split_polygons"):
+        job.report.setdefault("notes", []).append(
+            f"the unwrap's charts cut {info['split_polygons']} polygon(s); each is kept whole "
+            f"({info['extended']} in a neighbouring chart, {info['own_chart']} as a chart of "
+            "its own), so the faceVarying UVs authored are the UVs baked"
+        )
     mesh.uv = uv
     job.unwrapped = True
     job.uv_primvar_values = uv

@@ -457,10 +457,10 @@ def test_a_rebake_does_not_reuse_an_unwrap_that_overlaps(ngon_baked, capsys):
     assert np.array_equal(_authored_st(layer)["Dodecahedron"], good["Dodecahedron"])
 
 
-def test_zero_area_uv_triangles_follow_their_chart_when_packed():
+def test_zero_area_uv_triangles_stay_in_their_chart_when_packed():
     """xatlas ignores zero-area triangles of a UV mesh and leaves the vertices only they use
-    unpacked (at 0 they made a sliver across the atlas: 5 % overlap on the castle); they are
-    moved with their chart."""
+    unpacked (at 0 they made a sliver across the atlas: 5 % overlap on the castle); such a
+    vertex is put on a packed vertex of its triangle."""
     from usdahd.bake.unwrap import _run_pack
 
     verts = np.array(
@@ -469,9 +469,9 @@ def test_zero_area_uv_triangles_follow_their_chart_when_packed():
     )
     indices = np.array([[0, 1, 2], [0, 2, 3], [1, 2, 4], [5, 6, 7]], dtype=np.uint32)
     w, h, uv, _ = _run_pack(verts, indices, 1.0, 1)
-    a, b, c = uv[2, 0], uv[2, 1], uv[2, 2]  # images of (10, 0), (10, 10), (10, 20)
-    np.testing.assert_allclose(c - b, b - a, atol=1e-3)
-    assert np.linalg.norm(b - a) == pytest.approx(10.0, rel=0.15)
+    assert np.array_equal(uv[2, 2], uv[2, 0]) or np.array_equal(uv[2, 2], uv[2, 1])
+    lo, hi = uv[:2].reshape(-1, 2).min(axis=0), uv[:2].reshape(-1, 2).max(axis=0)
+    assert (uv[2] >= lo).all() and (uv[2] <= hi).all()  # inside the square's chart
 
 
 @pytest.mark.skipif(

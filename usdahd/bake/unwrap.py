@@ -357,9 +357,11 @@ def _chart_pass(points, triangles, corner, face, path):
 
 
 def _layout(uv, labels):
-    """Pass 2's input: the charts side by side (a grid of equal cells with LAYOUT_GAP between
-    them), so that no two charts share a UV value (xatlas finds a UV mesh's charts by shared
-    UV values), as an indexed UV mesh: (vertices (n, 2) float32, indices (t, 3) uint32)."""
+    """Pass 2's input: the charts side by side on shelves (rows of charts, LAYOUT_GAP apart,
+    about as wide as the square root of their total bounding-box area, so coordinates stay
+    near pass 1's atlas size and float32 keeps them to ~1e-4 texel), so that no two charts
+    share a UV value (xatlas finds a UV mesh's charts by shared UV values), as an indexed UV
+    mesh: (vertices (n, 2) float32, indices (t, 3) uint32)."""
     _, lab = np.unique(labels, return_inverse=True)
     lab = lab.ravel()
     n = int(lab.max()) + 1
@@ -369,10 +371,17 @@ def _layout(uv, labels):
     hi = np.full((n, 2), -np.inf)
     np.minimum.at(lo, lab3, flat)
     np.maximum.at(hi, lab3, flat)
-    cell = float((hi - lo).max()) + LAYOUT_GAP
-    cols = int(np.ceil(np.sqrt(n)))
-    grid = np.stack([np.arange(n) % cols, np.arange(n) // cols], axis=1) * cell
-    moved = (flat - lo[lab3] + grid[lab3]).astype(np.float32)
+    size = hi - lo + LAYOUT_GAP
+    width = max(float(size[:, 0].max()), float(np.sqrt((size[:, 0] * size[:, 1]).sum())))
+    origin = np.zeros((n, 2))
+    x = y = row = 0.0
+    for c in range(n):
+        if x > 0 and x + size[c, 0] > width:
+            x, y, row = 0.0, y + row, 0.0
+        origin[c] = (x, y)
+        x += size[c, 0]
+        row = max(row, size[c, 1])
+    moved = (flat - lo[lab3] + origin[lab3]).astype(np.float32)
     rows = np.concatenate([lab3[:, None].astype(np.float64), moved.astype(np.float64)], axis=1)
     unique, inverse = np.unique(rows, axis=0, return_inverse=True)
     verts = np.ascontiguousarray(unique[:, 1:], dtype=np.float32)
@@ -409,26 +418,17 @@ def _run_pack(verts, indices, texels_per_unit, padding):
 
 def _place_ignored(verts, idx, vchart, out) -> None:
     """xatlas ignores zero-area UV triangles when it packs a UV mesh and leaves the vertices
-    only they use where they were (in pass 2's input layout). Move each such vertex (in
-    ``out``, in place) by the affine map xatlas applied to the chart of a neighbouring
-    vertex (fitted on that chart's packed vertices), so the triangle stays a zero-area sliver
-    inside its chart; a triangle with no packed vertex at all collapses onto texel (0, 0)."""
+    only they use where they were (in pass 2's input layout, i.e. anywhere in the atlas).
+    Put each such vertex (in ``out``, in place) on a packed vertex of one of its triangles:
+    the triangle keeps zero area (it gets no texel either way) and stays inside its chart; a
+    triangle with no packed vertex at all collapses onto texel (0, 0)."""
     lost = vchart < 0
-    faces = np.flatnonzero(lost[idx].any(axis=1))
-    for f in faces:
+    for f in np.flatnonzero(lost[idx].any(axis=1)):
         tri = idx[f]
-        charts = vchart[tri][vchart[tri] >= 0]
+        keep = tri[~lost[tri]]
         targets = tri[lost[tri]]
-        if len(charts) == 0:
-            out[targets] = 0.0
-            continue
-        members = np.flatnonzero(vchart == charts[0])
-        a = np.concatenate([verts[members].astype(np.float64), np.ones((len(members), 1))], 1)
-        m, *_ = np.linalg.lstsq(a, out[members], rcond=None)
-        src = np.concatenate([verts[targets].astype(np.float64), np.ones((len(targets), 1))], 1)
-        out[targets] = src @ m
+        out[targets] = out[keep[0]] if len(keep) else 0.0
         lost[targets] = False
-        vchart[targets] = charts[0]
 
 
 def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):

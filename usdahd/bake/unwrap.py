@@ -223,45 +223,53 @@ def _split_polygons(corner, face, key) -> np.ndarray:
 def _destretch(uv, labels, tri_points, tpu):
     """Undo xatlas's packing stretch of each pass-1 chart. xatlas scales every chart to a
     whole number of texels along its packed x and y axes (``ceil(extent) / extent``, up to 2x
-    for a chart a texel wide), so pass-1 charts are stretched along the output axes. Per
-    chart, the axis scales (gx, gy) that best match the 3-D edge lengths at ``tpu`` texels per
-    unit (least squares on squared lengths) are applied, then the chart is rescaled so its UV
-    area is its surface area x tpu^2 (xatlas's own chart normalisation); charts where the fit
-    is singular are left as they are."""
+    for a chart a texel wide), so a pass-1 chart is stretched along the output's x and y axes
+    by unknown factors. Its parameterisation was conformal (LSCM, or an orthogonal
+    projection), and an axis stretch changes only the ratio of the u and v gradient lengths;
+    so per chart the x/y scale ratio that makes them equal again (area-weighted geometric mean
+    over its triangles) is applied, then the chart is rescaled so its UV area is its surface
+    area x tpu^2 (xatlas's own chart normalisation)."""
     uv = uv.copy()
-    du = (uv[:, [1, 2, 0]] - uv).reshape(-1, 2) ** 2  # squared edge components, 3 per tri
-    d3 = tri_points[:, [1, 2, 0]] - tri_points
-    target = (np.einsum("tij,tij->ti", d3, d3) * tpu * tpu).reshape(-1)
-    lab = np.repeat(labels, 3)
-    ok = lab >= 0
-    n = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
-    if n == 0:
-        return uv
-    m = np.zeros((n, 3))
-    r = np.zeros((n, 2))
-    np.add.at(m, lab[ok], np.stack([du[ok, 0] ** 2, du[ok, 0] * du[ok, 1], du[ok, 1] ** 2], 1))
-    np.add.at(r, lab[ok], np.stack([du[ok, 0] * target[ok], du[ok, 1] * target[ok]], 1))
-    det = m[:, 0] * m[:, 2] - m[:, 1] ** 2
-    good = det > 1e-9 * (m[:, 0] * m[:, 2] + 1e-300)
-    safe = np.where(good, det, 1.0)
-    a = (r[:, 0] * m[:, 2] - r[:, 1] * m[:, 1]) / safe
-    b = (r[:, 1] * m[:, 0] - r[:, 0] * m[:, 1]) / safe
-    good &= (a > 0) & (b > 0)
-    g = np.ones((n, 2))
-    g[good] = np.sqrt(np.stack([a[good], b[good]], 1))
     t = labels >= 0
+    if not t.any():
+        return uv
+    n = int(labels.max()) + 1
+    lab = labels[t]
+    p = tri_points[t]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    l1 = np.linalg.norm(e1, axis=1)
+    normal = np.cross(e1, e2)
+    area2 = np.linalg.norm(normal, axis=1)
+    ok = (l1 > 0) & (area2 > 0)
+    x = np.where(ok, (e2 * e1).sum(axis=1) / np.where(ok, l1, 1.0), 0.0)
+    y = np.where(ok, area2 / np.where(ok, l1, 1.0), 1.0)
+    d = uv[t] - uv[t][:, :1]  # (k, 3, 2): d[:, 1] = uv1 - uv0, d[:, 2] = uv2 - uv0
+    # the gradient g of a UV coordinate in the triangle's own frame: (l1, 0) . g = d1,
+    # (x, y) . g = d2
+    gx = d[:, 1] / np.where(ok, l1, 1.0)[:, None]  # (k, 2): d/dx of (u, v)
+    gy = (d[:, 2] - x[:, None] * gx) / y[:, None]  # (k, 2): d/dy of (u, v)
+    len_u = np.hypot(gx[:, 0], gy[:, 0])
+    len_v = np.hypot(gx[:, 1], gy[:, 1])
+    ok &= (len_u > 0) & (len_v > 0)
+    w = np.where(ok, area2, 0.0)
+    log_ratio = np.where(ok, np.log(np.where(ok, len_v, 1.0) / np.where(ok, len_u, 1.0)), 0.0)
+    num = np.zeros(n)
+    den = np.zeros(n)
+    np.add.at(num, lab, w * log_ratio)
+    np.add.at(den, lab, w)
+    ratio = np.exp(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0))
+    scale = np.stack([np.sqrt(ratio), 1.0 / np.sqrt(ratio)], axis=1)  # equal |grad u|, |grad v|
     lo = np.full((n, 2), np.inf)
-    np.minimum.at(lo, np.repeat(labels[t], 3), uv[t].reshape(-1, 2))
-    origin = lo[labels[t]][:, None, :]
-    uv[t] = origin + (uv[t] - origin) * g[labels[t]][:, None, :]
+    np.minimum.at(lo, np.repeat(lab, 3), uv[t].reshape(-1, 2))
+    origin = lo[lab][:, None, :]
+    moved = origin + (uv[t] - origin) * scale[lab][:, None, :]
     # area normalisation, per chart
     area_uv = np.zeros(n)
     area_3d = np.zeros(n)
-    np.add.at(area_uv, labels[t], 0.5 * np.abs(_signed_area2(uv[t])))
-    cr = np.cross(d3[t, 0], -d3[t, 2])
-    np.add.at(area_3d, labels[t], 0.5 * np.linalg.norm(cr, axis=1) * tpu * tpu)
+    np.add.at(area_uv, lab, 0.5 * np.abs(_signed_area2(moved)))
+    np.add.at(area_3d, lab, 0.5 * area2 * tpu * tpu)
     f = np.where(area_uv > 0, np.sqrt(area_3d / np.where(area_uv > 0, area_uv, 1.0)), 1.0)
-    uv[t] = origin + (uv[t] - origin) * f[labels[t]][:, None, None]
+    uv[t] = origin + (moved - origin) * f[lab][:, None, None]
     return uv
 
 

@@ -46,7 +46,9 @@ def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
 #: Pass 1 scales the mesh so its bounding-box diagonal is this long: xatlas's epsilons are
 #: absolute (a 0.3 mm triangle in metres would be below its area epsilon and dropped).
 NORMALIZED_DIAGONAL = 100.0
-#: Side (texels) pass 1 packs its charts into: only their shapes are kept, so it is small.
+#: Side (texels) pass 1 packs its charts into: only their shapes are kept, so it only needs to
+#: be large enough that xatlas's rounding of each chart to whole texels stays small (it is
+#: undone, see _destretch) and small enough to pack quickly.
 CHART_PASS_SIDE = 1024
 #: Penetration (pass-1 texels) below which two UV triangles of a chart only touch.
 OVERLAP_EPS = 1e-4

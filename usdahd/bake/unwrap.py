@@ -44,7 +44,9 @@ def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
 
 
 #: Pass 1 scales the mesh so its bounding-box diagonal is this long: xatlas's epsilons are
-#: absolute (a 0.3 mm triangle in metres would be below its area epsilon and dropped).
+#: absolute (its area epsilon is FLT_EPSILON), so a mesh as authored loses its small
+#: triangles: xatlas put 7,301 of the 92,416 triangles of OpenChessSet's chessboard (metres)
+#: in no chart (they got no texel), and produced no atlas at all for a 0.1 mm-wide mesh.
 NORMALIZED_DIAGONAL = 100.0
 #: Side (texels) pass 1 packs its charts into: only their shapes are kept, so it only needs to
 #: be large enough that xatlas's rounding of each chart to whole texels stays small (it is

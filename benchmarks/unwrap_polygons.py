@@ -5,7 +5,7 @@ For each mesh of each stage, unwraps it with this checkout's ``usdahd.bake.unwra
 unwrap.py > /tmp/old_unwrap.py``), at ``--resolution``, and reports per mesh: triangles, the
 polygon corners that got two UVs (a faceVarying primvar cannot hold them, so what the layer
 authors differs from what the bake traced), the texels whose centre lies in two of the
-*traced* triangles, the area-weighted 90th/10th percentile texel-density spread (the
+*traced* triangles, the triangles with zero UV area (they get no texel), the area-weighted 90th/10th percentile texel-density spread (the
 validator's TexelDensity statistic) and the unwrap's wall time (in process, no worker).
 
     python benchmarks/unwrap_polygons.py STAGE [STAGE ...] [--prim PATH ...]
@@ -51,6 +51,7 @@ def measure(module, mesh, resolution: int) -> str:
     split = new_unwrap.unrepresentable_corners(mesh.corner, uv)
     return (
         f"split corners {split}, overlap {t.stats['overlap_texels']}/{len(t)}, "
+        f"zero-area {t.stats['degenerate_uv_triangles']}, "
         f"spread {spread(mesh, uv, res):.3f}, {dt:.2f} s"
     )
 

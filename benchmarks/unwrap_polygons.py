@@ -5,8 +5,9 @@ For each mesh of each stage, unwraps it with this checkout's ``usdahd.bake.unwra
 unwrap.py > /tmp/old_unwrap.py``), at ``--resolution``, and reports per mesh: triangles, the
 polygon corners that got two UVs (a faceVarying primvar cannot hold them, so what the layer
 authors differs from what the bake traced), the texels whose centre lies in two of the
-*traced* triangles, the triangles with zero UV area (they get no texel), the area-weighted 90th/10th percentile texel-density spread (the
-validator's TexelDensity statistic) and the unwrap's wall time (in process, no worker).
+*traced* triangles, the triangles with zero UV area (they get no texel), the area-weighted
+90th/10th percentile texel-density spread (the validator's TexelDensity statistic) and the
+unwrap's wall time (in process, no worker).
 
     python benchmarks/unwrap_polygons.py STAGE [STAGE ...] [--prim PATH ...]
         [--resolution 256] [--old /tmp/old_unwrap.py]

@@ -7,6 +7,14 @@ and check the size that comes back.
 UV convention: xatlas's pixel y axis points down the image; our rows also count down from the
 top (``usdahd.bake.types``), so ``v = 1 - y / height``. With this flip xatlas charts come out
 counter-clockwise in UV (not mirrored), so tangent frames are right-handed.
+
+Polygons stay whole (issue 37): the UVs are authored as a faceVarying primvar, one UV per
+polygon corner, but xatlas charts triangles and cuts quads and n-gons between charts. Pass 1
+(:func:`_chart_pass`) lets xatlas chart and parameterise the triangles, then lays every polygon
+it cut out again inside one chart; pass 2 (:func:`_run_pack`) has xatlas pack those charts as
+a UV mesh. The result gives every polygon corner one UV (``unrepresentable_corners`` is 0), so
+the layer holds exactly the UVs the bake traced with. docs/texels.md has the why and the
+figures.
 """
 
 from __future__ import annotations
@@ -35,41 +43,423 @@ def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
 
 
-def _run_xatlas(points, triangles, texels_per_unit, padding):
-    """One xatlas run at a fixed texel density (single atlas; resolution left at 0)."""
+#: Pass 1 scales the mesh so its bounding-box diagonal is this long: xatlas's epsilons are
+#: absolute (its area epsilon is FLT_EPSILON), so a mesh as authored loses its small
+#: triangles: xatlas put 7,301 of the 92,416 triangles of OpenChessSet's chessboard (metres)
+#: in no chart (they got no texel), and produced no atlas at all for a 0.1 mm-wide mesh.
+NORMALIZED_DIAGONAL = 100.0
+#: Side (texels) pass 1 packs its charts into: only their shapes are kept, so it only needs to
+#: be large enough that xatlas's rounding of each chart to whole texels stays small (it is
+#: undone, see _destretch) and small enough to pack quickly.
+CHART_PASS_SIDE = 1024
+#: Penetration (pass-1 texels) below which two UV triangles of a chart only touch.
+OVERLAP_EPS = 1e-4
+#: Pass 2 packs at this fraction of the asked density: xatlas rounds every chart's extent up
+#: to whole texels (stretching it), and a chart exactly n texels wide must not become n + 1
+#: through float rounding.
+SHRINK = 1.0 - 1e-5
+#: Gap (pass-1 texels) between charts laid side by side as pass 2's input.
+LAYOUT_GAP = 4.0
+
+
+def _signed_area2(uv: np.ndarray) -> np.ndarray:
+    """Twice the signed area of 2-D triangles (..., 3, 2)."""
+    e1 = uv[..., 1, :] - uv[..., 0, :]
+    e2 = uv[..., 2, :] - uv[..., 0, :]
+    return e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+
+
+def _overlaps(tri: np.ndarray, others: np.ndarray, eps: float = OVERLAP_EPS) -> bool:
+    """Whether the interior of the 2-D triangle ``tri`` (3, 2) overlaps the interior of any of
+    ``others`` (m, 3, 2) by more than ``eps`` (separating-axis test; shared edges and corners
+    only touch)."""
+    if len(others) == 0:
+        return False
+    lo, hi = tri.min(axis=0), tri.max(axis=0)
+    near = ((others.min(axis=1) < hi - eps) & (others.max(axis=1) > lo + eps)).all(axis=1)
+    o = others[near]
+    if len(o) == 0:
+        return False
+    sep = np.zeros(len(o), dtype=bool)
+    for j in range(3):
+        e = tri[(j + 1) % 3] - tri[j]
+        n = np.array([-e[1], e[0]])
+        length = np.hypot(*n)
+        if length == 0:
+            continue
+        n = n / length
+        a, b = tri @ n, o @ n
+        sep |= (b.min(axis=1) >= a.max() - eps) | (b.max(axis=1) <= a.min() + eps)
+    e = o[:, [1, 2, 0]] - o
+    n = np.stack([-e[..., 1], e[..., 0]], axis=-1)
+    length = np.hypot(n[..., 0], n[..., 1])
+    n = n / np.where(length > 0, length, 1.0)[..., None]
+    a = np.einsum("mjk,ik->mji", n, tri)
+    b = np.einsum("mjk,mik->mji", n, o)
+    axis_sep = (b.min(axis=2) >= a.max(axis=2) - eps) | (b.max(axis=2) <= a.min(axis=2) + eps)
+    sep |= (axis_sep & (length > 0)).any(axis=1)
+    return not bool(sep.all())
+
+
+def _unfold(pa, pb, pc, ua, ub, sign):
+    """The UV of ``c`` that lays the 3-D triangle (a, b, c) flat against the placed UV edge
+    (ua, ub) at that edge's scale, on the side giving the triangle (a, b, c) the signed UV
+    area ``sign``; None when the edge is degenerate."""
+    e, d = pb - pa, pc - pa
+    length = float(np.linalg.norm(e))
+    eu = ub - ua
+    length_uv = float(np.hypot(*eu))
+    if length <= 0 or length_uv <= 0:
+        return None
+    x = float(d @ e) / length
+    y = float(np.linalg.norm(np.cross(e, d))) / length
+    along = eu / length_uv
+    perp = np.array([-along[1], along[0]]) * (1.0 if sign > 0 else -1.0)
+    return ua + (length_uv / length) * (x * along + y * perp)
+
+
+def _project_polygon(points, tris, scale):
+    """Per-corner UVs (k, 3, 2) of one polygon laid out on its own: its corners projected onto
+    the polygon's best-fit (Newell) plane at ``scale`` texels per unit, oriented as xatlas lays
+    out an unmirrored chart (clockwise in pass-1 texels, whose y axis points down)."""
+    p = points[tris]  # (k, 3, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]).sum(axis=0)
+    length = float(np.linalg.norm(n))
+    n = n / length if length > 0 else np.array([0.0, 0.0, 1.0])
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t = np.cross(helper, n)
+    t /= np.linalg.norm(t)
+    b = np.cross(n, t)
+    uv = np.stack([p @ t, -(p @ b)], axis=-1) * scale
+    return uv - uv.reshape(-1, 2).min(axis=0)
+
+
+def _grow(points, triangles, tris, corner, placed, sign):
+    """Complete ``placed`` (polygon corner -> UV) over the polygon's triangles ``tris``: each
+    triangle with two placed corners gets its third by :func:`_unfold`, until all are placed.
+    Returns the polygon's (k, 3, 2) UVs, or None when a triangle has no placed edge, an edge
+    is degenerate or a triangle comes out flipped (signed area not of ``sign``)."""
+    pending = [int(i) for i in tris]
+    while pending:
+        left = []
+        for i in pending:
+            cs = [int(c) for c in corner[i]]
+            known = [c in placed for c in cs]
+            if all(known):
+                continue
+            if sum(known) < 2:
+                left.append(i)
+                continue
+            j = known.index(False)
+            a, b = (j + 1) % 3, (j + 2) % 3  # (a, b, j) keeps the triangle's cyclic order
+            v = triangles[i]
+            new = _unfold(
+                points[v[a]], points[v[b]], points[v[j]], placed[cs[a]], placed[cs[b]], sign
+            )
+            if new is None:
+                return None
+            placed[cs[j]] = new
+        if len(left) == len(pending):
+            return None
+        pending = left
+    out = np.array([[placed[int(c)] for c in corner[i]] for i in tris], dtype=np.float64)
+    if (_signed_area2(out) * sign <= 0).any():
+        return None
+    return out
+
+
+def _extend_into(points, triangles, tris, corner, uv, labels, chart):
+    """Lay the triangles of one polygon (``tris``) that are not in ``chart`` out in that
+    chart's UV space, unfolded edge by edge from the polygon's triangles already in it, so
+    every corner of the polygon has one UV. Returns the polygon's (k, 3, 2) UVs or None when
+    that cannot be done (see :func:`_grow`; or a corner with two UVs in the chart)."""
+    inside = labels[tris] == chart
+    placed: dict[int, np.ndarray] = {}
+    for i in tris[inside]:
+        for j in range(3):
+            c = int(corner[i, j])
+            if c in placed and not np.array_equal(placed[c], uv[i, j]):
+                return None
+            placed[c] = uv[i, j]
+    sign = 1.0 if _signed_area2(uv[tris[inside]]).sum() > 0 else -1.0
+    return _grow(points, triangles, tris, corner, placed, sign)
+
+
+def _unfold_polygon(points, triangles, tris, corner, scale):
+    """One polygon laid out as a chart of its own: its largest triangle flat at ``scale``
+    texels per unit, the others unfolded from it edge by edge (every triangle keeps its 3-D
+    shape), oriented as xatlas lays out an unmirrored chart (negative signed area in pass-1
+    texels, whose y axis points down). None when that cannot be done (:func:`_grow`)."""
+    p = points[triangles[tris]]
+    area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    seed = int(np.argmax(area))
+    v = triangles[tris[seed]]
+    cs = [int(c) for c in corner[tris[seed]]]
+    length = float(np.linalg.norm(points[v[1]] - points[v[0]]))
+    if length <= 0:
+        return None
+    placed = {cs[0]: np.zeros(2), cs[1]: np.array([length * scale, 0.0])}
+    third = _unfold(points[v[0]], points[v[1]], points[v[2]], placed[cs[0]], placed[cs[1]], -1.0)
+    if third is None:
+        return None
+    placed[cs[2]] = third
+    out = _grow(points, triangles, tris, corner, placed, -1.0)
+    return None if out is None else out - out.reshape(-1, 2).min(axis=0)
+
+
+def _self_overlap(laid: np.ndarray) -> bool:
+    """Whether two of a polygon's UV triangles (k, 3, 2) overlap each other."""
+    return any(_overlaps(laid[i], np.delete(laid, i, axis=0)) for i in range(len(laid) - 1))
+
+
+def _split_polygons(corner, face, key) -> np.ndarray:
+    """Polygons (sorted ids) with a corner that gets two different ``key`` rows (chart, u, v)
+    from two of its triangles: a faceVarying primvar cannot hold them."""
+    c = corner.reshape(-1)
+    k = key.reshape(len(c), -1)
+    order = np.lexsort((*k.T[::-1], c))
+    c, k = c[order], k[order]
+    differ = (c[1:] == c[:-1]) & (k[1:] != k[:-1]).any(axis=1)
+    tri = (order // 3)[1:][differ]
+    return np.unique(face[tri])
+
+
+def _destretch(uv, labels, tri_points, tpu):
+    """Undo xatlas's packing stretch of each pass-1 chart. xatlas scales every chart to a
+    whole number of texels along its packed x and y axes (``ceil(extent) / extent``, up to 2x
+    for a chart a texel wide), so a pass-1 chart is stretched along the output's x and y axes
+    by unknown factors. Its parameterisation was conformal (LSCM, or an orthogonal
+    projection), and an axis stretch changes only the ratio of the u and v gradient lengths;
+    so per chart the x/y scale ratio that makes them equal again (area-weighted geometric mean
+    over its triangles) is applied, then the chart is rescaled so its UV area is its surface
+    area x tpu^2 (xatlas's own chart normalisation)."""
+    uv = uv.copy()
+    t = labels >= 0
+    if not t.any():
+        return uv
+    n = int(labels.max()) + 1
+    lab = labels[t]
+    p = tri_points[t]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    l1 = np.linalg.norm(e1, axis=1)
+    normal = np.cross(e1, e2)
+    area2 = np.linalg.norm(normal, axis=1)
+    ok = (l1 > 0) & (area2 > 0)
+    x = np.where(ok, (e2 * e1).sum(axis=1) / np.where(ok, l1, 1.0), 0.0)
+    y = np.where(ok, area2 / np.where(ok, l1, 1.0), 1.0)
+    d = uv[t] - uv[t][:, :1]  # (k, 3, 2): d[:, 1] = uv1 - uv0, d[:, 2] = uv2 - uv0
+    # the gradient g of a UV coordinate in the triangle's own frame: (l1, 0) . g = d1,
+    # (x, y) . g = d2
+    gx = d[:, 1] / np.where(ok, l1, 1.0)[:, None]  # (k, 2): d/dx of (u, v)
+    gy = (d[:, 2] - x[:, None] * gx) / y[:, None]  # (k, 2): d/dy of (u, v)
+    len_u = np.hypot(gx[:, 0], gy[:, 0])
+    len_v = np.hypot(gx[:, 1], gy[:, 1])
+    ok &= (len_u > 0) & (len_v > 0)
+    w = np.where(ok, area2, 0.0)
+    log_ratio = np.where(ok, np.log(np.where(ok, len_v, 1.0) / np.where(ok, len_u, 1.0)), 0.0)
+    num = np.zeros(n)
+    den = np.zeros(n)
+    np.add.at(num, lab, w * log_ratio)
+    np.add.at(den, lab, w)
+    ratio = np.exp(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0))
+    scale = np.stack([np.sqrt(ratio), 1.0 / np.sqrt(ratio)], axis=1)  # equal |grad u|, |grad v|
+    lo = np.full((n, 2), np.inf)
+    np.minimum.at(lo, np.repeat(lab, 3), uv[t].reshape(-1, 2))
+    origin = lo[lab][:, None, :]
+    moved = origin + (uv[t] - origin) * scale[lab][:, None, :]
+    # area normalisation, per chart
+    area_uv = np.zeros(n)
+    area_3d = np.zeros(n)
+    np.add.at(area_uv, lab, 0.5 * np.abs(_signed_area2(moved)))
+    np.add.at(area_3d, lab, 0.5 * area2 * tpu * tpu)
+    f = np.where(area_uv > 0, np.sqrt(area_3d / np.where(area_uv > 0, area_uv, 1.0)), 1.0)
+    uv[t] = origin + (moved - origin) * f[lab][:, None, None]
+    return uv
+
+
+def _chart_pass(points, triangles, corner, face, path):
+    """Pass 1: xatlas cuts the mesh into charts and parameterises them; every polygon that
+    xatlas cut through (its triangles in two charts) is made whole again, in the chart that
+    holds most of its area when it fits there without overlap, else as a chart of its own.
+
+    Returns (uv (t, 3, 2) float64 in pass-1 texels, labels (t,) int64 chart of each triangle,
+    scale: pass-1 texels per world unit, stats dict)."""
+    import xatlas
+
+    p = np.asarray(points, dtype=np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    k = NORMALIZED_DIAGONAL / max(float(np.linalg.norm(hi - lo)), 1e-30)
+    q = np.ascontiguousarray((p - lo) * k, dtype=np.float32)
+    tpu = CHART_PASS_SIDE * np.sqrt(PACK_EFFICIENCY / _world_area(q.astype(np.float64), triangles))
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(q, triangles)
+    pack = xatlas.PackOptions()
+    pack.padding = 0
+    pack.texels_per_unit = float(tpu)
+    pack.resolution = 0
+    pack.bruteForce = False
+    atlas.generate(xatlas.ChartOptions(), pack)
+    if atlas.atlas_count != 1:
+        raise BakeError(f"{path}: xatlas produced {atlas.atlas_count} atlases, expected 1")
+    vmap, idx, uvs = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64)
+    if idx.shape != triangles.shape or not np.array_equal(np.asarray(vmap)[idx], triangles):
+        raise BakeError(f"{path}: xatlas changed the triangle list; cannot map UVs back")
+    size = np.array([atlas.width, atlas.height], dtype=np.float64)
+    uv = np.asarray(uvs, dtype=np.float64)[idx] * size
+    vchart = np.asarray(atlas.get_mesh_vertex_assignment(0)[1], dtype=np.int64)
+    vchart[vchart >= 2**31] = -1  # "in no chart" (uint32 -1)
+    tchart = vchart[idx]
+    labels = np.where(
+        (tchart >= 0).all(axis=1) & (tchart == tchart[:, :1]).all(axis=1), tchart[:, 0], -1
+    )
+    uv = _destretch(uv, labels, q.astype(np.float64)[triangles], tpu)
+    corner = np.asarray(corner, dtype=np.int64)
+    face = np.asarray(face, dtype=np.int64)
+    key = np.concatenate(
+        [np.repeat(labels[:, None, None], 3, axis=1).astype(np.float64), uv], axis=2
+    )
+    split = _split_polygons(corner, face, key)
+    split = np.union1d(split, np.unique(face[labels < 0]))
+    stats = {
+        "charts_xatlas": int(atlas.chart_count),
+        "split_polygons": int(len(split)),
+        "extended": 0,
+        "own_chart": 0,
+    }
+    if len(split):
+        order = np.argsort(face, kind="stable")
+        starts = np.searchsorted(face[order], split)
+        ends = np.searchsorted(face[order], split, side="right")
+        world = 0.5 * np.linalg.norm(
+            np.cross(
+                p[triangles[:, 1]] - p[triangles[:, 0]], p[triangles[:, 2]] - p[triangles[:, 0]]
+            ),
+            axis=1,
+        )
+        next_label = int(labels.max()) + 1
+        for s, e in zip(starts, ends):
+            tris = order[s:e]
+            laid = None
+            charts = labels[tris]
+            if (charts >= 0).any():
+                ids = np.unique(charts[charts >= 0])
+                weight = np.array([world[tris[charts == c]].sum() for c in ids])
+                chart = int(ids[np.argmax(weight)])
+                laid = _extend_into(p, triangles, tris, corner, uv, labels, chart)
+                if laid is not None:
+                    moved = labels[tris] != chart
+                    others = uv[labels == chart]
+                    if _self_overlap(laid) or any(_overlaps(t, others) for t in laid[moved]):
+                        laid = None
+            if laid is not None:
+                stats["extended"] += 1
+            else:
+                chart = next_label
+                next_label += 1
+                laid = _unfold_polygon(p, triangles, tris, corner, k * tpu)
+                if laid is None or _self_overlap(laid):
+                    flat = _project_polygon(p, triangles[tris], k * tpu)
+                    if laid is None or not _self_overlap(flat):
+                        laid = flat
+                stats["own_chart"] += 1
+            labels[tris] = chart
+            uv[tris] = laid
+    return uv, labels, k * tpu, stats
+
+
+def _layout(uv, labels):
+    """Pass 2's input: the charts side by side on shelves (rows of charts, LAYOUT_GAP apart,
+    about as wide as the square root of their total bounding-box area, so coordinates stay
+    near pass 1's atlas size and float32 keeps them to ~1e-4 texel), so that no two charts
+    share a UV value (xatlas finds a UV mesh's charts by shared UV values), as an indexed UV
+    mesh: (vertices (n, 2) float32, indices (t, 3) uint32)."""
+    _, lab = np.unique(labels, return_inverse=True)
+    lab = lab.ravel()
+    n = int(lab.max()) + 1
+    flat = uv.reshape(-1, 2)
+    lab3 = np.repeat(lab, 3)
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, lab3, flat)
+    np.maximum.at(hi, lab3, flat)
+    size = hi - lo + LAYOUT_GAP
+    width = max(float(size[:, 0].max()), float(np.sqrt((size[:, 0] * size[:, 1]).sum())))
+    origin = np.zeros((n, 2))
+    x = y = row = 0.0
+    for c in range(n):
+        if x > 0 and x + size[c, 0] > width:
+            x, y, row = 0.0, y + row, 0.0
+        origin[c] = (x, y)
+        x += size[c, 0]
+        row = max(row, size[c, 1])
+    moved = (flat - lo[lab3] + origin[lab3]).astype(np.float32)
+    rows = np.concatenate([lab3[:, None].astype(np.float64), moved.astype(np.float64)], axis=1)
+    unique, inverse = np.unique(rows, axis=0, return_inverse=True)
+    verts = np.ascontiguousarray(unique[:, 1:], dtype=np.float32)
+    return verts, np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
+
+
+def _run_pack(verts, indices, texels_per_unit, padding):
+    """Pass 2: xatlas packs the charts of the UV mesh at a fixed texel density (single atlas;
+    resolution left at 0). Returns (w, h, uv (t, 3, 2) float64 in texels, chart count)."""
     import xatlas
 
     atlas = xatlas.Atlas()
-    atlas.add_mesh(points, triangles)
-    chart_options = xatlas.ChartOptions()
+    atlas.add_uv_mesh(verts, indices)
     pack = xatlas.PackOptions()
     pack.padding = int(padding)
     pack.bilinear = True
     pack.texels_per_unit = float(texels_per_unit)
     pack.resolution = 0
     pack.bruteForce = False
-    atlas.generate(chart_options, pack)
+    atlas.generate(xatlas.ChartOptions(), pack)
     if atlas.atlas_count != 1:
         raise BakeError(f"xatlas produced {atlas.atlas_count} atlases, expected 1")
-    vmapping, indices, uvs = atlas.get_mesh(0)
-    return atlas.width, atlas.height, vmapping, indices, uvs, atlas.chart_count
+    vmap, idx, uvs = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64)
+    if not np.array_equal(idx, indices) or not np.array_equal(vmap, np.arange(len(verts))):
+        raise BakeError("xatlas changed the UV mesh while packing it")
+    vchart = np.asarray(atlas.get_mesh_vertex_assignment(0)[1], dtype=np.int64)
+    vchart[vchart >= 2**31] = -1
+    out = np.asarray(uvs, dtype=np.float64) * np.array([atlas.width, atlas.height], np.float64)
+    if (vchart < 0).any():
+        _place_ignored(verts, idx, vchart, out)
+    return atlas.width, atlas.height, out[idx], atlas.chart_count
 
 
-def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, path):
-    """The xatlas part of :func:`unwrap`: returns (w, h, vmap, idx, uvs, target)."""
+def _place_ignored(verts, idx, vchart, out) -> None:
+    """xatlas ignores zero-area UV triangles when it packs a UV mesh and leaves the vertices
+    only they use where they were (in pass 2's input layout, i.e. anywhere in the atlas).
+    Put each such vertex (in ``out``, in place) on a packed vertex of one of its triangles:
+    the triangle keeps zero area (it gets no texel either way) and stays inside its chart; a
+    triangle with no packed vertex at all collapses onto texel (0, 0)."""
+    lost = vchart < 0
+    for f in np.flatnonzero(lost[idx].any(axis=1)):
+        tri = idx[f]
+        keep = tri[~lost[tri]]
+        targets = tri[lost[tri]]
+        out[targets] = out[keep[0]] if len(keep) else 0.0
+        lost[targets] = False
+
+
+def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):
+    """The xatlas part of :func:`unwrap`: returns (w, h, uv (t, 3, 2) texels, target, stats)."""
+    uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
+    verts, indices = _layout(uv1, labels)
     if texels_per_unit is not None:
-        w, h, vmap, idx, uvs, _ = _run_xatlas(points, triangles, texels_per_unit, padding)
+        w, h, uv, _ = _run_pack(verts, indices, texels_per_unit / scale * SHRINK, padding)
         if max(w, h) > max_resolution:
             raise UsageError(
                 f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
                 f"above the maximum {max_resolution}; lower --texel-density"
             )
-        return w, h, vmap, idx, uvs, (w, h)
+        return w, h, uv, (w, h), stats
     area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
     tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
     best = None
     for _ in range(MAX_ATTEMPTS):
-        w, h, vmap, idx, uvs, charts = _run_xatlas(points, triangles, tpu, padding)
+        w, h, uv, charts = _run_pack(verts, indices, tpu / scale * SHRINK, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
             # every chart takes at least one texel and its padding: no scale fits them
             side = int(np.ceil(np.sqrt(charts) * (1 + padding)))
@@ -80,7 +470,7 @@ def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, p
             )
         fit = max(w / target[0], h / target[1])
         if fit <= 1.0:
-            best = (w, h, vmap, idx, uvs)
+            best = (w, h, uv)
             if fit > 0.9:
                 break
             tpu *= min(1.0 / fit, 1.5) * 0.98
@@ -93,7 +483,7 @@ def _pack(points, triangles, texels_per_unit, target, padding, max_resolution, p
             f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
             f"(padding {padding}); raise --resolution"
         )
-    return (*best, target)
+    return (*best, target, stats)
 
 
 def _child_main() -> None:
@@ -286,6 +676,7 @@ def unwrap(
     padding: int = 2,
     max_resolution: int = MAX_RESOLUTION,
     isolate: bool = True,
+    info: dict | None = None,
 ) -> tuple[np.ndarray, tuple[int, int]]:
     """Unwrap ``mesh`` into one lightmap atlas.
 
@@ -296,11 +687,14 @@ def unwrap(
     in a child process (it can segfault on some meshes; that becomes a BakeError).
 
     Returns ``uv : (t, 3, 2) float32`` per-corner lightmap UVs in [0, 1] (same triangle order as
-    ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``) and
+    ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``: the triangles
+    of one polygon (``mesh.face``) give each of its corners the same UV) and
     ``resolution : (w, h)``. xatlas lays out some charts mirrored (about 45 % on the castle
     scene); they are kept as they are (flipping a chart inside its bounding box made it overlap
     interlocking neighbours): their tangent frames are left-handed, b = -cross(n, t), as
     docs/texels.md specifies.
+    ``info``, when given, receives pass 1's counts: ``charts_xatlas``, ``split_polygons``
+    (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``.
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """
@@ -340,19 +734,47 @@ def unwrap(
                 f"lightmap resolution {resolution!r} must be n or (w, h) in 1..{max_resolution}"
             )
 
-    args = (points, triangles, texels_per_unit, target, padding, max_resolution, mesh.path)
+    corner = np.ascontiguousarray(mesh.corner, dtype=np.int64)
+    face = np.ascontiguousarray(mesh.face, dtype=np.int64)
+    args = (
+        points,
+        triangles,
+        corner,
+        face,
+        texels_per_unit,
+        target,
+        padding,
+        max_resolution,
+        mesh.path,
+    )
     if isolate:
-        w, h, vmap, idx, uvs, target = _pack_isolated(args, mesh.path)
+        w, h, pix, target, stats = _pack_isolated(args, mesh.path)
     else:
-        w, h, vmap, idx, uvs, target = _pack(*args)
-
-    idx = np.asarray(idx, dtype=np.int64)
-    vmap = np.asarray(vmap, dtype=np.int64)
-    if idx.shape != triangles.shape or not np.array_equal(vmap[idx], triangles):
-        raise BakeError(f"{mesh.path}: xatlas changed the triangle list; cannot map UVs back")
-    # xatlas uvs are normalized by its own (w, h); pixel coords -> our lightmap of size target
-    pix = np.asarray(uvs, dtype=np.float64)[idx] * np.array([w, h], dtype=np.float64)
+        w, h, pix, target, stats = _pack(*args)
+    if info is not None:
+        info.update(stats)
+    # pixel coords (y down) -> our lightmap of size target
     uv = np.empty_like(pix)
     uv[..., 0] = pix[..., 0] / target[0]
     uv[..., 1] = 1.0 - pix[..., 1] / target[1]
-    return uv.astype(np.float32), (int(target[0]), int(target[1]))
+    uv = uv.astype(np.float32)
+    bad = unrepresentable_corners(corner, uv)
+    if bad:
+        raise BakeError(
+            f"{mesh.path}: the unwrap gives {bad} polygon corners two UVs, which a faceVarying "
+            "primvar cannot hold (a bug: please report it); author a lightmap UV set for this "
+            "mesh and pass it with --uv"
+        )
+    return uv, (int(target[0]), int(target[1]))
+
+
+def unrepresentable_corners(corner: np.ndarray, uv: np.ndarray) -> int:
+    """How many polygon corners (faceVertex indices, ``corner`` (t, 3)) get more than one
+    value from the per-triangle-corner ``uv`` (t, 3, 2): a faceVarying primvar holds one UV per
+    polygon corner, so those UVs cannot be authored as they are."""
+    c = np.asarray(corner, dtype=np.int64).reshape(-1)
+    v = np.asarray(uv).reshape(len(c), -1)
+    order = np.lexsort((*v.T[::-1], c))
+    c, v = c[order], v[order]
+    differ = (c[1:] == c[:-1]) & (v[1:] != v[:-1]).any(axis=1)
+    return int(len(np.unique(c[1:][differ])))

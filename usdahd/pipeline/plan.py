@@ -132,8 +132,9 @@ def _density_resolution(mesh, settings, scene, job: PrimJob) -> tuple[int, int]:
 def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     from usdahd.bake.unwrap import unwrap
 
+    info: dict = {}
     if settings["resolution"]:
-        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2)
+        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2, info=info)
     else:
         try:
             uv, res = unwrap(
@@ -141,6 +142,7 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 texels_per_unit=_texels_per_unit(settings, scene),
                 padding=2,
                 max_resolution=DENSITY_MAX_RESOLUTION,
+                info=info,
             )
         except UsageError:
             job.report.setdefault("warnings", []).append(
@@ -148,7 +150,13 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 f"{DENSITY_MAX_RESOLUTION}; packed into {DENSITY_MAX_RESOLUTION}x"
                 f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
             )
-            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2)
+            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2, info=info)
+    if info.get("split_polygons"):
+        job.report.setdefault("notes", []).append(
+            f"the unwrap's charts cut {info['split_polygons']} polygon(s); each is kept whole "
+            f"({info['extended']} in a neighbouring chart, {info['own_chart']} as a chart of "
+            "its own), so the faceVarying UVs authored are the UVs baked"
+        )
     mesh.uv = uv
     job.unwrapped = True
     job.uv_primvar_values = uv
@@ -180,6 +188,29 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
     if values.ndim != 2 or values.shape[1] != 2 or corner.size and corner.max() >= len(values):
         return None
     return values[corner], tuple(int(r) for r in old.resolution)
+
+
+def _reused_unwrap_problem(mesh, uv: np.ndarray, res) -> tuple[str | None, Texels | None]:
+    """Check an unwrap read back from the previous output layer as an authored UV set is
+    checked (what the validator's UVSet rule checks): returns (problem or None, its texels).
+    An unwrap an older usdahd wrote can overlap itself: xatlas split polygons across charts
+    and the faceVarying primvar kept one UV per polygon corner."""
+    from usdahd.bake.texels import rasterize
+
+    if not np.isfinite(uv).all():
+        return "contains NaN or infinite UVs", None
+    if (uv < 0).any() or (uv > 1).any():
+        return "leaves [0, 1]", None
+    problem = _degenerate_uv_share(mesh, np.asarray(uv, np.float64), res)
+    if problem:
+        return problem, None
+    saved = mesh.uv
+    mesh.uv = uv
+    try:
+        texels = rasterize(mesh, res)
+    finally:
+        mesh.uv = saved
+    return _uv_problem(texels), texels
 
 
 def _plan(
@@ -249,6 +280,17 @@ def _plan(
             (prev or {}).get(mesh.path), old_layer, mesh, settings, settings["uv"]
         )
         if reuse is not None:
+            why, texels = _reused_unwrap_problem(mesh, *reuse)
+            if why:
+                report["warnings"].append(
+                    f"{mesh.path}: the xatlas unwrap {settings['uv']!r} authored by the "
+                    f"previous bake {why}, so it is not reused: unwrapped again into "
+                    f"{settings['uv']!r} (the re-bake replaces it)"
+                )
+                reuse = None
+            else:
+                job.texels = texels
+        if reuse is not None:
             mesh.uv, res = reuse
             job.unwrapped = True
             job.uv_primvar_values = mesh.uv
@@ -258,6 +300,7 @@ def _plan(
                 "authored by the previous bake (mesh unchanged)"
             )
         else:
+            mesh.uv = None
             _unwrap(job, mesh, settings, scene)
     settings["resolution"] = list(job.resolution)
     return job

@@ -36,6 +36,9 @@ class Options:
         model_rmse_warning above which EncodingError warns too: such a texel is shaded worse
         than black; isolated ones occur on fresh bakes (contact shadows, grazing light: at most
         0.64% of a prim of the Cornell box at 16 x 16, hhd), 5% (8x that) is a region.
+    model_texel_min : fewest such texels that make a region (with model_texel_share): on an
+        8 x 8 map at 16 samples a few noisy grazing texels are over 5% of a box's face
+        (the Cornell TallBox, hemisphere model: 0.66 on the prim) without being a region.
     rmse_normals : normals of the hemispherical RMSE (spherical Fibonacci, upper hemisphere).
     rmse_max_texels : texels sampled (evenly) for the RMSE, so big lightmaps stay fast.
     uv_epsilon : UVs may leave [0, 1] by this much (float32 rounding of authored 0 and 1).
@@ -49,6 +52,7 @@ class Options:
     rmse_warning: float = 0.25
     model_rmse_warning: float = 1.0
     model_texel_share: float = 0.05
+    model_texel_min: int = 8
     rmse_normals: int = 64
     rmse_max_texels: int = 20000
     uv_epsilon: float = 1e-5

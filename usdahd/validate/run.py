@@ -98,13 +98,19 @@ def _drop_restated(findings: list) -> list:
         for f in findings
         if f.rule == COMPOSITION_RULE.name and (f.data.get("resolved") or f.data.get("asset"))
     }
-    if not reported:
+    return _drop_unresolvable(findings, reported)
+
+
+def _drop_unresolvable(findings: list, paths: set) -> list:
+    """``findings`` without USD's ``UnresolvableDependency`` findings whose quoted path (the
+    first '...' of the message, normalised) is in ``paths``."""
+    if not paths:
         return findings
     out = []
     for f in findings:
         if f.code == "UnresolvableDependency":
             quoted = f.message.split("'")
-            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in reported:
+            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in paths:
                 continue
         out.append(f)
     return out
@@ -118,16 +124,7 @@ def dedupe(findings: list, stage_dir: Path) -> list:
         asset = (getattr(f, "data", None) or {}).get("asset")
         if f.code == "MissingFile" and asset:
             missing.add(os.path.normpath(str(stage_dir / asset)))
-    if not missing:
-        return findings
-    out = []
-    for f in findings:
-        if f.code == "UnresolvableDependency":
-            quoted = f.message.split("'")
-            if len(quoted) >= 3 and os.path.normpath(quoted[1]) in missing:
-                continue
-        out.append(f)
-    return out
+    return _drop_unresolvable(findings, missing)
 
 
 @dataclass

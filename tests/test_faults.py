@@ -13,10 +13,10 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import mounts
+import procs
 import pytest
 
 import usdahd
@@ -142,16 +142,6 @@ def test_sigint_exits_130_and_cleans_up(baked, capsys, point):
     _assert_tidy(layer)  # Ctrl-C cleans up at once, no re-run needed
 
 
-def _wait_stopped(pid: int, timeout: float = 300.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        with open(f"/proc/{pid}/stat") as f:
-            if f.read().rsplit(")", 1)[1].split()[0] == "T":
-                return
-        time.sleep(0.05)
-    raise AssertionError("the first bake never reached its stop point")
-
-
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
 def test_two_bakes_of_one_output_at_once_are_serialised(baked, capsys):
     stage, layer = baked
@@ -166,7 +156,7 @@ def test_two_bakes_of_one_output_at_once_are_serialised(baked, capsys):
         USDAHD_FAULT_SIGNAL="STOP",
     )
     try:
-        _wait_stopped(first.pid)
+        procs.wait_stopped(first.pid)
         second = _popen(stage, "--resolution", "12", *TINY, "--quiet")
         line = second.stderr.readline()  # B blocks on the lock and says so
         assert "another usdahd bake" in line and "waiting" in line, line

@@ -19,6 +19,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import procs
 import pytest
 
 import usdahd
@@ -51,16 +52,6 @@ def _popen(stage: Path, *args: str, **env) -> subprocess.Popen:
     )
 
 
-def _wait_stopped(pid: int, timeout: float = 300.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        with open(f"/proc/{pid}/stat") as f:
-            if f.read().rsplit(")", 1)[1].split()[0] == "T":
-                return
-        time.sleep(0.05)
-    raise AssertionError("the first bake never reached its stop point")
-
-
 def _stray(folder: Path) -> list[str]:
     return sorted(f.name for f in folder.iterdir() if f.name.endswith(".lock"))
 
@@ -77,7 +68,7 @@ def stopped_holder(stage):
     """A bake of ``stage`` stopped (SIGSTOP, alive) while it holds the lock, after tracing."""
     proc = _popen(stage, "--force", USDAHD_FAULT="traced", USDAHD_FAULT_SIGNAL="STOP")
     try:
-        _wait_stopped(proc.pid)
+        procs.wait_stopped(proc.pid)
         yield proc
     finally:
         if proc.poll() is None:

@@ -83,6 +83,8 @@ class GeometryReader:
         self.computed_instanced = 0
         self.link_paths: list[str] = []  # per mesh: the prim path collections are queried by
         self.instancer: str | None = None  # the PointInstancer being expanded
+        #: InstanceRef of the instance copy being read (set by the traversal), else None
+        self.instance_ref = None
 
     def fail(self, path: str, msg: str, bakeable: bool, key: str | None = None) -> None:
         """A mesh is unusable: a failed prim if it would be baked, else a warning (once per
@@ -315,6 +317,7 @@ class GeometryReader:
             corner=corners.astype(np.int32),
             bake=bake and not instanced and not implicit,
             double_sided=bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()),
+            instance=self.instance_ref if instanced and not implicit else None,
         )
         if scheme in N.SMOOTH_SCHEMES and not implicit:  # traced on its refinement
             md.cage = cage_from_topology(scheme, topo.counts, topo.idx, bool(flip))

@@ -75,7 +75,7 @@ def _fmt(vals):
 def _mesh(name, lo, hi, uv=True, indent="    ", extra=""):
     p, counts, idx, st = _box(lo, hi)
     uvs = (
-        f'{indent}    texCoord2f[] primvars:st = {_fmt(st)} (\n'
+        f"{indent}    texCoord2f[] primvars:st = {_fmt(st)} (\n"
         f'{indent}        interpolation = "faceVarying"\n{indent}    )\n'
         if uv
         else ""

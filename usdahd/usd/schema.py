@@ -904,11 +904,12 @@ def read_instance_records(carrier: Usd.Prim, *, validate: bool = True) -> dict:
                 if pk:
                     packing[role] = str(pk)
 
-        def js(k):
+        def js(k, e=e, key=key):
             try:
                 v = json.loads(at(k, e, "") or "{}")
             except ValueError as exc:
-                raise SchemaError(f"<{key}>: {instance_property_name(k)} is not JSON: {exc}")
+                what = f"<{key}>: {instance_property_name(k)} is not JSON: {exc}"
+                raise SchemaError(what) from None
             if not isinstance(v, dict):
                 raise SchemaError(f"<{key}>: {instance_property_name(k)} must hold JSON objects")
             return v

@@ -956,12 +956,15 @@ def instance_carriers(stage: Usd.Stage) -> list[Usd.Prim]:
 def stage_records(stage: Usd.Stage, *, validate: bool = True, errors: list | None = None) -> dict:
     """Every bake record of a stage: {key -> BakeResults} for baked mesh prims (key: the prim
     path) and instance entries (key: :func:`instance_key`). A record seen through an
-    instance proxy is the prototype's, not the copy's, and is left out (the copy's own record
-    is its instance entry). With ``errors`` (a list) an unreadable record is appended as
+    instance proxy (or on a PointInstancer's prototype, through a reference) is the
+    prototype's, not the copy's, and is left out (the copy's own record is its instance
+    entry). With ``errors`` (a list) an unreadable record is appended as
     (key, message) and skipped; else it raises SchemaError."""
+    from usdahd.usd.instances import in_point_instancer_prototype
+
     out = {}
     for prim in prims_with_api(stage):
-        if prim.IsInstanceProxy():
+        if prim.IsInstanceProxy() or in_point_instancer_prototype(prim):
             continue
         try:
             res = read_results(prim, validate=validate)

@@ -1,0 +1,268 @@
+"""Every instance copy baked (issue 39 item 2): scenegraph instances and PointInstancer
+instances each get their own lightmap on the prototype's UVs, recorded outside the prototype
+(on the instance prim / the PointInstancer), checked by validate and drawn by preview.
+
+The stage is tests/instance_scene.py: sun + sky, a roof over half of the copies.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from instance_scene import (
+    HIDDEN,
+    OPEN_POINTS,
+    OPEN_SKY_OCCLUSION,
+    POINTS,
+    ROOFED_POINTS,
+    SCENEGRAPH,
+    top_iz,
+    write_stage,
+)
+from stats import assert_mean
+
+from usdahd import cli, images
+from usdahd.numerics import sh as shmod
+
+ARGS = ["--resolution", "16", "--samples", "64", "--bounces", "0", "--no-denoise"]
+PI = "/World/Pawns"
+SG_KEYS = [f"{p}/Box" for p in SCENEGRAPH]
+PI_KEYS = [f"{PI}/instance_{i}/Box" for i in range(len(POINTS)) if i not in HIDDEN]
+OPEN = [k for k in SG_KEYS if "open" in k] + [f"{PI}/instance_{i}/Box" for i in OPEN_POINTS]
+ROOFED = [k for k in SG_KEYS if "roofed" in k] + [f"{PI}/instance_{i}/Box" for i in ROOFED_POINTS]
+#: The top (+y) face's UV chart in instance_scene._box: chart 3 (column 0, row 1).
+TOP_CHART = ((0.02, 1 / 3 - 0.02), (0.52, 0.98))
+
+
+def _bake(stage, *extra, capsys=None):
+    code = cli.main(["bake", str(stage), *ARGS, "--json", *extra])
+    out = capsys.readouterr()
+    return code, json.loads(out.out), out.err
+
+
+def _records(layer):
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    return schema.stage_records(Usd.Stage.Open(str(layer)))
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    """(stage, layer, first bake's report): one bake shared by the read-only tests."""
+    d = tmp_path_factory.mktemp("instances")
+    stage = write_stage(d / "inst.usda")
+    code = cli.main(["bake", str(stage), *ARGS, "--json", "--quiet"])
+    assert code == 0
+    return stage, d / "inst.lightmaps.usda"
+
+
+def _top_iz(res) -> np.ndarray:
+    """(n, 3) I_z of the covered texels of the top face's chart, from the SH sidecar."""
+    from usdahd.usd import schema
+
+    side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
+    h, w = side.shape[:2]
+    ys, xs = np.nonzero(side[..., -1] > 0)
+    u, v = (xs + 0.5) / w, 1.0 - (ys + 0.5) / h
+    (u0, u1), (v0, v1) = TOP_CHART
+    inside = (u > u0 + 1 / w) & (u < u1 - 1 / w) & (v > v0 + 1 / h) & (v < v1 - 1 / h)
+    sh = side[ys[inside], xs[inside]][:, :27].astype(np.float64).reshape(-1, 3, 9)
+    return shmod.iz(sh)
+
+
+def test_every_instance_is_baked_and_recorded_outside_the_prototype(baked):
+    from pxr import Sdf, Usd
+
+    from usdahd.usd import schema
+
+    stage, layer = baked
+    recs = _records(layer)
+    assert sorted(recs) == sorted(["/World/Ground", "/World/Roof", *SG_KEYS, *PI_KEYS])
+    files = {res.textures["iz"] for res in recs.values()}
+    assert len(files) == len(recs)  # every copy its own texel set
+    for key in SG_KEYS + PI_KEYS:
+        assert recs[key].resolution == (16, 16) and recs[key].uv_primvar == "st"
+    # Nothing is authored inside a prototype or under an instance: no de-instancing.
+    out = Sdf.Layer.FindOrOpen(str(layer))
+    specs = []
+    out.Traverse(Sdf.Path.absoluteRootPath, lambda p: specs.append(p))
+    prims = {str(p) for p in specs if p.IsPrimPath()}
+    assert not any(p.startswith("/Proto") or "/Prototypes" in p for p in prims)
+    assert not any(p.startswith(tuple(SCENEGRAPH)) and p not in SCENEGRAPH for p in prims)
+    st = Usd.Stage.Open(str(layer))
+    for carrier in [*SCENEGRAPH, PI]:
+        prim = st.GetPrimAtPath(carrier)
+        assert prim.HasAPI(schema.INSTANCE_API_NAME), carrier
+    assert all(st.GetPrimAtPath(p).IsInstance() for p in SCENEGRAPH)  # still instances
+    # The PointInstancer's arrays are indexed like positions; the hidden instance has none.
+    pi = st.GetPrimAtPath(PI)
+    versions = list(pi.GetAttribute("ahdInstances:baked:formatVersion").Get())
+    assert len(versions) == len(POINTS) and list(pi.GetAttribute("ahdInstances:meshes").Get())
+    assert [i for i, v in enumerate(versions) if v == 0] == list(HIDDEN)
+
+
+def test_open_top_face_matches_the_analytic_sky_and_sun(baked):
+    """An open copy's top face sees the sky (radiance SKY) and the sun: I_z = SKY +
+    SUN sin(elevation) / pi per channel, within 5 standard errors of the texels' mean plus the
+    share of the sky the distant roof hides (instance_scene.OPEN_SKY_OCCLUSION)."""
+    _, layer = baked
+    recs = _records(layer)
+    want = np.array(top_iz())
+    for key in OPEN:
+        iz = _top_iz(recs[key])
+        assert len(iz) >= 8, key
+        for c in range(3):
+            assert_mean(iz[:, c], want[c], rel=OPEN_SKY_OCCLUSION, what=(key, c))
+
+
+def test_roofed_copies_are_darker_and_their_own(baked):
+    _, layer = baked
+    recs = _records(layer)
+    open_mean = np.mean([_top_iz(recs[k]).mean() for k in OPEN])
+    for key in ROOFED:
+        iz = _top_iz(recs[key]).mean()
+        assert iz < 0.5 * open_mean, (key, iz, open_mean)  # no sun and no sky overhead
+        assert recs[key].digests["iz"] not in {recs[k].digests["iz"] for k in OPEN}
+
+
+def test_validate_is_clean(baked, capsys):
+    _, layer = baked
+    code = cli.main(["validate", str(layer), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0, report
+    bad = [f for f in report["findings"] if f["severity"] != "info"]
+    assert not bad
+    checked = {f["prim"] for f in report["findings"] if f["rule"] == "IzCheck"}
+    assert set(SG_KEYS + PI_KEYS) <= checked  # every entry checked like a mesh record
+
+
+def test_preview_draws_each_copy_with_its_own_lightmap(baked):
+    from usdahd.preview.meshes import baked_meshes
+
+    _, layer = baked
+    recs = _records(layer)
+    _, meshes, _ = baked_meshes(str(layer))
+    drawn = {m.path: (m, res) for m, res, *_ in meshes}
+    assert set(SG_KEYS + PI_KEYS) <= set(drawn)
+    for key in SG_KEYS + PI_KEYS:
+        mesh, res = drawn[key]
+        assert res.textures == recs[key].textures
+    # each copy at its own place: the scenegraph copies' centres are their translations
+    for carrier, (x, z) in SCENEGRAPH.items():
+        c = np.asarray(drawn[f"{carrier}/Box"][0].points).mean(axis=0)
+        np.testing.assert_allclose(c[[0, 2]], [x, z], atol=1e-6)
+
+
+def test_unchanged_rebake_traces_no_ray_and_moving_one_copy_changes_only_its_inputs(
+    tmp_path, capsys
+):
+    """A re-bake of an unchanged stage traces 0 rays and writes nothing. Moving one copy
+    changes that copy's own inputs (``geometry``: its world transform) and nothing of the
+    others but the scene they see (``scene_geometry``: the moved copy shadows and bounces),
+    so each record is hashed per copy, not per prototype."""
+    stage = write_stage(tmp_path / "inst.usda")
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 0
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 0 and not rep["written"]
+    assert {p["status"] for p in rep["prims"]} == {"skipped"}
+    assert sum(p.get("rays", 0) for p in rep["prims"]) == 0
+    moved = "/World/Instances/open_1"
+    write_stage(stage, moved={moved: (15.0, 2.0)})
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 0
+    reasons = {p["path"]: p.get("reason", "") for p in rep["prims"]}
+    assert "geometry" in reasons[f"{moved}/Box"].split(": ")[1].split(", ")
+    for key, why in reasons.items():
+        if key != f"{moved}/Box":
+            assert why == "changed: scene_geometry", (key, why)
+    assert cli.main(["validate", str(tmp_path / "inst.lightmaps.usda"), "--quiet"]) == 0
+
+
+def test_validate_reports_a_copy_without_its_own_record(tmp_path, capsys):
+    from pxr import Usd, Vt
+
+    stage = write_stage(tmp_path / "inst.usda")
+    assert _bake(stage, capsys=capsys)[0] == 0
+    layer = tmp_path / "inst.lightmaps.usda"
+    st = Usd.Stage.Open(str(layer))
+    attr = st.GetPrimAtPath(PI).GetAttribute("ahdInstances:baked:formatVersion")
+    v = list(attr.Get())
+    v[1] = 0
+    attr.Set(Vt.IntArray(v))
+    st.GetRootLayer().Save()
+    code = cli.main(["validate", str(layer), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 1
+    bad = [f for f in report["findings"] if f["severity"] == "error"]
+    assert [(f["prim"], f["code"]) for f in bad] == [(f"{PI}/instance_1/Box", "NoInstanceRecord")]
+    assert "re-bake" in bad[0]["message"]
+
+
+def test_copies_of_a_baked_prototype_prim_get_their_own_records(tmp_path, capsys):
+    """The prototype is a visible, baked mesh that instances reference: its record used to
+    reach every copy through the instance (preview drew its lightmap on them, validate called
+    them stale). Now each copy has its own record, and the copies' records are not the
+    prototype's."""
+    stage = write_stage(tmp_path / "inst.usda")
+    text = stage.read_text().replace('class Xform "Proto"', 'def Xform "Proto"')
+    stage.write_text(text)
+    assert _bake(stage, capsys=capsys)[0] == 0
+    layer = tmp_path / "inst.lightmaps.usda"
+    recs = _records(layer)
+    assert "/Proto/Box" in recs
+    for key in SG_KEYS:
+        assert recs[key].content_hash != recs["/Proto/Box"].content_hash
+        assert recs[key].textures != recs["/Proto/Box"].textures
+    from usdahd.preview.meshes import baked_meshes
+
+    drawn = {m.path: res for m, res, *_ in baked_meshes(str(layer))[1]}
+    assert all(drawn[k].textures == recs[k].textures for k in SG_KEYS)
+    assert cli.main(["validate", str(layer), "--quiet"]) == 0
+
+
+def test_prototype_without_uvs_is_named_with_the_fix(tmp_path, capsys):
+    from usdahd.usd.reader import load_scene
+
+    stage = write_stage(tmp_path / "inst.usda", proto_uv=False)
+    sc = load_scene(str(stage))
+    assert not any(m.bake for m in sc.meshes if m.instance is not None)
+    msgs = [w for w in sc.warnings if "prototype mesh has no lightmap UV set" in w]
+    # one per prototype mesh: the scenegraph copies' reference target and the
+    # PointInstancer's prototype (which references it too)
+    assert len(msgs) == 1 and "</Proto/Box>" in msgs[0] and "8 instance copies" in msgs[0]
+    for fix in ("author the UV set in the asset", "instanceable = false", "usdahd bake"):
+        assert fix in msgs[0]
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 0
+    assert sorted(p["path"] for p in rep["prims"]) == ["/World/Ground", "/World/Roof"]
+    assert any("prototype mesh has no lightmap UV set" in w for w in rep["warnings"])
+
+
+def test_prototype_without_uvs_subprocess(tmp_path):
+    stage = write_stage(tmp_path / "inst.usda", proto_uv=False)
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(stage), *ARGS, "--resolution", "8"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "prototype mesh has no lightmap UV set 'st'" in proc.stdout + proc.stderr
+    assert "</Proto/Box>" in proc.stdout + proc.stderr
+
+
+def test_a_uv_name_the_prototype_lacks_is_named_too(tmp_path):
+    """--uv names a set the prototype lacks: the copies are not unwrapped (xatlas cannot author
+    into a prototype) and the message names that set and the prototype mesh."""
+    from usdahd.usd.reader import load_scene
+
+    sc = load_scene(str(write_stage(tmp_path / "inst.usda")), uv_name="lm")
+    assert not any(m.bake for m in sc.meshes if m.instance is not None)
+    assert any("</Proto/Box>: prototype mesh has no lightmap UV set 'lm'" in w for w in sc.warnings)

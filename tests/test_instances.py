@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from instance_scene import (
     HIDDEN,
     OPEN_POINTS,
@@ -266,3 +267,136 @@ def test_a_uv_name_the_prototype_lacks_is_named_too(tmp_path):
     sc = load_scene(str(write_stage(tmp_path / "inst.usda")), uv_name="lm")
     assert not any(m.bake for m in sc.meshes if m.instance is not None)
     assert any("</Proto/Box>: prototype mesh has no lightmap UV set 'lm'" in w for w in sc.warnings)
+
+
+# ------------------------------------------------------------------------------------ schema
+
+
+def _instance_source_props():
+    from pxr import Sdf
+
+    from usdahd.usd import schema
+
+    layer = Sdf.Layer.FindOrOpen(str(ROOT / "schema" / "schema.usda"))
+    cls = layer.GetPrimAtPath("/" + schema.INSTANCE_API_NAME)
+    assert cls, f"schema.usda has no class {schema.INSTANCE_API_NAME}"
+    return layer, {p.name: p for p in cls.properties}
+
+
+def test_instance_api_definition_matches_the_schema_source():
+    """The plugin's generated definition of AhdInstanceLightmapAPI equals schema/schema.usda
+    (types, fallbacks, colorSpace, allowedTokens, one-sentence docs)."""
+    from pxr import Sdf, Usd
+
+    from usdahd.usd import schema
+
+    _layer, src = _instance_source_props()
+    d = Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(schema.INSTANCE_API_NAME)
+    assert d is not None
+    assert sorted(d.GetPropertyNames()) == sorted(src)
+    for name, spec in src.items():
+        prop = d.GetAttributeDefinition(name)
+        assert name.startswith(schema.INSTANCE_NAMESPACE + ":"), name
+        assert prop.GetTypeName() == spec.typeName, name
+        assert prop.GetVariability() == spec.variability == Sdf.VariabilityUniform, name
+        assert prop.GetFallbackValue() == spec.default, name
+        assert (prop.GetMetadata("colorSpace") or "") == spec.GetInfo("colorSpace"), name
+        assert list(prop.GetMetadata("allowedTokens") or []) == list(
+            spec.GetInfo("allowedTokens") or []
+        ), name
+        doc = spec.GetInfo("documentation")
+        assert doc.endswith(".") and ". " not in doc[:-1] and "\n" not in doc, name
+
+
+def test_every_record_property_has_an_array_twin():
+    """Each result property of AhdLightmapAPI (textures, sidecar, baked:*, digests, packing) has
+    an ahdInstances: twin of its array type (and the atlas properties of issue 39)."""
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    reg = Usd.SchemaRegistry()
+    mesh = reg.FindAppliedAPIPrimDefinition(schema.API_NAME)
+    inst = reg.FindAppliedAPIPrimDefinition(schema.INSTANCE_API_NAME)
+    results = [
+        n for n in mesh.GetPropertyNames() if n.split(":")[1] in ("texture", "sidecar", "baked")
+    ]
+    assert len(results) > 40
+    for name in results:
+        twin = schema.instance_property_name(name.split(":", 1)[1])
+        got = inst.GetAttributeDefinition(twin)
+        assert got, twin
+        want = mesh.GetAttributeDefinition(name).GetTypeName().arrayType
+        assert got.GetTypeName() == want, name
+    for key, t in (("atlas:page", "int[]"), ("atlas:scaleOffset", "float4[]")):
+        assert (
+            str(inst.GetAttributeDefinition(schema.instance_property_name(key)).GetTypeName()) == t
+        )
+
+
+def test_instance_records_round_trip_and_bad_keys(tmp_path):
+    from pxr import Usd
+
+    from usdahd.errors import SchemaError
+    from usdahd.usd import schema
+
+    stage_path = write_stage(tmp_path / "inst.usda")
+    st = Usd.Stage.Open(str(stage_path))
+    st.SetEditTarget(st.GetSessionLayer())
+    pi = st.GetPrimAtPath(PI)
+    count, cols = schema.instance_layout(pi)
+    assert count == len(POINTS) and cols == [(0, "Box")]
+    tex = tmp_path / "lightmaps" / "a.iz.exr"
+    res = schema.BakeResults(
+        model="hhd",
+        ratio="luminance",
+        solver="",
+        uv_primvar="st",
+        resolution=(8, 4),
+        textures={"iz": str(tex)},
+        factors={"izScale": 2.0},
+        content_hash="sha256:00",
+        settings={"uv": "st"},
+    )
+    key = schema.instance_key(PI, 3, "Box", True)
+    assert key == f"{PI}/instance_3/Box"
+    schema.write_instance_records(pi, {key: res}, layer_dir=tmp_path)
+    got = schema.read_instance_records(pi)
+    assert list(got) == [key]
+    back = got[key]
+    assert back.resolution == (8, 4) and back.factor("izScale") == 2.0
+    assert back.asset_paths == {"iz": "./lightmaps/a.iz.exr"} and back.settings == {"uv": "st"}
+    assert len(pi.GetAttribute("ahdInstances:texture:iz").Get()) == len(POINTS)
+    assert pi.GetAttribute("ahdInstances:texture:iz").GetColorSpace() == "lin_rec709_scene"
+    assert schema.instance_carrier(st, key) == PI
+    assert schema.instance_carrier(st, "/World/Instances/open_0/Box") == "/World/Instances/open_0"
+    assert schema.instance_carrier(st, "/World/Ground") is None
+    with pytest.raises(SchemaError, match=r"instance_9/Box is not an instance entry"):
+        schema.write_instance_records(pi, {f"{PI}/instance_9/Box": res}, layer_dir=tmp_path)
+    bad = schema.BakeResults(**{**res.__dict__, "model": "nope"})
+    with pytest.raises(SchemaError, match=r"instance_3/Box>: invalid bake results"):
+        schema.write_instance_records(pi, {key: bad}, layer_dir=tmp_path)
+
+
+def test_a_prototype_input_naming_a_missing_uv_set_fails_the_copies(tmp_path, capsys):
+    """The prototype mesh authors ahdLightmap:uvPrimvar = "lm", which it lacks: its copies fail
+    with the message naming the prototype mesh and the fix (never an xatlas unwrap of a
+    prototype), the other prims bake."""
+    stage = write_stage(tmp_path / "inst.usda")
+    text = stage.read_text().replace(
+        'class Xform "Proto"\n{\n    def Mesh "Box"\n    {\n',
+        'class Xform "Proto"\n{\n    def Mesh "Box" (\n        prepend apiSchemas = '
+        '["AhdLightmapAPI"]\n    )\n    {\n        uniform string ahdLightmap:uvPrimvar = "lm"\n',
+    )
+    assert 'ahdLightmap:uvPrimvar = "lm"' in text
+    stage.write_text(text.replace("def Mesh \"Ground\"\n    {\n", "def Mesh \"Ground\" (\n"
+                                  "        prepend apiSchemas = [\"AhdLightmapAPI\"]\n    )\n"
+                                  "    {\n"))  # fmt: skip
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 1
+    failed = {p["path"]: p.get("error", "") for p in rep["prims"] if p["status"] == "failed"}
+    assert sorted(failed) == sorted(SG_KEYS + PI_KEYS)
+    msg = failed[SG_KEYS[0]]
+    assert "</Proto/Box>: prototype mesh has no lightmap UV set 'lm'" in msg
+    assert "instanceable = false" in msg
+    assert {p["path"] for p in rep["prims"] if p["status"] != "failed"} == {"/World/Ground"}

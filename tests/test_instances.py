@@ -400,3 +400,15 @@ def test_a_prototype_input_naming_a_missing_uv_set_fails_the_copies(tmp_path, ca
     assert "</Proto/Box>: prototype mesh has no lightmap UV set 'lm'" in msg
     assert "instanceable = false" in msg
     assert {p["path"] for p in rep["prims"] if p["status"] != "failed"} == {"/World/Ground"}
+
+
+def test_a_stage_with_only_instance_records_is_lightmapped(tmp_path, capsys):
+    """--prim the PointInstancer: the layer holds instance records only, and validate checks
+    them (no NoAhdLightmapAPI error)."""
+    stage = write_stage(tmp_path / "inst.usda")
+    code, rep, _ = _bake(stage, "--prim", PI, capsys=capsys)
+    assert code == 0 and sorted(p["path"] for p in rep["prims"]) == sorted(PI_KEYS)
+    code = cli.main(["validate", str(tmp_path / "inst.lightmaps.usda"), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0, report["findings"]
+    assert sorted(report["prims"]) == sorted(PI_KEYS)

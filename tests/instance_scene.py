@@ -91,9 +91,12 @@ def _mesh(name, lo, hi, uv=True, indent="    ", extra=""):
     )
 
 
-def write_stage(path: Path, *, proto_uv: bool = True, moved: dict | None = None) -> Path:
+def write_stage(
+    path: Path, *, proto_uv: bool = True, moved: dict | None = None, point_instancer=True
+) -> Path:
     """Write the stage to ``path``. proto_uv False: the prototype has no ``st``; moved:
-    scenegraph instance path -> new (x, z)."""
+    scenegraph instance path -> new (x, z); point_instancer False: without the
+    PointInstancer (the Cycles reference exporter does not expand PointInstancers)."""
     moved = moved or {}
     sg = ""
     for p, (x, z) in SCENEGRAPH.items():
@@ -126,7 +129,9 @@ def Xform "World"
     {{
 {sg}    }}
 
-    def PointInstancer "Pawns"
+    def PointInstancer "Pawns" (
+        active = {"true" if point_instancer else "false"}
+    )
     {{
         point3f[] positions = {pos}
         int[] protoIndices = {[0] * len(POINTS)}

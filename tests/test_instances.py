@@ -448,3 +448,11 @@ def test_roofed_copies_match_a_cycles_reference(tmp_path):
         u, c = r["usdahd"], r["cycles"]
         assert abs(u["bias"]) <= 0.01, (key, u, c)
         assert u["rel_rmse"] <= 1.5 * c["rel_rmse"] + r["truth_noise"], (key, u, c)
+
+
+def test_copies_of_a_prototype_without_normals_record_the_rule(baked):
+    """The prototype authors no normals: each copy is traced with crease-angle normals, which
+    the bake cannot author into the prototype; its record names the rule."""
+    _, layer = baked
+    recs = _records(layer)
+    assert {recs[k].normals for k in SG_KEYS + PI_KEYS} == {"creaseAngle30"}

@@ -84,6 +84,10 @@ class InstanceRef:
         the PointInstancer's prototype mesh).
     origin : the prototype mesh as a user finds it in the asset (``@layer@</Proto/mesh>``),
         named by messages about the prototype (e.g. no lightmap UV set).
+    normals : where the normals the copy is traced with come from (``baked:normals``):
+        "authored", or the rule that computed them for a prototype without normals (not
+        authored: the prototype cannot be edited without de-instancing; a renderer computing
+        its own normals by that rule shades the same).
     """
 
     carrier: str
@@ -92,6 +96,7 @@ class InstanceRef:
     mesh: str
     source: str
     origin: str
+    normals: str = "authored"
 
 
 @dataclass

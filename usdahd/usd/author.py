@@ -125,6 +125,8 @@ def build_layer(
             continue
         carrier = instance_carrier(ostage, job)
         if carrier is not None:  # an instance copy: recorded on its carrier (below)
+            if job.mesh is not None and job.mesh.instance is not None:
+                res.normals = job.mesh.instance.normals
             instances.setdefault(carrier, {})[job.path] = res
             continue
         prim = ostage.GetPrimAtPath(job.path)

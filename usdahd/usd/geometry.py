@@ -18,6 +18,8 @@ the reader is :mod:`usdahd.usd.reader`; materials come from :mod:`usdahd.usd.mat
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from pxr import Usd, UsdGeom
 
@@ -272,6 +274,8 @@ class GeometryReader:
                 computed = ComputedNormals(rule, fv, self._normals_attr(prim))
             elif not implicit:
                 self.computed_instanced += 1  # copies of a prototype: counted, not authored
+                if self.instance_ref is not None:
+                    self.instance_ref = replace(self.instance_ref, normals=rule)
         uv = None
         texcoords = {}
         if not implicit:

@@ -176,6 +176,12 @@ def test_unchanged_rebake_traces_no_ray_and_moving_one_copy_changes_only_its_inp
     assert sum(p.get("rays", 0) for p in rep["prims"]) == 0
     moved = "/World/Instances/open_1"
     write_stage(stage, moved={moved: (15.0, 2.0)})
+    # validate (before the re-bake) names the moved copy's own geometry as changed
+    code = cli.main(["validate", str(tmp_path / "inst.lightmaps.usda"), "--json"])
+    found = json.loads(capsys.readouterr().out)["findings"]
+    stale = {f["prim"]: f["data"]["changed"] for f in found if f["code"] == "Stale"}
+    assert code == 1 and "geometry" in stale[f"{moved}/Box"]
+    assert stale[f"{PI}/instance_0/Box"] == ["scene_geometry"]
     code, rep, _ = _bake(stage, capsys=capsys)
     assert code == 0
     reasons = {p["path"]: p.get("reason", "") for p in rep["prims"]}
@@ -456,3 +462,116 @@ def test_copies_of_a_prototype_without_normals_record_the_rule(baked):
     _, layer = baked
     recs = _records(layer)
     assert {recs[k].normals for k in SG_KEYS + PI_KEYS} == {"creaseAngle30"}
+
+
+NESTED = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+
+class Xform "Inner"
+{
+MESH_INNER
+}
+
+class Xform "Outer"
+{
+    def Xform "in" (
+        instanceable = true
+        references = </Inner>
+    )
+    {
+        double3 xformOp:translate = (0, 0, 2)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+MESH_OWN
+}
+
+def Xform "World"
+{
+MESH_GROUND
+    def Xform "o1" (
+        instanceable = true
+        references = </Outer>
+    )
+    {
+        double3 xformOp:translate = (3, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+
+    def PointInstancer "PI"
+    {
+        point3f[] positions = [(-3, 0, 0), (-3, 0, 3), (-3, 0, 6)]
+        int[] protoIndices = [1, 0, 1]
+        rel prototypes = [</World/PI/Protos/A>, </World/PI/Protos/B>]
+
+        def Scope "Protos"
+        {
+            def Xform "A"
+            {
+MESH_A1
+MESH_A2
+            }
+MESH_B
+        }
+    }
+
+    def DomeLight "Sky"
+    {
+        float inputs:intensity = 1
+    }
+}
+"""
+
+
+def test_multi_mesh_prototypes_nested_instances_and_columns(tmp_path, capsys):
+    """A PointInstancer of two prototypes (A: two meshes, B: a mesh itself) and a scenegraph
+    instance whose prototype holds a mesh and a nested instance: every copy is baked, the
+    PointInstancer's arrays are N x M with no entry where an instance uses the other
+    prototype, keys follow the reader's names, and validate is clean."""
+    from instance_scene import _mesh
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    text = NESTED
+    for tag, name, lo, hi, ind in (
+        ("MESH_INNER", "m", (0, 0, 0), (1, 1, 1), "    "),
+        ("MESH_OWN", "own", (0, 0, 0), (1, 0.5, 1), "    "),
+        ("MESH_GROUND", "Ground", (-10, -0.1, -10), (10, 0, 10), "    "),
+        ("MESH_A1", "a1", (0, 0, 0), (1, 1, 1), "                "),
+        ("MESH_A2", "a2", (0, 1, 0), (0.5, 2, 0.5), "                "),
+        ("MESH_B", "B", (0, 0, 0), (1, 0.3, 1), "            "),
+    ):
+        text = text.replace(tag, _mesh(name, lo, hi, indent=ind))
+    stage = tmp_path / "nested.usda"
+    stage.write_text(text)
+    code, rep, _ = _bake(stage, "--resolution", "8", "--samples", "16", capsys=capsys)
+    assert code == 0, rep
+    want = [
+        "/World/Ground",
+        "/World/o1/in/m",
+        "/World/o1/own",
+        "/World/PI/instance_0",  # prototype B is the mesh itself
+        "/World/PI/instance_1/a1",
+        "/World/PI/instance_1/a2",
+        "/World/PI/instance_2",
+    ]
+    assert sorted(p["path"] for p in rep["prims"]) == sorted(want)
+    layer = tmp_path / "nested.lightmaps.usda"
+    recs = _records(layer)
+    assert sorted(recs) == sorted(want)
+    st = Usd.Stage.Open(str(layer))
+    pi = st.GetPrimAtPath("/World/PI")
+    assert schema.instance_layout(pi) == (3, [(0, "a1"), (0, "a2"), (1, ".")])
+    v = list(pi.GetAttribute("ahdInstances:baked:formatVersion").Get())
+    assert [int(bool(x)) for x in v] == [0, 0, 1, 1, 1, 0, 0, 0, 1]
+    o1 = st.GetPrimAtPath("/World/o1")
+    assert list(o1.GetAttribute("ahdInstances:meshes").Get()) == ["in/m", "own"]
+    assert o1.IsInstance()
+    code = cli.main(["validate", str(layer), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0, [f for f in report["findings"] if f["severity"] != "info"]
+    checked = {f["prim"] for f in report["findings"] if f["rule"] == "IzCheck"}
+    assert checked == set(want)

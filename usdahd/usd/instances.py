@@ -61,15 +61,17 @@ def _point_instancer_prims(stage, carrier, count: int) -> dict[str, Usd.Prim]:
     out = {}
     for i in range(count):
         name = carrier.GetPath().AppendChild(f"instance_{i}")
-        prim = stage.DefinePrim(name, "Xform")
+        known = i < len(ids) and i < len(xfs) and 0 <= ids[i] < len(protos)
+        root = stage.GetPrimAtPath(protos[ids[i]]) if known else None
+        # the prototype root's own type: a prototype that is a mesh itself stays a Mesh
+        prim = stage.DefinePrim(name, root.GetTypeName() if root else "Xform")
         prim.SetInstanceable(False)
-        if i >= len(ids) or i >= len(xfs) or not 0 <= ids[i] < len(protos):
+        if not known:
             out[str(name)] = prim
             continue
         if mask and not mask[i]:
             prim.SetActive(False)
             continue
-        root = stage.GetPrimAtPath(protos[ids[i]])
         prim.GetReferences().AddInternalReference(protos[ids[i]])
         local = np.array(cache.GetLocalTransformation(root)[0]) if root else np.eye(4)
         m = Gf.Matrix4d((local @ np.array(xfs[i])).tolist())

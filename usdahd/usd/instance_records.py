@@ -348,7 +348,8 @@ def stage_records(stage: Usd.Stage, *, validate: bool = True, errors: list | Non
     instance proxy (or on a PointInstancer's prototype, through a reference) is the
     prototype's, not the copy's, and is left out (the copy's own record is its instance
     entry). With ``errors`` (a list) an unreadable record is appended as
-    (key, message) and skipped; else it raises SchemaError."""
+    (key, message) and skipped; else its exception (SchemaError for an invalid record)
+    propagates."""
     from usdahd.usd.instances import in_point_instancer_prototype
 
     out = {}
@@ -357,7 +358,7 @@ def stage_records(stage: Usd.Stage, *, validate: bool = True, errors: list | Non
             continue
         try:
             res = read_results(prim, validate=validate)
-        except SchemaError as exc:
+        except Exception as exc:  # a hand-edited value of the wrong type raises TypeError too
             if errors is None:
                 raise
             errors.append((str(prim.GetPath()), str(exc)))
@@ -367,7 +368,7 @@ def stage_records(stage: Usd.Stage, *, validate: bool = True, errors: list | Non
     for carrier in instance_carriers(stage):
         try:
             out.update(read_instance_records(carrier, validate=validate))
-        except SchemaError as exc:
+        except Exception as exc:
             if errors is None:
                 raise
             errors.append((str(carrier.GetPath()), str(exc)))

@@ -575,3 +575,49 @@ def test_multi_mesh_prototypes_nested_instances_and_columns(tmp_path, capsys):
     assert code == 0, [f for f in report["findings"] if f["severity"] != "info"]
     checked = {f["prim"] for f in report["findings"] if f["rule"] == "IzCheck"}
     assert checked == set(want)
+
+
+def test_an_unusable_prototype_uv_set_fails_the_copies_with_the_fix(tmp_path, capsys):
+    """The prototype's st exists but is degenerate (every UV the same point): a mesh would be
+    unwrapped into a new set, a copy cannot be (its UVs live in the prototype)."""
+    import re
+
+    stage = write_stage(tmp_path / "inst.usda")
+    text = stage.read_text()
+    start = text.index('class Xform "Proto"')
+    end = text.index('def Xform "World"')
+    proto = re.sub(r"texCoord2f\[\] primvars:st = \[[^\]]*\]",
+                   "texCoord2f[] primvars:st = [" + ", ".join(["(0.5, 0.5)"] * 24) + "]",
+                   text[start:end])  # fmt: skip
+    stage.write_text(text[:start] + proto + text[end:])
+    code, rep, _ = _bake(stage, capsys=capsys)
+    assert code == 1
+    failed = {p["path"]: p.get("error", "") for p in rep["prims"] if p["status"] == "failed"}
+    assert sorted(failed) == sorted(SG_KEYS + PI_KEYS)
+    msg = failed[f"{PI}/instance_0/Box"]
+    # the PointInstancer's prototype references /Proto: the message names the asset's mesh
+    assert "inst.usda@</Proto/Box> has zero area" in msg and "cannot be unwrapped" in msg
+    assert "fix the UV set in the asset" in msg
+
+
+def test_an_unreadable_instance_record_is_an_error_naming_the_carrier(baked, tmp_path, capsys):
+    import shutil
+
+    from pxr import Usd, Vt
+
+    _, layer = baked
+    d = tmp_path / "copy"
+    shutil.copytree(layer.parent, d)
+    copy = d / layer.name
+    st = Usd.Stage.Open(str(copy))
+    attr = st.GetPrimAtPath(PI).GetAttribute("ahdInstances:baked:partHashes")
+    v = list(attr.Get())
+    v[0] = "{not json"
+    attr.Set(Vt.StringArray(v))
+    st.GetRootLayer().Save()
+    code = cli.main(["validate", str(copy), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 1
+    bad = [f for f in report["findings"] if f["severity"] == "error"]
+    assert [(f["prim"], f["code"]) for f in bad] == [(PI, "NoInstanceRecord")]
+    assert "ahdInstances:baked:partHashes is not JSON" in bad[0]["message"]

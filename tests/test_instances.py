@@ -621,3 +621,22 @@ def test_an_unreadable_instance_record_is_an_error_naming_the_carrier(baked, tmp
     bad = [f for f in report["findings"] if f["severity"] == "error"]
     assert [(f["prim"], f["code"]) for f in bad] == [(PI, "NoInstanceRecord")]
     assert "ahdInstances:baked:partHashes is not JSON" in bad[0]["message"]
+
+
+def test_validate_and_preview_subprocess(baked, tmp_path):
+    """The CLI paths as subprocesses: validate exits 0 on the instances' layer and preview draws
+    all ten records (two meshes, eight copies)."""
+    _, layer = baked
+    run = [sys.executable, "-m", "usdahd"]
+    proc = subprocess.run([*run, "validate", str(layer), "--quiet"], capture_output=True,
+                          text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = tmp_path / "p.png"
+    proc = subprocess.run(
+        [*run, "preview", str(layer), "-o", str(out), "--size", "64", "48", "--backend", "embree"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "10 meshes" in proc.stdout and out.is_file()

@@ -81,6 +81,16 @@ def _mesh_columns(root, proto: int, origin) -> list[tuple[int, str]]:
     return out
 
 
+def point_instancer_time(pi) -> Usd.TimeCode:
+    """The time a PointInstancer's arrays are read at for its records: the default time, or
+    its first time sample when ``positions`` / ``protoIndices`` are only sampled (as the
+    scene reader reads attributes that only have time samples)."""
+    for attr in (pi.GetPositionsAttr(), pi.GetProtoIndicesAttr()):
+        if attr.Get() is None and attr.GetNumTimeSamples():
+            return Usd.TimeCode(attr.GetTimeSamples()[0])
+    return Usd.TimeCode.Default()
+
+
 def instance_layout(carrier: Usd.Prim) -> tuple[int, list[tuple[int, str]]]:
     """(count, columns) of a carrier's entry arrays: the number of instances (a
     PointInstancer's ``positions`` length, else 1) and the prototype meshes as (prototype
@@ -89,8 +99,9 @@ def instance_layout(carrier: Usd.Prim) -> tuple[int, list[tuple[int, str]]]:
 
     if carrier.IsA(UsdGeom.PointInstancer):
         pi = UsdGeom.PointInstancer(carrier)
-        ids = pi.GetProtoIndicesAttr().Get() or []
-        pos = pi.GetPositionsAttr().Get()
+        t = point_instancer_time(pi)
+        ids = pi.GetProtoIndicesAttr().Get(t) or []
+        pos = pi.GetPositionsAttr().Get(t)
         count = len(pos) if pos is not None and len(pos) else len(ids)
         cols = []
         for k, target in enumerate(pi.GetPrototypesRel().GetTargets()):

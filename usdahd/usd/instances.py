@@ -22,6 +22,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 
 from usdahd.usd import schema
+from usdahd.usd.instance_records import point_instancer_time
 
 __all__ = ["in_point_instancer_prototype", "record_view"]
 
@@ -53,8 +54,8 @@ def _point_instancer_prims(stage, carrier, count: int) -> dict[str, Usd.Prim]:
     its instance transform (prototype root's own transform included, as the reader does)."""
     pi = UsdGeom.PointInstancer(carrier)
     protos = pi.GetPrototypesRel().GetTargets()
-    ids = pi.GetProtoIndicesAttr().Get() or []
-    t = Usd.TimeCode.Default()
+    t = point_instancer_time(pi)
+    ids = pi.GetProtoIndicesAttr().Get(t) or []
     xfs = pi.ComputeInstanceTransformsAtTime(t, t) or []
     mask = pi.ComputeMaskAtTime(t)
     cache = UsdGeom.XformCache(t)
@@ -140,8 +141,10 @@ def _build(stage, carriers, inherited) -> list[tuple[str, str]]:
         count, cols = schema.instance_layout(carrier)
         is_pi = carrier.IsA(UsdGeom.PointInstancer)
         if is_pi:
-            ids = UsdGeom.PointInstancer(carrier).GetProtoIndicesAttr().Get() or []
-            mask = UsdGeom.PointInstancer(carrier).ComputeMaskAtTime(Usd.TimeCode.Default())
+            pi = UsdGeom.PointInstancer(carrier)
+            t = point_instancer_time(pi)
+            ids = pi.GetProtoIndicesAttr().Get(t) or []
+            mask = pi.ComputeMaskAtTime(t)
             done = {
                 (k, rel)
                 for i in range(count)

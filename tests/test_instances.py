@@ -640,3 +640,21 @@ def test_validate_and_preview_subprocess(baked, tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert "10 meshes" in proc.stdout and out.is_file()
+
+
+def test_a_time_sampled_point_instancer_is_baked_and_validates(tmp_path, capsys):
+    """positions only time-sampled (no default): the bake reads it at the stage's bake time,
+    the records are laid out at the same sample, and validate finds them."""
+    import re
+
+    stage = write_stage(tmp_path / "inst.usda")
+    text = re.sub(
+        r"point3f\[\] positions = (\[[^\]]*\])",
+        r"point3f[] positions.timeSamples = {\n 1: \1,\n 5: \1\n }",
+        stage.read_text(),
+    )
+    stage.write_text(text)
+    code, rep, _ = _bake(stage, "--resolution", "8", "--samples", "8", capsys=capsys)
+    assert code == 0 and rep["time"] == 1.0
+    assert set(PI_KEYS) <= {p["path"] for p in rep["prims"]}
+    assert cli.main(["validate", str(tmp_path / "inst.lightmaps.usda"), "--quiet"]) == 0

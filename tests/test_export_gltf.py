@@ -789,11 +789,12 @@ over "World"
 """
 
 
-def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp_path):
+def test_scenegraph_instances_export_their_own_lightmaps(tmp_path):
     """Two instanceable references of a prototype that itself references the baked ShortBox.
     The instance proxies compose the ShortBox's bake record (the override layer's opinions reach
-    every reference) but the bake never baked them: the export gives them no lightmap (not the
-    ShortBox's) and one shared glTF mesh with their own TRS; valid glTF."""
+    every reference), but that record is not theirs: the bake gives each copy its own record
+    (on the instance prim, issue 39) and the export gives each copy its own lightmap page, not
+    the ShortBox's, with its own world-space vertices; valid glTF."""
     from usdahd.export.gltf import EXTENSION
 
     copy_sample(tmp_path, "cornell_box.usda")
@@ -801,19 +802,24 @@ def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp
     argv = ["bake", str(tmp_path / "inst.usda"), "--resolution", "16", "--samples", "16", "-q"]
     assert cli.main(argv) == 0
     rep = _export(tmp_path / "inst.lightmaps.usda", tmp_path / "inst.glb")
-    assert (rep["nodes"], rep["unbaked_nodes"]) == (7, 2)
+    assert (rep["nodes"], rep["unbaked_nodes"]) == (9, 0)
     doc, binary = read_glb(tmp_path / "inst.glb")
     nodes = {n["name"]: n for n in doc["nodes"]}
     a, b = nodes["/World/Props/A/Box"], nodes["/World/Props/B/Box"]
-    assert EXTENSION not in a.get("extensions", {}) and EXTENSION not in b.get("extensions", {})
-    assert a["mesh"] == b["mesh"] != nodes["/World/Geometry/ShortBox"]["mesh"]
+    box = nodes["/World/Geometry/ShortBox"]
+    pages = {
+        name: nodes[name]["extensions"][EXTENSION]["page"]
+        for name in ("/World/Props/A/Box", "/World/Props/B/Box", "/World/Geometry/ShortBox")
+    }
+    assert len(set(pages.values())) == 3  # each copy its own lightmap
+    assert a["extensions"][EXTENSION]["prim"] == "/World/Props/A/Box"
     from usdahd.export.gltf import load_prims
 
-    _, prims, _ = load_prims(str(tmp_path / "inst.lightmaps.usda"), unbaked=True)
+    _, prims, _ = load_prims(str(tmp_path / "inst.lightmaps.usda"))
     world = {p.mesh.path: np.asarray(p.mesh.points) for p in prims}
-    (prim,) = doc["meshes"][a["mesh"]]["primitives"]
-    pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
-    for node in (a, b):  # the shared vertices through each node's TRS are its copy's points
+    for node in (a, b, box):  # each node's vertices through its TRS are its copy's points
+        (prim,) = doc["meshes"][node["mesh"]]["primitives"]
+        pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
         got = (node_matrix(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
         want = world[node["name"]]
         d = np.linalg.norm(got[:, None, :] - want[None, :, :], axis=-1)

@@ -193,27 +193,19 @@ def check_stage(layer: str):
     from usdahd import models
     from usdahd.usd import assets, schema
     from usdahd.usd.stage import open_stage
-    from usdahd.usd.transforms import instance_proxies
 
     if not Path(layer).exists():
         raise StageError(f"{layer}: no such file")
     stage = open_stage(layer)
-    records = {}
-    for prim in schema.prims_with_api(stage):
-        path = str(prim.GetPath())
-        try:
-            res = schema.read_results(prim)
-        except Exception as exc:
-            raise StageError(
-                f"{path}: its bake record cannot be read ({exc}); re-bake with usdahd bake"
-            ) from None
-        if res is not None:
-            records[path] = res
-    # Instance proxies show the bake record of the prim their prototype references (the
-    # override layer's opinions compose into every reference): not their own lightmap. The
-    # bake never bakes them; they are exported as unbaked meshes.
-    for path in instance_proxies(stage, list(records)):
-        del records[path]
+    # Mesh records and instance entries (each instance copy its own lightmap); a record an
+    # instance proxy shows through its prototype is not the copy's and is left out.
+    errors: list = []
+    records = schema.stage_records(stage, errors=errors)
+    if errors:
+        path, exc = errors[0]
+        raise StageError(
+            f"{path}: its bake record cannot be read ({exc}); re-bake with usdahd bake"
+        )
     if not records:
         raise StageError(
             f"{layer}: no baked prim (formatVersion 0): this is not a baked stage; run "

@@ -213,6 +213,24 @@ def _reused_unwrap_problem(mesh, uv: np.ndarray, res) -> tuple[str | None, Texel
     return _uv_problem(texels), texels
 
 
+def _instance_uv_problem(mesh, uv_name: str, problem: str | None) -> None:
+    """An instance copy cannot be unwrapped (its UVs live in the prototype, which the output
+    layer cannot author without de-instancing): raise InputError naming the prototype mesh
+    and the fix when its UV set is missing (``problem`` None) or unusable."""
+    ref = getattr(mesh, "instance", None)
+    if ref is None:
+        return
+    if problem is None:
+        from usdahd.usd.reader import no_instance_uv_message
+
+        raise InputError(f"{mesh.path}: " + no_instance_uv_message(ref.origin, uv_name, 1))
+    raise InputError(
+        f"{mesh.path}: the UV set {uv_name!r} of its prototype mesh {ref.origin} {problem}, so "
+        "it cannot hold a lightmap and an instance copy cannot be unwrapped; fix the UV set in "
+        "the asset or make the instance non-instanceable (instanceable = false)"
+    )
+
+
 def _plan(
     scene, index: int, mesh, stage, opts: BakeOptions, report: dict, prev=None, old_layer=None
 ) -> PrimJob:
@@ -222,7 +240,8 @@ def _plan(
     from usdahd.usd.stage import prim_at
 
     try:
-        authored = _authored_inputs(prim_at(stage, mesh.path))
+        ref = getattr(mesh, "instance", None)  # an instance copy: its prototype's inputs
+        authored = _authored_inputs(prim_at(stage, ref.source if ref else mesh.path))
     except SchemaError as exc:
         raise InputError(str(exc)) from None
     settings = resolve_settings(opts, authored, scene.meters_per_unit)
@@ -258,6 +277,7 @@ def _plan(
         if problem is None:
             job.texels, job.resolution = texels, res
         else:
+            _instance_uv_problem(mesh, uv_name, problem)
             new = f"{uv_name}_lightmap"
             if not opts.unwrap:
                 raise InputError(
@@ -271,6 +291,7 @@ def _plan(
             mesh.uv, mesh.uv_name = None, new
             settings["uv"] = new
     if mesh.uv is None:
+        _instance_uv_problem(mesh, uv_name, None)
         if not opts.unwrap:
             raise InputError(
                 f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "

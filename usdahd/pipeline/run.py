@@ -61,13 +61,8 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
     except StageError:
         return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
     prev, warnings = {}, []
-    for path, prim in schema.api_prims(stage).items():
-        try:
-            res = schema.read_results(prim)
-        except Exception:  # an invalid old record is simply re-baked
-            continue
-        if res is None:
-            continue
+    # Mesh records and instance entries (an invalid old record is simply re-baked).
+    for path, res in schema.stage_records(stage, errors=[]).items():
         outside = [p for p in res.textures.values() if not _inside_lightmaps(Path(p), out)]
         if outside:
             shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
@@ -145,8 +140,11 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             m.bake = False
     if api_prims:
         for m in scene.meshes:
-            if m.bake:
-                p = api_prims.get(m.path)
+            if m.bake:  # an instance copy: selected by its prototype mesh's API
+                p = api_prims.get(m.instance.source if m.instance else m.path)
+                if p is None and m.instance:
+                    p = prim_at(stage, m.instance.source)
+                    p = p if p is not None and schema.has_api(p) else None
                 m.bake = bool(p) and bool(schema.read_inputs(p, validate=False).bake)
     prev, untrusted = _previous_results(out)
     report = {
@@ -250,7 +248,9 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # already baked is lost (the validator reports them stale if their inputs changed).
     planned = {j.path for j in jobs}
     for path, old in prev.items():
-        if path not in planned and prim_at(stage, path) is not None:
+        if path not in planned and (
+            prim_at(stage, path) is not None or schema.instance_carrier(stage, path)
+        ):
             keep = PrimJob(path=path, mesh=None, settings={}, previous=old)
             keep.report = {"path": path, "status": "kept"}
             jobs.append(keep)

@@ -26,11 +26,8 @@ def baked_meshes(layer: str):
     from usdahd.usd.stage import open_stage
 
     stage = open_stage(layer)  # re-read from disk when this process opened it before
-    records = {}
-    for prim in schema.prims_with_api(stage):
-        res = schema.read_results(prim)
-        if res is not None:
-            records[str(prim.GetPath())] = res
+    # Mesh records and instance entries (each copy its own lightmap), by the scene's mesh path.
+    records = schema.stage_records(stage)
     if not records:
         raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
     out, up = [], "Y"

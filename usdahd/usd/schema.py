@@ -68,6 +68,17 @@ __all__ = [
     "file_digest",
     "layout_packing",
     "OLD_FORMAT_VERSIONS",
+    # instance records (usdahd.usd.instance_records)
+    "INSTANCE_API_NAME",
+    "INSTANCE_NAMESPACE",
+    "instance_carrier",
+    "instance_carriers",
+    "instance_key",
+    "instance_layout",
+    "instance_property_name",
+    "read_instance_records",
+    "stage_records",
+    "write_instance_records",
 ]
 
 #: Property namespace of every schema property.
@@ -647,3 +658,19 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
         if problems:
             raise SchemaError(f"{_prim_label(prim)}: invalid bake record: " + "; ".join(problems))
     return results
+
+
+# Instance records (AhdInstanceLightmapAPI) live in usdahd.usd.instance_records; the names are
+# re-exported here so every record reader goes through this module.
+from usdahd.usd.instance_records import (  # noqa: E402
+    INSTANCE_API_NAME,
+    INSTANCE_NAMESPACE,
+    instance_carrier,
+    instance_carriers,
+    instance_key,
+    instance_layout,
+    instance_property_name,
+    read_instance_records,
+    stage_records,
+    write_instance_records,
+)

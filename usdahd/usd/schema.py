@@ -72,6 +72,8 @@ __all__ = [
     "record_rect",
     "page_size",
     "read_record_pixels",
+    "crop_record",
+    "rect_problem",
 ]
 
 #: Property namespace of every schema property.
@@ -493,21 +495,43 @@ def read_record_pixels(results: BakeResults, role: str, channels=None):
     from usdahd import images
 
     px = np.asarray(images.read(results.textures[role], channels=channels).pixels)
-    if tuple(results.scale_offset) == NO_ATLAS and not results.atlas:
-        return px
-    x0, y0, w, h = record_rect(results, (px.shape[1], px.shape[0]))
-    if (w, h) != tuple(int(r) for r in results.resolution) or x0 < 0 or y0 < 0:
-        raise SchemaError(
-            f"{results.textures[role]}: atlas:scaleOffset {tuple(results.scale_offset)} in this "
-            f"{px.shape[1]}x{px.shape[0]} page is a {w}x{h} rectangle at ({x0}, {y0}), not the "
-            f"record's {results.resolution[0]}x{results.resolution[1]}; re-bake the prim"
+    return crop_record(results, px, results.textures[role])
+
+
+def rect_problem(results: BakeResults, page: tuple[int, int]) -> str | None:
+    """Why the record's rectangle does not fit a (W, H) page file, or None. Without an atlas
+    the file must be the record's own size."""
+    W, H = (int(v) for v in page)
+    w, h = (int(r) for r in results.resolution)
+    if not results.atlas:
+        if (W, H) != (w, h):
+            return f"is {W}x{H} but ahdLightmap:baked:resolution is {w}x{h}"
+        return None
+    if W & (W - 1) or H & (H - 1):
+        return f"is an atlas page of {W}x{H}, not a power of two on each side"
+    x0, y0, rw, rh = record_rect(results, (W, H))
+    so = tuple(results.scale_offset)
+    if (rw, rh) != (w, h):
+        return (
+            f"is a {W}x{H} atlas page where atlas:scaleOffset {so} gives a {rw}x{rh} rectangle, "
+            f"not the record's {w}x{h} (ahdLightmap:baked:resolution)"
         )
-    if x0 + w > px.shape[1] or y0 + h > px.shape[0]:
-        raise SchemaError(
-            f"{results.textures[role]}: the record's rectangle ({x0}, {y0}) {w}x{h} leaves the "
-            f"{px.shape[1]}x{px.shape[0]} page; re-bake the prim"
-        )
-    return px[y0 : y0 + h, x0 : x0 + w]
+    if x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        return f"is a {W}x{H} atlas page that the rectangle ({x0}, {y0}) {w}x{h} leaves"
+    return None
+
+
+def crop_record(results: BakeResults, pixels, what: str = ""):
+    """The record's (h, w, ...) region of an already-read page ``pixels`` (H, W, ...), the
+    whole array without an atlas. Raises SchemaError (see :func:`rect_problem`)."""
+    H, W = pixels.shape[:2]
+    why = rect_problem(results, (W, H))
+    if why is not None:
+        raise SchemaError(f"{what or 'the texture'} {why}; re-bake the prim")
+    if not results.atlas:
+        return pixels
+    x0, y0, w, h = record_rect(results, (W, H))
+    return pixels[y0 : y0 + h, x0 : x0 + w]
 
 
 def result_problems(results: BakeResults) -> list[str]:

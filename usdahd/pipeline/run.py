@@ -346,7 +346,6 @@ def _write_atlas(todo, rebuild, jobs, out: Path, opts: BakeOptions) -> dict:
         old = j.previous
         if old is not None and old.atlas and id(j) not in rebuilt:
             kept_pages.add(old.page)
-    kept_pages |= {j.previous.page for j in rebuild if j.previous.atlas and j.results is None}
     pages = atlas.write_pages(items, out, opts, kept_pages) if items else []
     return {"max_size": atlas.max_size(opts), "padding": atlas.padding(opts), "pages": pages}
 

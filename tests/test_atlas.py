@@ -292,3 +292,27 @@ def test_docs_worked_example(bakes):
 
     whole = images.read(res.textures["iz"]).pixels
     np.testing.assert_array_equal(whole[texel[1], texel[0]], iz[own[1], own[0]])
+
+
+def test_validate_reports_overlapping_rectangles(bakes, tmp_path):
+    """Two records moved onto one rectangle of their page: Textures reports AtlasOverlap on
+    both (and a rectangle outside its page is a schema problem)."""
+    from pxr import Gf, Usd
+
+    from usdahd import validate as V
+
+    stage, _ = bakes["on"]
+    d = tmp_path / "copy"
+    shutil.copytree(stage.parent, d)
+    layer = d / "cornell_box.lightmaps.usda"
+    st = Usd.Stage.Open(str(layer))
+    floor = st.GetPrimAtPath("/World/Geometry/Floor")
+    ceiling = st.GetPrimAtPath("/World/Geometry/Ceiling")
+    attr = schema.property_name("atlas:scaleOffset")
+    ceiling.GetAttribute(attr).Set(floor.GetAttribute(attr).Get())
+    for prim in (floor, ceiling):
+        codes = [f.code for f in V.check_textures(prim) if f.severity == "error"]
+        assert codes == ["AtlasOverlap"], codes
+    ceiling.GetAttribute(attr).Set(Gf.Vec4f(0.25, 0.25, 0.875, 0.75))  # leaves the page
+    problems = schema.result_problems(schema.read_results(ceiling, validate=False))
+    assert any("outside its page" in p for p in problems)

@@ -290,7 +290,10 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         written = [j for j in todo + rebuild if j.results is not None]
         _commit_textures(written, out)
         if "atlas" in report:
+            from usdahd.pipeline import atlas
+
             _committed_page_files(report["atlas"], written)
+            atlas.summary(report["atlas"], opts)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)

@@ -102,9 +102,7 @@ def test_preview_pixels_match_the_sidecar(layer):
 
     from usdahd.bake.trace import Tracer
     from usdahd.numerics import sh as shm
-    from usdahd.usd import schema
     from usdahd.usd.reader import load_scene
-    from usdahd.validate.loading import read_image
 
     g, e, meshes = _both(layer)
     stage, _, up = P.baked_meshes(str(layer))
@@ -119,7 +117,7 @@ def test_preview_pixels_match_the_sidecar(layer):
     ref = np.zeros((SIZE[0] * SIZE[1], 3))
     for k, (mesh, res, *_) in enumerate(meshes):
         sel = np.nonzero((hit["tri"] >= 0) & (tracer.tri_mesh[np.maximum(hit["tri"], 0)] == k))[0]
-        data = read_image(res.textures[schema.SIDECAR_ROLE]).channels(schema.SH_SIDECAR_CHANNELS)
+        data = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
         h, w = data.shape[:2]
         iz = np.maximum(shm.iz(data[..., :27].astype(np.float64).reshape(h, w, 3, 9)), 0.0)
         st = np.asarray(mesh.uv, np.float64)[tracer.tri_local[hit["tri"][sel]]]

@@ -82,14 +82,24 @@ def item_from_job(job: PrimJob) -> Item:
     )
 
 
-def item_from_record(job: PrimJob, res) -> Item:
+def item_from_record(job: PrimJob, res, pages: dict | None = None) -> Item:
     """A record kept from the previous bake: its SH from its region of the SH sidecar (what
-    it was fitted from, so the refit reproduces it exactly). Raises BakeError when the sidecar
+    it was fitted from, so the refit reproduces it exactly). ``pages``: a dict caching the page
+    sidecars read (a page is read once for all its records). Raises BakeError when the sidecar
     is unusable (the caller re-bakes nothing and keeps the old page for it)."""
+    from usdahd import images
     from usdahd.usd import schema
 
+    side = res.textures.get(schema.SIDECAR_ROLE, "")
     try:
-        px = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
+        if pages is None or not res.atlas:
+            px = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
+        else:
+            if side not in pages:
+                pages.clear()  # records come sorted by page: keep one page in memory
+                img = images.read(side, channels=schema.SH_SIDECAR_CHANNELS)
+                pages[side] = img.pixels
+            px = schema.crop_record(res, pages[side], side)
     except (UsdAhdError, OSError, KeyError) as exc:
         raise BakeError(f"{job.path}: SH sidecar unusable: {exc}") from None
     cov = px[..., 27] > 0.5

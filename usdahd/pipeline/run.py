@@ -337,9 +337,11 @@ def _write_atlas(todo, rebuild, jobs, out: Path, opts: BakeOptions) -> dict:
         if j.report.get("status") != "failed" and j.sh is not None and j.texels is not None:
             items.append(atlas.item_from_job(j))
     kept_pages = set()
-    for j in rebuild:
+    cache: dict = {}  # one page sidecar in memory at a time
+    by_page = sorted(rebuild, key=lambda j: (j.previous.textures.get("sh", ""), j.path))
+    for j in by_page:
         try:
-            items.append(atlas.item_from_record(j, j.previous))
+            items.append(atlas.item_from_record(j, j.previous, cache))
         except BakeError as exc:  # keep its old page as it is
             j.report.setdefault("warnings", []).append(f"{exc}; its previous page is kept")
             if j.previous.atlas:

@@ -57,8 +57,13 @@ def _decoded(res):
         for lay in mod.layout(res.ratio)
     }
     params = mod.decode(ch, ratio=res.ratio, factors=dict(res.factors))
-    z = np.broadcast_to(np.array([0.0, 0.0, 1.0], np.float32), (int(cov.sum()), 3))
-    return cov, side[cov][:, :27], np.asarray(mod.evaluate(params, z), np.float64), ch
+    # irradiance at n = z and at 16 normals over the hemisphere: (m, 17, 3)
+    from usdahd.numerics import sh as shm
+
+    normals = np.concatenate([[[0.0, 0.0, 1.0]], shm.fibonacci_sphere(16, hemisphere=True)])
+    m = int(cov.sum())
+    n = np.broadcast_to(normals.astype(np.float32), (m,) + normals.shape)
+    return cov, side[cov][:, :27], np.asarray(mod.evaluate(params, n), np.float64), ch
 
 
 @pytest.fixture(scope="module")
@@ -115,10 +120,12 @@ def test_rectangles_disjoint_padded_aligned(bakes):
 
 
 def test_atlas_decodes_like_one_map_per_prim(bakes):
-    """Same SH (bit for bit: the per-prim stages are unchanged), same direction codes, and I_z
-    within the two bakes' reported quantization bounds: per texel |I_z(atlas) - I_z(off)| /
-    max_c I_z <= e_atlas + e_off, e = the prim's iz_max_rel_error (each decode is within its
-    own bound of the same unquantized fit; the page's izScale differs from the prim's)."""
+    """Same SH (bit for bit: the per-prim stages are unchanged), same direction codes, and the
+    decoded irradiance at n = z and 16 hemisphere normals within the two bakes' reported
+    quantization bounds: per texel and normal |E(atlas) - E(off)| / max_c E <= e_atlas + e_off,
+    e = the prim's iz_max_rel_error (each I_z decode is within its own bound of the same
+    unquantized fit, the page's izScale being the page's; with the same direction and ratio
+    codes hhd's E(n) is I_z times one factor for every colour, so the bound carries over)."""
     (sa, ra), (so, ro) = bakes["on"], bakes["off"]
     a = _records(sa.with_name("cornell_box.lightmaps.usda"))
     b = _records(so.with_name("cornell_box.lightmaps.usda"))
@@ -132,6 +139,7 @@ def test_atlas_decodes_like_one_map_per_prim(bakes):
         np.testing.assert_array_equal(cov_a, cov_b)
         np.testing.assert_array_equal(sh_a, sh_b)
         np.testing.assert_array_equal(ch_a["direction"], ch_b["direction"])
+        assert iz_a.shape[1] == 17  # n = z and 16 normals
         scale = np.maximum(np.maximum(iz_a, iz_b).max(axis=-1, keepdims=True), 1e-6)
         rel = np.abs(iz_a - iz_b) / scale
         assert rel.max() <= err_a[path] + err_b[path] + 1e-6, path

@@ -208,6 +208,10 @@ def test_incremental(tmp_path, capsys):
     # its page is rebuilt from the kept records' SH and every record on it is re-authored
     target = "/World/Geometry/TallBox"
     argv = [str(stage), *FAST[:2], "--samples", "32", "--bounces", "1", "--prim", target]
+    code, rep, err = _bake([*argv, "--dry-run"], capsys)  # says which page it would rebuild
+    assert code == 0 and rep["atlas"]["planned"] and not rep["written"]
+    (page,) = rep["atlas"]["pages"]
+    assert sorted(page["records"]) == sorted(old) and _snapshot(tmp_path) == before
     code, rep, err = _bake(argv, capsys)
     assert code == 0, err
     assert [p["path"] for p in rep["prims"]] == [target] and rep["prims"][0]["rays"] > 0

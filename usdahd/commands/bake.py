@@ -245,6 +245,12 @@ def _print_report(report, notes: bool = True) -> None:
         print(f"warning: {w}")
     for n in report.get("notes", []) if notes else []:
         print(f"note: {n}")
+    for page in report.get("atlas", {}).get("pages", []) if report.get("dry_run") else []:
+        W, H = page["size"]
+        print(
+            f"atlas: would write a {W}x{H} page of {len(page['records'])} record(s) "
+            f"({100 * page['rect_fill']:.0f}% of it rectangles)"
+        )
     if planned or "texels_total" in report and report.get("dry_run"):
         total = report.get("texels_total", 0)
         print(

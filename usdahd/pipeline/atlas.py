@@ -109,6 +109,34 @@ def item_from_record(job: PrimJob, res, pages: dict | None = None) -> Item:
     return Item(job, tuple(int(r) for r in res.resolution), xy, sh, None, res.settings, old=res)
 
 
+def plan_pages(todo: list[PrimJob], rebuild: list[PrimJob], opts: BakeOptions) -> dict:
+    """``--dry-run``: the pages a bake would write (rectangles only: no texel is traced, so
+    no coverage and no file yet): {"max_size", "padding", "planned": True, "pages": [{"size",
+    "records", "rect_fill"}]}. ``rebuild``: kept records that would be re-packed."""
+    sized = [(j.path, j.settings, tuple(int(r) for r in j.resolution)) for j in todo]
+    sized += [(j.path, j.previous.settings, tuple(j.previous.resolution)) for j in rebuild]
+    groups: dict[tuple, list] = {}
+    for entry in sized:
+        groups.setdefault(group_key(entry[1]), []).append(entry)
+    pages = []
+    for key in sorted(groups):
+        members = sorted(groups[key], key=lambda e: e[0])
+        packing = packer.pack(
+            [e[2] for e in members], [e[0] for e in members], max_size=max_size(opts),
+            padding=padding(opts),
+        )  # fmt: skip
+        for k, (W, H) in enumerate(packing.pages):
+            on = [e for e, p in zip(members, packing.placements, strict=True) if p.page == k]
+            pages.append(
+                {
+                    "size": [W, H],
+                    "records": [e[0] for e in on],
+                    "rect_fill": sum(e[2][0] * e[2][1] for e in on) / (W * H),
+                }
+            )
+    return {"max_size": max_size(opts), "padding": padding(opts), "planned": True, "pages": pages}
+
+
 def _status(opts: BakeOptions, msg: str) -> None:
     import sys
 

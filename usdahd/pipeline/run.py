@@ -273,6 +273,10 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             "(nothing was traced); add a UsdLux light or an emissiveColor"
         )
     if opts.dry_run:
+        if opts.atlas and (todo or rebuild):
+            from usdahd.pipeline import atlas
+
+            report["atlas"] = atlas.plan_pages(todo, rebuild, opts)
         report["exit_code"] = 1 if failed else 0
         report["seconds"] = time.perf_counter() - t_start
         return report
@@ -312,7 +316,7 @@ def _atlas_rebuild(jobs: list[PrimJob], todo: list[PrimJob], opts: BakeOptions) 
     """Records not re-baked whose page must be rebuilt (usdahd.pipeline.atlas): every kept or
     skipped record of an encoding group that has a record re-baked now, and, with the atlas
     on, every record that has textures of its own (from a ``--atlas off`` bake)."""
-    if not opts.atlas or opts.dry_run:
+    if not opts.atlas:
         return []
     from usdahd.pipeline.atlas import group_key
 

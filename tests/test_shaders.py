@@ -23,8 +23,9 @@ import numpy as np
 import pytest
 
 import usdahd
-from usdahd import cli, images, models, shaders
+from usdahd import cli, models, shaders
 from usdahd.errors import UsageError
+from usdahd.usd import schema
 
 ROOT = Path(__file__).resolve().parents[1]
 INSTALL_HINT = (
@@ -273,7 +274,7 @@ class Bakes:
                 continue
             assert (res.model, res.ratio) == (model, ratio)
             channels = {
-                t.role: images.read(res.textures[t.role], channels=t.channels).pixels
+                t.role: schema.read_record_pixels(res, t.role, t.channels)
                 for t in models.get(model).layout(ratio)
             }
             out.append((str(prim.GetPath()), channels, dict(res.factors), res.resolution))
@@ -872,7 +873,7 @@ def test_preview_of_models_that_agree_at_the_normal_gives_the_same_image(bakes, 
         items = []
         for mesh, res, tangent, sign in meshes:
             lay = models.get(res.model).layout(res.ratio)
-            tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in lay]
+            tex = [schema.read_record_pixels(res, t.role, t.channels) for t in lay]
             items.append((preview.vertex_data(mesh, tangent, sign), model, ratio, tex, res.factors))
         _, dev = preview.device()
         imgs[model] = preview.render(dev, items, preview.auto_camera(pts, up, 96 / 72), (96, 72))

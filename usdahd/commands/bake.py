@@ -80,6 +80,27 @@ def add_parser(sub):
         "docs/benchmarks.md)",
     )
     a(
+        "--atlas",
+        choices=["on", "off"],
+        default="on",
+        help="on (default): pack every prim's lightmap into shared power-of-two atlas pages, "
+        "each record authoring its page and a UV scale/offset (docs/schema.md, 'Atlas'); "
+        "off: one set of textures per prim",
+    )
+    a(
+        "--atlas-size",
+        type=int,
+        metavar="N",
+        help="largest atlas page side, a power of two (default 2048); a page shrinks to the "
+        "smallest power of two holding its rectangles",
+    )
+    a(
+        "--atlas-padding",
+        type=int,
+        metavar="N",
+        help="texels between two rectangles of a page, >= 2 (default: --padding, else 4)",
+    )
+    a(
         "--no-unwrap",
         action="store_true",
         help="fail on meshes without the UV set instead of unwrapping them with xatlas",
@@ -165,6 +186,9 @@ def run(args) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         lock_timeout=args.lock_timeout,
+        atlas=args.atlas == "on",
+        atlas_size=args.atlas_size,
+        atlas_padding=args.atlas_padding,
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)
@@ -221,6 +245,12 @@ def _print_report(report, notes: bool = True) -> None:
         print(f"warning: {w}")
     for n in report.get("notes", []) if notes else []:
         print(f"note: {n}")
+    for page in report.get("atlas", {}).get("pages", []) if report.get("dry_run") else []:
+        W, H = page["size"]
+        print(
+            f"atlas: would write a {W}x{H} page of {len(page['records'])} record(s) "
+            f"({100 * page['rect_fill']:.0f}% of it rectangles)"
+        )
     if planned or "texels_total" in report and report.get("dry_run"):
         total = report.get("texels_total", 0)
         print(

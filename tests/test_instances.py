@@ -26,7 +26,7 @@ from instance_scene import (
 )
 from stats import assert_mean
 
-from usdahd import cli, images
+from usdahd import cli
 from usdahd.numerics import sh as shmod
 
 ARGS = ["--resolution", "16", "--samples", "64", "--bounces", "0", "--no-denoise"]
@@ -67,7 +67,7 @@ def _top_iz(res) -> np.ndarray:
     """(n, 3) I_z of the covered texels of the top face's chart, from the SH sidecar."""
     from usdahd.usd import schema
 
-    side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
+    side = schema.read_record_pixels(res, "sh", channels=schema.SH_SIDECAR_CHANNELS)
     h, w = side.shape[:2]
     ys, xs = np.nonzero(side[..., -1] > 0)
     u, v = (xs + 0.5) / w, 1.0 - (ys + 0.5) / h
@@ -85,8 +85,10 @@ def test_every_instance_is_baked_and_recorded_outside_the_prototype(baked):
     stage, layer = baked
     recs = _records(layer)
     assert sorted(recs) == sorted(["/World/Ground", "/World/Roof", *SG_KEYS, *PI_KEYS])
-    files = {res.textures["iz"] for res in recs.values()}
-    assert len(files) == len(recs)  # every copy its own texel set
+    # every copy its own texel set: its own file, or its own rectangle of an atlas page
+    rects = {(res.textures["iz"], res.page, tuple(res.scale_offset)) for res in recs.values()}
+    assert len(rects) == len(recs)
+    assert all(res.atlas for res in recs.values())  # the default bake packs atlas pages
     for key in SG_KEYS + PI_KEYS:
         assert recs[key].resolution == (16, 16) and recs[key].uv_primvar == "st"
     # Nothing is authored inside a prototype or under an instance: no de-instancing.
@@ -123,13 +125,17 @@ def test_open_top_face_matches_the_analytic_sky_and_sun(baked):
 
 
 def test_roofed_copies_are_darker_and_their_own(baked):
+    from usdahd.usd import schema
+
     _, layer = baked
     recs = _records(layer)
     open_mean = np.mean([_top_iz(recs[k]).mean() for k in OPEN])
     for key in ROOFED:
         iz = _top_iz(recs[key]).mean()
         assert iz < 0.5 * open_mean, (key, iz, open_mean)  # no sun and no sky overhead
-        assert recs[key].digests["iz"] not in {recs[k].digests["iz"] for k in OPEN}
+        mine = schema.read_record_pixels(recs[key], "iz")
+        for k in OPEN:  # its own lightmap: not a copy of an open instance's rectangle
+            assert not np.array_equal(mine, schema.read_record_pixels(recs[k], "iz")), (key, k)
 
 
 def test_validate_is_clean(baked, capsys):
@@ -226,11 +232,15 @@ def test_copies_of_a_baked_prototype_prim_get_their_own_records(tmp_path, capsys
     assert "/Proto/Box" in recs
     for key in SG_KEYS:
         assert recs[key].content_hash != recs["/Proto/Box"].content_hash
-        assert recs[key].textures != recs["/Proto/Box"].textures
+        own = (recs[key].textures, recs[key].scale_offset)
+        assert own != (recs["/Proto/Box"].textures, recs["/Proto/Box"].scale_offset)
     from usdahd.preview.meshes import baked_meshes
 
     drawn = {m.path: res for m, res, *_ in baked_meshes(str(layer))[1]}
-    assert all(drawn[k].textures == recs[k].textures for k in SG_KEYS)
+    assert all(
+        (drawn[k].textures, drawn[k].scale_offset) == (recs[k].textures, recs[k].scale_offset)
+        for k in SG_KEYS
+    )
     assert cli.main(["validate", str(layer), "--quiet"]) == 0
 
 

@@ -335,9 +335,11 @@ def read_instance_records(carrier: Usd.Prim, *, validate: bool = True) -> dict:
             packing=packing,
         )
         so = at("atlas:scaleOffset", e, _NO_SCALE_OFFSET)
-        if hasattr(res, "page"):  # the atlas fields (issue 39 item 1)
-            res.page = int(at("atlas:page", e, 0))
-            res.scale_offset = tuple(float(x) for x in so)
+        res.page = int(at("atlas:page", e, 0))
+        res.scale_offset = tuple(float(x) for x in so)
+        # An entry lives in an atlas page when it has a rectangle of one: a record alone on a
+        # page of its own size reads the same either way (its rectangle is the whole file).
+        res.atlas = res.scale_offset != _NO_SCALE_OFFSET or res.page != 0
         if validate:
             problems = result_problems(res)
             if problems:

@@ -203,7 +203,11 @@ def _atlas_entries(stage) -> list[tuple[str, str, tuple]]:
     so_name = schema.property_name("atlas:scaleOffset")
     side_name = schema.file_property_name(schema.SIDECAR_ROLE)
     res_name = schema.property_name("baked:resolution")
+    from usdahd.usd.instances import in_point_instancer_prototype
+
     for p in schema.prims_with_api(stage):
+        if p.IsInstanceProxy() or in_point_instancer_prototype(p):
+            continue  # the prototype's record seen through a copy, not a record of its own
         so = p.GetAttribute(so_name)
         if not (so and so.HasAuthoredValue()):
             continue

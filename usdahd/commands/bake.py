@@ -92,6 +92,27 @@ def add_parser(sub):
         "docs/benchmarks.md)",
     )
     a(
+        "--atlas",
+        choices=["on", "off"],
+        default="on",
+        help="on (default): pack every prim's lightmap into shared power-of-two atlas pages, "
+        "each record authoring its page and a UV scale/offset (docs/schema.md, 'Atlas'); "
+        "off: one set of textures per prim",
+    )
+    a(
+        "--atlas-size",
+        type=int,
+        metavar="N",
+        help="largest atlas page side, a power of two (default 2048); a page shrinks to the "
+        "smallest power of two holding its rectangles",
+    )
+    a(
+        "--atlas-padding",
+        type=int,
+        metavar="N",
+        help="texels between two rectangles of a page, >= 2 (default: --padding, else 4)",
+    )
+    a(
         "--no-unwrap",
         action="store_true",
         help="fail on meshes without the UV set instead of unwrapping them with xatlas",
@@ -178,6 +199,9 @@ def run(args) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         lock_timeout=args.lock_timeout,
+        atlas=args.atlas == "on",
+        atlas_size=args.atlas_size,
+        atlas_padding=args.atlas_padding,
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)

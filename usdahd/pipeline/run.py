@@ -332,6 +332,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             keep.report = {"path": path, "status": "kept"}
             jobs.append(keep)
     todo = [j for j in jobs if j.report["status"] == "planned"]
+    rebuild = _atlas_rebuild(jobs, todo, opts)
     texels_total = sum(int(j.resolution[0]) * int(j.resolution[1]) for j in todo)
     report["texels_total"] = texels_total
     # (n, 3, 9) float32 SH per texel plus the traced and fitted copies: a rough peak.
@@ -355,13 +356,18 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
 
     if todo:
         bake_jobs(scene, todo, out, opts)
+    if opts.atlas and (todo or rebuild):
+        report["atlas"] = _write_atlas(todo, rebuild, jobs, out, opts)
     for j in todo:
         if j.report["status"] == "failed":
             failed += 1
     _fault("textures_staged")
     old_refs = author.referenced_assets(out) or set()
     if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
-        _commit_textures([j for j in todo if j.results is not None], out)
+        written = [j for j in todo + rebuild if j.results is not None]
+        _commit_textures(written, out)
+        if "atlas" in report:
+            _committed_page_files(report["atlas"], written)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
@@ -374,3 +380,63 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     report["exit_code"] = 1 if failed else 0
     report["seconds"] = time.perf_counter() - t_start
     return report
+
+
+def _atlas_rebuild(jobs: list[PrimJob], todo: list[PrimJob], opts: BakeOptions) -> list[PrimJob]:
+    """Records not re-baked whose page must be rebuilt (usdahd.pipeline.atlas): every kept or
+    skipped record of an encoding group that has a record re-baked now, and, with the atlas
+    on, every record that has textures of its own (from a ``--atlas off`` bake)."""
+    if not opts.atlas or opts.dry_run:
+        return []
+    from usdahd.pipeline.atlas import group_key
+
+    affected = {group_key(j.settings) for j in todo}
+    out = []
+    for j in jobs:
+        old = j.previous
+        if j.report.get("status") not in ("skipped", "kept") or old is None:
+            continue
+        if group_key(old.settings) in affected or not old.atlas:
+            out.append(j)
+    return out
+
+
+def _write_atlas(todo, rebuild, jobs, out: Path, opts: BakeOptions) -> dict:
+    """Write the atlas pages of the records baked now plus ``rebuild``; the report's atlas
+    entry: {"max_size", "padding", "pages": [...]} (docs/bake report)."""
+    from usdahd.pipeline import atlas
+
+    items = []
+    for j in todo:
+        if j.report.get("status") != "failed" and j.sh is not None and j.texels is not None:
+            items.append(atlas.item_from_job(j))
+    kept_pages = set()
+    for j in rebuild:
+        try:
+            items.append(atlas.item_from_record(j, j.previous))
+        except BakeError as exc:  # keep its old page as it is
+            j.report.setdefault("warnings", []).append(f"{exc}; its previous page is kept")
+            if j.previous.atlas:
+                kept_pages.add(j.previous.page)
+    rebuilt = {id(j) for j in rebuild}
+    for j in jobs:
+        old = j.previous
+        if old is not None and old.atlas and id(j) not in rebuilt:
+            kept_pages.add(old.page)
+    kept_pages |= {j.previous.page for j in rebuild if j.previous.atlas and j.results is None}
+    pages = atlas.write_pages(items, out, opts, kept_pages) if items else []
+    return {"max_size": atlas.max_size(opts), "padding": atlas.padding(opts), "pages": pages}
+
+
+def _committed_page_files(entry: dict, written: list[PrimJob]) -> None:
+    """The page entries of the report name the committed files (and their sizes)."""
+    by_path = {j.path: j for j in written}
+    for page in entry["pages"]:
+        job = next((by_path[p] for p in page["records"] if p in by_path), None)
+        if job is None or job.results is None:
+            continue
+        page["files"] = {r: str(f) for r, f in job.results.textures.items()}
+        page["bytes"] = {r: Path(f).stat().st_size for r, f in page["files"].items()}
+        for role, info in page.get("ktx2", {}).items():
+            ktx = Path(page["files"][role]).with_suffix(".ktx2")
+            info["path"] = str(ktx)

@@ -39,6 +39,8 @@ FLAG_TEXT = {
     "ratio": "model {model!r} supports --ratio {allowed}, not {value!r}",
     "solver": "model {model!r} has --solver {allowed}, not {value!r}",
 }
+#: Largest ``--atlas-padding`` (texels between two rectangles of a page).
+MAX_ATLAS_PADDING = 64
 #: A density-derived lightmap smaller than this on its longer side gets a warning (wrong units?).
 TINY_RESOLUTION = 8
 
@@ -103,6 +105,13 @@ class BakeOptions:
     #: Seconds to wait for another bake of the same output (None: the default,
     #: usdahd.pipeline.outputs.DEFAULT_LOCK_TIMEOUT); not a bake setting either.
     lock_timeout: float | None = None
+    #: Atlas pages (usdahd.pipeline.atlas): records share power-of-two pages of at most
+    #: ``atlas_size`` (None: numerics.atlas.DEFAULT_SIZE) with ``atlas_padding`` texels between
+    #: rectangles (None: ``padding``, else 4). Not bake settings (not in the content hash): a
+    #: page layout changes where a record's texels are stored, never their values.
+    atlas: bool = True
+    atlas_size: int | None = None
+    atlas_padding: int | None = None
 
 
 def _authored_inputs(prim) -> dict:
@@ -193,6 +202,22 @@ def _check_options(opts: BakeOptions) -> None:
         raise UsageError(
             f"--texel-budget must be at least {MIN_RESOLUTION**2} texels (one "
             f"{MIN_RESOLUTION}x{MIN_RESOLUTION} map), got {opts.texel_budget}"
+        )
+    from usdahd.numerics import atlas
+
+    if opts.atlas_size is not None and not (
+        atlas.is_power_of_two(opts.atlas_size) and 16 <= opts.atlas_size <= MAX_RESOLUTION
+    ):
+        raise UsageError(
+            f"--atlas-size must be a power of two in 16..{MAX_RESOLUTION} (pages are powers of "
+            f"two), got {opts.atlas_size}; e.g. --atlas-size 1024"
+        )
+    if opts.atlas_padding is not None and not (
+        atlas.MIN_PADDING <= opts.atlas_padding <= MAX_ATLAS_PADDING
+    ):
+        raise UsageError(
+            f"--atlas-padding must be {atlas.MIN_PADDING}..{MAX_ATLAS_PADDING} texels (bilinear "
+            f"filtering needs a gutter texel per neighbour), got {opts.atlas_padding}"
         )
     if opts.container not in (None, "files", "ktx2", "ktx2-bc"):
         raise UsageError(f"--container must be files, ktx2 or ktx2-bc, got {opts.container!r}")

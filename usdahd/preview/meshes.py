@@ -74,10 +74,11 @@ def _textures(mesh, res, ahd_classic: bool = False) -> tuple:
     """(model, ratio, textures, factors) a renderer draws of one baked mesh: its stored textures
     in the layout order, or with ``ahd_classic`` the classic C_a, d, C_d textures
     (:func:`usdahd.preview.classic.item`; UsageError for a model it does not apply to)."""
-    from usdahd import images, models
+    from usdahd import models
+    from usdahd.usd import schema
 
     layout = models.get(res.model).layout(res.ratio)
-    textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+    textures = [schema.read_record_pixels(res, t.role, t.channels) for t in layout]
     if not ahd_classic:
         return res.model, res.ratio, textures, res.factors
     from usdahd.preview import classic

@@ -122,6 +122,15 @@ def _read_local(local: str, path: str) -> Image:
     return Image(path=path, data=data, format=fmt, channel_names=names, color_space=color_space)
 
 
+def record_image(results: schema.BakeResults, img: Image) -> Image:
+    """A record's region of a (cached, whole) page image (:func:`usdahd.usd.schema.crop_record`,
+    the one place that knows the atlas layout); the image itself without an atlas."""
+    if not results.atlas:
+        return img
+    data = schema.crop_record(results, img.data, img.path)
+    return Image(img.path, data, img.format, img.channel_names, img.color_space)
+
+
 # ---------------------------------------------------------------------------- bake loading
 
 
@@ -236,15 +245,18 @@ def _load_bake(results) -> Bake:
             img = read_image(path)
         except OSError:
             raise _Skip(f"texture {role!r} unreadable; see Textures") from None
-        if (img.width, img.height) != (w, h) or set(img.channel_names) != set(lay.channels):
+        if schema.rect_problem(results, (img.width, img.height)) is not None or set(
+            img.channel_names
+        ) != set(lay.channels):
             raise _Skip(f"texture {role!r} has the wrong shape or channels; see Textures")
-        images[role] = img
+        images[role] = record_image(results, img)
     sh = cov = None
     sc = results.textures.get(schema.SIDECAR_ROLE)
     if sc is not None:
         try:
             img = read_image(sc)
-            if (img.width, img.height) == (w, h):
+            if schema.rect_problem(results, (img.width, img.height)) is None:
+                img = record_image(results, img)
                 names = schema.SH_SIDECAR_CHANNELS
                 idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures
                 cov = img.data[..., idx[27]] > 0.5

@@ -391,7 +391,8 @@ def test_export_structure_and_textures(mixed, tmp_path):
     turns centimetres Z-up into metres Y-up), positions through the node transforms equal to
     the converted USD world points, TEXCOORD_1 the lightmap UVs with v flipped, unit normals, a
     page per prim with the bake's model/ratio/factors, 8-bit codes byte-identical and float16
-    textures within the RGBM quantisation."""
+    textures within the RGBM quantisation; each node placed in its page at the record's
+    ahdLightmap:atlas:scaleOffset (glTF's t = 1 - v: offset (ox, 1 - oy - sy))."""
     from usdahd import images, models
     from usdahd.export import hdr
     from usdahd.export.gltf import EXTENSION, load_prims
@@ -418,7 +419,9 @@ def test_export_structure_and_textures(mixed, tmp_path):
         node = doc["nodes"][k]
         ext = node["extensions"][EXTENSION]
         p = by_path[ext["prim"]]
-        assert ext["scale"] == [1.0, 1.0] and ext["offset"] == [0.0, 0.0] and ext["texCoord"] == 1
+        sx, sy, ox, oy = p.results.scale_offset
+        assert ext["scale"] == [sx, sy] and ext["offset"] == [ox, 1 - oy - sy]
+        assert ext["texCoord"] == 1
         (prim_json,) = doc["meshes"][node["mesh"]]["primitives"]
         at = prim_json["attributes"]
         idx = acc(prim_json["indices"]).reshape(-1, 3)
@@ -451,6 +454,54 @@ def test_export_structure_and_textures(mixed, tmp_path):
                 dec = hdr.decode(got, t["encoding"], t)
                 err = np.sqrt(((dec - stored) ** 2).sum() / max((stored**2).sum(), 1e-30))
                 assert err < 0.01, (ext["prim"], lay.role, err)
+
+
+def test_atlas_pages_are_one_image_per_role_and_nodes_land_on_their_rectangles(cornell, tmp_path):
+    """The cornell bake (7 prims, one model: one atlas page) exports one page, one image per
+    texture role, not one per prim; every node's TEXCOORD_1 * scale + offset puts each texel
+    centre of its record on the page texel that schema.read_record_pixels reads for it (the
+    contract's rectangle), byte for byte for the 8-bit direction."""
+    from usdahd import images, models
+    from usdahd.export.gltf import EXTENSION, load_prims
+    from usdahd.usd import schema
+
+    out = tmp_path / "c.glb"
+    rep = _export(cornell, out)
+    _, prims, _ = load_prims(str(cornell))
+    files = {p.results.textures["direction"] for p in prims}
+    assert rep["nodes"] == 7 and rep["pages"] == len(files) < 7
+    assert all(p.results.atlas for p in prims)
+    doc, binary = read_glb(out)
+    pages = doc["extensions"][EXTENSION]["pages"]
+    roles = [t.role for t in models.get("hhd").layout("luminance")]
+    assert len(doc["images"]) == len(pages) * len(roles)
+    by_path = {p.mesh.path: p for p in prims}
+    seen = set()
+    for node in doc["nodes"]:
+        ext = node.get("extensions", {}).get(EXTENSION)
+        if ext is None:
+            continue
+        res = by_path[ext["prim"]].results
+        page = pages[ext["page"]]
+        (tex,) = [t for t in page["textures"] if t["role"] == "direction"]
+        img = doc["images"][doc["textures"][tex["index"]]["source"]]
+        bv = doc["bufferViews"][img["bufferView"]]
+        png = tmp_path / f"p{ext['page']}.png"
+        png.write_bytes(binary[bv["byteOffset"] : bv["byteOffset"] + bv["byteLength"]])
+        px = np.asarray(images.read(png).pixels)
+        big_h, big_w = px.shape[:2]
+        assert page["resolution"] == [big_w, big_h]
+        own = schema.read_record_pixels(res, "direction", channels=("R", "G", "B"))
+        h, w = own.shape[:2]
+        assert (w, h) == tuple(res.resolution)
+        ys, xs = np.mgrid[0:h, 0:w]
+        st = np.stack([(xs + 0.5) / w, (ys + 0.5) / h], -1)  # glTF texcoords (t = 1 - v)
+        pp = st * np.asarray(ext["scale"]) + np.asarray(ext["offset"])
+        col = np.floor(pp[..., 0] * big_w).astype(int)
+        row = np.floor(pp[..., 1] * big_h).astype(int)
+        assert np.array_equal(px[row, col][..., :3], own[..., :3]), ext["prim"]
+        seen.add((ext["page"], int(col.min()), int(row.min())))
+    assert len(seen) == 7  # seven distinct rectangles
 
 
 @pytest.fixture(scope="module")

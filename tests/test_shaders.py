@@ -965,13 +965,14 @@ def test_preview_of_models_that_agree_at_the_normal_gives_the_same_image(bakes, 
         reports[model] = json.loads(capsys.readouterr().out)
         assert out.exists()
         from usdahd.commands import preview
+        from usdahd.usd import schema
 
         stage, meshes, up = preview.baked_meshes(str(bakes.layer))
         pts = np.concatenate([np.asarray(m.points) for m, *_ in meshes])
         items = []
         for mesh, res, tangent, sign in meshes:
             lay = models.get(res.model).layout(res.ratio)
-            tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in lay]
+            tex = [schema.read_record_pixels(res, t.role, channels=t.channels) for t in lay]
             items.append((preview.vertex_data(mesh, tangent, sign), model, ratio, tex, res.factors))
         _, dev = preview.device()
         imgs[model] = preview.render(dev, items, preview.auto_camera(pts, up, 96 / 72), (96, 72))

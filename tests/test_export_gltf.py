@@ -596,8 +596,10 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
     if case == "unbaked":
         return d / "cornell_box.usda"
     if case == "missing_texture":
-        (f,) = [p for p in (d / "lightmaps").glob("*Floor*.direction.*.png")]
-        f.unlink()
+        from usdahd.export.gltf import check_stage
+
+        _, records = check_stage(str(layer))
+        Path(records["/World/Geometry/Floor"].textures["direction"]).unlink()
         return layer
     if case == "no_uvs":  # a layer over the bake that blocks the Floor's lightmap UVs
         (d / "no_uvs.usda").write_text(
@@ -611,7 +613,8 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
 
 BAD = [
     ("unbaked", "no baked prim (formatVersion 0): this is not a baked stage; run usdahd bake"),
-    ("missing_texture", "/World/Geometry/Floor: lightmap texture 'direction'"),
+    # the Floor's atlas page: the first prim on it (sorted) is named
+    ("missing_texture", "/World/Geometry/BackWall: lightmap texture 'direction'"),
     ("no_uvs", "/World/Geometry/Floor: has no lightmap UVs (primvar 'st'"),
 ]
 

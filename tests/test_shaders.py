@@ -926,6 +926,7 @@ def test_the_glsl_example_in_docs_schema_compiles(tmp_path):
             "layout(binding = 1) uniform sampler2D iz_tex;",
             "layout(binding = 2) uniform sampler2D direction_tex;",
             "layout(location = 6) uniform float izScale;",
+            "layout(location = 7) uniform vec4 scaleOffset;",
             "void main() {",
             "UsdahdFrame material_frame = UsdahdFrame(v_material_t, v_material_b, v_normal);",
             blocks[0],

@@ -226,9 +226,11 @@ def check_stage(layer: str):
             file = res.textures.get(lay.role)
             if file is None or not assets.exists(file):
                 shown = res.asset_paths.get(lay.role, file or "(unauthored)")
+                sharing = sum(1 for r in records.values() if r.textures.get(lay.role) == file)
+                page = f", the atlas page of {sharing} prims" if res.atlas and file else ""
                 raise StageError(
-                    f"{path}: lightmap texture {lay.role!r} ({shown}) is missing; restore the "
-                    "lightmaps folder beside the layer or re-bake with usdahd bake"
+                    f"{path}: lightmap texture {lay.role!r} ({shown}{page}) is missing; restore "
+                    "the lightmaps folder beside the layer or re-bake with usdahd bake"
                 )
     return stage, records
 

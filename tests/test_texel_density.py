@@ -263,6 +263,11 @@ def test_a_bad_texel_budget_is_a_usage_error(tmp_path, capsys):
         check=False,
     )
     assert proc.returncode == 2 and "--texel-budget must be at least" in proc.stderr
+    argv = ["bake", str(stage), "--dry-run", "--texel-budget", "5000", "--resolution", "8"]
+    assert cli.main(argv) == 2
+    assert "--texel-budget sets the automatic texel density, which --resolution replaces" in (
+        capsys.readouterr().err
+    )
 
 
 def test_an_unchanged_rebake_on_the_automatic_density_is_skipped(tmp_path, capsys):

@@ -203,6 +203,14 @@ def _check_options(opts: BakeOptions) -> None:
             f"--texel-budget must be at least {MIN_RESOLUTION**2} texels (one "
             f"{MIN_RESOLUTION}x{MIN_RESOLUTION} map), got {opts.texel_budget}"
         )
+    if opts.texel_budget is not None and (
+        opts.texel_density is not None or opts.resolution is not None
+    ):
+        flag = "--texel-density" if opts.texel_density is not None else "--resolution"
+        raise UsageError(
+            f"--texel-budget sets the automatic texel density, which {flag} replaces for "
+            f"every prim; pass one of them"
+        )
     from usdahd.numerics import atlas
 
     if opts.atlas_size is not None and not (

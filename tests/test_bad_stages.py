@@ -208,7 +208,8 @@ def test_texture_names_distinct_across_collision_cases(tmp_path, capsys):
     for cid in ("name_collision", "case_collision", "long_names", "unicode_names"):
         d = tmp_path / cid
         d.mkdir()
-        rc, report, _, _ = _run_in_process(CASES[cid], d, capsys)
+        case = dict(CASES[cid], args=[*CASES[cid]["args"], "--atlas", "off"])  # own files
+        rc, report, _, _ = _run_in_process(case, d, capsys)
         assert rc == 0
         baked = [p["path"] for p in report["prims"] if p["status"] == "baked"]
         stems = [sanitize(p) for p in baked]

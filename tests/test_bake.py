@@ -16,6 +16,7 @@ from conftest import ROOT, SAMPLES, copy_sample, sample_stages
 
 from usdahd import cli, models
 from usdahd.numerics import sh as shmod
+from usdahd.usd import schema
 
 FAST = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
 
@@ -40,7 +41,7 @@ def _decoded_iz(res):
 
     mod = models.get(res.model)
     lay = mod.layout(res.ratio)
-    chans = {lt.role: images.read(res.textures[lt.role], channels=lt.channels).pixels for lt in lay}
+    chans = {lt.role: schema.read_record_pixels(res, lt.role, lt.channels) for lt in lay}
     side = images.read(res.textures["sh"], channels=_sidecar_channels()).pixels
     cover = side[..., -1] > 0
     dec = mod.decode({k: v[cover] for k, v in chans.items()}, ratio=res.ratio, factors=res.factors)

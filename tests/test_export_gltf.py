@@ -777,6 +777,10 @@ def test_normal_maps_and_albedo_textures_render_like_preview_model_view(tmp_path
             assert e < 0.02, (name, path, e)
 
 
+#: The one-map-per-prim bake: every record's textures are a page of their own (scale (1, 1)).
+ATLAS_OFF = ["--atlas", "off"]
+
+
 def test_unbaked_meshes_are_plain_nodes(tmp_path):
     """Meshes the bake left unbaked (here all but the floor, ``--prim``; instances and
     ``ahdLightmap:bake = false`` occluders alike) are exported as plain nodes with their base
@@ -784,7 +788,7 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     from usdahd.export.gltf import EXTENSION
 
     stage = copy_sample(tmp_path, "cornell_box.usda")
-    argv = ["bake", str(stage), "--prim", "/World/Geometry/Floor", "--resolution", "16"]
+    argv = ["bake", str(stage), "--prim", "/World/Geometry/Floor", "--resolution", "16", *ATLAS_OFF]
     assert cli.main([*argv, "--samples", "16", "-q"]) == 0
     layer = tmp_path / "cornell_box.lightmaps.usda"
     rep = _export(layer, tmp_path / "all.glb")
@@ -801,6 +805,8 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     assert (rep["nodes"], rep["unbaked_nodes"]) == (1, 0)
     doc, _ = read_glb(tmp_path / "baked.glb")
     assert all(EXTENSION in n.get("extensions", {}) for n in doc["nodes"][1:])
+    (floor,) = [n["extensions"][EXTENSION] for n in doc["nodes"][1:]]
+    assert (floor["scale"], floor["offset"]) == ([1.0, 1.0], [0.0, 0.0])  # its own page
     for r in validate([tmp_path / "all.glb", tmp_path / "baked.glb"]).values():
         assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
 

@@ -145,12 +145,20 @@ def write_pages(
                 continue
             entry["seconds"] = round(time.perf_counter() - t0, 3)
             entries.append(entry)
-            _status(
-                opts,
-                f"atlas page {index}: {size[0]}x{size[1]}, {len(on_page)} record(s), "
-                f"fill {100 * entry['fill']:.1f}% ({entry['covered_texels']} covered texels)",
-            )
     return entries
+
+
+def summary(entry: dict, opts: BakeOptions) -> None:
+    """One stderr line per page (after the commit, with the files' sizes)."""
+    for page in entry["pages"]:
+        W, H = page["size"]
+        size = sum(page.get("bytes", {}).values())
+        _status(
+            opts,
+            f"atlas page {page['page']}: {W}x{H}, {len(page['records'])} record(s), fill "
+            f"{100 * page['fill']:.1f}% ({page['covered_texels']} covered texels), "
+            f"{size / 2**20:.2f} MiB in {len(page.get('bytes', {}))} file(s)",
+        )
 
 
 def _write_page(index: int, size, on_page, out: Path, pad: int) -> dict:

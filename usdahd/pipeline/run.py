@@ -367,7 +367,10 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         written = [j for j in todo + rebuild if j.results is not None]
         _commit_textures(written, out)
         if "atlas" in report:
+            from usdahd.pipeline import atlas
+
             _committed_page_files(report["atlas"], written)
+            atlas.summary(report["atlas"], opts)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
@@ -423,7 +426,6 @@ def _write_atlas(todo, rebuild, jobs, out: Path, opts: BakeOptions) -> dict:
         old = j.previous
         if old is not None and old.atlas and id(j) not in rebuilt:
             kept_pages.add(old.page)
-    kept_pages |= {j.previous.page for j in rebuild if j.previous.atlas and j.results is None}
     pages = atlas.write_pages(items, out, opts, kept_pages) if items else []
     return {"max_size": atlas.max_size(opts), "padding": atlas.padding(opts), "pages": pages}
 

@@ -113,7 +113,7 @@ def test_prop_scale_stage_gets_the_minimum_map_on_4_texel_blocks(tmp_path, capsy
     # and the warning says so (explicit settings win over the minimum).
     explicit = _dry_run(capsys, stage, "--texel-density", "16")
     card = next(p for p in explicit["prims"] if p["path"] == "/World/Card")
-    assert max(card["resolution"]) < MIN_RESOLUTION
+    assert card["resolution"] == [2, 2]  # ceil(16 * 0.1 / 0.96): exact, not on 4-texel blocks
     assert any("gives only" in w for w in card["warnings"])
     assert "texel_density" not in explicit
 

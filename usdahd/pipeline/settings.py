@@ -64,8 +64,8 @@ DENSITY_LADDER = 2.0 ** (-1 / 4)
 #: over each face of a box); Unreal's default per-mesh Light Map Resolution and Datasmith's
 #: min_lightmap_resolution are 64, for 4x4-block-compressed pages of 2 lightmap rows per texel.
 MIN_RESOLUTION = 32
-#: Density-derived lightmap sides are rounded up to a multiple of this (atlas pages pack
-#: rectangles on 4x4 texel blocks, the BC block size).
+#: Sides from the automatic density are rounded up to a multiple of this (atlas pages pack
+#: rectangles on 4x4 texel blocks, the BC block size); an explicit density is not rounded.
 RESOLUTION_MULTIPLE = 4
 
 
@@ -158,7 +158,7 @@ def resolve_settings(
     if s["texel_density"] == "auto":
         s["texel_density"] = float(auto_density or DENSITY_AUTO_MAX)
         s["min_resolution"] = MIN_RESOLUTION
-    if s["texel_density"] is not None:
+        # an explicit density keeps its exact size, ceil(T * extent), as before
         s["resolution_multiple"] = RESOLUTION_MULTIPLE
     mod = models.get(s["model"])
     problem = models.choice_problem(s["model"], "ratio", s["ratio"], mod.RATIOS, FLAG_TEXT["ratio"])

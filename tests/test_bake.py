@@ -355,7 +355,14 @@ def test_unauthored_meters_per_unit_and_tiny_maps_are_warned(tmp_path, capsys):
     assert code == 0, out.err
     report = json.loads(out.out)
     assert any("metersPerUnit" in w for w in report["warnings"])
-    # 4 m at USD's fallback 0.01 m/unit and 16 texels/m: a 1x1 map, flagged.
+    # 4 m at USD's fallback 0.01 m/unit: the automatic density gives the minimum map (noted);
+    # an explicit 16 texels/m gives a 1x1 map, flagged.
+    assert report["prims"][0]["resolution"] == [32, 32]
+    assert not any("gives only" in w for w in report["prims"][0]["warnings"])
+    argv = [str(stage), "--dry-run", "--json", "--quiet", "--texel-density", "16"]
+    code, out = _bake(argv, capsys)
+    assert code == 0, out.err
+    report = json.loads(out.out)
     assert any("gives only" in w for w in report["prims"][0]["warnings"])
 
 

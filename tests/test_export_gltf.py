@@ -35,10 +35,6 @@ SIZE = (96, 72)
 NPM_PACKAGES = ("three@0.187.0", "puppeteer-core@24", "gltf-validator@2.0.0-dev.3.10", "ajv@8")
 CHROMIUM = os.environ.get("USDAHD_CHROMIUM", "/usr/bin/chromium")
 
-#: usdahd/export reads whole texture files; until it reads a record's rectangle of an atlas
-#: page (schema.read_record_pixels, issue 39), its tests bake one map per prim.
-ATLAS_OFF = ["--atlas", "off"]
-
 
 # ---------------------------------------------------------------------------- environment
 
@@ -230,17 +226,7 @@ def rel_rmse(a: np.ndarray, b: np.ndarray, a_ids=None, b_ids=None, edges=None):
 
 def _bake(folder: Path, name: str, *extra) -> Path:
     stage = copy_sample(folder, name)
-    argv = [
-        "bake",
-        str(stage),
-        "--resolution",
-        "16",
-        "--samples",
-        "16",
-        "--bounces",
-        "1",
-        *ATLAS_OFF,
-    ]
+    argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1"]
     assert cli.main([*argv, *extra, "--quiet"]) == 0
     return stage.with_name(stage.stem + ".lightmaps.usda")
 
@@ -355,17 +341,7 @@ def mixed(tmp_path_factory):
         d = tmp_path_factory.mktemp(f"gltf_{name}")
         copy_sample(d, "cornell_box.usda")
         stage = _mixed_layer(d, name)
-        argv = [
-            "bake",
-            str(stage),
-            "--resolution",
-            "16",
-            "--samples",
-            "16",
-            "--bounces",
-            "1",
-            *ATLAS_OFF,
-        ]
+        argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1"]
         assert cli.main([*argv, "--quiet"]) == 0
         out[name] = stage.with_name(f"{name}.lightmaps.usda")
     return out
@@ -415,7 +391,8 @@ def test_export_structure_and_textures(mixed, tmp_path):
     turns centimetres Z-up into metres Y-up), positions through the node transforms equal to
     the converted USD world points, TEXCOORD_1 the lightmap UVs with v flipped, unit normals, a
     page per prim with the bake's model/ratio/factors, 8-bit codes byte-identical and float16
-    textures within the RGBM quantisation."""
+    textures within the RGBM quantisation; each node placed in its page at the record's
+    ahdLightmap:atlas:scaleOffset (glTF's t = 1 - v: offset (ox, 1 - oy - sy))."""
     from usdahd import images, models
     from usdahd.export import hdr
     from usdahd.export.gltf import EXTENSION, load_prims
@@ -442,7 +419,9 @@ def test_export_structure_and_textures(mixed, tmp_path):
         node = doc["nodes"][k]
         ext = node["extensions"][EXTENSION]
         p = by_path[ext["prim"]]
-        assert ext["scale"] == [1.0, 1.0] and ext["offset"] == [0.0, 0.0] and ext["texCoord"] == 1
+        sx, sy, ox, oy = p.results.scale_offset
+        assert ext["scale"] == [sx, sy] and ext["offset"] == [ox, 1 - oy - sy]
+        assert ext["texCoord"] == 1
         (prim_json,) = doc["meshes"][node["mesh"]]["primitives"]
         at = prim_json["attributes"]
         idx = acc(prim_json["indices"]).reshape(-1, 3)
@@ -475,6 +454,54 @@ def test_export_structure_and_textures(mixed, tmp_path):
                 dec = hdr.decode(got, t["encoding"], t)
                 err = np.sqrt(((dec - stored) ** 2).sum() / max((stored**2).sum(), 1e-30))
                 assert err < 0.01, (ext["prim"], lay.role, err)
+
+
+def test_atlas_pages_are_one_image_per_role_and_nodes_land_on_their_rectangles(cornell, tmp_path):
+    """The cornell bake (7 prims, one model: one atlas page) exports one page, one image per
+    texture role, not one per prim; every node's TEXCOORD_1 * scale + offset puts each texel
+    centre of its record on the page texel that schema.read_record_pixels reads for it (the
+    contract's rectangle), byte for byte for the 8-bit direction."""
+    from usdahd import images, models
+    from usdahd.export.gltf import EXTENSION, load_prims
+    from usdahd.usd import schema
+
+    out = tmp_path / "c.glb"
+    rep = _export(cornell, out)
+    _, prims, _ = load_prims(str(cornell))
+    files = {p.results.textures["direction"] for p in prims}
+    assert rep["nodes"] == 7 and rep["pages"] == len(files) < 7
+    assert all(p.results.atlas for p in prims)
+    doc, binary = read_glb(out)
+    pages = doc["extensions"][EXTENSION]["pages"]
+    roles = [t.role for t in models.get("hhd").layout("luminance")]
+    assert len(doc["images"]) == len(pages) * len(roles)
+    by_path = {p.mesh.path: p for p in prims}
+    seen = set()
+    for node in doc["nodes"]:
+        ext = node.get("extensions", {}).get(EXTENSION)
+        if ext is None:
+            continue
+        res = by_path[ext["prim"]].results
+        page = pages[ext["page"]]
+        (tex,) = [t for t in page["textures"] if t["role"] == "direction"]
+        img = doc["images"][doc["textures"][tex["index"]]["source"]]
+        bv = doc["bufferViews"][img["bufferView"]]
+        png = tmp_path / f"p{ext['page']}.png"
+        png.write_bytes(binary[bv["byteOffset"] : bv["byteOffset"] + bv["byteLength"]])
+        px = np.asarray(images.read(png).pixels)
+        big_h, big_w = px.shape[:2]
+        assert page["resolution"] == [big_w, big_h]
+        own = schema.read_record_pixels(res, "direction", channels=("R", "G", "B"))
+        h, w = own.shape[:2]
+        assert (w, h) == tuple(res.resolution)
+        ys, xs = np.mgrid[0:h, 0:w]
+        st = np.stack([(xs + 0.5) / w, (ys + 0.5) / h], -1)  # glTF texcoords (t = 1 - v)
+        pp = st * np.asarray(ext["scale"]) + np.asarray(ext["offset"])
+        col = np.floor(pp[..., 0] * big_w).astype(int)
+        row = np.floor(pp[..., 1] * big_h).astype(int)
+        assert np.array_equal(px[row, col][..., :3], own[..., :3]), ext["prim"]
+        seen.add((ext["page"], int(col.min()), int(row.min())))
+    assert len(seen) == 7  # seven distinct rectangles
 
 
 @pytest.fixture(scope="module")
@@ -569,8 +596,10 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
     if case == "unbaked":
         return d / "cornell_box.usda"
     if case == "missing_texture":
-        (f,) = [p for p in (d / "lightmaps").glob("*Floor*.direction.*.png")]
-        f.unlink()
+        from usdahd.export.gltf import check_stage
+
+        _, records = check_stage(str(layer))
+        Path(records["/World/Geometry/Floor"].textures["direction"]).unlink()
         return layer
     if case == "no_uvs":  # a layer over the bake that blocks the Floor's lightmap UVs
         (d / "no_uvs.usda").write_text(
@@ -584,7 +613,8 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
 
 BAD = [
     ("unbaked", "no baked prim (formatVersion 0): this is not a baked stage; run usdahd bake"),
-    ("missing_texture", "/World/Geometry/Floor: lightmap texture 'direction'"),
+    # the Floor's atlas page: the first prim on it (sorted) is named
+    ("missing_texture", "/World/Geometry/BackWall: lightmap texture 'direction'"),
     ("no_uvs", "/World/Geometry/Floor: has no lightmap UVs (primvar 'st'"),
 ]
 
@@ -669,18 +699,7 @@ def test_shared_cornell_box_exports_valid_and_renders_like_the_preview(tmp_path)
     for f in SHARED_CORNELL.glob("*.usda"):
         shutil.copy(f, tmp_path / f.name)
     stage = tmp_path / "cornell-box_rectlight.usda"
-    argv = [
-        "bake",
-        str(stage),
-        "--resolution",
-        "16",
-        "--samples",
-        "16",
-        "--bounces",
-        "1",
-        "-q",
-        *ATLAS_OFF,
-    ]
+    argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1", "-q"]
     assert cli.main(argv) == 0
     layer = tmp_path / "cornell-box_rectlight.lightmaps.usda"
     site = tmp_path / "site"
@@ -758,6 +777,10 @@ def test_normal_maps_and_albedo_textures_render_like_preview_model_view(tmp_path
             assert e < 0.02, (name, path, e)
 
 
+#: The one-map-per-prim bake: every record's textures are a page of their own (scale (1, 1)).
+ATLAS_OFF = ["--atlas", "off"]
+
+
 def test_unbaked_meshes_are_plain_nodes(tmp_path):
     """Meshes the bake left unbaked (here all but the floor, ``--prim``; instances and
     ``ahdLightmap:bake = false`` occluders alike) are exported as plain nodes with their base
@@ -782,6 +805,8 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     assert (rep["nodes"], rep["unbaked_nodes"]) == (1, 0)
     doc, _ = read_glb(tmp_path / "baked.glb")
     assert all(EXTENSION in n.get("extensions", {}) for n in doc["nodes"][1:])
+    (floor,) = [n["extensions"][EXTENSION] for n in doc["nodes"][1:]]
+    assert (floor["scale"], floor["offset"]) == ([1.0, 1.0], [0.0, 0.0])  # its own page
     for r in validate([tmp_path / "all.glb", tmp_path / "baked.glb"]).values():
         assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
 
@@ -834,16 +859,7 @@ def test_scenegraph_instances_export_their_own_lightmaps(tmp_path):
 
     copy_sample(tmp_path, "cornell_box.usda")
     (tmp_path / "inst.usda").write_text(INSTANCES)
-    argv = [
-        "bake",
-        str(tmp_path / "inst.usda"),
-        "--resolution",
-        "16",
-        "--samples",
-        "16",
-        "-q",
-        *ATLAS_OFF,
-    ]
+    argv = ["bake", str(tmp_path / "inst.usda"), "--resolution", "16", "--samples", "16", "-q"]
     assert cli.main(argv) == 0
     rep = _export(tmp_path / "inst.lightmaps.usda", tmp_path / "inst.glb")
     assert (rep["nodes"], rep["unbaked_nodes"]) == (9, 0)

@@ -38,7 +38,19 @@ def add_parser(sub):
     a("--uv", metavar="PRIMVAR", help="lightmap UV primvar name (default st)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resolution", type=int, metavar="N", help="lightmap size N x N per mesh")
-    g.add_argument("--texel-density", type=float, metavar="T", help="texels per metre (default 16)")
+    g.add_argument(
+        "--texel-density",
+        type=float,
+        metavar="T",
+        help="texels per metre for every prim (default: automatic, from --texel-budget)",
+    )
+    a(
+        "--texel-budget",
+        type=int,
+        metavar="N",
+        help="texels the automatic density spreads over the stage by surface area (default "
+        "1048576 = 1024^2; at most 16 texels/m, each map at least 32x32; docs/texels.md)",
+    )
     a("--samples", type=int, metavar="N", help="hemisphere samples per texel (default 256)")
     a(
         "--bounces",
@@ -172,6 +184,7 @@ def run(args) -> int:
         uv=args.uv,
         resolution=args.resolution,
         texel_density=args.texel_density,
+        texel_budget=args.texel_budget,
         samples=args.samples,
         bounces=args.bounces,
         seed=args.seed,

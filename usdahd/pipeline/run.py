@@ -28,6 +28,8 @@ from usdahd.pipeline.plan import (
     _norm,
     _plan,
     _refit_source,
+    auto_texel_density,
+    mesh_extent,
     settings_resolution_given,
 )
 from usdahd.pipeline.preflight import (
@@ -36,7 +38,16 @@ from usdahd.pipeline.preflight import (
     _files_exist,
     preflight,
 )
-from usdahd.pipeline.settings import DEFAULTS, TINY_RESOLUTION, BakeOptions, _check_options
+from usdahd.pipeline.settings import (
+    DEFAULT_TEXEL_BUDGET,
+    DEFAULTS,
+    DENSITY_AUTO_MAX,
+    MIN_RESOLUTION,
+    TINY_RESOLUTION,
+    BakeOptions,
+    _authored_inputs,
+    _check_options,
+)
 from usdahd.pipeline.stages import bake_jobs
 from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
 from usdahd.usd import author
@@ -74,6 +85,67 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
             continue
         prev[path] = res
     return prev, warnings
+
+
+def _density_pool(scene, stage, api_prims: dict, opts: BakeOptions, checked) -> list:
+    """Meshes on the automatic texel density: those a bake of the whole stage bakes (with
+    --prim, also the ones outside the selection, so the density does not depend on it), minus
+    those with an authored ahdLightmap:resolution or texelDensity. Empty when a --resolution
+    or --texel-density flag applies to every prim."""
+    from usdahd.errors import SchemaError
+    from usdahd.usd import schema
+
+    if opts.resolution is not None or opts.texel_density is not None:
+        return []
+    out = []
+    for m in scene.meshes:
+        if m.path in checked.prim_errors:
+            continue
+        prim = prim_at(stage, m.path)
+        if not m.bake:
+            if not opts.prims or prim is None or prim.IsInstanceProxy():
+                continue
+            api = api_prims.get(m.path)
+            if api_prims and not (api and schema.read_inputs(api, validate=False).bake):
+                continue
+        try:
+            authored = _authored_inputs(prim) if m.path in api_prims else {}
+        except SchemaError:
+            continue  # reported by the plan of that prim
+        if "resolution" in authored or "texel_density" in authored:
+            continue
+        out.append(m)
+    return out
+
+
+def _auto_density(scene, stage, api_prims, opts, checked, report) -> float | None:
+    """The stage's automatic texel density (plan.auto_texel_density), reported; None when no
+    prim uses it."""
+    pool = _density_pool(scene, stage, api_prims, opts, checked)
+    if not pool:
+        return None
+    budget = int(opts.texel_budget or DEFAULT_TEXEL_BUDGET)
+    extents = [mesh_extent(m, scene.meters_per_unit) for m in pool]
+    density, planned, fits = auto_texel_density(extents, budget)
+    report["texel_density"] = {
+        "density": density,
+        "budget": budget,
+        "prims": len(pool),
+        "estimated_texels": planned,
+    }
+    report["notes"].append(
+        f"texel density {density:g}/m for the {len(pool)} prim(s) without an explicit "
+        f"resolution or density: the densest step up to {DENSITY_AUTO_MAX:g}/m whose maps "
+        f"(each at least {MIN_RESOLUTION}x{MIN_RESOLUTION}) fit the texel budget of {budget} "
+        f"(about {planned} texels; --texel-budget, --texel-density or --resolution to change)"
+    )
+    if not fits:
+        report["warnings"].append(
+            f"the {len(pool)} prims' minimum maps ({MIN_RESOLUTION}x{MIN_RESOLUTION} each, "
+            f"{planned} texels) exceed the texel budget of {budget}: raise --texel-budget, or "
+            "pass --texel-density / --resolution"
+        )
+    return density
 
 
 #: Bytes of working memory a whole bake may plan for (SH, fits and copies; see bake()).
@@ -179,20 +251,25 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     for path, msg in sorted(getattr(scene, "failed", {}).items()):
         report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
         failed += 1
+    auto_density = _auto_density(scene, stage, api_prims, opts, checked, report)
     for i, mesh in enumerate(scene.meshes):
         if not mesh.bake:
             continue
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer)
+            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density)
         except (InputError, UsageError, BakeError) as exc:
             entry.update(status="failed", error=str(exc))
             failed += 1
             continue
         entry["resolution"] = list(job.resolution)
         job.normals = scene.computed_normals.get(mesh.path)
-        if max(job.resolution) < TINY_RESOLUTION and not settings_resolution_given(job):
+        if (
+            max(job.resolution) < TINY_RESOLUTION
+            and not settings_resolution_given(job)
+            and "min_resolution" not in job.settings
+        ):
             entry["warnings"].append(
                 f"texel density {job.settings['texel_density']:g}/m gives only "
                 f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "

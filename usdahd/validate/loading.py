@@ -132,8 +132,9 @@ class Bake:
     results : the schema record; mod : model module; layout : role -> TextureLayout;
     xy : (n, 2) int32 texel column/row of the texels considered (covered ones, or every texel
     without a sidecar); channels : role -> (n, c) stored values in the layout's dtype;
-    params : decoded model parameters for those texels; sh : (n, 3, 9) float64 sidecar SH or
-    None; valid : (n,) bool texels whose decoded values pass TexelValues.
+    params : decoded model parameters for those texels; sh : (n, 3, 9) sidecar SH as stored
+    (float32; rules widen the texels they use to float64) or None; valid : (n,) bool texels
+    whose decoded values pass TexelValues.
     """
 
     results: schema.BakeResults
@@ -220,6 +221,14 @@ def load_for(r: _Rule, prim, *, sidecar: str | None = None) -> Bake | None:
     return bake
 
 
+def _gather(data: np.ndarray, ys: np.ndarray, xs: np.ndarray, channels) -> np.ndarray:
+    """(n, len(channels)) values of ``data`` (h, w, c) at texels (xs, ys), channels by index,
+    in one gather (no copy of the whole image's channels first)."""
+    flat = data.reshape(-1, data.shape[-1])
+    rows = ys.astype(np.intp) * data.shape[1] + xs
+    return flat[rows[:, None], np.asarray(channels, np.intp)[None, :]]
+
+
 def _load_bake(results) -> Bake:
     try:
         mod = models.get(results.model)
@@ -248,10 +257,12 @@ def _load_bake(results) -> Bake:
                 names = schema.SH_SIDECAR_CHANNELS
                 idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures
                 cov = img.data[..., idx[27]] > 0.5
-                # float64 only at covered texels (the whole image in float64 was 8 bytes x
-                # 28 channels per texel: 235 MB for a 1024^2 map)
+                # Only the covered texels, gathered in one step, as stored (float32 holds a
+                # float16 or float32 sidecar exactly; the rules widen the texels they use to
+                # float64 chunk by chunk: a float64 copy was 217 MB for a 1024^2 map)
                 ys, xs = np.nonzero(cov)
-                sh = img.data[ys, xs][:, idx[:27]].astype(np.float64).reshape(-1, 3, 9)
+                sh = _gather(img.data, ys, xs, idx[:27]).astype(np.float32, copy=False)
+                sh = sh.reshape(-1, 3, 9)
         except (OSError, KeyError, ValueError):
             sh = cov = None  # Textures reports it
     if cov is None:
@@ -262,9 +273,12 @@ def _load_bake(results) -> Bake:
         xy = np.stack([xs, ys], axis=-1).astype(np.int32)
     # Channels by name, in the layout's order (EXR stores them sorted, so never by position).
     channels = {
-        role: images[role]
-        .channels(lay.channels)[xy[:, 1], xy[:, 0]]
-        .astype(FORMAT_DTYPES[lay.format])
+        role: _gather(
+            images[role].data,
+            xy[:, 1],
+            xy[:, 0],
+            [images[role].channel_names.index(c) for c in lay.channels],
+        ).astype(FORMAT_DTYPES[lay.format], copy=False)
         for role, lay in layout.items()
     }
     factors = decode_factors(results)

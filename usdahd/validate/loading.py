@@ -223,10 +223,10 @@ def load_for(r: _Rule, prim, *, sidecar: str | None = None) -> Bake | None:
 
 def _gather(data: np.ndarray, ys: np.ndarray, xs: np.ndarray, channels) -> np.ndarray:
     """(n, len(channels)) values of ``data`` (h, w, c) at texels (xs, ys), channels by index,
-    in one gather (no copy of the whole image's channels first)."""
-    flat = data.reshape(-1, data.shape[-1])
-    rows = ys.astype(np.intp) * data.shape[1] + xs
-    return flat[rows[:, None], np.asarray(channels, np.intp)[None, :]]
+    in one gather (no copy of the whole image's channels first; ``data`` may be a view, e.g.
+    a record's crop of an atlas page)."""
+    ch = np.asarray(channels, np.intp)[None, :]
+    return data[np.asarray(ys, np.intp)[:, None], np.asarray(xs, np.intp)[:, None], ch]
 
 
 def _load_bake(results) -> Bake:

@@ -62,6 +62,12 @@ RULES = (
         "The lightmap UV primvar exists, lies in [0, 1], has no overlapping texels beyond a "
         "tolerance, and a sane texel density.",
     ),
+    Rule(
+        "Atlas",
+        "A record in an atlas page has a whole-texel, 4-aligned rectangle inside its page, "
+        "disjoint from and at least 2 texels away from the other rectangles of the page, "
+        "whose records name the same page files.",
+    ),
 )
 RULE_NAMES = tuple(r.name for r in RULES)
 

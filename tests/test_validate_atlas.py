@@ -31,25 +31,32 @@ SO = "ahdLightmap:atlas:scaleOffset"
 PAGE = "ahdLightmap:atlas:page"
 
 
+#: Whether this usdahd bakes atlas pages (issue 39's atlas: ``--atlas on`` by default).
+ATLAS_BAKES = hasattr(schema, "read_record_pixels")
+
+
+def _bake(out: Path, *extra: str) -> Path:
+    args = [
+        "bake",
+        str(ROOT / "samples" / "cornell_box.usda"),
+        "--resolution",
+        "16",
+        "--samples",
+        "16",
+        "-o",
+        str(out),
+        "-q",
+    ]
+    assert cli.main([*args, *extra]) == 0
+    return out
+
+
 @pytest.fixture(scope="module")
 def bake(tmp_path_factory):
-    """A 16 x 16, 16-sample bake of the Cornell box (every record its own 16 x 16 files)."""
+    """A 16 x 16, 16-sample bake of the Cornell box, every record its own 16 x 16 files
+    (``--atlas off`` where atlas pages are the default)."""
     out = tmp_path_factory.mktemp("atlas_bake") / LAYER
-    code = cli.main(
-        [
-            "bake",
-            str(ROOT / "samples" / "cornell_box.usda"),
-            "--resolution",
-            "16",
-            "--samples",
-            "16",
-            "-o",
-            str(out),
-            "-q",
-        ]
-    )
-    assert code == 0
-    return out
+    return _bake(out, *(["--atlas", "off"] if ATLAS_BAKES else []))
 
 
 def _copy(bake: Path, tmp_path: Path) -> Path:
@@ -244,3 +251,24 @@ def test_cli_in_process_and_subprocess_report_the_overlap(bake, tmp_path, capsys
     doc = json.loads(proc.stdout)
     findings = doc["findings"] if isinstance(doc, dict) else doc
     assert {(f["prim"], f["code"]) for f in findings if f["rule"] == "Atlas"} == got
+
+
+@pytest.mark.skipif(not ATLAS_BAKES, reason="this usdahd does not bake atlas pages yet")
+def test_a_real_atlas_bake_is_clean_and_a_moved_rectangle_is_caught(tmp_path):
+    """usdahd bake's own atlas pages pass the rule; moving one record onto another's rectangle
+    (as a bad packer would) is an Overlap naming both."""
+    layer = _bake(tmp_path / LAYER)
+    from usdahd.validate import atlas
+
+    stage = Usd.Stage.Open(str(layer))
+    index = atlas.page_index(stage)
+    assert len(index) == len(list(schema.prims_with_api(stage))) >= 2
+    assert all(e.rect is not None for e in index.values())
+    assert _atlas(layer) == []
+    first, second = sorted(index)[:2]
+    prim = stage.GetPrimAtPath(second)
+    prim.GetAttribute(SO).Set(stage.GetPrimAtPath(first).GetAttribute(SO).Get())
+    stage.GetRootLayer().Save()
+    found = _atlas(layer)
+    assert _codes(found) == {(first, "Overlap"), (second, "Overlap")}
+    assert all(first in f.message and second in f.message for f in found)

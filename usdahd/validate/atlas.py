@@ -103,11 +103,35 @@ def _entry(prim, results, props) -> Entry:
     )
 
 
+class PageIndex(dict):
+    """{prim path: Entry}, plus the entries grouped by page (``by_page``: (layer, index) ->
+    paths) and by file (``by_file``: file -> paths), so a prim meets only its page's records
+    (a stage of thousands of records is not compared pair by pair)."""
+
+    def __init__(self, entries: dict):
+        super().__init__(entries)
+        self.by_page: dict = {}
+        self.by_file: dict = {}
+        for path, e in entries.items():
+            self.by_page.setdefault((e.layer, e.page), []).append(path)
+            for _, f in e.files:
+                self.by_file.setdefault(f, []).append(path)
+
+    def neighbours(self, path: str) -> list:
+        """Entries other than ``path``'s on its page or sharing one of its files, by path."""
+        me = self[path]
+        near = set(self.by_page.get((me.layer, me.page), ()))
+        for _, f in me.files:
+            near.update(self.by_file.get(f, ()))
+        near.discard(path)
+        return [self[p] for p in sorted(near)]
+
+
 _INDEX: OrderedDict = OrderedDict()
 _INDEX_LOCK = threading.Lock()
 
 
-def page_index(stage) -> dict:
+def page_index(stage) -> PageIndex:
     """{prim path: Entry} of every baked prim of the stage with atlas properties (cached per
     stage while its layers are unchanged on disk; rebuilt for unsaved or anonymous layers)."""
     key = inspect.layers_stamp(stage)
@@ -125,6 +149,7 @@ def page_index(stage) -> dict:
         if results is None:
             continue
         index[str(prim.GetPath())] = _entry(prim, results, props)
+    index = PageIndex(index)
     if key is not None:
         with _INDEX_LOCK:
             _INDEX[key] = index
@@ -211,9 +236,7 @@ def check_atlas(prim) -> list[Finding]:
             page=page,
             rect=rect,
         )
-    for other in sorted(index.values(), key=lambda e: e.path):
-        if other.path == path:
-            continue
+    for other in index.neighbours(path):
         same_page = (other.layer, other.page) == (me.layer, me.page)
         shared = {f for _, f in other.files} & {f for _, f in me.files}
         if same_page and other.files != me.files:

@@ -212,10 +212,12 @@ def channel_steps(bake: Bake, sl=slice(None)):
             yield role, j, moved[0], moved[1]
 
 
-def sensitivities(bake: Bake, normals: np.ndarray, sl=slice(None)):
+def sensitivities(bake: Bake, normals: np.ndarray, sl=slice(None), base=None):
     """[(role, j, (m, k, 3) |I(n; code_j +- 1 step) - I(n)| (the larger side))] of the texels
-    ``sl``: how much one code step of each stored channel moves the decode at each normal."""
-    base = _at(bake, bake.channels, normals, sl)
+    ``sl``: how much one code step of each stored channel moves the decode at each normal.
+    base : the decode of the stored codes at ``normals`` (``_at``), when the caller has it."""
+    if base is None:
+        base = _at(bake, bake.channels, normals, sl)
     out = []
     for role, j, up, down in channel_steps(bake, sl):
         worst = np.zeros_like(base)
@@ -244,7 +246,7 @@ def quantization_tolerance(
     at_z = normals is None
     normals = np.array([[0.0, 0.0, 1.0]]) if at_z else normals
     tol = None
-    for _role, _j, worst in sensitivities(bake, normals, sl):
+    for _role, _j, worst in sensitivities(bake, normals, sl, got):
         tol = 0.5 * worst if tol is None else tol + 0.5 * worst
     if tol is None:
         tol = np.zeros_like(_at(bake, bake.channels, normals, sl))

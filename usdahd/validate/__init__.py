@@ -77,6 +77,7 @@ from usdahd.validate.loading import (  # noqa: F401
     _bake_key,
     _load_bake,
     _read_local,
+    clear_caches,
     decode_factors,
     load_bake,
     read_image,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import baked_record, read_image
+from usdahd.validate.loading import baked_record, image_info
 
 #: Rectangle offsets are multiples of this (block-compressed formats code 4 x 4 blocks).
 ALIGN = 4
@@ -71,7 +71,7 @@ def _page_size(results) -> tuple | None:
     reports the others)."""
     for role in sorted(results.textures):
         try:
-            img = read_image(results.textures[role])
+            img = image_info(results.textures[role])
         except Exception:  # noqa: BLE001 - unreadable files are Textures' findings
             continue
         return (img.width, img.height)

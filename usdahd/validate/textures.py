@@ -10,7 +10,7 @@ import numpy as np
 from usdahd import models
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import baked_record, read_image
+from usdahd.validate.loading import baked_record, file_digest, image_info
 from usdahd.validate.options import OIIO_FORMATS
 
 # --------------------------------------------------------------------------- rule 2: Textures
@@ -88,7 +88,7 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
             else:
-                actual = schema.file_digest(resolved)  # a file or an asset in a package
+                actual = file_digest(resolved)  # a file or an asset in a package (cached)
                 if actual != digest:
                     r.error(
                         "TextureReplaced",
@@ -104,7 +104,7 @@ def check_textures(prim) -> list[Finding]:
             base = os.path.basename(path.rstrip("]"))  # a package path ends in ...[dir/a.exr]
             where = f"{prop}{' ' + label if label else ''} ({base})"
             try:
-                img = read_image(path)
+                img = image_info(path)  # decoded once per file (an atlas page: once)
             except OSError as exc:
                 r.error(
                     "Unreadable",

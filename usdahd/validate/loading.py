@@ -286,9 +286,14 @@ def read_sidecar(path: str) -> Sidecar:
         rows[ys, xs] = np.arange(len(ys), dtype=np.int32)
         sh = _gather(img.data, ys, xs, idx[:27]).astype(np.float32, copy=False)
         side = Sidecar(rows, sh.reshape(-1, 3, 9))
+        info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
         del img
         if key is not None:
             with _LOCK:
+                # Textures needs only the file's metadata now, and the pixels are in ``side``:
+                # the whole image (117 MB for a 1024^2 page) leaves the image cache
+                _INFOS[key] = info
+                _IMAGE_CACHE.pop(key, None)
                 _SIDECARS[key] = side
                 while len(_SIDECARS) > 1 and (
                     sum(v.nbytes for v in _SIDECARS.values()) > _SIDECAR_BYTES

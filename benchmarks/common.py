@@ -212,7 +212,6 @@ def read_baked_sh(layer: Path) -> dict:
     """
     from pxr import Sdf, Usd
 
-    from usdahd import images
     from usdahd.usd import plugin, schema
 
     plugin.register()
@@ -225,8 +224,8 @@ def read_baked_sh(layer: Path) -> dict:
         res = schema.read_results(prim)
         if res is None or schema.SIDECAR_ROLE not in res.textures:
             continue
-        img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
-        px = np.asarray(img.pixels, dtype=np.float32)
+        img = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
+        px = np.asarray(img, dtype=np.float32)  # the record's rectangle of its atlas page
         h, w = px.shape[:2]
         out[str(prim.GetPath())] = (px[..., :27].reshape(h, w, 3, 9), px[..., 27] > 0.5)
     return dict(sorted(out.items()))

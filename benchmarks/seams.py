@@ -156,14 +156,14 @@ def _decoded_iz(results) -> tuple[np.ndarray, np.ndarray]:
     from usdahd import models
     from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
-    from usdahd.validate.loading import FORMAT_DTYPES, decode_factors, read_image
+    from usdahd.validate.loading import FORMAT_DTYPES, decode_factors, read_image, record_image
 
     mod = models.get(results.model)
     w, h = results.resolution
     ys, xs = np.mgrid[0:h, 0:w]
     channels = {}
     for lay in mod.layout(results.ratio):
-        img = read_image(results.textures[lay.role])
+        img = record_image(results, read_image(results.textures[lay.role]))
         channels[lay.role] = img.channels(lay.channels)[ys.ravel(), xs.ravel()].astype(
             FORMAT_DTYPES[lay.format]
         )
@@ -171,7 +171,7 @@ def _decoded_iz(results) -> tuple[np.ndarray, np.ndarray]:
     z = np.broadcast_to(np.array([0.0, 0.0, 1.0], np.float32), (w * h, 3))
     rgb = np.asarray(mod.evaluate(params, z), np.float64)
     decoded = (rgb @ shmod.LUMINANCE).reshape(h, w)
-    side = read_image(results.textures[schema.SIDECAR_ROLE])
+    side = record_image(results, read_image(results.textures[schema.SIDECAR_ROLE]))
     data = side.channels(schema.SH_SIDECAR_CHANNELS).astype(np.float64)
     c10 = data[..., :27].reshape(h, w, 3, 9)[..., 2]
     raw = np.where(data[..., 27] > 0.5, (c10 * shmod.IZ_FROM_L10) @ shmod.LUMINANCE, np.nan)

@@ -56,7 +56,6 @@ def baked_mean_iz(layer: Path) -> float:
     import numpy as np
     from pxr import Sdf, Usd
 
-    from usdahd import images
     from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
 
@@ -64,7 +63,7 @@ def baked_mean_iz(layer: Path) -> float:
     stage = Usd.Stage.Open(str(layer))
     (prim,) = schema.prims_with_api(stage)
     res = schema.read_results(prim)
-    img = images.read(res.textures[schema.SIDECAR_ROLE], channels=schema.SH_SIDECAR_CHANNELS)
-    px = np.asarray(img.pixels, np.float64).reshape(-1, 28)
+    img = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
+    px = np.asarray(img, np.float64).reshape(-1, 28)
     covered = px[px[:, 27] > 0, :27].reshape(-1, 3, 9)
     return float(shmod.iz(covered)[:, 0].mean())

@@ -16,6 +16,7 @@ from conftest import ROOT, SAMPLES, copy_sample, sample_stages
 
 from usdahd import cli, models
 from usdahd.numerics import sh as shmod
+from usdahd.usd import schema
 
 FAST = ["--resolution", "8", "--samples", "16", "--bounces", "0", "--quiet"]
 
@@ -40,7 +41,7 @@ def _decoded_iz(res):
 
     mod = models.get(res.model)
     lay = mod.layout(res.ratio)
-    chans = {lt.role: images.read(res.textures[lt.role], channels=lt.channels).pixels for lt in lay}
+    chans = {lt.role: schema.read_record_pixels(res, lt.role, lt.channels) for lt in lay}
     side = images.read(res.textures["sh"], channels=_sidecar_channels()).pixels
     cover = side[..., -1] > 0
     dec = mod.decode({k: v[cover] for k, v in chans.items()}, ratio=res.ratio, factors=res.factors)
@@ -354,7 +355,14 @@ def test_unauthored_meters_per_unit_and_tiny_maps_are_warned(tmp_path, capsys):
     assert code == 0, out.err
     report = json.loads(out.out)
     assert any("metersPerUnit" in w for w in report["warnings"])
-    # 4 m at USD's fallback 0.01 m/unit and 16 texels/m: a 1x1 map, flagged.
+    # 4 m at USD's fallback 0.01 m/unit: the automatic density gives the minimum map (noted);
+    # an explicit 16 texels/m gives a 1x1 map, flagged.
+    assert report["prims"][0]["resolution"] == [32, 32]
+    assert not any("gives only" in w for w in report["prims"][0]["warnings"])
+    argv = [str(stage), "--dry-run", "--json", "--quiet", "--texel-density", "16"]
+    code, out = _bake(argv, capsys)
+    assert code == 0, out.err
+    report = json.loads(out.out)
     assert any("gives only" in w for w in report["prims"][0]["warnings"])
 
 

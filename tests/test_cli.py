@@ -433,16 +433,26 @@ def baked_box(tmp_path, capsys):
 
 
 def test_validate_missing_texture_is_one_finding_and_usd_noise_is_separate(baked_box, capsys):
-    victim = sorted((baked_box.parent / "lightmaps").glob("*Floor*.iz.*.exr"))[0]
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    stage = Usd.Stage.Open(str(baked_box))
+    records = {str(p.GetPath()): schema.read_results(p) for p in schema.prims_with_api(stage)}
+    victim = Path(records["/World/Geometry/Floor"].textures["iz"])
+    # the Floor's I_z file: its own, or the atlas page it shares with other records
+    users = sorted(p for p, r in records.items() if Path(r.textures["iz"]) == victim)
     victim.unlink()
     code, out, err = _main(capsys, "validate", str(baked_box))
     assert code == 1
     errors = [ln for ln in out.splitlines() if ln.startswith("error")]
-    assert len(errors) == 1 and victim.name in errors[0] and "/World/Geometry/Floor" in errors[0]
+    assert len(errors) == len(users)  # one finding per prim naming the file
+    assert all(victim.name in e for e in errors)
+    assert any("/World/Geometry/Floor" in e for e in errors)
     assert "Ill-formed SdfPath" not in out
     code, out, err = _main(capsys, "validate", str(baked_box), "--json")
     report = json.loads(out)
-    assert report["counts"]["error"] == 1
+    assert report["counts"]["error"] == len(users)
     assert all("Warning: in" not in d for d in report["usd_diagnostics"])
 
 

@@ -391,7 +391,8 @@ def test_export_structure_and_textures(mixed, tmp_path):
     turns centimetres Z-up into metres Y-up), positions through the node transforms equal to
     the converted USD world points, TEXCOORD_1 the lightmap UVs with v flipped, unit normals, a
     page per prim with the bake's model/ratio/factors, 8-bit codes byte-identical and float16
-    textures within the RGBM quantisation."""
+    textures within the RGBM quantisation; each node placed in its page at the record's
+    ahdLightmap:atlas:scaleOffset (glTF's t = 1 - v: offset (ox, 1 - oy - sy))."""
     from usdahd import images, models
     from usdahd.export import hdr
     from usdahd.export.gltf import EXTENSION, load_prims
@@ -418,7 +419,9 @@ def test_export_structure_and_textures(mixed, tmp_path):
         node = doc["nodes"][k]
         ext = node["extensions"][EXTENSION]
         p = by_path[ext["prim"]]
-        assert ext["scale"] == [1.0, 1.0] and ext["offset"] == [0.0, 0.0] and ext["texCoord"] == 1
+        sx, sy, ox, oy = p.results.scale_offset
+        assert ext["scale"] == [sx, sy] and ext["offset"] == [ox, 1 - oy - sy]
+        assert ext["texCoord"] == 1
         (prim_json,) = doc["meshes"][node["mesh"]]["primitives"]
         at = prim_json["attributes"]
         idx = acc(prim_json["indices"]).reshape(-1, 3)
@@ -451,6 +454,54 @@ def test_export_structure_and_textures(mixed, tmp_path):
                 dec = hdr.decode(got, t["encoding"], t)
                 err = np.sqrt(((dec - stored) ** 2).sum() / max((stored**2).sum(), 1e-30))
                 assert err < 0.01, (ext["prim"], lay.role, err)
+
+
+def test_atlas_pages_are_one_image_per_role_and_nodes_land_on_their_rectangles(cornell, tmp_path):
+    """The cornell bake (7 prims, one model: one atlas page) exports one page, one image per
+    texture role, not one per prim; every node's TEXCOORD_1 * scale + offset puts each texel
+    centre of its record on the page texel that schema.read_record_pixels reads for it (the
+    contract's rectangle), byte for byte for the 8-bit direction."""
+    from usdahd import images, models
+    from usdahd.export.gltf import EXTENSION, load_prims
+    from usdahd.usd import schema
+
+    out = tmp_path / "c.glb"
+    rep = _export(cornell, out)
+    _, prims, _ = load_prims(str(cornell))
+    files = {p.results.textures["direction"] for p in prims}
+    assert rep["nodes"] == 7 and rep["pages"] == len(files) < 7
+    assert all(p.results.atlas for p in prims)
+    doc, binary = read_glb(out)
+    pages = doc["extensions"][EXTENSION]["pages"]
+    roles = [t.role for t in models.get("hhd").layout("luminance")]
+    assert len(doc["images"]) == len(pages) * len(roles)
+    by_path = {p.mesh.path: p for p in prims}
+    seen = set()
+    for node in doc["nodes"]:
+        ext = node.get("extensions", {}).get(EXTENSION)
+        if ext is None:
+            continue
+        res = by_path[ext["prim"]].results
+        page = pages[ext["page"]]
+        (tex,) = [t for t in page["textures"] if t["role"] == "direction"]
+        img = doc["images"][doc["textures"][tex["index"]]["source"]]
+        bv = doc["bufferViews"][img["bufferView"]]
+        png = tmp_path / f"p{ext['page']}.png"
+        png.write_bytes(binary[bv["byteOffset"] : bv["byteOffset"] + bv["byteLength"]])
+        px = np.asarray(images.read(png).pixels)
+        big_h, big_w = px.shape[:2]
+        assert page["resolution"] == [big_w, big_h]
+        own = schema.read_record_pixels(res, "direction", channels=("R", "G", "B"))
+        h, w = own.shape[:2]
+        assert (w, h) == tuple(res.resolution)
+        ys, xs = np.mgrid[0:h, 0:w]
+        st = np.stack([(xs + 0.5) / w, (ys + 0.5) / h], -1)  # glTF texcoords (t = 1 - v)
+        pp = st * np.asarray(ext["scale"]) + np.asarray(ext["offset"])
+        col = np.floor(pp[..., 0] * big_w).astype(int)
+        row = np.floor(pp[..., 1] * big_h).astype(int)
+        assert np.array_equal(px[row, col][..., :3], own[..., :3]), ext["prim"]
+        seen.add((ext["page"], int(col.min()), int(row.min())))
+    assert len(seen) == 7  # seven distinct rectangles
 
 
 @pytest.fixture(scope="module")
@@ -545,8 +596,10 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
     if case == "unbaked":
         return d / "cornell_box.usda"
     if case == "missing_texture":
-        (f,) = [p for p in (d / "lightmaps").glob("*Floor*.direction.*.png")]
-        f.unlink()
+        from usdahd.export.gltf import check_stage
+
+        _, records = check_stage(str(layer))
+        Path(records["/World/Geometry/Floor"].textures["direction"]).unlink()
         return layer
     if case == "no_uvs":  # a layer over the bake that blocks the Floor's lightmap UVs
         (d / "no_uvs.usda").write_text(
@@ -560,7 +613,8 @@ def _broken(cornell: Path, tmp_path: Path, case: str) -> Path:
 
 BAD = [
     ("unbaked", "no baked prim (formatVersion 0): this is not a baked stage; run usdahd bake"),
-    ("missing_texture", "/World/Geometry/Floor: lightmap texture 'direction'"),
+    # the Floor's atlas page: the first prim on it (sorted) is named
+    ("missing_texture", "/World/Geometry/BackWall: lightmap texture 'direction'"),
     ("no_uvs", "/World/Geometry/Floor: has no lightmap UVs (primvar 'st'"),
 ]
 
@@ -723,6 +777,10 @@ def test_normal_maps_and_albedo_textures_render_like_preview_model_view(tmp_path
             assert e < 0.02, (name, path, e)
 
 
+#: The one-map-per-prim bake: every record's textures are a page of their own (scale (1, 1)).
+ATLAS_OFF = ["--atlas", "off"]
+
+
 def test_unbaked_meshes_are_plain_nodes(tmp_path):
     """Meshes the bake left unbaked (here all but the floor, ``--prim``; instances and
     ``ahdLightmap:bake = false`` occluders alike) are exported as plain nodes with their base
@@ -730,7 +788,7 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     from usdahd.export.gltf import EXTENSION
 
     stage = copy_sample(tmp_path, "cornell_box.usda")
-    argv = ["bake", str(stage), "--prim", "/World/Geometry/Floor", "--resolution", "16"]
+    argv = ["bake", str(stage), "--prim", "/World/Geometry/Floor", "--resolution", "16", *ATLAS_OFF]
     assert cli.main([*argv, "--samples", "16", "-q"]) == 0
     layer = tmp_path / "cornell_box.lightmaps.usda"
     rep = _export(layer, tmp_path / "all.glb")
@@ -747,6 +805,8 @@ def test_unbaked_meshes_are_plain_nodes(tmp_path):
     assert (rep["nodes"], rep["unbaked_nodes"]) == (1, 0)
     doc, _ = read_glb(tmp_path / "baked.glb")
     assert all(EXTENSION in n.get("extensions", {}) for n in doc["nodes"][1:])
+    (floor,) = [n["extensions"][EXTENSION] for n in doc["nodes"][1:]]
+    assert (floor["scale"], floor["offset"]) == ([1.0, 1.0], [0.0, 0.0])  # its own page
     for r in validate([tmp_path / "all.glb", tmp_path / "baked.glb"]).values():
         assert (r["errors"], r["warnings"], r["schemaErrors"]) == (0, 0, [])
 
@@ -789,11 +849,12 @@ over "World"
 """
 
 
-def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp_path):
+def test_scenegraph_instances_export_their_own_lightmaps(tmp_path):
     """Two instanceable references of a prototype that itself references the baked ShortBox.
     The instance proxies compose the ShortBox's bake record (the override layer's opinions reach
-    every reference) but the bake never baked them: the export gives them no lightmap (not the
-    ShortBox's) and one shared glTF mesh with their own TRS; valid glTF."""
+    every reference), but that record is not theirs: the bake gives each copy its own record
+    (on the instance prim, issue 39) and the export gives each copy its own lightmap page, not
+    the ShortBox's, with its own world-space vertices; valid glTF."""
     from usdahd.export.gltf import EXTENSION
 
     copy_sample(tmp_path, "cornell_box.usda")
@@ -801,19 +862,26 @@ def test_scenegraph_instances_share_one_mesh_without_the_prototypes_lightmap(tmp
     argv = ["bake", str(tmp_path / "inst.usda"), "--resolution", "16", "--samples", "16", "-q"]
     assert cli.main(argv) == 0
     rep = _export(tmp_path / "inst.lightmaps.usda", tmp_path / "inst.glb")
-    assert (rep["nodes"], rep["unbaked_nodes"]) == (7, 2)
+    assert (rep["nodes"], rep["unbaked_nodes"]) == (9, 0)
     doc, binary = read_glb(tmp_path / "inst.glb")
     nodes = {n["name"]: n for n in doc["nodes"]}
     a, b = nodes["/World/Props/A/Box"], nodes["/World/Props/B/Box"]
-    assert EXTENSION not in a.get("extensions", {}) and EXTENSION not in b.get("extensions", {})
-    assert a["mesh"] == b["mesh"] != nodes["/World/Geometry/ShortBox"]["mesh"]
+    box = nodes["/World/Geometry/ShortBox"]
+    places = {  # (page, scale, offset): each copy its own rectangle of the atlas
+        name: json.dumps(
+            {k: nodes[name]["extensions"][EXTENSION].get(k) for k in ("page", "scale", "offset")}
+        )
+        for name in ("/World/Props/A/Box", "/World/Props/B/Box", "/World/Geometry/ShortBox")
+    }
+    assert len(set(places.values())) == 3, places  # each copy its own lightmap
+    assert a["extensions"][EXTENSION]["prim"] == "/World/Props/A/Box"
     from usdahd.export.gltf import load_prims
 
-    _, prims, _ = load_prims(str(tmp_path / "inst.lightmaps.usda"), unbaked=True)
+    _, prims, _ = load_prims(str(tmp_path / "inst.lightmaps.usda"))
     world = {p.mesh.path: np.asarray(p.mesh.points) for p in prims}
-    (prim,) = doc["meshes"][a["mesh"]]["primitives"]
-    pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
-    for node in (a, b):  # the shared vertices through each node's TRS are its copy's points
+    for node in (a, b, box):  # each node's vertices through its TRS are its copy's points
+        (prim,) = doc["meshes"][node["mesh"]]["primitives"]
+        pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
         got = (node_matrix(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
         want = world[node["name"]]
         d = np.linalg.norm(got[:, None, :] - want[None, :, :], axis=-1)

@@ -242,7 +242,6 @@ def _square_view_factor(px, py, half, h):
 def test_bounce_from_a_mtlx_floor_has_its_colour(tmp_path, capsys):
     """A black receiver facing a red floor (an .mtlx material) lit by a sun of illuminance
     pi: its irradiance is albedo x F (F: view factor of the lit floor), so I_z = rho x F."""
-    from usdahd import images
     from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
 
@@ -254,7 +253,7 @@ def test_bounce_from_a_mtlx_floor_has_its_colour(tmp_path, capsys):
 
     def iz(prim):
         res = schema.read_results(stage.GetPrimAtPath(prim))
-        side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
+        side = schema.read_record_pixels(res, "sh", schema.SH_SIDECAR_CHANNELS)
         cover = side[..., -1] > 0
         return shmod.iz(side[cover][:, :27].reshape(-1, 3, 9).astype(np.float64)).mean(0)
 

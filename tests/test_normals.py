@@ -373,7 +373,6 @@ def _strip_pillar_normals(tmp_path) -> Path:
 def test_pillar_without_normals_bakes_like_the_authored_flat_normals(tmp_path, capsys):
     """The pillar of samples/pillar_room.usda with its normals removed bakes the same Iz as
     with its authored (flat) normals: same seed, so the difference is the normals alone."""
-    from usdahd import images
     from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
 
@@ -390,7 +389,7 @@ def test_pillar_without_normals_bakes_like_the_authored_flat_normals(tmp_path, c
     def iz(layer):
         st = Usd.Stage.Open(str(layer))
         res = schema.read_results(st.GetPrimAtPath("/World/Geometry/Pillar"))
-        side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
+        side = schema.read_record_pixels(res, "sh", schema.SH_SIDECAR_CHANNELS)
         cover = side[..., -1] > 0
         return shmod.iz(side[cover][:, :27].reshape(-1, 3, 9).astype(np.float64)), res
 

@@ -12,6 +12,7 @@ import pytest
 from usdahd import cli, images, models
 from usdahd.commands import preview as P
 from usdahd.preview import raytrace
+from usdahd.usd import schema
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 SIZE = (96, 72)
@@ -34,7 +35,7 @@ def _both(layer):
     items, traced = [], []
     for mesh, res, tangent, sign in meshes:
         layout = models.get(res.model).layout(res.ratio)
-        tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+        tex = [schema.read_record_pixels(res, t.role, t.channels) for t in layout]
         items.append((P.vertex_data(mesh, tangent, sign), res.model, res.ratio, tex, res.factors))
         traced.append((mesh, res.model, res.ratio, tex, res.factors))
     _, dev = P.device()
@@ -101,9 +102,7 @@ def test_preview_pixels_match_the_sidecar(layer):
 
     from usdahd.bake.trace import Tracer
     from usdahd.numerics import sh as shm
-    from usdahd.usd import schema
     from usdahd.usd.reader import load_scene
-    from usdahd.validate.loading import read_image
 
     g, e, meshes = _both(layer)
     stage, _, up = P.baked_meshes(str(layer))
@@ -118,7 +117,7 @@ def test_preview_pixels_match_the_sidecar(layer):
     ref = np.zeros((SIZE[0] * SIZE[1], 3))
     for k, (mesh, res, *_) in enumerate(meshes):
         sel = np.nonzero((hit["tri"] >= 0) & (tracer.tri_mesh[np.maximum(hit["tri"], 0)] == k))[0]
-        data = read_image(res.textures[schema.SIDECAR_ROLE]).channels(schema.SH_SIDECAR_CHANNELS)
+        data = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
         h, w = data.shape[:2]
         iz = np.maximum(shm.iz(data[..., :27].astype(np.float64).reshape(h, w, 3, 9)), 0.0)
         st = np.asarray(mesh.uv, np.float64)[tracer.tri_local[hit["tri"][sel]]]
@@ -365,7 +364,7 @@ def test_atlas_tiles_are_the_textures_with_chart_outlines(layer, tmp_path, capsy
     for t in rep["tiles"]:
         mesh, res = by_path[t["prim"]]
         role = next(lay for lay in models.get(res.model).layout(res.ratio) if lay.role == t["role"])
-        px = images.read(res.textures[role.role], channels=role.channels).pixels
+        px = schema.read_record_pixels(res, role.role, role.channels)
         charts = atlas.chart_image(mesh, res.resolution)
         s = atlas.magnification(res.resolution)
         assert (t["width"], t["height"]) == (px.shape[1] * s, px.shape[0] * s)
@@ -394,7 +393,8 @@ def test_atlas_marks_the_texels_validate_flags(layer, tmp_path, capsys):
     floor = next(r for m, r, *_ in meshes if m.path.endswith("/Floor"))
     img = images.read(floor.textures["iz"])
     px = img.pixels.copy()
-    px[5, 7] = -1.0
+    ox, oy = floor.rect()[:2] if floor.atlas else (0, 0)  # texel (7, 5) of the floor's own grid
+    px[5 + oy, 7 + ox] = -1.0
     images.write(floor.textures["iz"], px, color_space=img.color_space, channels=img.channels)
     rep = _atlas(copied, tmp_path / "a.png", capsys)
     marks = [f for f in rep["flagged"] if f["prim"] == "/World/Geometry/Floor"]
@@ -676,7 +676,7 @@ def test_ahd_classic_parameters_are_the_bake_at_the_texel_centres(layer):
     for _, res, *_ in meshes[:3]:
         m = models.get(res.model)
         layout = m.layout(res.ratio)
-        tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+        tex = [schema.read_record_pixels(res, t.role, t.channels) for t in layout]
         ca, d, cd = classic.parameters(res.model, res.ratio, tex, res.factors)
         params = m.decode({t.role: px for t, px in zip(layout, tex)}, ratio=res.ratio,
                           factors=res.factors)  # fmt: skip

@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from usdahd import cli, images
 from usdahd.usd import schema
@@ -73,11 +74,12 @@ def test_model_change_refits_from_the_sidecar_with_zero_rays(tmp_path, capsys):
     assert code == 0 and sum(p["rays"] for p in rep["prims"]) == 0
 
 
-def test_other_changes_or_a_replaced_sidecar_trace_again(tmp_path, capsys):
+@pytest.mark.parametrize("atlas", ["off", "on"])
+def test_other_changes_or_a_replaced_sidecar_trace_again(tmp_path, capsys, atlas):
     stage = _stage(tmp_path)
-    assert _bake([str(stage), *FAST], capsys)[0] == 0
+    assert _bake([str(stage), *FAST, "--atlas", atlas], capsys)[0] == 0
     # samples change the SH: traced
-    argv = [str(stage), "--resolution", "8", "--samples", "8", "--bounces", "1"]
+    argv = [str(stage), "--resolution", "8", "--samples", "8", "--bounces", "1", "--atlas", atlas]
     code, rep, _ = _bake(argv, capsys)
     assert code == 0 and all(p["rays"] > 0 and not p.get("refit") for p in rep["prims"])
     # a sidecar replaced behind the layer's back is not trusted: traced
@@ -95,7 +97,10 @@ def test_other_changes_or_a_replaced_sidecar_trace_again(tmp_path, capsys):
     assert code == 0
     by_path = {p["path"]: p for p in rep["prims"]}
     assert by_path[path0]["rays"] > 0 and not by_path[path0].get("refit")
-    assert all(p["rays"] == 0 for path, p in by_path.items() if path != path0)
+    if atlas == "off":
+        assert all(p["rays"] == 0 for path, p in by_path.items() if path != path0)
+    else:  # the page's sidecar holds every record on it: none is trusted, all traced
+        assert all(p["rays"] > 0 for p in by_path.values())
 
 
 def test_bad_container_and_missing_encoder_are_usage_errors_up_front(tmp_path, monkeypatch):

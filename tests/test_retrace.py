@@ -63,9 +63,13 @@ def _scaled_copy(layer: Path, name: str, factor: float, sidecar: bool = True) ->
     dst = layer.parent.parent / name
     shutil.copytree(layer.parent, dst)
     new = dst / layer.name
+    done = set()  # an atlas page is shared by several records: scale each file once
     for res in _results(new).values():
         mod = models.get(res.model)
         lay = {t.role: t for t in mod.layout(res.ratio)}
+        if res.textures[schema.SIDECAR_ROLE] in done:
+            continue
+        done.add(res.textures[schema.SIDECAR_ROLE])
         for role, path in res.textures.items():
             if role == schema.SIDECAR_ROLE or lay[role].color_space != "lin_rec709_scene":
                 continue  # only irradiance-valued textures scale (not ratios, directions)

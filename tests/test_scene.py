@@ -127,6 +127,10 @@ def test_instances_pointinstancer_and_implicit_gprims():
     c = ball.points[ball.triangles].mean(1)
     assert np.all(np.einsum("ij,ij->i", _tri_normals(ball), c) > 0)
     assert any("instanced" in w for w in sc.warnings)
+    # the prototype has no lightmap UVs: its copies stay occluders, and the reader says why
+    # (copies of a prototype with UVs are baked: tests/test_instances.py)
+    assert any("</Proto/m>: prototype mesh has no lightmap UV set" in w for w in sc.warnings)
+    assert byp["/inst0/m"].instance.carrier == "/inst0" and cubes[0].instance is None
     sc2 = load_scene(st, prims=["/Proto"])
     assert [m.path for m in sc2.meshes if m.bake] == ["/Proto/m"]
 

@@ -25,6 +25,7 @@ import pytest
 import usdahd
 from usdahd import cli, images, models, shaders
 from usdahd.errors import UsageError
+from usdahd.usd.schema import NO_ATLAS
 
 ROOT = Path(__file__).resolve().parents[1]
 INSTALL_HINT = (
@@ -87,7 +88,7 @@ _WGSL = """
 @compute @workgroup_size({wg})
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {{
     let i = gid.x;
-    let uv = usdahd_lightmap_texcoord(inp[3u * i].xy);
+    let uv = usdahd_page_texcoord(inp[3u * i].xy, vec4<f32>(fac[8], fac[9], fac[10], fac[11]));
     let n = inp[3u * i + 1u].xyz;
     let albedo = inp[3u * i + 2u].xyz;
 {factors}
@@ -111,7 +112,7 @@ layout(set = 0, binding = 3) uniform sampler samp;
 {library}
 void main() {{
     uint i = gl_GlobalInvocationID.x;
-    vec2 uv = usdahd_lightmap_texcoord(inp[3u * i].xy);
+    vec2 uv = usdahd_page_texcoord(inp[3u * i].xy, vec4(fac[8], fac[9], fac[10], fac[11]));
     vec3 n = inp[3u * i + 1u].xyz;
     vec3 albedo = inp[3u * i + 2u].xyz;
 {factors}
@@ -135,7 +136,7 @@ _HLSL = """
 [numthreads({wg}, 1, 1)]
 void main(uint3 gid : SV_DispatchThreadID) {{
     uint i = gid.x;
-    float2 uv = usdahd_lightmap_texcoord(inp[3u * i].xy);
+    float2 uv = usdahd_page_texcoord(inp[3u * i].xy, float4(fac[8], fac[9], fac[10], fac[11]));
     float3 n = inp[3u * i + 1u].xyz;
     float3 albedo = inp[3u * i + 2u].xyz;
 {factors}
@@ -237,8 +238,8 @@ def device():
 
 
 class Bakes:
-    """The Cornell box baked once (16 x 16 texels per mesh, 16 samples, 1 bounce), then refitted
-    per variant from the SH sidecar: {(model, ratio): [(prim, channels, factors, resolution)]}."""
+    """The Cornell box baked once (16 x 16 texels per mesh, 16 samples, 1 bounce, atlas pages:
+    the default), then refitted per variant from the SH sidecar: {(model, ratio): [Record]}."""
 
     def __init__(self, tmp: Path):
         self.stage = tmp / "cornell_box.usda"
@@ -272,13 +273,31 @@ class Bakes:
             if res is None:
                 continue
             assert (res.model, res.ratio) == (model, ratio)
-            channels = {
+            pages = {
                 t.role: images.read(res.textures[t.role], channels=t.channels).pixels
                 for t in models.get(model).layout(ratio)
             }
-            out.append((str(prim.GetPath()), channels, dict(res.factors), res.resolution))
+            out.append(Record(str(prim.GetPath()), pages, dict(res.factors), res))
         assert out, "the bake wrote no prim"
         return out
+
+
+class Record:
+    """One baked prim: its page textures (role -> (H, W, c) stored pixels, the whole page),
+    decode factors and BakeResults (resolution, scale_offset)."""
+
+    def __init__(self, prim, pages, factors, results):
+        self.prim, self.pages, self.factors, self.results = prim, pages, factors, results
+
+    def rect(self):
+        page = next(iter(self.pages.values()))
+        return schema_rect(self.results, (page.shape[1], page.shape[0]))
+
+
+def schema_rect(results, page):
+    from usdahd.usd import schema
+
+    return schema.record_rect(results, page)
 
 
 @pytest.fixture(scope="module")
@@ -316,9 +335,12 @@ def _texture(device, pixels: np.ndarray):
     return tex
 
 
-def run_kernel(device, module, textures, inputs: np.ndarray, factors: dict, k: int) -> np.ndarray:
+def run_kernel(
+    device, module, textures, inputs: np.ndarray, factors: dict, k: int, scale_offset=NO_ATLAS
+) -> np.ndarray:
     """Dispatch ``main`` of a compiled module; inputs (n, 3, 4) float32 (n a multiple of the
-    workgroup). returns (n, k, 3) float32."""
+    workgroup); ``scale_offset`` the record's ahdLightmap:atlas:scaleOffset in its page (the
+    textures). returns (n, k, 3) float32."""
     import wgpu
 
     n = inputs.shape[0]
@@ -344,7 +366,8 @@ def run_kernel(device, module, textures, inputs: np.ndarray, factors: dict, k: i
     inb = device.create_buffer_with_data(data=inputs.astype(np.float32).tobytes(), usage=storage)
     outb = device.create_buffer(size=n * k * 16, usage=storage | wgpu.BufferUsage.COPY_SRC)
     sampler = device.create_sampler(mag_filter="linear", min_filter="linear")
-    fac = np.array([factors.get(f, 1.0) for f in FACTORS] + [0.0, 0.0], np.float32)
+    fac = [factors.get(f, 1.0) for f in FACTORS] + [0.0, 0.0] + [float(v) for v in scale_offset]
+    fac = np.array(fac, np.float32)
     facb = device.create_buffer_with_data(data=fac.tobytes(), usage=storage)
     entries = [
         {"binding": 0, "resource": {"buffer": inb}},
@@ -483,14 +506,22 @@ def test_shader_decode_and_evaluate_match_python(device, bakes, model, ratio, la
     n_tex = len(mod.layout(ratio))
     module = compile_module(device, language, model, ratio, n_tex, tmp_path)
     _, _, names, _ = _spec(model, ratio)
-    for prim, channels, factors, res in prims:
+    assert len({r.results.textures[mod.layout(ratio)[0].role] for r in prims}) < len(prims)
+    for rec in prims:
+        prim, factors, res = rec.prim, rec.factors, rec.results.resolution
         roles = [t.role for t in mod.layout(ratio)]
-        channels = with_edge_texels(channels, rng)
-        textures = [_texture(device, channels[r]) for r in roles]
+        # the whole page is uploaded; the record's own texels (its rectangle) get the edge
+        # codes, and the Python reference reads that rectangle
+        x0, y0, w, h = rec.rect()
+        pages = with_edge_texels({r: p[y0:] for r, p in rec.pages.items()}, rng)
+        pages = {r: np.concatenate([rec.pages[r][:y0], p]) for r, p in pages.items()}
+        channels = {r: p[y0 : y0 + h, x0 : x0 + w] for r, p in pages.items()}
+        textures = [_texture(device, pages[r]) for r in roles]
         inp, xy = _inputs(rng, res)
+        so = rec.results.scale_offset
         # the bake's factors, then all doubled (exercises every scale's plumbing)
         for fac in (factors, {k: 2.0 * v for k, v in factors.items()}):
-            got = run_kernel(device, module, textures, inp, fac, len(names) + 2)
+            got = run_kernel(device, module, textures, inp, fac, len(names) + 2, so)
             texels = {r: c[xy[:, 1], xy[:, 0]] for r, c in channels.items()}
             params = mod.decode(texels, ratio=ratio, factors=fac)
             ref = _reference_fields(model, params)
@@ -693,6 +724,74 @@ def test_common_functions_match_the_baker(device, language, tmp_path):
     )
 
 
+_PAGE_BODY = {
+    "wgsl": """
+    let a = inp[2u * i];
+    outp[2u * i] = vec4<f32>(usdahd_page_texcoord(a.xy, inp[2u * i + 1u]), 0.0, 0.0);
+    outp[2u * i + 1u] = vec4<f32>(
+        usdahd_page_texcoord_array(a.xy, inp[2u * i + 1u], i32(a.z)), 0.0);""",
+    "glsl": """
+    vec4 a = inp[2u * i];
+    outp[2u * i] = vec4(usdahd_page_texcoord(a.xy, inp[2u * i + 1u]), 0.0, 0.0);
+    outp[2u * i + 1u] = vec4(usdahd_page_texcoord_array(a.xy, inp[2u * i + 1u], int(a.z)), 0.0);""",
+    "hlsl": """
+    float4 a = inp[2u * i];
+    outp[2u * i] = float4(usdahd_page_texcoord(a.xy, inp[2u * i + 1u]), 0.0, 0.0);
+    outp[2u * i + 1u] = float4(
+        usdahd_page_texcoord_array(a.xy, inp[2u * i + 1u], (int)a.z), 0.0);""",
+}
+
+
+@pytest.mark.parametrize("language", LANGUAGES)
+def test_page_texcoord_puts_every_record_texel_at_its_page_texel(device, language, tmp_path):
+    """usdahd_page_texcoord(st, scaleOffset) (and the texture-array variant with the page as
+    layer) maps the centre of texel (x, y) of a record to the centre of page texel (x0 + x,
+    y0 + y), the rectangle schema.record_rect gives for ahdLightmap:atlas:scaleOffset (the
+    contract's pixel rule); (1, 1, 0, 0) is the record's own texture."""
+    from usdahd.usd.schema import BakeResults, record_rect
+
+    lang = language.split("-")[0]
+    src = _COMMON_KERNEL[lang].format(
+        wg=WORKGROUP, library=shaders.path(lang, "common").read_text(), body=_PAGE_BODY[lang]
+    )
+    if language.endswith("-glslang"):
+        module = device.create_shader_module(label="compute", code=glslang(src, lang, tmp_path))
+    else:
+        module = device.create_shader_module(label="compute", code=src)
+    rng = np.random.default_rng(11)
+    cases = []  # (page (W, H), rect (x0, y0, w, h), page index)
+    for _ in range(12):
+        big_w, big_h = (int(2 ** rng.integers(5, 12)) for _ in range(2))
+        w = 4 * int(rng.integers(1, big_w // 4 + 1))
+        h = 4 * int(rng.integers(1, big_h // 4 + 1))
+        x0 = 4 * int(rng.integers(0, (big_w - w) // 4 + 1))
+        y0 = 4 * int(rng.integers(0, (big_h - h) // 4 + 1))
+        cases.append(((big_w, big_h), (x0, y0, w, h), int(rng.integers(0, 8))))
+    cases.append(((64, 32), (0, 0, 64, 32), 0))  # no atlas: the record is the page
+    rows, want = [], []
+    for (big_w, big_h), (x0, y0, w, h), page in cases:
+        so = (w / big_w, h / big_h, x0 / big_w, 1.0 - (y0 + h) / big_h)
+        if (w, h) == (big_w, big_h):
+            so = NO_ATLAS
+        res = BakeResults("hhd", "luminance", "golden", "st", (w, h), {})
+        res.scale_offset, res.atlas = so, so != NO_ATLAS
+        assert record_rect(res, (big_w, big_h)) == (x0, y0, w, h)
+        xs = rng.integers(0, w, 40)
+        ys = rng.integers(0, h, 40)
+        st = np.stack([(xs + 0.5) / w, 1.0 - (ys + 0.5) / h], 1)
+        for (u, v), x, y in zip(st, xs, ys):
+            rows.append([[u, v, page, 0.0], list(so)])
+            want.append([(x0 + x + 0.5) / big_w, (y0 + y + 0.5) / big_h, page])
+    pad = (-len(rows)) % WORKGROUP
+    rows += rows[:pad]
+    want += want[:pad]
+    out = run_buffers(device, module, np.asarray(rows, np.float32), 2).astype(np.float64)
+    want = np.asarray(want, np.float64)
+    scale = np.array([[c[0][0], c[0][1]] for c in cases], np.float64).max()
+    np.testing.assert_allclose(out[:, 0, :2], want[:, :2], rtol=0, atol=0.01 / scale)
+    np.testing.assert_allclose(out[:, 1, :3], want, rtol=0, atol=0.01 / scale)
+
+
 # ---------------------------------------------------------------------------------------------
 # --ahd-classic: the 2018 paper's Figure 2 through the sampler.
 
@@ -827,6 +926,7 @@ def test_the_glsl_example_in_docs_schema_compiles(tmp_path):
             "layout(binding = 1) uniform sampler2D iz_tex;",
             "layout(binding = 2) uniform sampler2D direction_tex;",
             "layout(location = 6) uniform float izScale;",
+            "layout(location = 7) uniform vec4 scaleOffset;",
             "void main() {",
             "UsdahdFrame material_frame = UsdahdFrame(v_material_t, v_material_b, v_normal);",
             blocks[0],
@@ -866,13 +966,14 @@ def test_preview_of_models_that_agree_at_the_normal_gives_the_same_image(bakes, 
         reports[model] = json.loads(capsys.readouterr().out)
         assert out.exists()
         from usdahd.commands import preview
+        from usdahd.usd import schema
 
         stage, meshes, up = preview.baked_meshes(str(bakes.layer))
         pts = np.concatenate([np.asarray(m.points) for m, *_ in meshes])
         items = []
         for mesh, res, tangent, sign in meshes:
             lay = models.get(res.model).layout(res.ratio)
-            tex = [images.read(res.textures[t.role], channels=t.channels).pixels for t in lay]
+            tex = [schema.read_record_pixels(res, t.role, channels=t.channels) for t in lay]
             items.append((preview.vertex_data(mesh, tangent, sign), model, ratio, tex, res.factors))
         _, dev = preview.device()
         imgs[model] = preview.render(dev, items, preview.auto_camera(pts, up, 96 / 72), (96, 72))

@@ -127,12 +127,11 @@ def _sun(st, path="/World/Sun", intensity=None, normalize=True):
 
 def _baked_iz(layer, prim="/World/Plane"):
     """Mean I_z (RGB) of a baked prim from its SH sidecar, and the settings record."""
-    from usdahd import images
     from usdahd.usd import schema
 
     stage = Usd.Stage.Open(str(layer))
     res = schema.read_results(stage.GetPrimAtPath(prim))
-    side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
+    side = schema.read_record_pixels(res, "sh", schema.SH_SIDECAR_CHANNELS)
     cover = side[..., -1] > 0
     iz = shmod.iz(side[cover][:, :27].reshape(-1, 3, 9).astype(np.float64))
     return iz, res

@@ -218,11 +218,23 @@ def _all(layer: Path) -> list:
 
 def test_records_of_one_page_must_name_the_same_files(bake, tmp_path):
     layer = _copy(bake, tmp_path)
-    # Both on page 0 of the same layer, each naming its own files.
+    # Both on page 0 sharing A's iz file, B keeping its own direction and sidecar files.
     _author(layer, {A: ((0.25, 0.25, 0.0, 0.75), 0), B: ((0.25, 0.25, 0.5, 0.75), 0)}, None)
+    stage = Usd.Stage.Open(str(layer))
+    name = schema.file_property_name("iz")
+    stage.GetPrimAtPath(B).GetAttribute(name).Set(stage.GetPrimAtPath(A).GetAttribute(name).Get())
+    stage.GetRootLayer().Save()
     found = _atlas(layer)
     assert _codes(found) == {(A, "PageFiles"), (B, "PageFiles")}
     assert all(A in f.message and B in f.message for f in found)
+    assert all("different files for" in f.message for f in found)
+
+
+def test_records_with_their_own_files_are_separate_pages(bake, tmp_path):
+    layer = _copy(bake, tmp_path)
+    # Page 0 of each record's own files (e.g. two output layers): no relation, no finding.
+    _author(layer, {A: ((0.5, 0.5, 0.0, 0.5), 0), B: ((0.5, 0.5, 0.0, 0.5), 0)}, None)
+    assert _atlas(layer) == []
 
 
 def test_one_file_under_two_page_indices_is_an_error(bake, tmp_path):

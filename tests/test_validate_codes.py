@@ -89,7 +89,8 @@ def test_one_bad_code_in_any_channel_is_caught(default_bakes, tmp_path, model, r
     path = Path(bake.results.textures[role])
     img = images.read(path)
     data = np.array(img.pixels)
-    data[y, x, list(img.channels).index(channel)] = moved[0]
+    ox, oy = bake.results.rect()[:2] if bake.results.atlas else (0, 0)  # in its atlas page
+    data[y + oy, x + ox, list(img.channels).index(channel)] = moved[0]
     images.write(path, data, color_space=img.color_space or "raw", channels=img.channels)
     # A bake that wrote one bad code: the layer records the file's new digest.
     edit = Usd.Stage.Open(str(layer))

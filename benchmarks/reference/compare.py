@@ -103,11 +103,10 @@ def usdahd_results(layer: Path) -> dict:
     plugin.register()
     stage = Usd.Stage.Open(str(layer))
     out = {}
-    for prim in schema.prims_with_api(stage):
-        res = schema.read_results(prim)
-        if res is None:
-            continue
-        out[str(prim.GetPath())] = {
+    # mesh records and instance entries (keyed by the copy's path: a scenegraph copy's
+    # instance proxy, which export_stage traverses)
+    for path, res in schema.stage_records(stage).items():
+        out[path] = {
             "uv": res.uv_primvar,
             "resolution": list(res.resolution),
             "sidecar": res.textures.get(schema.SIDECAR_ROLE),

@@ -38,7 +38,19 @@ def add_parser(sub):
     a("--uv", metavar="PRIMVAR", help="lightmap UV primvar name (default st)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resolution", type=int, metavar="N", help="lightmap size N x N per mesh")
-    g.add_argument("--texel-density", type=float, metavar="T", help="texels per metre (default 16)")
+    g.add_argument(
+        "--texel-density",
+        type=float,
+        metavar="T",
+        help="texels per metre for every prim (default: automatic, from --texel-budget)",
+    )
+    a(
+        "--texel-budget",
+        type=int,
+        metavar="N",
+        help="texels the automatic density spreads over the stage by surface area (default "
+        "1048576 = 1024^2; at most 16 texels/m, each map at least 32x32; docs/texels.md)",
+    )
     a("--samples", type=int, metavar="N", help="hemisphere samples per texel (default 256)")
     a(
         "--bounces",
@@ -78,6 +90,27 @@ def add_parser(sub):
         "chart-aware mip chain, lossless (RGBA8 / RGBA16F); ktx2-bc: the same block-compressed, "
         "BC7 for 8-bit data, BC6H for HDR (needs ispc-texcomp; error per model in "
         "docs/benchmarks.md)",
+    )
+    a(
+        "--atlas",
+        choices=["on", "off"],
+        default="on",
+        help="on (default): pack every prim's lightmap into shared power-of-two atlas pages, "
+        "each record authoring its page and a UV scale/offset (docs/schema.md, 'Atlas'); "
+        "off: one set of textures per prim",
+    )
+    a(
+        "--atlas-size",
+        type=int,
+        metavar="N",
+        help="largest atlas page side, a power of two (default 2048); a page shrinks to the "
+        "smallest power of two holding its rectangles",
+    )
+    a(
+        "--atlas-padding",
+        type=int,
+        metavar="N",
+        help="texels between two rectangles of a page, >= 2 (default: --padding, else 4)",
     )
     a(
         "--no-unwrap",
@@ -151,6 +184,7 @@ def run(args) -> int:
         uv=args.uv,
         resolution=args.resolution,
         texel_density=args.texel_density,
+        texel_budget=args.texel_budget,
         samples=args.samples,
         bounces=args.bounces,
         seed=args.seed,
@@ -165,6 +199,9 @@ def run(args) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         lock_timeout=args.lock_timeout,
+        atlas=args.atlas == "on",
+        atlas_size=args.atlas_size,
+        atlas_padding=args.atlas_padding,
     )
     report = bake(args.stage, opts)
     quiet = int(args.quiet or 0)
@@ -221,6 +258,12 @@ def _print_report(report, notes: bool = True) -> None:
         print(f"warning: {w}")
     for n in report.get("notes", []) if notes else []:
         print(f"note: {n}")
+    for page in report.get("atlas", {}).get("pages", []) if report.get("dry_run") else []:
+        W, H = page["size"]
+        print(
+            f"atlas: would write a {W}x{H} page of {len(page['records'])} record(s) "
+            f"({100 * page['rect_fill']:.0f}% of it rectangles)"
+        )
     if planned or "texels_total" in report and report.get("dry_run"):
         total = report.get("texels_total", 0)
         print(

@@ -15,8 +15,10 @@ What goes into the file (docs/gltf.md is the user-facing description):
 - the ``USDAHD_lightmap_directional`` extension: at the root one *page* per texture set (model,
   ratio, decode factors, texture roles with their encodings), on each node the page, the UV
   scale/offset into it and the texCoord index (docs/gltf/USDAHD_lightmap_directional.*.json).
-  Today every baked prim has its own texture set, so its page has scale (1, 1) and offset
-  (0, 0); an atlas fills the same fields.
+  A page is one texture set: an atlas page shared by the records packed into it (one image per
+  page and role, whatever the number of nodes on it), or a record's own textures (``--atlas
+  off``: scale (1, 1), offset (0, 0)); each node's scale/offset is the record's
+  ``ahdLightmap:atlas:scaleOffset`` in glTF's top-left texture convention (:func:`placement`).
 
 8-bit lightmap textures are embedded byte for byte as the bake wrote them; float16 textures are
 re-encoded as RGBM or RGBE PNG (:mod:`usdahd.export.hdr`).
@@ -193,27 +195,19 @@ def check_stage(layer: str):
     from usdahd import models
     from usdahd.usd import assets, schema
     from usdahd.usd.stage import open_stage
-    from usdahd.usd.transforms import instance_proxies
 
     if not Path(layer).exists():
         raise StageError(f"{layer}: no such file")
     stage = open_stage(layer)
-    records = {}
-    for prim in schema.prims_with_api(stage):
-        path = str(prim.GetPath())
-        try:
-            res = schema.read_results(prim)
-        except Exception as exc:
-            raise StageError(
-                f"{path}: its bake record cannot be read ({exc}); re-bake with usdahd bake"
-            ) from None
-        if res is not None:
-            records[path] = res
-    # Instance proxies show the bake record of the prim their prototype references (the
-    # override layer's opinions compose into every reference): not their own lightmap. The
-    # bake never bakes them; they are exported as unbaked meshes.
-    for path in instance_proxies(stage, list(records)):
-        del records[path]
+    # Mesh records and instance entries (each instance copy its own lightmap); a record an
+    # instance proxy shows through its prototype is not the copy's and is left out.
+    errors: list = []
+    records = schema.stage_records(stage, errors=errors)
+    if errors:
+        path, exc = errors[0]
+        raise StageError(
+            f"{path}: its bake record cannot be read ({exc}); re-bake with usdahd bake"
+        )
     if not records:
         raise StageError(
             f"{layer}: no baked prim (formatVersion 0): this is not a baked stage; run "
@@ -224,9 +218,11 @@ def check_stage(layer: str):
             file = res.textures.get(lay.role)
             if file is None or not assets.exists(file):
                 shown = res.asset_paths.get(lay.role, file or "(unauthored)")
+                sharing = sum(1 for r in records.values() if r.textures.get(lay.role) == file)
+                page = f", the atlas page of {sharing} prims" if res.atlas and file else ""
                 raise StageError(
-                    f"{path}: lightmap texture {lay.role!r} ({shown}) is missing; restore the "
-                    "lightmaps folder beside the layer or re-bake with usdahd bake"
+                    f"{path}: lightmap texture {lay.role!r} ({shown}{page}) is missing; restore "
+                    "the lightmaps folder beside the layer or re-bake with usdahd bake"
                 )
     return stage, records
 
@@ -325,8 +321,27 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return np.where(n > 1e-30, v / np.maximum(n, 1e-30), np.array([0.0, 0.0, 1.0]))
 
 
-def _page(b: _Builder, res, hdr: str, prim: str, stats: list) -> dict:
-    """The extension's page of one bake record: its textures embedded, the decode factors."""
+def page_key(res) -> tuple:
+    """What identifies a record's page: its model, ratio and the files of its texture roles
+    (records of one atlas page name the same files; without an atlas each record is a page)."""
+    from usdahd import models
+
+    roles = [lay.role for lay in models.get(res.model).layout(res.ratio)]
+    return (res.model, res.ratio, tuple(str(res.textures[r]) for r in roles))
+
+
+def placement(res) -> tuple[list[float], list[float]]:
+    """(scale, offset) of a record in its page for the glTF's TEXCOORD_1, whose origin is the
+    top-left (t = 1 - v): from ``ahdLightmap:atlas:scaleOffset`` (sx, sy, ox, oy) (USD's v up,
+    ``uv_page = uv * s + o``), ``t_page = t * sy + (1 - oy - sy)``; (1, 1), (0, 0) without an
+    atlas."""
+    sx, sy, ox, oy = (float(v) for v in res.scale_offset)
+    return [sx, sy], [ox, 1.0 - oy - sy]
+
+
+def _page(b: _Builder, res, hdr: str, name: str, stats: list) -> dict:
+    """The extension's page of a texture set (an atlas page, or one record's own textures):
+    its textures embedded whole, the decode factors (per page: one encode over the page)."""
     from usdahd import images, models
     from usdahd.export import hdr as hdr_codec
     from usdahd.export import png
@@ -335,9 +350,10 @@ def _page(b: _Builder, res, hdr: str, prim: str, stats: list) -> dict:
         {"magFilter": _NEAREST, "minFilter": _NEAREST, "wrapS": _CLAMP, "wrapT": _CLAMP}
     )
     textures = []
+    size = None
     for lay in models.get(res.model).layout(res.ratio):
         file = res.textures[lay.role]
-        name = f"{prim} {lay.role}"
+        label = f"{name} {lay.role}"
         if lay.format == "unorm8":
             img = images.read(file, channels=lay.channels)
             px = np.asarray(img.pixels)
@@ -350,14 +366,14 @@ def _page(b: _Builder, res, hdr: str, prim: str, stats: list) -> dict:
             blob = png.encode(px, linear=True)
             dec = hdr_codec.decode(px, hdr, params)
             stats.append((np.sum((dec - values) ** 2), np.sum(values**2), len(values.flat)))
-        tex = b.texture(b.image(blob, name), data_sampler)
+        size = size or (int(px.shape[1]), int(px.shape[0]))
+        tex = b.texture(b.image(blob, label), data_sampler)
         textures.append({"role": lay.role, "index": tex, **entry, "packing": lay.packing})
-    w, h = res.resolution
     return {
         "model": res.model,
         "ratio": res.ratio,
         "tangentFrame": res.tangent_frame,
-        "resolution": [int(w), int(h)],
+        "resolution": [int(size[0]), int(size[1])],
         "factors": {k: float(res.factor(k)) for k in _factor_names()},
         "textures": textures,
     }
@@ -510,6 +526,8 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
     b.doc["nodes"].append(root)
     mats = world_matrices(stage, [p.mesh.path for p in prims], scene.time)
     pages, stats, cache, mesh_cache = [], [], {}, {}
+    page_index: dict = {}  # page_key -> index into pages
+    baked = 0
     for p in prims:
         path = p.mesh.path
         m = mats.get(path)
@@ -532,16 +550,29 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         b.doc["nodes"].append(node)
         if p.results is None:
             continue
-        pages.append(_page(b, p.results, hdr, path, stats))
+        key = page_key(p.results)
+        if key not in page_index:
+            name = f"page {len(pages)}" if p.results.atlas else path
+            page_index[key] = len(pages)
+            pages.append(_page(b, p.results, hdr, name, stats))
+        elif pages[page_index[key]]["factors"] != {
+            k: float(p.results.factor(k)) for k in _factor_names()
+        }:
+            raise StageError(
+                f"{path}: its decode factors differ from those of the other records on its "
+                "atlas page (factors are per page); re-bake the stage with usdahd bake"
+            )
+        scale, offset = placement(p.results)
         node["extensions"] = {
             EXTENSION: {
-                "page": len(pages) - 1,
-                "scale": [1.0, 1.0],
-                "offset": [0.0, 0.0],
+                "page": page_index[key],
+                "scale": scale,
+                "offset": offset,
                 "texCoord": LIGHTMAP_TEXCOORD,
                 "prim": path,
             }
         }
+        baked += 1
     for cam in _cameras(stage, scene.up_axis, mpu):
         cam["camera"] = b._add("cameras", cam.pop("_camera"))
         b.doc["scenes"][0]["nodes"].append(len(b.doc["nodes"]))
@@ -559,8 +590,8 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
     ref2 = sum(s[1] for s in stats)
     report = {
         "stage": str(layer),
-        "nodes": len(pages),
-        "unbaked_nodes": len(prims) - len(pages),
+        "nodes": baked,
+        "unbaked_nodes": len(prims) - baked,
         "pages": len(pages),
         "models": sorted({f"{p['model']}/{p['ratio']}" for p in pages}),
         "hdr": hdr,

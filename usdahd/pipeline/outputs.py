@@ -106,18 +106,27 @@ def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
     """
     from usdahd import images
     from usdahd.errors import OutputError
+    from usdahd.usd import schema
 
     folder = out.parent / LIGHTMAPS_DIR
+    done: dict[Path, Path] = {}  # an atlas page is shared by the records on it
     for job in jobs:
         for role, staged in list(job.results.textures.items()):
             staged = Path(staged)
+            if staged in done:
+                job.results.textures[role] = str(done[staged])
+                entry = job.report.get("ktx2", {}).get(role)
+                if entry is not None:
+                    entry["path"] = str(done[staged].with_suffix(".ktx2"))
+                continue
             if not staged.name.startswith("."):
                 continue  # already committed
             digest = hashlib.sha256(staged.read_bytes()).hexdigest()
             final = folder / output_name(out, staged, digest)
+            size = schema.page_size(job.results) if job.results.atlas else job.results.resolution
             try:
                 img = images.read(staged)
-                ok = np.asarray(img.pixels).shape[:2] == tuple(job.results.resolution[::-1])
+                ok = np.asarray(img.pixels).shape[:2] == tuple(size[::-1])
             except Exception as exc:  # a truncated or empty file
                 import shutil
 
@@ -155,6 +164,7 @@ def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
             except OSError as exc:
                 raise _write_error(final, exc, f"cannot commit the new {role} texture") from None
             job.results.textures[role] = str(final)
+            done[staged] = final
             _fault("first_texture_committed")
     if jobs:
         _fsync(folder, directory=True)

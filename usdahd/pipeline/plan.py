@@ -12,11 +12,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from usdahd.errors import InputError, UsageError
+from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.raster import UV_OVERLAP_LIMIT
 from usdahd.pipeline.settings import (
+    DENSITY_AUTO_MAX,
+    DENSITY_LADDER,
     DENSITY_MAX_RESOLUTION,
     MAX_RESOLUTION,
+    MIN_RESOLUTION,
+    RESOLUTION_MULTIPLE,
     UV_DEGENERATE_LIMIT,
     UV_OUTSIDE_LIMIT,
     BakeOptions,
@@ -73,6 +77,71 @@ def _texels_per_unit(settings: dict, scene) -> float:
     return float(settings["texel_density"]) * float(scene.meters_per_unit or 1.0)
 
 
+def _round_up(n: int, multiple: int) -> int:
+    return -(-int(n) // multiple) * multiple
+
+
+def _auto_density(settings: dict) -> bool:
+    """Whether the prim's texel density is the stage's automatic one (texel budget)."""
+    return "min_resolution" in settings and settings.get("texel_density") is not None
+
+
+def mesh_extent(mesh, meters_per_unit: float) -> float:
+    """sqrt(world area / UV area) in metres: the side of a map at 1 texel per metre. The UV
+    area is the lightmap UV set's when it has one, else xatlas's rough packing efficiency
+    (bake.unwrap.PACK_EFFICIENCY)."""
+    from usdahd.bake.unwrap import PACK_EFFICIENCY
+
+    p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
+    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    uv_area = PACK_EFFICIENCY
+    if mesh.uv is not None:
+        uv = np.asarray(mesh.uv, np.float64)
+        if np.isfinite(uv).all():
+            e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+            a = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+            if 1e-12 < a <= 1.0:
+                uv_area = a
+    mpu = float(meters_per_unit or 1.0)
+    return float(np.sqrt(max(world, 0.0) / uv_area)) * mpu
+
+
+def auto_texel_density(
+    extents, budget: int, *, minimum: int = MIN_RESOLUTION
+) -> tuple[float, int, bool]:
+    """The stage's automatic texel density: the largest step DENSITY_AUTO_MAX *
+    DENSITY_LADDER^k (k = 0, 1, ...) at which the maps of meshes of these ``extents``
+    (:func:`mesh_extent`), each ceil(density * extent) at least ``minimum``, rounded up to
+    RESOLUTION_MULTIPLE and clamped to DENSITY_MAX_RESOLUTION, total at most ``budget``
+    texels (steps are snapped to 4 significant digits, as recorded). Returns (density,
+    planned texels, fits); ``fits`` is False when even the minimum maps (``minimum``^2 each)
+    exceed the budget (then the density is the step where every map is at its minimum).
+    For meshes the bake unwraps the extents assume xatlas's rough packing efficiency, so the
+    maps it packs can total more than planned (docs/texels.md)."""
+    ext = np.asarray(list(extents), np.float64)
+
+    def total(d: float) -> int:
+        n = np.maximum(np.ceil(d * ext - 1e-9), 1)
+        n = np.maximum(n, minimum)
+        n = np.minimum(-(-n // RESOLUTION_MULTIPLE) * RESOLUTION_MULTIPLE, DENSITY_MAX_RESOLUTION)
+        return int((n.astype(np.int64) ** 2).sum())
+
+    d = DENSITY_AUTO_MAX
+    for k in range(200):
+        d = _snap(DENSITY_AUTO_MAX * DENSITY_LADDER**k)
+        t = total(d)
+        if t <= budget:
+            return d, t, True
+        if len(ext) == 0 or (d * ext.max() <= minimum):  # every map at its minimum already
+            return d, t, False
+    return d, total(d), False
+
+
+def _snap(d: float) -> float:
+    """The density as recorded in the settings (4 significant digits: a stable hash)."""
+    return float(f"{d:.4g}")
+
+
 def _uv_problem(texels) -> str | None:
     """Why a rasterised UV set cannot hold a lightmap, or None if it can."""
     st = texels.stats
@@ -120,29 +189,76 @@ def _density_resolution(mesh, settings, scene, job: PrimJob) -> tuple[int, int]:
             f"texels per metre are {tpu:.3g} per stage unit: check metersPerUnit, or pass "
             "--resolution"
         ) from None
-    if max(w, h) > DENSITY_MAX_RESOLUTION:
-        job.report.setdefault("warnings", []).append(
+    n = _sized(w, settings, job)
+    if n is None:
+        # On the automatic density the budget counted this clamp: a note, not a warning.
+        kind = "notes" if _auto_density(settings) else "warnings"
+        job.report.setdefault(kind, []).append(
             f"texel density {settings['texel_density']:g}/m needs {w}x{h}; clamped to "
             f"{DENSITY_MAX_RESOLUTION} (pass --resolution or author ahdLightmap:resolution)"
         )
         return DENSITY_MAX_RESOLUTION, DENSITY_MAX_RESOLUTION
-    return w, h
+    return n, n
+
+
+def _sized(n: int, settings: dict, job: PrimJob) -> int | None:
+    """A density-derived side ``n`` as baked: at least the automatic density's minimum (with a
+    note), rounded up to a multiple of RESOLUTION_MULTIPLE; None above DENSITY_MAX_RESOLUTION."""
+    if n > DENSITY_MAX_RESOLUTION:
+        return None
+    out = n
+    if _auto_density(settings):
+        low = int(settings.get("min_resolution") or MIN_RESOLUTION)
+        if n < low:
+            out = low
+            job.report.setdefault("notes", []).append(
+                f"the stage's texel density {settings['texel_density']:g}/m gives {n}x{n}; "
+                f"raised to the minimum {low}x{low} (a denser map than its neighbours; pass "
+                "--texel-density or author ahdLightmap:texelDensity to keep one density)"
+            )
+    return min(
+        _round_up(out, int(settings.get("resolution_multiple") or 1)), DENSITY_MAX_RESOLUTION
+    )
 
 
 def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     from usdahd.bake.unwrap import unwrap
 
     info: dict = {}
+    low = int(settings.get("min_resolution") or 1) if _auto_density(settings) else 1
     if settings["resolution"]:
         uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2, info=info)
     else:
+        d = float(settings["texel_density"])
         try:
+            if d * mesh_extent(mesh, scene.meters_per_unit) < low:
+                raise _Small
             uv, res = unwrap(
                 mesh,
                 texels_per_unit=_texels_per_unit(settings, scene),
                 padding=2,
                 max_resolution=DENSITY_MAX_RESOLUTION,
                 info=info,
+            )
+            if res[0] * res[1] < low * low:
+                raise _Small
+        except _Small:
+            try:
+                uv, res = unwrap(mesh, resolution=low, padding=2, info=info)
+            except BakeError:  # more charts than low x low holds: as big as they need
+                scale = low / max(d * mesh_extent(mesh, scene.meters_per_unit), 1e-9)
+                uv, res = unwrap(
+                    mesh,
+                    texels_per_unit=_texels_per_unit(settings, scene) * scale,
+                    padding=2,
+                    max_resolution=DENSITY_MAX_RESOLUTION,
+                    info=info,
+                )
+                uv, res = _pad_to_multiple(uv, res, 1, minimum=low)
+            job.report.setdefault("notes", []).append(
+                f"the stage's texel density {d:g}/m gives this mesh fewer than {low}x{low} "
+                f"texels; unwrapped into {res[0]}x{res[1]} (the minimum is {low}x{low}; pass "
+                "--texel-density or author ahdLightmap:texelDensity to keep one density)"
             )
         except UsageError:
             job.report.setdefault("warnings", []).append(
@@ -151,6 +267,7 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
             )
             uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2, info=info)
+        uv, res = _pad_to_multiple(uv, res, int(settings.get("resolution_multiple") or 1))
     if info.get("split_polygons"):
         job.report.setdefault("notes", []).append(
             f"the unwrap's charts cut {info['split_polygons']} polygon(s); each is kept whole "
@@ -161,6 +278,27 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     job.unwrapped = True
     job.uv_primvar_values = uv
     job.resolution = tuple(int(r) for r in res)
+
+
+class _Small(Exception):
+    """The automatic density gives an unwrapped mesh less than its minimum map."""
+
+
+def _pad_to_multiple(
+    uv: np.ndarray, res, multiple: int, *, minimum: int = 1
+) -> tuple[np.ndarray, tuple[int, int]]:
+    """An atlas of ``res`` (w, h) placed in the top-left corner of the next (W, H) that are
+    multiples of ``multiple`` and at least ``minimum``: texel (x, y) keeps its place
+    (u' = u w / W, 1 - v' = (1 - v) h / H), the new columns and rows on the right and bottom are
+    uncovered."""
+    w, h = int(res[0]), int(res[1])
+    big_w, big_h = (_round_up(max(n, minimum), multiple) for n in (w, h))
+    if (big_w, big_h) == (w, h):
+        return uv, (w, h)
+    out = np.empty_like(uv, dtype=np.float64)
+    out[..., 0] = np.asarray(uv[..., 0], np.float64) * (w / big_w)
+    out[..., 1] = 1.0 - (1.0 - np.asarray(uv[..., 1], np.float64)) * (h / big_h)
+    return out.astype(np.float32), (big_w, big_h)
 
 
 def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
@@ -176,6 +314,7 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
         old.part_hashes.get("shape") == shape_digest(mesh).hexdigest()
         and prev.get("texel_density") == settings["texel_density"]
         and prev.get("meters_per_unit") == settings["meters_per_unit"]
+        and all(prev.get(k) == settings.get(k) for k in _SIZE_KEYS)
         and (not settings["resolution"] or list(old.resolution) == [settings["resolution"]] * 2)
     )
     if not same:
@@ -188,6 +327,10 @@ def _previous_unwrap(old, old_layer, mesh, settings, uv_name: str):
     if values.ndim != 2 or values.shape[1] != 2 or corner.size and corner.max() >= len(values):
         return None
     return values[corner], tuple(int(r) for r in old.resolution)
+
+
+#: Settings besides the density that decide an unwrap's size (settings.resolve_settings).
+_SIZE_KEYS = ("min_resolution", "resolution_multiple")
 
 
 def _reused_unwrap_problem(mesh, uv: np.ndarray, res) -> tuple[str | None, Texels | None]:
@@ -213,19 +356,47 @@ def _reused_unwrap_problem(mesh, uv: np.ndarray, res) -> tuple[str | None, Texel
     return _uv_problem(texels), texels
 
 
+def _instance_uv_problem(mesh, uv_name: str, problem: str | None) -> None:
+    """An instance copy cannot be unwrapped (its UVs live in the prototype, which the output
+    layer cannot author without de-instancing): raise InputError naming the prototype mesh
+    and the fix when its UV set is missing (``problem`` None) or unusable."""
+    ref = getattr(mesh, "instance", None)
+    if ref is None:
+        return
+    if problem is None:
+        from usdahd.usd.reader import no_instance_uv_message
+
+        raise InputError(f"{mesh.path}: " + no_instance_uv_message(ref.origin, uv_name, 1))
+    raise InputError(
+        f"{mesh.path}: the UV set {uv_name!r} of its prototype mesh {ref.origin} {problem}, so "
+        "it cannot hold a lightmap and an instance copy cannot be unwrapped; fix the UV set in "
+        "the asset or make the instance non-instanceable (instanceable = false)"
+    )
+
+
 def _plan(
-    scene, index: int, mesh, stage, opts: BakeOptions, report: dict, prev=None, old_layer=None
+    scene,
+    index: int,
+    mesh,
+    stage,
+    opts: BakeOptions,
+    report: dict,
+    prev=None,
+    old_layer=None,
+    auto_density: float | None = None,
 ) -> PrimJob:
-    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution."""
+    """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution
+    (``auto_density``: the stage's automatic texel density, :func:`auto_texel_density`)."""
     from usdahd.bake.texels import rasterize
     from usdahd.errors import SchemaError
     from usdahd.usd.stage import prim_at
 
     try:
-        authored = _authored_inputs(prim_at(stage, mesh.path))
+        ref = getattr(mesh, "instance", None)  # an instance copy: its prototype's inputs
+        authored = _authored_inputs(prim_at(stage, ref.source if ref else mesh.path))
     except SchemaError as exc:
         raise InputError(str(exc)) from None
-    settings = resolve_settings(opts, authored, scene.meters_per_unit)
+    settings = resolve_settings(opts, authored, scene.meters_per_unit, auto_density)
     record_time(settings, scene)
     if settings["resolution"] and not 1 <= int(settings["resolution"]) <= MAX_RESOLUTION:
         raise UsageError(
@@ -258,6 +429,7 @@ def _plan(
         if problem is None:
             job.texels, job.resolution = texels, res
         else:
+            _instance_uv_problem(mesh, uv_name, problem)
             new = f"{uv_name}_lightmap"
             if not opts.unwrap:
                 raise InputError(
@@ -271,6 +443,7 @@ def _plan(
             mesh.uv, mesh.uv_name = None, new
             settings["uv"] = new
     if mesh.uv is None:
+        _instance_uv_problem(mesh, uv_name, None)
         if not opts.unwrap:
             raise InputError(
                 f"{mesh.path}: no lightmap UV primvar {uv_name!r} and unwrapping is off "

@@ -28,6 +28,8 @@ from usdahd.pipeline.plan import (
     _norm,
     _plan,
     _refit_source,
+    auto_texel_density,
+    mesh_extent,
     settings_resolution_given,
 )
 from usdahd.pipeline.preflight import (
@@ -36,7 +38,16 @@ from usdahd.pipeline.preflight import (
     _files_exist,
     preflight,
 )
-from usdahd.pipeline.settings import DEFAULTS, TINY_RESOLUTION, BakeOptions, _check_options
+from usdahd.pipeline.settings import (
+    DEFAULT_TEXEL_BUDGET,
+    DEFAULTS,
+    DENSITY_AUTO_MAX,
+    MIN_RESOLUTION,
+    TINY_RESOLUTION,
+    BakeOptions,
+    _authored_inputs,
+    _check_options,
+)
 from usdahd.pipeline.stages import bake_jobs
 from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
 from usdahd.usd import author
@@ -61,13 +72,8 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
     except StageError:
         return {}, [f"{out}: the previous output layer is unreadable; every prim is re-baked"]
     prev, warnings = {}, []
-    for path, prim in schema.api_prims(stage).items():
-        try:
-            res = schema.read_results(prim)
-        except Exception:  # an invalid old record is simply re-baked
-            continue
-        if res is None:
-            continue
+    # Mesh records and instance entries (an invalid old record is simply re-baked).
+    for path, res in schema.stage_records(stage, errors=[]).items():
         outside = [p for p in res.textures.values() if not _inside_lightmaps(Path(p), out)]
         if outside:
             shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
@@ -79,6 +85,67 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
             continue
         prev[path] = res
     return prev, warnings
+
+
+def _density_pool(scene, stage, api_prims: dict, opts: BakeOptions, checked) -> list:
+    """Meshes on the automatic texel density: those a bake of the whole stage bakes (with
+    --prim, also the ones outside the selection, so the density does not depend on it), minus
+    those with an authored ahdLightmap:resolution or texelDensity. Empty when a --resolution
+    or --texel-density flag applies to every prim."""
+    from usdahd.errors import SchemaError
+    from usdahd.usd import schema
+
+    if opts.resolution is not None or opts.texel_density is not None:
+        return []
+    out = []
+    for m in scene.meshes:
+        if m.path in checked.prim_errors:
+            continue
+        prim = prim_at(stage, m.path)
+        if not m.bake:
+            if not opts.prims or prim is None or prim.IsInstanceProxy():
+                continue
+            api = api_prims.get(m.path)
+            if api_prims and not (api and schema.read_inputs(api, validate=False).bake):
+                continue
+        try:
+            authored = _authored_inputs(prim) if m.path in api_prims else {}
+        except SchemaError:
+            continue  # reported by the plan of that prim
+        if "resolution" in authored or "texel_density" in authored:
+            continue
+        out.append(m)
+    return out
+
+
+def _auto_density(scene, stage, api_prims, opts, checked, report) -> float | None:
+    """The stage's automatic texel density (plan.auto_texel_density), reported; None when no
+    prim uses it."""
+    pool = _density_pool(scene, stage, api_prims, opts, checked)
+    if not pool:
+        return None
+    budget = int(opts.texel_budget or DEFAULT_TEXEL_BUDGET)
+    extents = [mesh_extent(m, scene.meters_per_unit) for m in pool]
+    density, planned, fits = auto_texel_density(extents, budget)
+    report["texel_density"] = {
+        "density": density,
+        "budget": budget,
+        "prims": len(pool),
+        "estimated_texels": planned,
+    }
+    report["notes"].append(
+        f"texel density {density:g}/m for the {len(pool)} prim(s) without an explicit "
+        f"resolution or density: the densest step up to {DENSITY_AUTO_MAX:g}/m whose maps "
+        f"(each at least {MIN_RESOLUTION}x{MIN_RESOLUTION}) fit the texel budget of {budget} "
+        f"(about {planned} texels; --texel-budget, --texel-density or --resolution to change)"
+    )
+    if not fits:
+        report["warnings"].append(
+            f"the {len(pool)} prims' minimum maps ({MIN_RESOLUTION}x{MIN_RESOLUTION} each, "
+            f"{planned} texels) exceed the texel budget of {budget}: raise --texel-budget, or "
+            "pass --texel-density / --resolution"
+        )
+    return density
 
 
 #: Bytes of working memory a whole bake may plan for (SH, fits and copies; see bake()).
@@ -145,8 +212,11 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             m.bake = False
     if api_prims:
         for m in scene.meshes:
-            if m.bake:
-                p = api_prims.get(m.path)
+            if m.bake:  # an instance copy: selected by its prototype mesh's API
+                p = api_prims.get(m.instance.source if m.instance else m.path)
+                if p is None and m.instance:
+                    p = prim_at(stage, m.instance.source)
+                    p = p if p is not None and schema.has_api(p) else None
                 m.bake = bool(p) and bool(schema.read_inputs(p, validate=False).bake)
     prev, untrusted = _previous_results(out)
     report = {
@@ -181,20 +251,25 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     for path, msg in sorted(getattr(scene, "failed", {}).items()):
         report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
         failed += 1
+    auto_density = _auto_density(scene, stage, api_prims, opts, checked, report)
     for i, mesh in enumerate(scene.meshes):
         if not mesh.bake:
             continue
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer)
+            job = _plan(scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density)
         except (InputError, UsageError, BakeError) as exc:
             entry.update(status="failed", error=str(exc))
             failed += 1
             continue
         entry["resolution"] = list(job.resolution)
         job.normals = scene.computed_normals.get(mesh.path)
-        if max(job.resolution) < TINY_RESOLUTION and not settings_resolution_given(job):
+        if (
+            max(job.resolution) < TINY_RESOLUTION
+            and not settings_resolution_given(job)
+            and "min_resolution" not in job.settings
+        ):
             entry["warnings"].append(
                 f"texel density {job.settings['texel_density']:g}/m gives only "
                 f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
@@ -250,11 +325,14 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # already baked is lost (the validator reports them stale if their inputs changed).
     planned = {j.path for j in jobs}
     for path, old in prev.items():
-        if path not in planned and prim_at(stage, path) is not None:
+        if path not in planned and (
+            prim_at(stage, path) is not None or schema.instance_carrier(stage, path)
+        ):
             keep = PrimJob(path=path, mesh=None, settings={}, previous=old)
             keep.report = {"path": path, "status": "kept"}
             jobs.append(keep)
     todo = [j for j in jobs if j.report["status"] == "planned"]
+    rebuild = _atlas_rebuild(jobs, todo, opts)
     texels_total = sum(int(j.resolution[0]) * int(j.resolution[1]) for j in todo)
     report["texels_total"] = texels_total
     # (n, 3, 9) float32 SH per texel plus the traced and fitted copies: a rough peak.
@@ -272,19 +350,31 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
             "(nothing was traced); add a UsdLux light or an emissiveColor"
         )
     if opts.dry_run:
+        if opts.atlas and (todo or rebuild):
+            from usdahd.pipeline import atlas
+
+            report["atlas"] = atlas.plan_pages(todo, rebuild, opts)
         report["exit_code"] = 1 if failed else 0
         report["seconds"] = time.perf_counter() - t_start
         return report
 
     if todo:
         bake_jobs(scene, todo, out, opts)
+    if opts.atlas and (todo or rebuild):
+        report["atlas"] = _write_atlas(todo, rebuild, jobs, out, opts)
     for j in todo:
         if j.report["status"] == "failed":
             failed += 1
     _fault("textures_staged")
     old_refs = author.referenced_assets(out) or set()
     if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
-        _commit_textures([j for j in todo if j.results is not None], out)
+        written = [j for j in todo + rebuild if j.results is not None]
+        _commit_textures(written, out)
+        if "atlas" in report:
+            from usdahd.pipeline import atlas
+
+            _committed_page_files(report["atlas"], written)
+            atlas.summary(report["atlas"], opts)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
         _fault("textures_committed")
         report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
@@ -297,3 +387,64 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     report["exit_code"] = 1 if failed else 0
     report["seconds"] = time.perf_counter() - t_start
     return report
+
+
+def _atlas_rebuild(jobs: list[PrimJob], todo: list[PrimJob], opts: BakeOptions) -> list[PrimJob]:
+    """Records not re-baked whose page must be rebuilt (usdahd.pipeline.atlas): every kept or
+    skipped record of an encoding group that has a record re-baked now, and, with the atlas
+    on, every record that has textures of its own (from a ``--atlas off`` bake)."""
+    if not opts.atlas:
+        return []
+    from usdahd.pipeline.atlas import group_key
+
+    affected = {group_key(j.settings) for j in todo}
+    out = []
+    for j in jobs:
+        old = j.previous
+        if j.report.get("status") not in ("skipped", "kept") or old is None:
+            continue
+        if group_key(old.settings) in affected or not old.atlas:
+            out.append(j)
+    return out
+
+
+def _write_atlas(todo, rebuild, jobs, out: Path, opts: BakeOptions) -> dict:
+    """Write the atlas pages of the records baked now plus ``rebuild``; the report's atlas
+    entry: {"max_size", "padding", "pages": [...]} (docs/bake report)."""
+    from usdahd.pipeline import atlas
+
+    items = []
+    for j in todo:
+        if j.report.get("status") != "failed" and j.sh is not None and j.texels is not None:
+            items.append(atlas.item_from_job(j))
+    kept_pages = set()
+    cache: dict = {}  # one page sidecar in memory at a time
+    by_page = sorted(rebuild, key=lambda j: (j.previous.textures.get("sh", ""), j.path))
+    for j in by_page:
+        try:
+            items.append(atlas.item_from_record(j, j.previous, cache))
+        except BakeError as exc:  # keep its old page as it is
+            j.report.setdefault("warnings", []).append(f"{exc}; its previous page is kept")
+            if j.previous.atlas:
+                kept_pages.add(j.previous.page)
+    rebuilt = {id(j) for j in rebuild}
+    for j in jobs:
+        old = j.previous
+        if old is not None and old.atlas and id(j) not in rebuilt:
+            kept_pages.add(old.page)
+    pages = atlas.write_pages(items, out, opts, kept_pages) if items else []
+    return {"max_size": atlas.max_size(opts), "padding": atlas.padding(opts), "pages": pages}
+
+
+def _committed_page_files(entry: dict, written: list[PrimJob]) -> None:
+    """The page entries of the report name the committed files (and their sizes)."""
+    by_path = {j.path: j for j in written}
+    for page in entry["pages"]:
+        job = next((by_path[p] for p in page["records"] if p in by_path), None)
+        if job is None or job.results is None:
+            continue
+        page["files"] = {r: str(f) for r, f in job.results.textures.items()}
+        page["bytes"] = {r: Path(f).stat().st_size for r, f in page["files"].items()}
+        for role, info in page.get("ktx2", {}).items():
+            ktx = Path(page["files"][role]).with_suffix(".ktx2")
+            info["path"] = str(ktx)

@@ -17,7 +17,7 @@ DEFAULTS = {
     "solver": None,  # the model's default solver
     "uv": "st",
     "resolution": None,  # None: from texel_density
-    "texel_density": 16.0,  # texels per metre (the schema fallback)
+    "texel_density": "auto",  # texels per metre; "auto": from the scene's texel budget
     "samples": 256,
     "bounces": 64,  # a safety cap: paths end by Russian roulette (integrate.DEFAULT_BOUNCES)
     "padding": 4,
@@ -39,8 +39,34 @@ FLAG_TEXT = {
     "ratio": "model {model!r} supports --ratio {allowed}, not {value!r}",
     "solver": "model {model!r} has --solver {allowed}, not {value!r}",
 }
+#: Largest ``--atlas-padding`` (texels between two rectangles of a page).
+MAX_ATLAS_PADDING = 64
 #: A density-derived lightmap smaller than this on its longer side gets a warning (wrong units?).
 TINY_RESOLUTION = 8
+
+# -- The automatic texel density (docs/texels.md "Texel density and resolution"): used when no
+# --texel-density / --resolution flag and no ahdLightmap:texelDensity / resolution input is
+# given. One density for the whole stage (so every prim of an atlas page has the same texel
+# size), the largest step of DENSITY_LADDER at or below DENSITY_AUTO_MAX whose maps fit the
+# texel budget; each map at least MIN_RESOLUTION per side, at most DENSITY_MAX_RESOLUTION.
+
+#: Texels (sum of w x h over the prims on the automatic density) a stage gets by default: one
+#: 1024^2 page, Unity's default Max Lightmap Size (LightingSettings.lightmapMaxSize = 1024).
+DEFAULT_TEXEL_BUDGET = 1 << 20
+#: Density ceiling (texels per metre, 6.25 cm texels): the former fixed default, between
+#: Godot's import default (generate_lightmap_uv2_texel_size 0.2 m = 5 texels/m) and Unity's
+#: Lightmap Resolution (40 texels per unit); small stages (the samples) keep it.
+DENSITY_AUTO_MAX = 16.0
+#: Steps of the automatic density: DENSITY_AUTO_MAX * 2^(-k/4), so a small edit of one prim
+#: rarely moves the stage's density (which would re-bake every prim).
+DENSITY_LADDER = 2.0 ** (-1 / 4)
+#: Smallest side of a map on the automatic density (a prop 20 cm across still gets ~8 texels
+#: over each face of a box); Unreal's default per-mesh Light Map Resolution and Datasmith's
+#: min_lightmap_resolution are 64, for 4x4-block-compressed pages of 2 lightmap rows per texel.
+MIN_RESOLUTION = 32
+#: Sides from the automatic density are rounded up to a multiple of this (atlas pages pack
+#: rectangles on 4x4 texel blocks, the BC block size); an explicit density is not rounded.
+RESOLUTION_MULTIPLE = 4
 
 
 @dataclass
@@ -55,6 +81,8 @@ class BakeOptions:
     uv: str | None = None
     resolution: int | None = None
     texel_density: float | None = None
+    #: texels the automatic density may spend on the stage (None: DEFAULT_TEXEL_BUDGET)
+    texel_budget: int | None = None
     samples: int | None = None
     bounces: int | None = None
     seed: int = 0
@@ -77,6 +105,13 @@ class BakeOptions:
     #: Seconds to wait for another bake of the same output (None: the default,
     #: usdahd.pipeline.outputs.DEFAULT_LOCK_TIMEOUT); not a bake setting either.
     lock_timeout: float | None = None
+    #: Atlas pages (usdahd.pipeline.atlas): records share power-of-two pages of at most
+    #: ``atlas_size`` (None: numerics.atlas.DEFAULT_SIZE) with ``atlas_padding`` texels between
+    #: rectangles (None: ``padding``, else 4). Not bake settings (not in the content hash): a
+    #: page layout changes where a record's texels are stored, never their values.
+    atlas: bool = True
+    atlas_size: int | None = None
+    atlas_padding: int | None = None
 
 
 def _authored_inputs(prim) -> dict:
@@ -94,8 +129,17 @@ def _authored_inputs(prim) -> dict:
     return out
 
 
-def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float = 1.0) -> dict:
-    """Built-in defaults < CLI flags < per-prim authored schema inputs."""
+def resolve_settings(
+    opts: BakeOptions, authored: dict, meters_per_unit: float = 1.0, auto_density=None
+) -> dict:
+    """Built-in defaults < CLI flags < per-prim authored schema inputs.
+
+    auto_density : the stage's automatic texel density (texels per metre,
+        :func:`usdahd.pipeline.plan.auto_texel_density`), used when neither a resolution nor a
+        density is given; then ``min_resolution`` is recorded too (it decides the map size;
+        the budget itself is not a setting, only the density it gives is, so a new budget that
+        gives the same density re-bakes nothing). None: DENSITY_AUTO_MAX.
+    """
     s = dict(DEFAULTS)
     for k in DEFAULTS:
         v = getattr(opts, k, None)
@@ -111,6 +155,11 @@ def resolve_settings(opts: BakeOptions, authored: dict, meters_per_unit: float =
             s["resolution"] = None
         if k == "resolution":
             s["texel_density"] = None
+    if s["texel_density"] == "auto":
+        s["texel_density"] = float(auto_density or DENSITY_AUTO_MAX)
+        s["min_resolution"] = MIN_RESOLUTION
+        # an explicit density keeps its exact size, ceil(T * extent), as before
+        s["resolution_multiple"] = RESOLUTION_MULTIPLE
     mod = models.get(s["model"])
     problem = models.choice_problem(s["model"], "ratio", s["ratio"], mod.RATIOS, FLAG_TEXT["ratio"])
     if problem is not None:
@@ -149,6 +198,35 @@ def _check_options(opts: BakeOptions) -> None:
             models.check_choice(model, kind, value, allowed, FLAG_TEXT[kind], error=UsageError)
     if opts.resolution is not None and not 1 <= opts.resolution <= MAX_RESOLUTION:
         raise UsageError(f"--resolution must be in 1..{MAX_RESOLUTION}, got {opts.resolution}")
+    if opts.texel_budget is not None and not opts.texel_budget >= MIN_RESOLUTION**2:
+        raise UsageError(
+            f"--texel-budget must be at least {MIN_RESOLUTION**2} texels (one "
+            f"{MIN_RESOLUTION}x{MIN_RESOLUTION} map), got {opts.texel_budget}"
+        )
+    if opts.texel_budget is not None and (
+        opts.texel_density is not None or opts.resolution is not None
+    ):
+        flag = "--texel-density" if opts.texel_density is not None else "--resolution"
+        raise UsageError(
+            f"--texel-budget sets the automatic texel density, which {flag} replaces for "
+            f"every prim; pass one of them"
+        )
+    from usdahd.numerics import atlas
+
+    if opts.atlas_size is not None and not (
+        atlas.is_power_of_two(opts.atlas_size) and 16 <= opts.atlas_size <= MAX_RESOLUTION
+    ):
+        raise UsageError(
+            f"--atlas-size must be a power of two in 16..{MAX_RESOLUTION} (pages are powers of "
+            f"two), got {opts.atlas_size}; e.g. --atlas-size 1024"
+        )
+    if opts.atlas_padding is not None and not (
+        atlas.MIN_PADDING <= opts.atlas_padding <= MAX_ATLAS_PADDING
+    ):
+        raise UsageError(
+            f"--atlas-padding must be {atlas.MIN_PADDING}..{MAX_ATLAS_PADDING} texels (bilinear "
+            f"filtering needs a gutter texel per neighbour), got {opts.atlas_padding}"
+        )
     if opts.container not in (None, "files", "ktx2", "ktx2-bc"):
         raise UsageError(f"--container must be files, ktx2 or ktx2-bc, got {opts.container!r}")
     from usdahd.pipeline import distributed

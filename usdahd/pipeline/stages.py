@@ -38,7 +38,14 @@ def _refit_sh(job: PrimJob) -> None:
 
     if job.texels is None:
         job.texels = rasterize(job.mesh, job.resolution)
-    px = images.read(job.refit_from, channels=schema.SH_SIDECAR_CHANNELS).pixels
+    if job.fallback is not None and job.fallback.textures.get(schema.SIDECAR_ROLE) == str(
+        job.refit_from
+    ):  # the record's region of the sidecar (its page's, in an atlas)
+        px = schema.read_record_pixels(
+            job.fallback, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS
+        )
+    else:
+        px = images.read(job.refit_from, channels=schema.SH_SIDECAR_CHANNELS).pixels
     w, h = job.texels.resolution
     if px.shape[:2] != (h, w):
         raise BakeError(f"{job.path}: SH sidecar {job.refit_from} is not {w}x{h}")
@@ -228,6 +235,14 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         for job, values in zip(ok, stitched, strict=True):
             job.sh = np.asarray(values, dtype=np.float32)
         _status(opts, f"seams: stitched in {time.perf_counter() - t0:.2f}s")
+    if opts.atlas:
+        # Fit, encode and write per page (usdahd.pipeline.atlas, called by run.py once the
+        # records kept from the previous bake are known); the chart ids are taken now, while
+        # subdivision meshes are still refined (job.texels index the refined triangles).
+        for job in refits + ok:
+            if job.charts is None:
+                job.charts = chart_ids(job.mesh)[job.texels.triangle]
+        return
     for job in refits + ok:
         try:
             _encode_and_write(job, out, opts)

@@ -146,7 +146,8 @@ def contact_sheet(meshes, findings, tile_size: int = TILE) -> tuple[np.ndarray, 
     """The ``--atlas`` sheet of ``meshes`` (:func:`usdahd.preview.meshes.baked_meshes`'s
     list) with ``findings`` (usdahd.validate Findings of the stage, or [] to mark none).
     returns (sheet (H, W, 3) uint8, report dict: tiles, flagged, outline_pixels)."""
-    from usdahd import images, models
+    from usdahd import models
+    from usdahd.usd import schema
 
     marks = flagged_texels(findings)
     rows, flagged, outline = [], [], 0
@@ -156,7 +157,7 @@ def contact_sheet(meshes, findings, tile_size: int = TILE) -> tuple[np.ndarray, 
         here = marks.get(mesh.path, [])
         tiles = []
         for lay in models.get(res.model).layout(res.ratio):
-            px = images.read(res.textures[lay.role], channels=lay.channels).pixels
+            px = schema.read_record_pixels(res, lay.role, lay.channels)
             if px.shape[:2] != charts.shape:
                 ch = chart_image(mesh, (px.shape[1], px.shape[0]))
             else:

@@ -26,11 +26,8 @@ def baked_meshes(layer: str):
     from usdahd.usd.stage import open_stage
 
     stage = open_stage(layer)  # re-read from disk when this process opened it before
-    records = {}
-    for prim in schema.prims_with_api(stage):
-        res = schema.read_results(prim)
-        if res is not None:
-            records[str(prim.GetPath())] = res
+    # Mesh records and instance entries (each copy its own lightmap), by the scene's mesh path.
+    records = schema.stage_records(stage)
     if not records:
         raise UsageError(f"{layer}: no baked prim (formatVersion 0); run usdahd bake first")
     out, up = [], "Y"
@@ -74,10 +71,11 @@ def _textures(mesh, res, ahd_classic: bool = False) -> tuple:
     """(model, ratio, textures, factors) a renderer draws of one baked mesh: its stored textures
     in the layout order, or with ``ahd_classic`` the classic C_a, d, C_d textures
     (:func:`usdahd.preview.classic.item`; UsageError for a model it does not apply to)."""
-    from usdahd import images, models
+    from usdahd import models
+    from usdahd.usd import schema
 
     layout = models.get(res.model).layout(res.ratio)
-    textures = [images.read(res.textures[t.role], channels=t.channels).pixels for t in layout]
+    textures = [schema.read_record_pixels(res, t.role, t.channels) for t in layout]
     if not ahd_classic:
         return res.model, res.ratio, textures, res.factors
     from usdahd.preview import classic

@@ -50,6 +50,8 @@ class MeshData:
     cage : for a ``catmullClark`` / ``loop`` mesh, its control polygons
         (:class:`usdahd.scene.subdiv.Cage`); the mesh is traced on their refinement
         (:func:`usdahd.scene.subdiv.refine_scene`). None: traced as it is.
+    instance : for an instance copy (scenegraph instance proxy or PointInstancer instance),
+        where its bake record lives (:class:`InstanceRef`); None for an ordinary mesh.
     """
 
     path: str
@@ -65,6 +67,36 @@ class MeshData:
     warnings: list[str] = field(default_factory=list)
     double_sided: bool = False
     cage: object | None = None
+    instance: InstanceRef | None = None
+
+
+@dataclass(frozen=True)
+class InstanceRef:
+    """Where the bake record of one instance copy of a prototype mesh lives (docs/schema.md,
+    "Instances"): outside the prototype, on the instance prim or the PointInstancer.
+
+    carrier : path of the prim holding the record (the instanceable prim of a scenegraph
+        instance, or the PointInstancer).
+    index : the instance's index into the PointInstancer's ``positions`` (0 for scenegraph).
+    prototype : the ``protoIndices`` value of a PointInstancer instance (0 for scenegraph).
+    mesh : path of the mesh relative to the prototype root ("." when the root is the mesh).
+    source : prim the copy's bake inputs and primvars are read from (the instance proxy, or
+        the PointInstancer's prototype mesh).
+    origin : the prototype mesh as a user finds it in the asset (``@layer@</Proto/mesh>``),
+        named by messages about the prototype (e.g. no lightmap UV set).
+    normals : where the normals the copy is traced with come from (``baked:normals``):
+        "authored", or the rule that computed them for a prototype without normals (not
+        authored: the prototype cannot be edited without de-instancing; a renderer computing
+        its own normals by that rule shades the same).
+    """
+
+    carrier: str
+    index: int
+    prototype: int
+    mesh: str
+    source: str
+    origin: str
+    normals: str = "authored"
 
 
 @dataclass

@@ -118,9 +118,16 @@ def build_layer(
     if not src_root.pseudoRoot.HasInfo("upAxis"):
         UsdGeom.SetStageUpAxis(ostage, UsdGeom.GetStageUpAxis(source_stage))
     old_layer = previous_layer(out)
+    instances: dict[str, dict] = {}  # carrier path -> {entry key: BakeResults}
     for job in sorted(jobs, key=lambda j: j.path):
         res = job.results or job.previous or job.fallback
         if res is None:
+            continue
+        carrier = instance_carrier(ostage, job)
+        if carrier is not None:  # an instance copy: recorded on its carrier (below)
+            if job.mesh is not None and job.mesh.instance is not None:
+                res.normals = job.mesh.instance.normals
+            instances.setdefault(carrier, {})[job.path] = res
             continue
         prim = ostage.GetPrimAtPath(job.path)
         if job.mesh is None and old_layer is not None:
@@ -142,9 +149,28 @@ def build_layer(
         if job.mesh is not None:
             res.normals = author_normals(ostage, job)
         schema.write_results(prim, res, layer_dir=out.parent)
+    author_instance_records(ostage, instances, out.parent)
     del ostage
     layer.subLayerPaths[0] = relative_path(src, out.parent)
     return layer
+
+
+def instance_carrier(stage, job) -> str | None:
+    """The carrier prim path of a job that bakes an instance copy (``job.mesh.instance``, or
+    for a kept record its key: :func:`usdahd.usd.schema.instance_carrier`), else None."""
+    ref = getattr(job.mesh, "instance", None) if job.mesh is not None else None
+    if ref is not None:
+        return ref.carrier
+    return schema.instance_carrier(stage, job.path)
+
+
+def author_instance_records(stage, instances: dict, layer_dir: Path) -> None:
+    """Author instance entries ({carrier path: {key: BakeResults}}) on their carriers
+    (:func:`usdahd.usd.schema.write_instance_records`): on the instanceable prim or the
+    PointInstancer, outside every prototype, so nothing is de-instanced."""
+    for carrier, records in sorted(instances.items()):
+        prim = stage.GetPrimAtPath(carrier)
+        schema.write_instance_records(prim, records, layer_dir=layer_dir)
 
 
 def export_layer(layer: Sdf.Layer, tmp: str, out: Path) -> None:

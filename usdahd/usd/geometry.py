@@ -18,6 +18,8 @@ the reader is :mod:`usdahd.usd.reader`; materials come from :mod:`usdahd.usd.mat
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from pxr import Usd, UsdGeom
 
@@ -83,6 +85,8 @@ class GeometryReader:
         self.computed_instanced = 0
         self.link_paths: list[str] = []  # per mesh: the prim path collections are queried by
         self.instancer: str | None = None  # the PointInstancer being expanded
+        #: InstanceRef of the instance copy being read (set by the traversal), else None
+        self.instance_ref = None
 
     def fail(self, path: str, msg: str, bakeable: bool, key: str | None = None) -> None:
         """A mesh is unusable: a failed prim if it would be baked, else a warning (once per
@@ -270,6 +274,8 @@ class GeometryReader:
                 computed = ComputedNormals(rule, fv, self._normals_attr(prim))
             elif not implicit:
                 self.computed_instanced += 1  # copies of a prototype: counted, not authored
+                if self.instance_ref is not None:
+                    self.instance_ref = replace(self.instance_ref, normals=rule)
         uv = None
         texcoords = {}
         if not implicit:
@@ -315,6 +321,7 @@ class GeometryReader:
             corner=corners.astype(np.int32),
             bake=bake and not instanced and not implicit,
             double_sided=bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()),
+            instance=self.instance_ref if instanced and not implicit else None,
         )
         if scheme in N.SMOOTH_SCHEMES and not implicit:  # traced on its refinement
             md.cage = cage_from_topology(scheme, topo.counts, topo.idx, bool(flip))

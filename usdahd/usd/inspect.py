@@ -9,6 +9,8 @@ Each reads the prim as authored, without the scene reader's checks and warnings
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
@@ -109,8 +111,9 @@ def api_definition():
 
 def layers_stamp(stage):
     """A hashable stamp of every layer the stage uses: sorted (identifier, *file stamp) of the
-    layers on disk, or None when any layer has unsaved edits or is anonymous (other than an
-    empty session layer) or has no stamp, i.e. when the stage may differ from its files."""
+    layers on disk (plus a digest of a non-empty session layer's content), or None when any
+    layer has unsaved edits or is anonymous (other than the session layer) or has no stamp,
+    i.e. when the stage may differ from its files."""
     parts = []
     for layer in stage.GetUsedLayers():
         if layer.anonymous and layer != stage.GetSessionLayer():
@@ -119,7 +122,10 @@ def layers_stamp(stage):
             return None
         if layer.anonymous:
             if not layer.empty:
-                return None
+                # the session layer of a validation's instance view (usdahd.usd.instances):
+                # stamped by its content, so the scene is read once per view, not per rule
+                text = layer.ExportToString()
+                parts.append(("session", hashlib.sha256(text.encode()).hexdigest()))
             continue
         stamp = assets.stamp(layer.realPath)  # a layer inside a usdz: its package's
         if stamp is None:

@@ -25,17 +25,35 @@ docs/lights.md list what is honoured and what is warned.
 from __future__ import annotations
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdLux
+from pxr import Pcp, Sdf, Usd, UsdGeom, UsdLux
 
 from usdahd.errors import StageError
-from usdahd.scene.types import Scene
+from usdahd.scene.types import InstanceRef, Scene
 from usdahd.usd import stage as S
 from usdahd.usd.geometry import GeometryReader
 from usdahd.usd.lights import LightReader
 from usdahd.usd.materials import MaterialReader
 from usdahd.usd.time import resolve_time, time_label
 
-__all__ = ["ReadContext", "SceneReader", "load_scene"]
+__all__ = [
+    "ReadContext",
+    "SceneReader",
+    "instance_ref",
+    "instance_root",
+    "load_scene",
+    "no_instance_uv_message",
+]
+
+
+def no_instance_uv_message(origin: str, uv_name: str, copies: int) -> str:
+    """Why the instance copies of a prototype mesh are not baked: it has no lightmap UVs."""
+    return (
+        f"{origin}: prototype mesh has no lightmap UV set {uv_name!r}, so its {copies} "
+        "instance copies are traced as occluders only (not baked): xatlas cannot author UVs "
+        "inside a prototype. Fix: author the UV set in the asset (or bake the asset file on "
+        "its own with usdahd bake, which unwraps it into its output layer, and reference that "
+        "layer instead), or make the instances non-instanceable (instanceable = false)"
+    )
 
 
 class ReadContext:
@@ -129,10 +147,14 @@ class SceneReader:
             if prim.IsA(UsdGeom.Gprim):
                 m = np.array(self.ctx.xf.GetLocalToWorldTransform(prim))
                 path, inst = str(prim.GetPath()), prim.IsInstanceProxy()
-                if prim.IsA(UsdGeom.Mesh):
-                    geo.guarded(geo.mesh, prim, m, path, inst)
-                else:
-                    geo.guarded(geo.implicit_gprim, prim, m, path, inst)
+                geo.instance_ref = instance_ref(prim) if inst else None
+                try:
+                    if prim.IsA(UsdGeom.Mesh):
+                        geo.guarded(geo.mesh, prim, m, path, inst)
+                    else:
+                        geo.guarded(geo.implicit_gprim, prim, m, path, inst)
+                finally:
+                    geo.instance_ref = None
 
     def point_instancer(self, prim):
         """Expand a PointInstancer: every (unmasked) instance's prototype gprims as instanced
@@ -173,14 +195,69 @@ class SceneReader:
                     name = f"{path}/instance_{i}{str(p.GetPath())[len(str(root.GetPath())) :]}"
                     fn = geo.mesh if p.IsA(UsdGeom.Mesh) else geo.implicit_gprim
                     geo.instancer = path
+                    rel = p.GetPath().MakeRelativePath(root.GetPath())
+                    geo.instance_ref = InstanceRef(
+                        carrier=path,
+                        index=i,
+                        prototype=int(pid),
+                        mesh=str(rel),
+                        source=str(p.GetPath()),
+                        origin=_in_prototype(prototype_origin(root, f"<{root.GetPath()}>"), rel),
+                    )
                     try:
                         geo.guarded(fn, p, m, name, True)
                     finally:
                         geo.instancer = None
+                        geo.instance_ref = None
+
+
+def instance_root(prim):
+    """The outermost instance prim above an instance proxy (the prim that is an instance and
+    not itself a proxy): where the proxy's bake record lives (docs/schema.md, "Instances")."""
+    while prim and prim.IsInstanceProxy():
+        prim = prim.GetParent()
+    return prim
+
+
+def prototype_origin(root, fallback: str | None = None) -> str:
+    """The prototype of the instance (or PointInstancer prototype) ``root`` as a user finds
+    it: ``@layer@</Proto>`` of its first reference or payload, else ``fallback`` (default: the
+    first arc's path, else the stage's prototype path)."""
+    nodes = list(root.GetPrimIndex().rootNode.children)
+    for node in nodes:
+        if node.arcType in (Pcp.ArcTypeReference, Pcp.ArcTypePayload):
+            layer = node.layerStack.identifier.rootLayer.identifier
+            return f"@{layer}@<{node.path}>"
+    if fallback is not None:
+        return fallback
+    if nodes:
+        return f"<{nodes[0].path}>"
+    return f"<{root.GetPrototype().GetPath()}>"
+
+
+def _in_prototype(origin: str, rel) -> str:
+    """``@l@</Proto>`` and ``Box`` -> ``@l@</Proto/Box>`` (rel "." -> the origin itself)."""
+    rel = str(rel)
+    inner = "" if rel == "." else "/" + rel
+    return origin[:-1] + inner + ">" if origin.endswith(">") else origin + inner
+
+
+def instance_ref(proxy) -> InstanceRef:
+    """The :class:`~usdahd.scene.types.InstanceRef` of a mesh seen through an instance proxy."""
+    root = instance_root(proxy)
+    rel = str(proxy.GetPath().MakeRelativePath(root.GetPath()))
+    return InstanceRef(
+        carrier=str(root.GetPath()),
+        index=0,
+        prototype=0,
+        mesh=rel,
+        source=str(proxy.GetPath()),
+        origin=_in_prototype(prototype_origin(root), rel),
+    )
 
 
 def load_scene(
-    stage, *, uv_name: str = "st", prims=None, bake_instances: bool = False, time=None
+    stage, *, uv_name: str = "st", prims=None, bake_instances: bool = True, time=None
 ) -> Scene:
     """Extract a :class:`~usdahd.scene.types.Scene` from a ``Usd.Stage`` or a path to one.
 
@@ -191,8 +268,10 @@ def load_scene(
     uv_name : lightmap UV primvar read per mesh (``MeshData.uv`` None when absent).
     prims : optional iterable of prim paths; only meshes at or under them are baked (all
         others still occlude). Unknown paths raise StageError.
-    bake_instances : also mark instance proxies / PointInstancer copies for baking (off by
-        default: their primvars cannot be authored without de-instancing).
+    bake_instances : mark instance copies (scenegraph instance proxies, PointInstancer
+        instances) for baking, each on its prototype's lightmap UVs (default); a prototype
+        mesh without the UV set ``uv_name`` gives one warning and its copies stay occluders
+        (xatlas cannot author UVs inside a prototype). False: every copy is an occluder.
     Per-mesh problems do not raise: the mesh goes to ``Scene.failed`` (see the module doc).
     Raises StageError for unreadable or non-USD files, stages without meshes, composition
     cycles, a bad metersPerUnit, and broken lights or emissive materials (each message names
@@ -230,9 +309,16 @@ def load_scene(
     mats.material_warnings()
     lights.link_membership(geo.link_paths[: len(geo.meshes)])
     if bake_instances:
+        no_uv: dict[str, int] = {}
         for m, inst in zip(geo.meshes, geo.instanced):
-            if inst and not geo.implicit.get(id(m), False):
-                m.bake = True if prims is None else m.bake
+            if not inst or geo.implicit.get(id(m), False) or m.instance is None:
+                continue
+            m.bake = prims is None or selected(m.path) or selected(m.instance.carrier)
+            if m.bake and m.uv is None:
+                m.bake = False
+                no_uv[m.instance.origin] = no_uv.get(m.instance.origin, 0) + 1
+        for origin, n in sorted(no_uv.items()):
+            rd.warn(no_instance_uv_message(origin, uv_name, n))
     elif any(geo.instanced):
         n = sum(geo.instanced)
         rd.warn(

@@ -68,6 +68,23 @@ __all__ = [
     "file_digest",
     "layout_packing",
     "OLD_FORMAT_VERSIONS",
+    # instance records (usdahd.usd.instance_records)
+    "INSTANCE_API_NAME",
+    "INSTANCE_NAMESPACE",
+    "instance_carrier",
+    "instance_carriers",
+    "instance_key",
+    "instance_layout",
+    "instance_property_name",
+    "read_instance_records",
+    "stage_records",
+    "write_instance_records",
+    "NO_ATLAS",
+    "record_rect",
+    "page_size",
+    "read_record_pixels",
+    "crop_record",
+    "rect_problem",
 ]
 
 #: Property namespace of every schema property.
@@ -411,6 +428,10 @@ class BakeResults:
     digests : role (FILE_ROLES) -> "sha256:<hex>" of the file as written (``...:digest``).
     packing : role -> channel packing as authored (filled by read_results; write_results
         authors the model layout's own packing).
+    page : atlas page index (``atlas:page``; 0 without an atlas).
+    scale_offset : (sx, sy, ox, oy) (``atlas:scaleOffset``): ``uv_page = uv * s + o``;
+        :data:`NO_ATLAS` when the record's textures are its own (``--atlas off``).
+    atlas : whether the record lives in an atlas page (the atlas properties are authored).
     """
 
     model: str
@@ -430,12 +451,98 @@ class BakeResults:
     normals: str = "authored"
     digests: dict[str, str] = field(default_factory=dict)
     packing: dict[str, str] = field(default_factory=dict)
+    page: int = 0
+    scale_offset: tuple[float, float, float, float] = (1.0, 1.0, 0.0, 0.0)
+    atlas: bool = False
+
+    def rect(self, page: tuple[int, int] | None = None) -> tuple[int, int, int, int]:
+        """(x0, y0, w, h): this record's pixel rectangle in its page (top-left origin, rows
+        down), :func:`record_rect`."""
+        return record_rect(self, page)
 
     def factor(self, name: str) -> float:
         """A decode factor, or its schema fallback when not set."""
         if name not in FACTORS:
             raise SchemaError(f"unknown decode factor {name!r}; known: {', '.join(FACTORS)}")
         return float(self.factors.get(name, FACTORS[name]))
+
+
+#: ``atlas:scaleOffset`` of a record that is not in an atlas (its textures are its own).
+NO_ATLAS = (1.0, 1.0, 0.0, 0.0)
+
+
+def page_size(results: BakeResults) -> tuple[int, int]:
+    """(W, H) of the record's page: its own resolution divided by the scale (exact: pages are
+    powers of two and rectangles whole texels)."""
+    w, h = (int(r) for r in results.resolution)
+    sx, sy = float(results.scale_offset[0]), float(results.scale_offset[1])
+    return int(round(w / sx)), int(round(h / sy))
+
+
+def record_rect(
+    results: BakeResults, page: tuple[int, int] | None = None
+) -> tuple[int, int, int, int]:
+    """(x0, y0, w, h) of the record's rectangle in page pixels (top-left origin, rows down):
+    ``x0 = ox W``, ``y0 = (1 - oy - sy) H``, ``w = sx W``, ``h = sy H`` (docs/schema.md,
+    "Atlas"). ``page`` (W, H) defaults to :func:`page_size`."""
+    sx, sy, ox, oy = (float(v) for v in results.scale_offset)
+    W, H = page if page is not None else page_size(results)
+    return (
+        int(round(ox * W)),
+        int(round((1.0 - oy - sy) * H)),
+        int(round(sx * W)),
+        int(round(sy * H)),
+    )
+
+
+def read_record_pixels(results: BakeResults, role: str, channels=None):
+    """(h, w, c) pixels of one record in one texture role (FILE_ROLES): the crop of its atlas
+    page (``atlas:scaleOffset``), or the whole file without an atlas. ``channels`` (names) as
+    :func:`usdahd.images.read`. The one reader of a record's pixels: validate, preview, export
+    and refit go through it. Raises ImageError when the file is unreadable, or SchemaError when
+    the page does not hold the record's rectangle."""
+    import numpy as np
+
+    from usdahd import images
+
+    px = np.asarray(images.read(results.textures[role], channels=channels).pixels)
+    return crop_record(results, px, results.textures[role])
+
+
+def rect_problem(results: BakeResults, page: tuple[int, int]) -> str | None:
+    """Why the record's rectangle does not fit a (W, H) page file, or None. Without an atlas
+    the file must be the record's own size."""
+    W, H = (int(v) for v in page)
+    w, h = (int(r) for r in results.resolution)
+    if not results.atlas:
+        if (W, H) != (w, h):
+            return f"is {W}x{H} but ahdLightmap:baked:resolution is {w}x{h}"
+        return None
+    if W & (W - 1) or H & (H - 1):
+        return f"is an atlas page of {W}x{H}, not a power of two on each side"
+    x0, y0, rw, rh = record_rect(results, (W, H))
+    so = tuple(results.scale_offset)
+    if (rw, rh) != (w, h):
+        return (
+            f"is a {W}x{H} atlas page where atlas:scaleOffset {so} gives a {rw}x{rh} rectangle, "
+            f"not the record's {w}x{h} (ahdLightmap:baked:resolution)"
+        )
+    if x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        return f"is a {W}x{H} atlas page that the rectangle ({x0}, {y0}) {w}x{h} leaves"
+    return None
+
+
+def crop_record(results: BakeResults, pixels, what: str = ""):
+    """The record's (h, w, ...) region of an already-read page ``pixels`` (H, W, ...), the
+    whole array without an atlas. Raises SchemaError (see :func:`rect_problem`)."""
+    H, W = pixels.shape[:2]
+    why = rect_problem(results, (W, H))
+    if why is not None:
+        raise SchemaError(f"{what or 'the texture'} {why}; re-bake the prim")
+    if not results.atlas:
+        return pixels
+    x0, y0, w, h = record_rect(results, (W, H))
+    return pixels[y0 : y0 + h, x0 : x0 + w]
 
 
 def result_problems(results: BakeResults) -> list[str]:
@@ -466,6 +573,18 @@ def result_problems(results: BakeResults) -> list[str]:
         )
     if not results.uv_primvar:
         out.append("the UV primvar the textures use is empty")
+    so = tuple(results.scale_offset)
+    if len(so) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in so):
+        out.append(f"atlas:scaleOffset {results.scale_offset!r} must be four finite numbers")
+    elif not (0 < so[0] <= 1 and 0 < so[1] <= 1 and 0 <= so[2] and 0 <= so[3]) or (
+        so[0] + so[2] > 1 + 1e-6 or so[1] + so[3] > 1 + 1e-6
+    ):
+        out.append(
+            f"atlas:scaleOffset {so} puts the record outside its page (need 0 < s <= 1, "
+            "o >= 0, s + o <= 1)"
+        )
+    if not isinstance(results.page, int) or results.page < 0:
+        out.append(f"atlas:page {results.page!r} must be an integer >= 0")
     for role in results.textures:
         if role not in FILE_ROLES:
             out.append(f"unknown texture role {role!r}; roles are {', '.join(FILE_ROLES)}")
@@ -576,6 +695,16 @@ def write_results(
     _set(prim, "baked:generator", results.generator)
     _set(prim, "baked:formatVersion", int(results.format_version))
     _set(prim, "baked:normals", results.normals)
+    so_attr = prim.GetAttribute(property_name("atlas:scaleOffset"))
+    page_attr = prim.GetAttribute(property_name("atlas:page"))
+    if results.atlas:
+        _set(prim, "atlas:scaleOffset", Gf.Vec4f(*(float(v) for v in results.scale_offset)))
+        _set(prim, "atlas:page", int(results.page))
+    else:
+        for a in (so_attr, page_attr):
+            a.Clear()
+            if a.HasAuthoredValue():
+                a.Block()
 
 
 def is_baked(prim: Usd.Prim) -> bool:
@@ -642,8 +771,31 @@ def read_results(prim: Usd.Prim, *, validate: bool = True) -> BakeResults | None
         digests=digests,
         packing=packing,
     )
+    so_attr = prim.GetAttribute(property_name("atlas:scaleOffset"))
+    if so_attr and so_attr.HasAuthoredValue() and so_attr.Get() is not None:
+        so = so_attr.Get()
+        page = prim.GetAttribute(property_name("atlas:page")).Get()
+        results.scale_offset = tuple(float(v) for v in so)
+        results.page = int(page or 0)
+        results.atlas = True
     if validate:
         problems = result_problems(results)
         if problems:
             raise SchemaError(f"{_prim_label(prim)}: invalid bake record: " + "; ".join(problems))
     return results
+
+
+# Instance records (AhdInstanceLightmapAPI) live in usdahd.usd.instance_records; the names are
+# re-exported here so every record reader goes through this module.
+from usdahd.usd.instance_records import (  # noqa: E402
+    INSTANCE_API_NAME,
+    INSTANCE_NAMESPACE,
+    instance_carrier,
+    instance_carriers,
+    instance_key,
+    instance_layout,
+    instance_property_name,
+    read_instance_records,
+    stage_records,
+    write_instance_records,
+)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
-__all__ = ["camera_paths", "instance_proxies", "world_matrices"]
+__all__ = ["camera_paths", "world_matrices"]
 
 
 def world_matrices(stage, paths, time=None) -> dict[str, np.ndarray]:
@@ -22,18 +22,6 @@ def world_matrices(stage, paths, time=None) -> dict[str, np.ndarray]:
             out[p] = None
             continue
         out[p] = np.array(cache.GetLocalToWorldTransform(prim), dtype=np.float64)
-    return out
-
-
-def instance_proxies(stage, paths) -> set[str]:
-    """The paths among ``paths`` that are instance proxies (prims inside a scenegraph instance).
-    A bake never bakes them (their properties belong to the shared prototype), so a bake record
-    they show was composed in from the prim the prototype references."""
-    out = set()
-    for p in paths:
-        prim = stage.GetPrimAtPath(Sdf.Path(p)) if Sdf.Path.IsValidPathString(p) else None
-        if prim and prim.IsInstanceProxy():
-            out.add(p)
     return out
 
 

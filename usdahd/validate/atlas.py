@@ -4,8 +4,9 @@ disjoint and padded; the records of one page name the same page files.
 
 A record's rectangle in page pixels (top-left origin, rows down; docs/schema.md):
 ``x0 = ox W``, ``y0 = (1 - oy - sy) H``, ``w = sx W``, ``h = sy H`` for the page file's
-(W, H). Pages are numbered per output layer, so a page is (layer holding ``atlas:page``, page
-index). The per-stage index of records (:func:`page_index`) is built once per stage state
+(W, H). A page is its files: records sharing a file are on one page and must agree on its
+index and on every file (page indices are per output layer). The per-stage index of records
+(:func:`page_index`) is built once per stage state
 (cached by the layers' file stamps, like Staleness' scene) and shared by every prim's run.
 """
 
@@ -104,23 +105,22 @@ def _entry(prim, results, props) -> Entry:
 
 
 class PageIndex(dict):
-    """{prim path: Entry}, plus the entries grouped by page (``by_page``: (layer, index) ->
-    paths) and by file (``by_file``: file -> paths), so a prim meets only its page's records
-    (a stage of thousands of records is not compared pair by pair)."""
+    """{prim path: Entry}, plus the entries grouped by file (``by_file``: file -> paths): the
+    records that share a file are on one page (a page is its files: page indices are per
+    output layer, and the validation's view of instance entries authors them in the session
+    layer), so a prim meets only its page's records, not every record of the stage."""
 
     def __init__(self, entries: dict):
         super().__init__(entries)
-        self.by_page: dict = {}
         self.by_file: dict = {}
         for path, e in entries.items():
-            self.by_page.setdefault((e.layer, e.page), []).append(path)
             for _, f in e.files:
                 self.by_file.setdefault(f, []).append(path)
 
     def neighbours(self, path: str) -> list:
-        """Entries other than ``path``'s on its page or sharing one of its files, by path."""
+        """Entries other than ``path``'s sharing one of its files, by path."""
         me = self[path]
-        near = set(self.by_page.get((me.layer, me.page), ()))
+        near = set()
         for _, f in me.files:
             near.update(self.by_file.get(f, ()))
         near.discard(path)
@@ -129,6 +129,14 @@ class PageIndex(dict):
 
 _INDEX: OrderedDict = OrderedDict()
 _INDEX_LOCK = threading.Lock()
+
+
+def _seen_through_a_copy(prim) -> bool:
+    """A prototype's record seen through an instance proxy or a PointInstancer prototype: not
+    a record of its own (the copies' own entries are; docs/schema.md, Instances)."""
+    from usdahd.usd.instances import in_point_instancer_prototype
+
+    return bool(prim.IsInstanceProxy() or in_point_instancer_prototype(prim))
 
 
 def page_index(stage) -> PageIndex:
@@ -142,6 +150,8 @@ def page_index(stage) -> PageIndex:
                 return _INDEX[key]
     index = {}
     for prim in schema.prims_with_api(stage):
+        if _seen_through_a_copy(prim):
+            continue
         props = inspect.atlas_properties(prim)
         if props is None:
             continue
@@ -178,8 +188,8 @@ def check_atlas(prim) -> list[Finding]:
     if results is None:
         return r.out
     props = inspect.atlas_properties(prim)
-    if props is None:
-        return r.out  # no atlas: the record's textures are its own
+    if props is None or _seen_through_a_copy(prim):
+        return r.out  # no atlas (the record's textures are its own), or not its own record
     path = str(prim.GetPath())
     so, page = props["scale_offset"], props["page"]
     so = so if so is not None else (1.0, 1.0, 0.0, 0.0)
@@ -236,23 +246,9 @@ def check_atlas(prim) -> list[Finding]:
             page=page,
             rect=rect,
         )
-    for other in index.neighbours(path):
-        same_page = (other.layer, other.page) == (me.layer, me.page)
+    for other in index.neighbours(path):  # the records sharing a file with this one
         shared = {f for _, f in other.files} & {f for _, f in me.files}
-        if same_page and other.files != me.files:
-            mine, theirs = dict(me.files), dict(other.files)
-            roles = [k for k in sorted(set(mine) | set(theirs)) if mine.get(k) != theirs.get(k)]
-            r.error(
-                "PageFiles",
-                f"{path} and {other.path} are both on page {page} of {me.layer or 'the stage'} "
-                f"but name different files for {', '.join(roles)} (e.g. {mine.get(roles[0])} "
-                f"and {theirs.get(roles[0])})",
-                "re-bake both prims (every record of a page names the page's files)",
-                other=other.path,
-                roles=roles,
-            )
-            continue
-        if not same_page and shared:
+        if other.page != me.page:
             r.error(
                 "PageFiles",
                 f"{path} (page {page}) and {other.path} (page {other.page}) name the same file "
@@ -260,7 +256,20 @@ def check_atlas(prim) -> list[Finding]:
                 "re-bake both prims (a page file belongs to one page index)",
                 other=other.path,
             )
-        if not (same_page or shared) or other.rect is None:
+        elif other.files != me.files:
+            mine, theirs = dict(me.files), dict(other.files)
+            roles = [k for k in sorted(set(mine) | set(theirs)) if mine.get(k) != theirs.get(k)]
+            r.error(
+                "PageFiles",
+                f"{path} and {other.path} share page {page}'s {sorted(shared)[0]} but name "
+                f"different files for {', '.join(roles)} (e.g. {mine.get(roles[0])} and "
+                f"{theirs.get(roles[0])})",
+                "re-bake both prims (every record of a page names the page's files)",
+                other=other.path,
+                roles=roles,
+            )
+            continue
+        if other.rect is None:
             continue
         gx, gy = _gap(rect, other.rect)
         if gx < 0 and gy < 0:

@@ -120,11 +120,17 @@ def _code_check(bake: Bake) -> tuple[dict, bool]:
     if res.generator and res.generator.split(";")[0].strip() != f"usdahd {__version__}":
         return {}, False
 
+    from usdahd.validate.loading import record_encoder
+
+    encode_params = record_encoder(bake)  # an atlas record: with its page's factors
+
     def encode(sh):
         # the float32 SH, what the baker fits (and stores in the sidecar)
         fitted = _fit_chunked(res, sh)
         with np.errstate(all="ignore"):
-            channels, _ = bake.mod.encode(fitted.params, ratio=res.ratio)
+            channels = encode_params(fitted.params)
+        if channels is None:
+            return None
         return {r: np.asarray(c).reshape(len(sh), -1) for r, c in channels.items()}
 
     def same(a, b):
@@ -135,7 +141,9 @@ def _code_check(bake: Bake) -> tuple[dict, bool]:
         return a == b.astype(a.dtype)
 
     with np.errstate(all="ignore"):
-        channels, _ = bake.mod.encode(refit(bake).params, ratio=res.ratio)
+        channels = encode_params(refit(bake).params)
+    if channels is None:  # an atlas page whose factors cannot be re-derived
+        return {}, False
     want = {r: np.asarray(c).reshape(len(bake.sh), -1) for r, c in channels.items()}
     out, pending = {}, False
     for role, stored in bake.channels.items():
@@ -170,6 +178,8 @@ def _code_check(bake: Bake) -> tuple[dict, bool]:
             noisy = bake.sh.copy()  # the whole prim: a model's scale factors see every texel
             noisy[rows] *= 1.0 + sign * AMBIGUITY_NOISE * e[rows]
             alt = encode(noisy)
+            if alt is None:  # noise past the page's maxima: another factor, no evidence
+                continue
             for role, stored in bake.channels.items():
                 out[role][rows] &= ~same(stored[rows], alt[role][rows])
     return out, True

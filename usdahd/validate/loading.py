@@ -124,6 +124,15 @@ def _read_local(local: str, path: str) -> Image:
     return Image(path=path, data=data, format=fmt, channel_names=names, color_space=color_space)
 
 
+def record_image(results: schema.BakeResults, img: Image) -> Image:
+    """A record's region of a (cached, whole) page image (:func:`usdahd.usd.schema.crop_record`,
+    the one place that knows the atlas layout); the image itself without an atlas."""
+    if not results.atlas:
+        return img
+    data = schema.crop_record(results, img.data, img.path)
+    return Image(img.path, data, img.format, img.channel_names, img.color_space)
+
+
 # ---------------------------------------------------------------------------- bake loading
 
 
@@ -443,3 +452,72 @@ def _load_bake(results) -> Bake:
     if "direction" in params:
         valid &= params["direction"][:, 2] >= DZ_FLOOR
     return Bake(results, mod, layout, (w, h), xy, channels, params, sh, factors, valid)
+
+
+# ------------------------------------------------------------------ encoding in a page's context
+
+_ANCHORS: OrderedDict = OrderedDict()
+
+
+def _page_anchors(results: schema.BakeResults, mod) -> dict | None:
+    """The fitted params of a few texels of the record's atlas page: for every parameter, the
+    texel with the largest magnitude over the whole page (from the page's SH sidecar, fitted as
+    the bake fitted it). A model's decode factors are set by such maxima, so encoding a record's
+    params together with these rows gives the page's factors, hence the page's codes. Cached per
+    page file; None when the sidecar is unreadable."""
+    from usdahd.usd import assets
+
+    side = results.textures.get(schema.SIDECAR_ROLE)
+    if side is None:
+        return None
+    key = (side, assets.stamp(side), results.model, results.ratio, results.solver)
+    with _LOCK:
+        if key in _ANCHORS:
+            return _ANCHORS[key]
+    with _single_flight(("anchors", key)):
+        with _LOCK:
+            if key in _ANCHORS:
+                return _ANCHORS[key]
+        try:
+            sh = read_sidecar(side).sh  # the page's covered texels, float32, read once
+        except (OSError, KeyError, ValueError):
+            return None
+        from usdahd.validate.irradiance import _fit_chunked
+
+        fitted = _fit_chunked(results, sh)  # per texel, chunked: no float64 copy of the page
+        rows = set()
+        for v in fitted.params.values():
+            a = np.abs(np.asarray(v, np.float64).reshape(len(sh), -1))
+            if a.size:
+                rows.add(int(np.argmax(np.where(np.isfinite(a), a, -1.0).max(axis=1))))
+        rows = sorted(rows)
+        anchors = {k: np.asarray(v)[rows] for k, v in fitted.params.items()}
+        with _LOCK:
+            _ANCHORS[key] = anchors
+            while len(_ANCHORS) > 4:
+                _ANCHORS.popitem(last=False)
+    return anchors
+
+
+def record_encoder(bake: Bake):
+    """``encode(params) -> channels | None``: a record's params quantized as its bake quantized
+    them. Without an atlas: the model's encode. In an atlas page the factors are the page's
+    (one encode per page): the record's params are encoded together with the page's anchor
+    texels (:func:`_page_anchors`) and kept only when the factors come out as the record's
+    (``None`` otherwise: the codes cannot be re-derived)."""
+    res = bake.results
+    if not res.atlas:
+        return lambda params: bake.mod.encode(params, ratio=res.ratio)[0]
+    anchors = _page_anchors(res, bake.mod)
+
+    def encode(params):
+        if anchors is None:
+            return None
+        n = len(next(iter(params.values())))
+        both = {k: np.concatenate([np.asarray(v), anchors[k]]) for k, v in params.items()}
+        channels, factors = bake.mod.encode(both, ratio=res.ratio)
+        if any(abs(float(v) - res.factor(k)) > 0 for k, v in factors.items()):
+            return None
+        return {r: np.asarray(c)[:n] for r, c in channels.items()}
+
+    return encode

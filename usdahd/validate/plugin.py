@@ -101,8 +101,8 @@ def register() -> list[str]:
 def check_lightmapped(stage) -> list[Finding]:
     """Rule Lightmapped on a whole stage: one ``NoAhdLightmapAPI`` error on ``/`` when no prim
     has the API (nothing else would be validated, and a CI job must not stay green)."""
-    if any(True for _ in schema.prims_with_api(stage)):
-        return []
+    if any(True for _ in schema.prims_with_api(stage)) or schema.instance_carriers(stage):
+        return []  # mesh records, or instance records only (a PointInstancer's copies)
     layer = stage.GetRootLayer()
     where = layer.realPath or layer.identifier
     return [

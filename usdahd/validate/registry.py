@@ -35,7 +35,8 @@ RULES = (
     Rule(
         "Textures",
         "Every lightmap texture resolves, opens with OpenImageIO, and has the resolution, "
-        "channel count, data format and colour space the schema declares (UDIM sets complete).",
+        "channel count, data format and colour space the schema declares (UDIM sets complete; "
+        "an atlas record's rectangle in its page).",
     ),
     Rule(
         "TexelValues",

@@ -11,7 +11,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from usdahd.usd import diagnostics, schema
+from usdahd.usd import diagnostics, instances, schema
 from usdahd.usd import validation as usd_validation
 from usdahd.usd.stage import open_stage
 from usdahd.validate.composition import check_composition
@@ -55,16 +55,19 @@ def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False)
     so an API caller pointed at the wrong stage gets the same failure as ``usdahd validate``.
     Raises UsageError for a ``prims`` path that is not on the stage.
     """
-    try:
-        errors = usd_validation.run_context(context(retrace), stage, prims)
-        skipped = None
-    except Exception as exc:
-        if not diagnostics.is_usd_error(exc):
-            raise
-        skipped = "; ".join(diagnostics.exception_causes(exc))
-        rest = tuple(b for b in BUILTIN_VALIDATORS if b != DEPENDENCY_VALIDATOR)
-        errors = usd_validation.run_context(context(retrace, rest), stage, prims)
-    findings = [finding_from_usd(e) for e in errors]
+    # Instance entries are checked as mesh records at their keys (usdahd.usd.instances).
+    with instances.record_view(stage) as missing:
+        try:
+            errors = usd_validation.run_context(context(retrace), stage, prims)
+            skipped = None
+        except Exception as exc:
+            if not diagnostics.is_usd_error(exc):
+                raise
+            skipped = "; ".join(diagnostics.exception_causes(exc))
+            rest = tuple(b for b in BUILTIN_VALIDATORS if b != DEPENDENCY_VALIDATOR)
+            errors = usd_validation.run_context(context(retrace, rest), stage, prims)
+        findings = [finding_from_usd(e) for e in errors]
+    findings += missing_instance_records(missing, prims)
     if not any(f.code == "NoAhdLightmapAPI" for f in findings):
         findings = check_lightmapped(stage) + findings
     if prims and not any(f.rule == COMPOSITION_RULE.name for f in findings):
@@ -74,6 +77,26 @@ def validate_stage(stage, prims: list[str] | None = None, retrace: bool = False)
     findings = _drop_restated(findings)
     findings.sort(key=lambda f: (f.prim, SEVERITY_ORDER.get(f.severity, 3), f.rule, f.code))
     return findings
+
+
+def missing_instance_records(missing: list, prims: list[str] | None = None) -> list[Finding]:
+    """``SchemaValues`` error ``NoInstanceRecord`` for each instance copy without a record of
+    its own (usdahd.usd.instances.record_view), within ``prims`` when given."""
+    out = []
+    for key, why in missing:
+        if prims and not any(key == p or key.startswith(p.rstrip("/") + "/") for p in prims):
+            continue
+        out.append(
+            Finding(
+                "SchemaValues",
+                "error",
+                key,
+                "NoInstanceRecord",
+                f"{why}: every instance copy of a baked prototype mesh gets its own lightmap "
+                "(docs/schema.md, Instances). Fix: re-bake the stage (usdahd bake)",
+            )
+        )
+    return out
 
 
 def _dependency_skipped(cause: str) -> Finding:
@@ -152,7 +175,8 @@ def validate_file(path: str, prims: list[str] | None = None, retrace: bool = Fal
     """
     with usd_validation.captured_stderr_fd() as lines, diagnostics.capture() as usd:
         stage = open_stage(path)
-        baked = [str(p.GetPath()) for p in schema.prims_with_api(stage)]
+        baked = [str(p.GetPath()) for p in schema.prims_with_api(stage) if not p.IsInstanceProxy()]
+        baked += sorted(k for k in schema.stage_records(stage, errors=[]) if k not in baked)
         findings = validate_stage(stage, prims, retrace=retrace)
     findings = dedupe(findings, Path(path).resolve().parent)
     # USD's own messages: trapped on this thread, printed (secondary threads) to fd 2; each

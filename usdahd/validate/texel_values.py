@@ -6,7 +6,7 @@ import numpy as np
 
 from usdahd.usd import schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import Bake, load_for, read_image
+from usdahd.validate.loading import Bake, load_for, read_image, record_image
 from usdahd.validate.options import DZ_FLOOR, IRRADZ, NONNEGATIVE_COLOURS, UNIT_TOLERANCE
 
 # ------------------------------------------------------------------------ rule 3: TexelValues
@@ -26,7 +26,7 @@ def check_texel_values(prim) -> list[Finding]:
     for role, lay in bake.layout.items():
         if lay.format not in ("half", "float"):
             continue
-        img = read_image(bake.results.textures[role])
+        img = record_image(bake.results, read_image(bake.results.textures[role]))
         bad = ~np.isfinite(img.data).all(axis=2)  # float16 or float32 as stored (no copy)
         if bad.any():
             ys, xs = np.nonzero(bad)

@@ -37,7 +37,6 @@ def check_textures(prim) -> list[Finding]:
         layout = {t.role: t for t in models.get(results.model).layout(results.ratio)}
     except Exception:
         layout = {}
-    w, h = results.resolution
     for role in results.textures:
         prop = schema.file_property_name(role)
         attr = prim.GetAttribute(prop)
@@ -113,12 +112,13 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
                 continue
-            if (img.width, img.height) != (w, h):
+            why = schema.rect_problem(results, (img.width, img.height))
+            if why is not None:
                 r.error(
                     "Resolution",
-                    f"{where} is {img.width}x{img.height} but ahdLightmap:baked:resolution "
-                    f"is {w}x{h}",
-                    "re-bake the prim (every texture of a bake has the same resolution)",
+                    f"{where} {why}",
+                    "re-bake the prim (every texture of a bake has the same resolution, or "
+                    "holds its rectangle in an atlas page)",
                     property=prop,
                 )
             if role == schema.SIDECAR_ROLE:

@@ -16,6 +16,19 @@ vec2 usdahd_lightmap_texcoord(vec2 st) {
     return vec2(st.x, 1.0 - st.y);
 }
 
+// Atlas page: a record's lightmap UV st -> texture coordinate in its page. scale_offset is
+// ahdLightmap:atlas:scaleOffset (sx, sy, ox, oy): uv_page = st * (sx, sy) + (ox, oy) in USD's
+// v-up convention, (1, 1, 0, 0) without an atlas (then this is usdahd_lightmap_texcoord).
+vec2 usdahd_page_texcoord(vec2 st, vec4 scale_offset) {
+    return usdahd_lightmap_texcoord(st * scale_offset.xy + scale_offset.zw);
+}
+
+// The same for pages bound as one texture array (layer = ahdLightmap:atlas:page):
+// texture(sampler2DArray, usdahd_page_texcoord_array(st, scale_offset, page)).
+vec3 usdahd_page_texcoord_array(vec2 st, vec4 scale_offset, int page) {
+    return vec3(usdahd_page_texcoord(st, scale_offset), float(page));
+}
+
 // snorm8b: signed value biased into UNORM8, (q - 128) / 127 from the sample t = q / 255.
 float usdahd_snorm8b(float t) {
     return max((255.0 * t - 128.0) / 127.0, -1.0);

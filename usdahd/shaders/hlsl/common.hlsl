@@ -16,6 +16,19 @@ float2 usdahd_lightmap_texcoord(float2 st) {
     return float2(st.x, 1.0 - st.y);
 }
 
+// Atlas page: a record's lightmap UV st -> texture coordinate in its page. scale_offset is
+// ahdLightmap:atlas:scaleOffset (sx, sy, ox, oy): uv_page = st * (sx, sy) + (ox, oy) in USD's
+// v-up convention, (1, 1, 0, 0) without an atlas (then this is usdahd_lightmap_texcoord).
+float2 usdahd_page_texcoord(float2 st, float4 scale_offset) {
+    return usdahd_lightmap_texcoord(st * scale_offset.xy + scale_offset.zw);
+}
+
+// The same for pages bound as one Texture2DArray (slice = ahdLightmap:atlas:page):
+// pages.Sample(s, usdahd_page_texcoord_array(st, scale_offset, page)).
+float3 usdahd_page_texcoord_array(float2 st, float4 scale_offset, int page) {
+    return float3(usdahd_page_texcoord(st, scale_offset), (float)page);
+}
+
 // snorm8b: signed value biased into UNORM8, (q - 128) / 127 from the sample t = q / 255.
 float usdahd_snorm8b(float t) {
     return max((255.0 * t - 128.0) / 127.0, -1.0);

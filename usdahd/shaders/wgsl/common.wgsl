@@ -15,6 +15,19 @@ fn usdahd_lightmap_texcoord(st: vec2<f32>) -> vec2<f32> {
     return vec2<f32>(st.x, 1.0 - st.y);
 }
 
+// Atlas page: a record's lightmap UV st -> texture coordinate in its page. scale_offset is
+// ahdLightmap:atlas:scaleOffset (sx, sy, ox, oy): uv_page = st * (sx, sy) + (ox, oy) in USD's
+// v-up convention, (1, 1, 0, 0) without an atlas (then this is usdahd_lightmap_texcoord).
+fn usdahd_page_texcoord(st: vec2<f32>, scale_offset: vec4<f32>) -> vec2<f32> {
+    return usdahd_lightmap_texcoord(st * scale_offset.xy + scale_offset.zw);
+}
+
+// The same for pages bound as one texture_2d_array (layer = ahdLightmap:atlas:page), as
+// (u, v, layer): textureSample(pages, s, c.xy, i32(c.z)).
+fn usdahd_page_texcoord_array(st: vec2<f32>, scale_offset: vec4<f32>, page: i32) -> vec3<f32> {
+    return vec3<f32>(usdahd_page_texcoord(st, scale_offset), f32(page));
+}
+
 // snorm8b: signed value biased into UNORM8, (q - 128) / 127 from the sample t = q / 255.
 fn usdahd_snorm8b(t: f32) -> f32 {
     return max((255.0 * t - 128.0) / 127.0, -1.0);

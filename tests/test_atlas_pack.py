@@ -1,0 +1,104 @@
+"""The atlas packer (usdahd.numerics.atlas): rectangles disjoint, padded, 4-aligned, inside
+their page; pages powers of two that shrink to fit; deterministic; fill on a random set."""
+
+import numpy as np
+import pytest
+
+from usdahd.numerics import atlas
+
+
+def _check(packing, sizes, padding, max_size):
+    assert len(packing.placements) == len(sizes)
+    for p, (w, h) in zip(packing.placements, sizes):
+        W, H = packing.pages[p.page]
+        assert atlas.is_power_of_two(W) and atlas.is_power_of_two(H)
+        assert (p.w, p.h) == (w, h)
+        assert p.x % atlas.ALIGN == 0 and p.y % atlas.ALIGN == 0
+        assert 0 <= p.x and p.x + w <= W and 0 <= p.y and p.y + h <= H
+        if max(atlas.cell(w, h, padding)) <= max_size:
+            assert W <= max_size and H <= max_size
+    # disjoint and padded: the gap between two rectangles of a page is >= padding on x or y
+    ps = packing.placements
+    for i in range(len(ps)):
+        for j in range(i + 1, len(ps)):
+            a, b = ps[i], ps[j]
+            if a.page != b.page:
+                continue
+            gap_x = max(b.x - (a.x + a.w), a.x - (b.x + b.w))
+            gap_y = max(b.y - (a.y + a.h), a.y - (b.y + b.h))
+            assert max(gap_x, gap_y) >= padding, (a, b)
+    # territories (rectangle + padding // 2 each side) never overlap
+    for k, page in enumerate(packing.pages):
+        owner = np.full(page[::-1], -1)
+        for i, p in enumerate(ps):
+            if p.page != k:
+                continue
+            x0, y0, x1, y1 = atlas.territory(p, page, padding)
+            assert (owner[y0:y1, x0:x1] == -1).all()
+            owner[y0:y1, x0:x1] = i
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("padding", [2, 4, 7])
+def test_random_sets(seed, padding):
+    rng = np.random.default_rng(seed)
+    sizes = [tuple(int(v) for v in rng.integers(3, 200, 2)) for _ in range(60)]
+    packing = atlas.pack(sizes, max_size=512, padding=padding)
+    _check(packing, sizes, padding, 512)
+    assert len(packing.pages) >= 2  # 60 rects of ~100² do not fit one 512² page
+    # fill: rectangle area over page area, at least 65 % over all pages (measured 67-81 %)
+    assert packing.fill() > 0.65
+    # the smaller pages tried never lose: the result has no more page texels than 512² pages
+    at_max = atlas._pack(sizes, None, max_size=512, padding=padding)
+    assert sum(w * h for w, h in packing.pages) <= sum(w * h for w, h in at_max.pages)
+
+
+def test_classroom_like_set_prefers_smaller_pages():
+    """One 1024² map and many small ones (the classroom's shape): three 1024² pages hold them
+    with less page area than one 2048² page."""
+    sizes = [(1024, 1024)] + [(128, 96)] * 60 + [(300, 200)] * 8
+    packing = atlas.pack(sizes, max_size=2048, padding=4)
+    _check(packing, sizes, 4, 2048)
+    assert all(max(p) <= 1024 for p in packing.pages)
+    assert packing.fill() > 0.7
+
+
+def test_shrinks_to_smallest_power_of_two():
+    sizes = [(16, 16)] * 5
+    packing = atlas.pack(sizes, max_size=2048, padding=4)
+    _check(packing, sizes, 4, 2048)
+    ((W, H),) = packing.pages
+    assert 5 * 16 * 16 <= W * H <= 64 * 64  # not a 2048² page
+    assert atlas.pack([(16, 16)], max_size=2048).pages == [(16, 16)]
+
+
+def test_big_rectangle_gets_its_own_page():
+    sizes = [(300, 90), (20, 20), (1000, 16)]
+    packing = atlas.pack(sizes, max_size=256, padding=4)
+    _check(packing, sizes, 4, 256)
+    big = packing.placements[2]
+    assert packing.pages[big.page] == (1024, 16) and (big.x, big.y) == (0, 0)
+    assert packing.pages[packing.placements[0].page] == (512, 128)
+
+
+def test_deterministic_and_order_independent():
+    rng = np.random.default_rng(5)
+    sizes = [tuple(int(v) for v in rng.integers(3, 64, 2)) for _ in range(30)]
+    keys = [f"/World/m{i}" for i in range(30)]
+    a = atlas.pack(sizes, keys, max_size=256, padding=4)
+    perm = rng.permutation(30)
+    b = atlas.pack([sizes[i] for i in perm], [keys[i] for i in perm], max_size=256, padding=4)
+    assert [a.placements[i] for i in perm] == b.placements and a.pages == b.pages
+
+
+def test_scale_offset_round_trip():
+    p = atlas.Placement(0, 8, 4, 20, 12)
+    so = atlas.scale_offset(p, (64, 32))
+    assert atlas.rect_of(so, (64, 32)) == (8, 4, 20, 12)
+    assert np.float32(so[2]) * 64 == 8 and np.float32(so[3]) * 32 == 16
+
+
+@pytest.mark.parametrize("kw", [{"max_size": 1000}, {"padding": 1}])
+def test_bad_arguments(kw):
+    with pytest.raises(ValueError):
+        atlas.pack([(4, 4)], **kw)

@@ -307,8 +307,8 @@ def test_docs_worked_example(bakes):
 
 
 def test_validate_reports_overlapping_rectangles(bakes, tmp_path):
-    """Two records moved onto one rectangle of their page: Textures reports AtlasOverlap on
-    both (and a rectangle outside its page is a schema problem)."""
+    """Two records moved onto one rectangle of their page: the Atlas rule reports the overlap
+    on both, naming both (and a rectangle outside its page is a schema problem)."""
     from pxr import Gf, Usd
 
     from usdahd import validate as V
@@ -322,9 +322,17 @@ def test_validate_reports_overlapping_rectangles(bakes, tmp_path):
     ceiling = st.GetPrimAtPath("/World/Geometry/Ceiling")
     attr = schema.property_name("atlas:scaleOffset")
     ceiling.GetAttribute(attr).Set(floor.GetAttribute(attr).Get())
+    st.GetRootLayer().Save()
+    st = Usd.Stage.Open(str(layer))
+    floor, ceiling = (
+        st.GetPrimAtPath(p) for p in ("/World/Geometry/Floor", "/World/Geometry/Ceiling")
+    )
     for prim in (floor, ceiling):
-        codes = [f.code for f in V.check_textures(prim) if f.severity == "error"]
-        assert codes == ["AtlasOverlap"], codes
+        assert [f.code for f in V.check_textures(prim) if f.severity == "error"] == []
+        found = [f for f in V.check_atlas(prim) if f.severity == "error"]
+        assert [f.code for f in found] == ["Overlap"], found
+        assert "/World/Geometry/Floor" in found[0].message
+        assert "/World/Geometry/Ceiling" in found[0].message
     ceiling.GetAttribute(attr).Set(Gf.Vec4f(0.25, 0.25, 0.875, 0.75))  # leaves the page
     problems = schema.result_problems(schema.read_results(ceiling, validate=False))
     assert any("outside its page" in p for p in problems)

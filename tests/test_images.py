@@ -191,3 +191,20 @@ def test_read_texels_keeps_straight_colour_under_alpha(tmp_path):
     assert fmt == "uint8"
     np.testing.assert_allclose(data[..., :3], 0.8, atol=1 / 255)
     np.testing.assert_allclose(data[..., 3], img[..., 3], atol=1 / 255)
+
+
+@pytest.mark.parametrize(("fmt", "ext"), [("half", ".exr"), ("float", ".exr"), ("unorm8", ".png")])
+def test_read_native_in_strips_equals_a_whole_read(tmp_path, monkeypatch, fmt, ext):
+    """Big scanline images are read in strips (less peak memory): the same pixels as one
+    read, also when the height is not a multiple of the strip."""
+    px = random_pixels(fmt, (150, 70, 3))
+    path = str(tmp_path / f"img{ext}")
+    images.write(path, px, format=fmt, channels=("R", "G", "B"), color_space="raw")
+    whole = images.read_native(path)
+    monkeypatch.setattr(images, "STRIP_BYTES", 1024)
+    monkeypatch.setattr(images, "STRIP_ROWS", 16)
+    strips = images.read_native(path)
+    assert strips[1:] == whole[1:]
+    assert strips[0].dtype == whole[0].dtype
+    np.testing.assert_array_equal(strips[0], whole[0])
+    np.testing.assert_array_equal(whole[0], px)

@@ -55,3 +55,16 @@ def test_degenerate_triangles_cover_nothing_and_backend_is_checked():
     assert len(r.ids) == 0 and r.degenerate.tolist() == [True]
     with pytest.raises(UsageError, match="backend"):
         raster.rasterize_uv(uv, (8, 8), backend="cuda")
+
+
+@pytest.mark.parametrize("backend", raster.BACKENDS)
+def test_coverage_is_rasterize_uvs_texels(backend):
+    """coverage() (the UVSet rule's statistic, without sample points) gives exactly
+    rasterize_uv's covered and overlap ids on random, overlapping UV triangles."""
+    rng = np.random.default_rng(5)
+    uv = rng.random((40, 3, 2))
+    r = raster.rasterize_uv(uv, (37, 23), backend=backend)
+    ids, overlap = raster.coverage(uv, (37, 23), backend=backend)
+    assert len(r.overlap_ids) > 0  # the case exercises overlaps
+    np.testing.assert_array_equal(ids, r.ids)
+    np.testing.assert_array_equal(overlap, r.overlap_ids)

@@ -539,7 +539,7 @@ def test_iz_tolerance_is_the_quantization_and_one_flipped_code_is_caught(tmp_pat
 
     recorded = bake.results.digests[role]
     MA._edit_image(path, flip)  # re-records the digest: a bake that wrote one bad code
-    V._BAKE_CACHE.clear()
+    V.clear_caches()
     stage = Usd.Stage.Open(str(layer))
     prim = stage.GetPrimAtPath(MA.PRIM)
     (found,) = V.check_iz(prim)

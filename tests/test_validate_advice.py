@@ -39,7 +39,7 @@ def from_below(share: float):
 
 
 def _encoding(layer: Path) -> list[V.Finding]:
-    V._BAKE_CACHE.clear()
+    V.clear_caches()
     stage = Usd.Stage.Open(str(layer))
     return V.check_encoding_error(stage.GetPrimAtPath(MA.PRIM))
 

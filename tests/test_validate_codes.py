@@ -53,8 +53,7 @@ def default_bakes(tmp_path_factory):
 
 
 def _check(layer: Path, prim: str = PRIM) -> list[V.Finding]:
-    V._BAKE_CACHE.clear()
-    V._IMAGE_CACHE.clear()
+    V.clear_caches()
     stage = Usd.Stage.Open(str(layer))
     return V.check_iz(stage.GetPrimAtPath(prim))
 

@@ -327,6 +327,35 @@ class Raster:
         return np.stack([self.ids % w, self.ids // w], axis=1)
 
 
+def _cover(uv, resolution, *, conservative: bool, backend: str):
+    """(pixel-space corners, signed areas, degenerate mask, covered texel ids, their winning
+    triangles, texel ids whose centre lies strictly in two or more triangles)."""
+    if backend not in BACKENDS:
+        raise UsageError(f"unknown rasterize backend {backend!r}; use 'numba' or 'numpy'")
+    w, h = (int(r) for r in resolution)
+    px = uv_to_pixel(uv, (w, h))
+    # pixel space has y down, so area2 here is minus the UV-space one
+    area2 = signed_area2(px)
+    degenerate = np.abs(area2) <= DEGENERATE_UV_AREA2
+    live = np.nonzero(~degenerate)[0]
+
+    run = _raster_numba if backend == "numba" else _raster_numpy
+    ids, tri_idx, overlap_ids = run(px, area2, live, w, h, conservative)
+    return px, area2, degenerate, ids, tri_idx, overlap_ids
+
+
+def coverage(
+    uv: np.ndarray, resolution, *, conservative: bool = True, backend: str = "numba"
+) -> tuple[np.ndarray, np.ndarray]:
+    """The covered texel ids and the overlap ids of :func:`rasterize_uv` (same kernel, same
+    values) without the sample points and barycentrics: what a UV-overlap statistic needs,
+    at a fraction of the memory (a 1024^2 map's barycentric stage holds ~0.3 GB)."""
+    _, _, _, ids, _, overlap_ids = _cover(
+        uv, resolution, conservative=conservative, backend=backend
+    )
+    return ids, overlap_ids
+
+
 def rasterize_uv(
     uv: np.ndarray, resolution, *, conservative: bool = True, backend: str = "numba"
 ) -> Raster:
@@ -342,17 +371,10 @@ def rasterize_uv(
     resolution : (w, h) positive ints. backend : one of BACKENDS (same result).
     returns : :class:`Raster`.
     """
-    if backend not in BACKENDS:
-        raise UsageError(f"unknown rasterize backend {backend!r}; use 'numba' or 'numpy'")
     w, h = (int(r) for r in resolution)
-    px = uv_to_pixel(uv, (w, h))
-    # pixel space has y down, so area2 here is minus the UV-space one
-    area2 = signed_area2(px)
-    degenerate = np.abs(area2) <= DEGENERATE_UV_AREA2
-    live = np.nonzero(~degenerate)[0]
-
-    run = _raster_numba if backend == "numba" else _raster_numpy
-    ids, tri_idx, overlap_ids = run(px, area2, live, w, h, conservative)
+    px, area2, degenerate, ids, tri_idx, overlap_ids = _cover(
+        uv, (w, h), conservative=conservative, backend=backend
+    )
 
     # sample point of each winner: the centre if inside, else the closest point
     x = ids % w

@@ -132,3 +132,33 @@ def layers_stamp(stage):
             return None
         parts.append((layer.identifier, *stamp))
     return tuple(sorted(parts))
+
+
+#: The atlas properties of a bake record (docs/schema.md; issue 39's contract).
+ATLAS_SCALE_OFFSET = "ahdLightmap:atlas:scaleOffset"
+ATLAS_PAGE = "ahdLightmap:atlas:page"
+
+
+def atlas_properties(prim) -> dict | None:
+    """A record's atlas properties as authored, for the Atlas rule: None when neither
+    ``atlas:scaleOffset`` nor ``atlas:page`` has a value (no atlas: the record's textures are
+    its own); else {"scale_offset": tuple of floats or None (absent: (1, 1, 0, 0)) or the raw
+    value when not four numbers, "page": the raw value or None (absent: 0), "layer": identifier
+    of the layer holding the strongest opinion (pages are numbered per output layer)}."""
+    values, layer = {}, None
+    for key, name in (("scale_offset", ATLAS_SCALE_OFFSET), ("page", ATLAS_PAGE)):
+        attr = prim.GetAttribute(name)
+        v = attr.Get() if attr and attr.HasAuthoredValue() else None
+        values[key] = v
+        if v is not None and layer is None:
+            stack = attr.GetPropertyStack(Usd.TimeCode.Default())
+            layer = stack[0].layer.identifier if stack else None
+    if values["scale_offset"] is None and values["page"] is None:
+        return None
+    so = values["scale_offset"]
+    if so is not None:
+        try:
+            so = tuple(float(x) for x in so)
+        except (TypeError, ValueError):
+            so = values["scale_offset"]
+    return {"scale_offset": so, "page": values["page"], "layer": layer}

@@ -15,7 +15,7 @@ package itself. Importing this package registers the implementations (:func:`reg
 Layout (one module per rule domain): ``registry`` (rule names and docs), ``options``
 (tolerances), ``findings`` (Finding, JSON), ``loading`` (textures and the decoded bake),
 ``schema_values``, ``textures``, ``texel_values``, ``irradiance`` (IzCheck, EncodingError),
-``staleness``, ``uvset``, ``plugin`` (registration, :func:`run_rule`), ``run`` (what
+``staleness``, ``uvset``, ``atlas``, ``plugin`` (registration, :func:`run_rule`), ``run`` (what
 ``usdahd validate`` runs on a stage file); the opt-in Retrace rule is
 :mod:`usdahd.validate.retrace`. No module here imports pxr: the rules read prims through
 :mod:`usdahd.usd` (:mod:`usdahd.usd.inspect` for the small reads), and the UsdValidation glue
@@ -30,6 +30,8 @@ Rules (see docs/validate.md for what each checks and how to fix it):
 ``EncodingError``  hemispherical RMSE of the decoded model against the SH target (report).
 ``Staleness``      the stored content hash still matches the stage.
 ``UVSet``          the lightmap UV primvar exists, lies in [0, 1], does not overlap.
+``Atlas``          atlas records: whole-texel, 4-aligned rectangles inside their page,
+                   disjoint and padded, one set of page files per page (``atlas``).
 ``Lightmapped``    (per stage) at least one prim has AhdLightmapAPI.
 ``Composition``    (per stage) composition problems once each: warnings unless a baked prim
                    is composed through them (``composition``).
@@ -44,6 +46,7 @@ from __future__ import annotations
 from usdahd import models  # noqa: F401  (V.models in tests)
 from usdahd.numerics import sh as shm  # noqa: F401
 from usdahd.usd import schema  # noqa: F401
+from usdahd.validate.atlas import check_atlas  # noqa: F401
 from usdahd.validate.composition import check_composition  # noqa: F401
 from usdahd.validate.findings import (  # noqa: F401
     FINDING_DATA,
@@ -74,6 +77,7 @@ from usdahd.validate.loading import (  # noqa: F401
     _bake_key,
     _load_bake,
     _read_local,
+    clear_caches,
     decode_factors,
     load_bake,
     read_image,

@@ -55,8 +55,9 @@ _IMAGE_CACHE_BYTES = 192 << 20
 _LOCK = threading.Lock()
 
 
-def read_image(path: str) -> Image:
-    """Read a whole image in its native format (cached by path, size and mtime).
+def read_image(path: str, cache: bool = True) -> Image:
+    """Read a whole image in its native format (cached by path, size and mtime; with
+    ``cache=False`` a cached copy is used but a fresh read is not kept).
 
     Raises OSError with OpenImageIO's message when the file cannot be opened.
     """
@@ -76,7 +77,8 @@ def read_image(path: str) -> Image:
                 return _IMAGE_CACHE[key]
         with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
             img = _read_local(local, path)
-        _cache_image(key, img)
+        if cache:
+            _cache_image(key, img)
     return img
 
 
@@ -141,8 +143,9 @@ class Bake:
     results : the schema record; mod : model module; layout : role -> TextureLayout;
     xy : (n, 2) int32 texel column/row of the texels considered (covered ones, or every texel
     without a sidecar); channels : role -> (n, c) stored values in the layout's dtype;
-    params : decoded model parameters for those texels; sh : (n, 3, 9) float64 sidecar SH or
-    None; valid : (n,) bool texels whose decoded values pass TexelValues.
+    params : decoded model parameters for those texels; sh : (n, 3, 9) sidecar SH as stored
+    (float32; rules widen the texels they use to float64) or None; valid : (n,) bool texels
+    whose decoded values pass TexelValues.
     """
 
     results: schema.BakeResults
@@ -229,6 +232,157 @@ def load_for(r: _Rule, prim, *, sidecar: str | None = None) -> Bake | None:
     return bake
 
 
+def record_region(results, size) -> tuple[int, int, int, int] | None:
+    """(x0, y0, w, h) of a record's texels in a texture of ``size`` (W, H): the whole file
+    without an atlas, the record's rectangle of its atlas page (``schema.record_rect``) with
+    one; None when the file cannot hold them (Textures reports it)."""
+    W, H = (int(v) for v in size)
+    w, h = (int(v) for v in results.resolution)
+    if getattr(results, "atlas", False):  # issue 39's atlas records
+        if schema.rect_problem(results, (W, H)) is not None:
+            return None
+        return tuple(int(v) for v in schema.record_rect(results, (W, H)))
+    return (0, 0, w, h) if (W, H) == (w, h) else None
+
+
+@dataclass
+class Sidecar:
+    """An SH sidecar file kept sparse: rows (H, W) int32, the row of each covered texel
+    (alpha > 0.5) in sh, -1 elsewhere; sh (m, 3, 9) float32 as stored. An atlas page's
+    sidecar is read once for all its records: only its covered texels stay in memory
+    (a 1024^2 page at 21% fill: 28 MB instead of 117 MB)."""
+
+    rows: np.ndarray
+    sh: np.ndarray
+
+    @property
+    def width(self) -> int:
+        return int(self.rows.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.rows.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.rows.nbytes + self.sh.nbytes)
+
+
+_SIDECARS: OrderedDict = OrderedDict()
+#: Sparse sidecars kept (bytes): every page of a classroom-sized atlas bake.
+_SIDECAR_BYTES = 256 << 20
+
+
+def read_sidecar(path: str) -> Sidecar:
+    """The SH sidecar at ``path``, sparse (cached by path, size and mtime; read once per
+    file). Raises OSError (unreadable), ValueError (a channel of SH_SIDECAR_CHANNELS missing)."""
+    from usdahd.usd import assets
+
+    key = assets.stamp(path)
+    with _LOCK:
+        if key is not None and key in _SIDECARS:
+            _SIDECARS.move_to_end(key)
+            return _SIDECARS[key]
+    with _single_flight(("sidecar", key)):
+        with _LOCK:
+            if key is not None and key in _SIDECARS:
+                return _SIDECARS[key]
+        img = read_image(path)  # cached: Textures (image_info) reads the same file
+        names = schema.SH_SIDECAR_CHANNELS
+        idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures reports it
+        ys, xs = np.nonzero(img.data[..., idx[27]] > 0.5)
+        rows = np.full((img.height, img.width), -1, np.int32)
+        rows[ys, xs] = np.arange(len(ys), dtype=np.int32)
+        sh = _gather(img.data, ys, xs, idx[:27]).astype(np.float32, copy=False)
+        side = Sidecar(rows, sh.reshape(-1, 3, 9))
+        info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
+        del img
+        if key is not None:
+            with _LOCK:
+                # Textures needs only the file's metadata now, and the pixels are in ``side``:
+                # the whole image (117 MB for a 1024^2 page) leaves the image cache
+                _INFOS[key] = info
+                _IMAGE_CACHE.pop(key, None)
+                _SIDECARS[key] = side
+                while len(_SIDECARS) > 1 and (
+                    sum(v.nbytes for v in _SIDECARS.values()) > _SIDECAR_BYTES
+                ):
+                    _SIDECARS.popitem(last=False)
+    return side
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What the Textures rule checks of a file that decodes: size, channels, format, colour
+    space (no pixels)."""
+
+    width: int
+    height: int
+    channel_names: tuple
+    format: str
+    color_space: str
+
+
+_INFOS: OrderedDict = OrderedDict()
+
+
+def image_info(path: str) -> ImageInfo:
+    """The ImageInfo of a texture that OpenImageIO opens and decodes whole (cached by path,
+    size and mtime, so an atlas page shared by many records is decoded once, not per record).
+    Raises OSError like :func:`read_image`."""
+    from usdahd.usd import assets
+
+    key = assets.stamp(path)
+    with _LOCK:
+        if key is not None and key in _INFOS:
+            return _INFOS[key]
+    img = read_image(path)
+    info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
+    if key is not None:
+        with _LOCK:
+            _INFOS[key] = info
+            while len(_INFOS) > 4096:
+                _INFOS.popitem(last=False)
+    return info
+
+
+_DIGESTS: OrderedDict = OrderedDict()
+
+
+def file_digest(path: str) -> str:
+    """``schema.file_digest`` cached by path, size and mtime (an atlas page's files are
+    hashed once, not once per record)."""
+    from usdahd.usd import assets
+
+    key = assets.stamp(path)
+    with _LOCK:
+        if key is not None and key in _DIGESTS:
+            return _DIGESTS[key]
+    digest = schema.file_digest(path)
+    if key is not None:
+        with _LOCK:
+            _DIGESTS[key] = digest
+            while len(_DIGESTS) > 4096:
+                _DIGESTS.popitem(last=False)
+    return digest
+
+
+def clear_caches() -> None:
+    """Forget every cached read (images, sparse sidecars, image metadata, digests, decoded
+    bakes): for callers that rewrite files in place within a file system's mtime resolution."""
+    with _LOCK:
+        for cache in (_IMAGE_CACHE, _SIDECARS, _INFOS, _DIGESTS, _BAKE_CACHE):
+            cache.clear()
+
+
+def _gather(data: np.ndarray, ys: np.ndarray, xs: np.ndarray, channels) -> np.ndarray:
+    """(n, len(channels)) values of ``data`` (h, w, c) at texels (xs, ys), channels by index,
+    in one gather (no copy of the whole image's channels first; ``data`` may be a view, e.g.
+    a record's crop of an atlas page)."""
+    ch = np.asarray(channels, np.intp)[None, :]
+    return data[np.asarray(ys, np.intp)[:, None], np.asarray(xs, np.intp)[:, None], ch]
+
+
 def _load_bake(results) -> Bake:
     try:
         mod = models.get(results.model)
@@ -236,7 +390,7 @@ def _load_bake(results) -> Bake:
     except Exception as exc:
         raise _Skip(f"model settings unusable ({exc}); see SchemaValues") from None
     w, h = results.resolution
-    images = {}
+    images, origin = {}, {}
     for role, lay in layout.items():
         path = results.textures.get(role)
         if path is None or "<UDIM>" in results.asset_paths.get(role, ""):
@@ -245,38 +399,43 @@ def _load_bake(results) -> Bake:
             img = read_image(path)
         except OSError:
             raise _Skip(f"texture {role!r} unreadable; see Textures") from None
-        if schema.rect_problem(results, (img.width, img.height)) is not None or set(
-            img.channel_names
-        ) != set(lay.channels):
+        region = record_region(results, (img.width, img.height))
+        if region is None or set(img.channel_names) != set(lay.channels):
             raise _Skip(f"texture {role!r} has the wrong shape or channels; see Textures")
-        images[role] = record_image(results, img)
-    sh = cov = None
+        images[role], origin[role] = img, region[:2]
+    sh = None
     sc = results.textures.get(schema.SIDECAR_ROLE)
     if sc is not None:
         try:
-            img = read_image(sc)
-            if schema.rect_problem(results, (img.width, img.height)) is None:
-                img = record_image(results, img)
-                names = schema.SH_SIDECAR_CHANNELS
-                idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures
-                cov = img.data[..., idx[27]] > 0.5
-                # float64 only at covered texels (the whole image in float64 was 8 bytes x
-                # 28 channels per texel: 235 MB for a 1024^2 map)
-                ys, xs = np.nonzero(cov)
-                sh = img.data[ys, xs][:, idx[:27]].astype(np.float64).reshape(-1, 3, 9)
+            side = read_sidecar(sc)
+            region = record_region(results, (side.width, side.height))
+            if region is not None:
+                x0, y0 = region[:2]
+                rows = side.rows[y0 : y0 + h, x0 : x0 + w]
+                ys, xs = np.nonzero(rows >= 0)
+                # the covered texels' SH as stored (float32 holds a float16 or float32
+                # sidecar exactly; the rules widen the texels they use to float64): a view
+                # of the sidecar's when they are its rows a..b in order (a whole file)
+                r = rows[ys, xs]
+                if len(r) and int(r[-1]) - int(r[0]) == len(r) - 1 and (np.diff(r) == 1).all():
+                    sh = side.sh[int(r[0]) : int(r[-1]) + 1]
+                else:
+                    sh = side.sh[r]
         except (OSError, KeyError, ValueError):
-            sh = cov = None  # Textures reports it
-    if cov is None:
+            sh = None  # Textures reports it
+    if sh is None:
         ys, xs = np.mgrid[0:h, 0:w]
         xy = np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.int32)
     else:
-        ys, xs = np.nonzero(cov)
         xy = np.stack([xs, ys], axis=-1).astype(np.int32)
     # Channels by name, in the layout's order (EXR stores them sorted, so never by position).
     channels = {
-        role: images[role]
-        .channels(lay.channels)[xy[:, 1], xy[:, 0]]
-        .astype(FORMAT_DTYPES[lay.format])
+        role: _gather(
+            images[role].data,
+            xy[:, 1] + origin[role][1],
+            xy[:, 0] + origin[role][0],
+            [images[role].channel_names.index(c) for c in lay.channels],
+        ).astype(FORMAT_DTYPES[lay.format], copy=False)
         for role, lay in layout.items()
     }
     factors = decode_factors(results)
@@ -320,15 +479,12 @@ def _page_anchors(results: schema.BakeResults, mod) -> dict | None:
             if key in _ANCHORS:
                 return _ANCHORS[key]
         try:
-            img = read_image(side)
-            idx = [img.channel_names.index(n) for n in schema.SH_SIDECAR_CHANNELS]
-        except (OSError, ValueError):
+            sh = read_sidecar(side).sh  # the page's covered texels, float32, read once
+        except (OSError, KeyError, ValueError):
             return None
-        cov = img.data[..., idx[27]] > 0.5
-        sh = np.ascontiguousarray(img.data[cov][:, idx[:27]].astype(np.float32)).reshape(-1, 3, 9)
-        with np.errstate(all="ignore"):
-            solver = results.solver or None
-            fitted = models.fit(sh, results.model, ratio=results.ratio, solver=solver)
+        from usdahd.validate.irradiance import _fit_chunked
+
+        fitted = _fit_chunked(results, sh)  # per texel, chunked: no float64 copy of the page
         rows = set()
         for v in fitted.params.values():
             a = np.abs(np.asarray(v, np.float64).reshape(len(sh), -1))

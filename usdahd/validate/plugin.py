@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from usdahd.usd import schema
 from usdahd.usd import validation as usd_validation
+from usdahd.validate.atlas import check_atlas
 from usdahd.validate.composition import check_composition
 from usdahd.validate.findings import FINDING_DATA, Finding
 from usdahd.validate.irradiance import check_encoding_error, check_iz
@@ -28,6 +29,7 @@ CHECKS = {
     "EncodingError": check_encoding_error,
     "Staleness": check_staleness,
     "UVSet": check_uv_set,
+    "Atlas": check_atlas,
 }
 assert tuple(CHECKS) == RULE_NAMES
 

@@ -35,8 +35,8 @@ RULES = (
     Rule(
         "Textures",
         "Every lightmap texture resolves, opens with OpenImageIO, and has the resolution, "
-        "channel count, data format and colour space the schema declares (UDIM sets complete); "
-        "atlas rectangles lie in their page, disjoint and padded.",
+        "channel count, data format and colour space the schema declares (UDIM sets complete; "
+        "an atlas record's rectangle in its page).",
     ),
     Rule(
         "TexelValues",
@@ -62,6 +62,12 @@ RULES = (
         "UVSet",
         "The lightmap UV primvar exists, lies in [0, 1], has no overlapping texels beyond a "
         "tolerance, and a sane texel density.",
+    ),
+    Rule(
+        "Atlas",
+        "A record in an atlas page has a whole-texel, 4-aligned rectangle inside its page, "
+        "disjoint from and at least 2 texels away from the other rectangles of the page, "
+        "whose records name the same page files.",
     ),
 )
 RULE_NAMES = tuple(r.name for r in RULES)

@@ -10,7 +10,7 @@ import numpy as np
 from usdahd import models
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import baked_record, read_image
+from usdahd.validate.loading import baked_record, file_digest, image_info
 from usdahd.validate.options import OIIO_FORMATS
 
 # --------------------------------------------------------------------------- rule 2: Textures
@@ -87,7 +87,7 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
             else:
-                actual = schema.file_digest(resolved)  # a file or an asset in a package
+                actual = file_digest(resolved)  # a file or an asset in a package (cached)
                 if actual != digest:
                     r.error(
                         "TextureReplaced",
@@ -103,7 +103,7 @@ def check_textures(prim) -> list[Finding]:
             base = os.path.basename(path.rstrip("]"))  # a package path ends in ...[dir/a.exr]
             where = f"{prop}{' ' + label if label else ''} ({base})"
             try:
-                img = read_image(path)
+                img = image_info(path)  # decoded once per file (an atlas page: once)
             except OSError as exc:
                 r.error(
                     "Unreadable",
@@ -191,64 +191,4 @@ def check_textures(prim) -> list[Finding]:
                         "re-bake the prim (usdahd writes the right tag)",
                         property=prop,
                     )
-    if results.atlas:
-        _check_atlas_neighbours(r, prim, results)
     return r.out
-
-
-def _atlas_entries(stage) -> list[tuple[str, str, tuple]]:
-    """(prim path, page sidecar asset path, scaleOffset) of every atlas record of ``stage``
-    (three attribute reads per prim: cheap enough to repeat per prim)."""
-    out = []
-    so_name = schema.property_name("atlas:scaleOffset")
-    side_name = schema.file_property_name(schema.SIDECAR_ROLE)
-    res_name = schema.property_name("baked:resolution")
-    from usdahd.usd.instances import in_point_instancer_prototype
-
-    for p in schema.prims_with_api(stage):
-        if p.IsInstanceProxy() or in_point_instancer_prototype(p):
-            continue  # the prototype's record seen through a copy, not a record of its own
-        so = p.GetAttribute(so_name)
-        if not (so and so.HasAuthoredValue()):
-            continue
-        side = p.GetAttribute(side_name).Get()
-        res = p.GetAttribute(res_name).Get()
-        if side is None or res is None:
-            continue
-        key = side.resolvedPath or side.path
-        out.append((str(p.GetPath()), key, (tuple(float(v) for v in so.Get()), tuple(res))))
-    return out
-
-
-def _check_atlas_neighbours(r: _Rule, prim, results) -> None:
-    """Atlas rectangles on one page are disjoint and at least MIN_PADDING texels apart
-    (``AtlasOverlap``); reported on both prims of a pair."""
-    from usdahd.numerics import atlas
-
-    side = results.textures.get(schema.SIDECAR_ROLE)
-    if side is None:
-        return
-    me = str(prim.GetPath())
-    try:
-        page = schema.page_size(results)
-    except (ZeroDivisionError, ValueError):
-        return
-    ax, ay, aw, ah = schema.record_rect(results, page)
-    for path, key, (so, res) in _atlas_entries(prim.GetStage()):
-        if path == me or key != side:
-            continue
-        other = schema.BakeResults("hhd", "none", "", "st", (int(res[0]), int(res[1])), {})
-        other.scale_offset, other.atlas = so, True
-        bx, by, bw, bh = schema.record_rect(other, page)
-        gap = max(bx - (ax + aw), ax - (bx + bw), by - (ay + ah), ay - (by + bh))
-        if gap < atlas.MIN_PADDING:
-            what = "overlaps" if gap < 0 else f"is {gap} texel(s) from"
-            r.error(
-                "AtlasOverlap",
-                f"its atlas rectangle ({ax}, {ay}) {aw}x{ah} on page "
-                f"{os.path.basename(side)} {what} the rectangle ({bx}, {by}) {bw}x{bh} of "
-                f"<{path}> (at least {atlas.MIN_PADDING} texels apart, or bilinear taps "
-                "read the neighbour)",
-                "re-bake the prims of this page (usdahd bake --force)",
-                other=path,
-            )

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from usdahd.numerics.raster import fan_triangulate, rasterize_uv
+from usdahd.numerics.raster import coverage, fan_triangulate
 from usdahd.usd import inspect
 from usdahd.validate.findings import Finding, _Rule
 from usdahd.validate.loading import baked_record
@@ -25,9 +25,8 @@ def overlap_statistic(uv: np.ndarray, resolution) -> tuple[int, int, np.ndarray]
     uv : (t, 3, 2) float, finite. resolution : (w, h).
     """
     w = int(resolution[0])
-    r = rasterize_uv(uv, resolution)
-    ids = r.overlap_ids
-    return len(r.ids), len(ids), np.stack([ids % w, ids // w], axis=1)
+    covered, ids = coverage(uv, resolution)  # rasterize_uv's texels, without its samples
+    return len(covered), len(ids), np.stack([ids % w, ids // w], axis=1)
 
 
 def check_uv_set(prim) -> list[Finding]:

@@ -88,7 +88,9 @@ class _Builder:
         self.bin.extend(data)
         return self._add("bufferViews", bv)
 
-    def accessor(self, array: np.ndarray, kind: str, *, indices: bool = False, bounds=False) -> int:
+    def accessor(
+        self, array: np.ndarray, kind: str, *, indices=False, bounds=False, target=_ARRAY_BUFFER
+    ) -> int:
         if indices:
             a = np.ascontiguousarray(array, np.uint32).reshape(-1)
             view = self.view(a.tobytes(), _ELEMENT_ARRAY_BUFFER)
@@ -96,7 +98,7 @@ class _Builder:
             acc["type"] = "SCALAR"
             return self._add("accessors", acc)
         a = np.ascontiguousarray(array, np.float32)
-        view = self.view(a.tobytes(), _ARRAY_BUFFER)
+        view = self.view(a.tobytes(), target)
         acc = {"bufferView": view, "componentType": _FLOAT, "count": int(len(a)), "type": kind}
         if bounds:
             acc["min"] = [float(x) for x in a.min(axis=0)]
@@ -507,13 +509,61 @@ def _mesh(b: _Builder, p: BakedPrim, local, materials: dict, meshes: dict) -> in
     return meshes[key]
 
 
-def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict, bytes, dict]:
+def _instancer_copies(stage, prims, time) -> dict:
+    """{id(BakedPrim): (carrier, row-vector matrix of the instance relative to the
+    PointInstancer, PointInstancer world matrix)} of the PointInstancer copies among ``prims``
+    (scene reader keys ``<PI>/instance_<i><path in prototype>``); the copy's world matrix is
+    ``proto_local @ M_i @ W``."""
+    from usdahd.usd.transforms import point_instancer_transforms, world_matrices
+
+    out, cache = {}, {}
+    for p in prims:
+        ref = getattr(p.mesh, "instance", None)
+        if ref is None:
+            continue
+        if ref.carrier not in cache:
+            xfs = point_instancer_transforms(stage, ref.carrier, time)
+            world = world_matrices(stage, [ref.carrier], time).get(ref.carrier)
+            cache[ref.carrier] = (xfs, world)
+        xfs, world = cache[ref.carrier]
+        if xfs is None or world is None or not 0 <= ref.index < len(xfs):
+            continue
+        out[id(p)] = (ref.carrier, xfs[ref.index], world)
+    return out
+
+
+def _trs_fields(node: dict, trs) -> None:
+    t, r, s = trs
+    if any(abs(x) > 0 for x in t):
+        node["translation"] = t
+    if r != [0.0, 0.0, 0.0, 1.0]:
+        node["rotation"] = r
+    if s != [1.0, 1.0, 1.0]:
+        node["scale"] = s
+
+
+INSTANCING = ("gpu", "nodes")
+GPU_INSTANCING = "EXT_mesh_gpu_instancing"
+#: Per-instance attributes of EXT_mesh_gpu_instancing nodes (docs/gltf.md, "Instances").
+SCALE_OFFSET_ATTRIBUTE = "_LIGHTMAP_SCALE_OFFSET"
+PAGE_ATTRIBUTE = "_LIGHTMAP_PAGE"
+
+
+def build(
+    layer: str, *, hdr: str = "rgbm", unbaked: bool = True, instancing: str = "gpu"
+) -> tuple[dict, bytes, dict]:
     """(glTF JSON, binary buffer, report) of a baked layer; ``unbaked``: also the visible meshes
-    without a bake, as plain nodes (no extension)."""
+    without a bake, as plain nodes (no extension). ``instancing``: "gpu" writes the baked
+    copies of a PointInstancer prototype mesh as EXT_mesh_gpu_instancing nodes (one per
+    lightmap page, the copies' lightmap scale/offset and page as per-instance attributes);
+    "nodes" writes one node per copy (for engines without the extension). Either way copies
+    of one prototype mesh share one glTF mesh."""
     from usdahd.usd.transforms import world_matrices
 
     if hdr not in ("rgbm", "rgbe"):
         raise UsageError(f"--hdr {hdr}: choose rgbm or rgbe")
+    if instancing not in INSTANCING:
+        raise UsageError(f"--instancing {instancing}: choose gpu or nodes")
     stage, prims, scene = load_prims(layer, unbaked=unbaked)
     b = _Builder()
     root = {"name": "usdahd_stage", "children": []}
@@ -525,59 +575,109 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         root["scale"] = [mpu, mpu, mpu]
     b.doc["nodes"].append(root)
     mats = world_matrices(stage, [p.mesh.path for p in prims], scene.time)
+    copies = _instancer_copies(stage, prims, scene.time)
     pages, stats, cache, mesh_cache = [], [], {}, {}
     page_index: dict = {}  # page_key -> index into pages
-    baked = 0
-    for p in prims:
-        path = p.mesh.path
-        m = mats.get(path)
-        trs = decompose(m) if m is not None else None
-        if trs is None:
-            m = np.eye(4)
-        inv = np.linalg.inv(m)
-        m3 = m[:3, :3]
-        local = (m3, np.linalg.inv(m3), m, inv)
-        node = {"name": path, "mesh": _mesh(b, p, local, cache, mesh_cache)}
-        if trs is not None:
-            t, r, s = trs
-            if any(abs(x) > 0 for x in t):
-                node["translation"] = t
-            if r != [0.0, 0.0, 0.0, 1.0]:
-                node["rotation"] = r
-            if s != [1.0, 1.0, 1.0]:
-                node["scale"] = s
-        root["children"].append(len(b.doc["nodes"]))
-        b.doc["nodes"].append(node)
-        if p.results is None:
-            continue
+
+    def page_of(p: BakedPrim) -> int:
         key = page_key(p.results)
         if key not in page_index:
-            name = f"page {len(pages)}" if p.results.atlas else path
+            name = f"page {len(pages)}" if p.results.atlas else p.mesh.path
             page_index[key] = len(pages)
             pages.append(_page(b, p.results, hdr, name, stats))
         elif pages[page_index[key]]["factors"] != {
             k: float(p.results.factor(k)) for k in _factor_names()
         }:
             raise StageError(
-                f"{path}: its decode factors differ from those of the other records on its "
-                "atlas page (factors are per page); re-bake the stage with usdahd bake"
+                f"{p.mesh.path}: its decode factors differ from those of the other records on "
+                "its atlas page (factors are per page); re-bake the stage with usdahd bake"
             )
+        return page_index[key]
+
+    def add_node(node: dict) -> None:
+        root["children"].append(len(b.doc["nodes"]))
+        b.doc["nodes"].append(node)
+
+    baked = 0
+    groups: dict = {}  # (carrier, prototype mesh, glTF mesh, page) -> [(prim, instance TRS)]
+    for p in prims:
+        path = p.mesh.path
+        m = mats.get(path)
+        inst = copies.get(id(p)) if p.results is not None else None
+        if inst is not None:  # a PointInstancer copy: proto_local @ M_i @ W
+            m = inst[1] @ inst[2]
+        trs = decompose(m) if m is not None else None
+        if trs is None:
+            m = np.eye(4)
+        inv = np.linalg.inv(m)
+        m3 = m[:3, :3]
+        local = (m3, np.linalg.inv(m3), m, inv)
+        mesh = _mesh(b, p, local, cache, mesh_cache)
+        if p.results is not None:
+            baked += 1
+        if instancing == "gpu" and inst is not None and trs is not None:
+            carrier, mi, world = inst
+            itrs, wtrs = decompose(mi), decompose(world)
+            # a mirrored instance would need its winding flipped per instance: a node of its own
+            if itrs is not None and wtrs is not None and np.linalg.det(mi[:3, :3]) > 0:
+                key = (carrier, p.mesh.instance.mesh, mesh, page_of(p))
+                groups.setdefault(key, []).append((p, itrs))
+                continue
+        node = {"name": path, "mesh": mesh}
+        if trs is not None:
+            _trs_fields(node, trs)
+        add_node(node)
+        if p.results is None:
+            continue
         scale, offset = placement(p.results)
         node["extensions"] = {
             EXTENSION: {
-                "page": page_index[key],
+                "page": page_of(p),
                 "scale": scale,
                 "offset": offset,
                 "texCoord": LIGHTMAP_TEXCOORD,
                 "prim": path,
             }
         }
-        baked += 1
+    instances = 0
+    for (carrier, rel, mesh, page), members in groups.items():
+        world = decompose(copies[id(members[0][0])][2])
+        t = np.array([trs[0] for _, trs in members], np.float32)
+        r = np.array([trs[1] for _, trs in members], np.float32)
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        s = np.array([trs[2] for _, trs in members], np.float32)
+        so = np.array([sum(placement(p.results), []) for p, _ in members], np.float32)
+        attrs = {
+            "TRANSLATION": b.accessor(t, "VEC3", target=None),
+            "ROTATION": b.accessor(r, "VEC4", target=None),
+            "SCALE": b.accessor(s, "VEC3", target=None),
+            SCALE_OFFSET_ATTRIBUTE: b.accessor(so, "VEC4", target=None),
+            PAGE_ATTRIBUTE: b.accessor(
+                np.full(len(members), page, np.float32), "SCALAR", target=None
+            ),
+        }
+        inner = "" if rel == "." else "/" + rel
+        node = {
+            "name": f"{carrier}{inner} (page {page})",
+            "mesh": mesh,
+            "extensions": {
+                GPU_INSTANCING: {"attributes": attrs},
+                EXTENSION: {
+                    "page": page,
+                    "texCoord": LIGHTMAP_TEXCOORD,
+                    "prim": carrier,
+                    "instances": [p.mesh.path for p, _ in members],
+                },
+            },
+        }
+        _trs_fields(node, world)
+        add_node(node)
+        instances += len(members)
     for cam in _cameras(stage, scene.up_axis, mpu):
         cam["camera"] = b._add("cameras", cam.pop("_camera"))
         b.doc["scenes"][0]["nodes"].append(len(b.doc["nodes"]))
         b.doc["nodes"].append(cam)
-    b.doc["extensionsUsed"] = [EXTENSION]
+    b.doc["extensionsUsed"] = [EXTENSION] + ([GPU_INSTANCING] if groups else [])
     b.doc["extensions"] = {
         EXTENSION: {
             "version": EXTENSION_VERSION,
@@ -592,6 +692,10 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         "stage": str(layer),
         "nodes": baked,
         "unbaked_nodes": len(prims) - baked,
+        "instanced_nodes": len(groups),
+        "instances": instances,
+        "meshes": len(b.doc["meshes"]),
+        "instancing": instancing,
         "pages": len(pages),
         "models": sorted({f"{p['model']}/{p['ratio']}" for p in pages}),
         "hdr": hdr,
@@ -660,7 +764,9 @@ def write(doc: dict, binary: bytes, out: Path) -> list[Path]:
     return [out, out.parent / bin_name]
 
 
-def export(layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True) -> dict:
+def export(
+    layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True, instancing: str = "gpu"
+) -> dict:
     """Export ``layer`` to ``out`` (.glb or .gltf); returns the report (files, counts, error
     the HDR encoding adds)."""
     out = Path(out)
@@ -670,7 +776,7 @@ def export(layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True) -> dict:
         raise UsageError(f"-o {out}: the folder {out.parent} does not exist; create it first")
     if not os.access(out.parent if str(out.parent) else ".", os.W_OK):
         raise UsageError(f"-o {out}: the folder {out.parent} is not writable; choose another -o")
-    doc, binary, report = build(layer, hdr=hdr, unbaked=unbaked)
+    doc, binary, report = build(layer, hdr=hdr, unbaked=unbaked, instancing=instancing)
     files = write(doc, binary, out)
     report["output"] = str(out)
     report["files"] = [str(f) for f in files]

@@ -175,3 +175,24 @@ def test_three_js_renders_instances_like_usdahd_preview(baked, tmp_path, instanc
     # both kinds of copy, open and roofed, are compared
     assert sum(k in seen for k in PI_KEYS) >= 3 and sum(k in seen for k in SG_KEYS) >= 3, seen
     print(json.dumps({"relRMSE": round(err, 5), "pixels": n, "copies": seen}))
+
+
+def test_bad_instancing_option(baked, tmp_path, capsys):
+    """An unknown ``--instancing`` is a usage error (exit 2) before anything is read or
+    written, in-process, through the API and as a subprocess."""
+    import subprocess
+
+    from usdahd.errors import UsageError
+    from usdahd.export.gltf import export
+
+    argv = ["export", "gltf", str(baked), "-o", str(tmp_path / "x.glb"), "--instancing", "all"]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2 and "invalid choice: 'all'" in capsys.readouterr().err
+    with pytest.raises(UsageError, match="--instancing all: choose gpu or nodes"):
+        export(str(baked), tmp_path / "x.glb", instancing="all")
+    r = subprocess.run(
+        [sys.executable, "-m", "usdahd", *argv], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 2 and "--instancing" in r.stderr
+    assert not list(tmp_path.glob("*.glb"))

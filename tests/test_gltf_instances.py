@@ -51,13 +51,19 @@ PI_KEYS = [f"/World/Pawns/instance_{i}/Box" for i in range(len(POINTS)) if i not
 SG_KEYS = [f"{p}/Box" for p in SCENEGRAPH]
 
 
-@pytest.fixture(scope="module")
-def baked(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("gltf_instances")
-    stage = write_stage(folder / "inst.usda")
+def write_camera_stage(folder: Path) -> Path:
+    """tests/instance_scene.py's stage with :data:`CAMERA` at ``folder/inst.usda``."""
+    stage = write_stage(Path(folder) / "inst.usda")
     text = stage.read_text()
     at = text.index('    def Xform "Lights"')
     stage.write_text(text[:at] + CAMERA + "\n" + text[at:])
+    return stage
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("gltf_instances")
+    stage = write_camera_stage(folder)
     argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1", "-q"]
     assert cli.main(argv) == 0
     return folder / "inst.lightmaps.usda"
@@ -196,3 +202,7 @@ def test_bad_instancing_option(baked, tmp_path, capsys):
     )
     assert r.returncode == 2 and "--instancing" in r.stderr
     assert not list(tmp_path.glob("*.glb"))
+
+
+if __name__ == "__main__":  # python tests/test_gltf_instances.py FOLDER: the stage, for the docs
+    print(write_camera_stage(Path(sys.argv[1])))

@@ -141,6 +141,31 @@ def test_nodes_fallback_writes_a_node_per_copy_sharing_the_mesh(baked, tmp_path)
         assert _lands_on(got, world[key][0]), key
 
 
+def test_unbaked_copies_are_plain_nodes_sharing_the_mesh(tmp_path):
+    """Only the ground baked (``--prim``): the eight copies are occluders, exported as plain
+    nodes (no lightmap) that share one box mesh, each on its copy's world points."""
+    from usdahd.export.gltf import load_prims
+
+    stage = write_camera_stage(tmp_path)
+    argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--prim", "/World/Ground"]
+    assert cli.main([*argv, "-q"]) == 0
+    layer = tmp_path / "inst.lightmaps.usda"
+    rep = _export(layer, tmp_path / "u.glb")
+    assert (rep["nodes"], rep["unbaked_nodes"], rep["meshes"]) == (1, 9, 3)
+    assert rep["instanced_nodes"] == 0
+    doc, binary = read_glb(tmp_path / "u.glb")
+    nodes = {n["name"]: n for n in doc["nodes"]}
+    _, prims, _ = load_prims(str(layer), unbaked=True)
+    world = {p.mesh.path: np.asarray(p.mesh.points) for p in prims}
+    (prim,) = doc["meshes"][nodes[PI_KEYS[0]]["mesh"]]["primitives"]
+    pos = accessor(doc, binary, prim["attributes"]["POSITION"]).astype(np.float64)
+    for key in PI_KEYS + SG_KEYS:
+        node = nodes[key]
+        assert node["mesh"] == nodes[PI_KEYS[0]]["mesh"] and "extensions" not in node
+        got = (node_matrix(node) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
+        assert _lands_on(got, world[key]), key
+
+
 def test_instancing_exports_are_valid(baked, tmp_path):
     """Khronos glTF-Validator: 0 errors, 0 warnings (this validator version reports
     EXT_mesh_gpu_instancing as an unsupported extension, an info; the test above checks the

@@ -603,7 +603,7 @@ def build(
     for p in prims:
         path = p.mesh.path
         m = mats.get(path)
-        inst = copies.get(id(p)) if p.results is not None else None
+        inst = copies.get(id(p))
         if inst is not None:  # a PointInstancer copy: proto_local @ M_i @ W
             m = inst[1] @ inst[2]
         trs = decompose(m) if m is not None else None
@@ -615,7 +615,7 @@ def build(
         mesh = _mesh(b, p, local, cache, mesh_cache)
         if p.results is not None:
             baked += 1
-        if instancing == "gpu" and inst is not None and trs is not None:
+        if instancing == "gpu" and inst is not None and trs is not None and p.results is not None:
             carrier, mi, world = inst
             itrs, wtrs = decompose(mi), decompose(world)
             # a mirrored instance would need its winding flipped per instance: a node of its own

@@ -86,7 +86,8 @@ def _quat_matrix(q) -> np.ndarray:
 
 
 def test_point_instancer_copies_are_one_gpu_instanced_node_over_one_shared_mesh(baked, tmp_path):
-    from usdahd.export.gltf import PAGE_ATTRIBUTE, SCALE_OFFSET_ATTRIBUTE, placement
+    from usdahd.export.gltf import placement
+    from usdahd.export.instancing import PAGE_ATTRIBUTE, SCALE_OFFSET_ATTRIBUTE
 
     rep = _export(baked, tmp_path / "gpu.glb")
     assert (rep["nodes"], rep["instanced_nodes"], rep["instances"]) == (10, 1, len(PI_KEYS))

@@ -20,6 +20,10 @@ What goes into the file (docs/gltf.md is the user-facing description):
   off``: scale (1, 1), offset (0, 0)); each node's scale/offset is the record's
   ``ahdLightmap:atlas:scaleOffset`` in glTF's top-left texture convention (:func:`placement`).
 
+Instance copies share their prototype's glTF mesh (meshes are deduplicated by content in node
+space); PointInstancer copies are ``EXT_mesh_gpu_instancing`` nodes, or a node each with
+``instancing="nodes"`` (:mod:`usdahd.export.instancing`).
+
 8-bit lightmap textures are embedded byte for byte as the bake wrote them; float16 textures are
 re-encoded as RGBM or RGBE PNG (:mod:`usdahd.export.hdr`).
 """
@@ -37,6 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from usdahd.errors import StageError, UsageError
+from usdahd.export.instancing import (
+    GPU_INSTANCING,
+    INSTANCING,
+    instanced_node,
+    instancer_copies,
+)
 
 EXTENSION = "USDAHD_lightmap_directional"
 #: Vertex attribute of the lightmap tangent (xyz object space, w = handedness sign).
@@ -509,30 +519,9 @@ def _mesh(b: _Builder, p: BakedPrim, local, materials: dict, meshes: dict) -> in
     return meshes[key]
 
 
-def _instancer_copies(stage, prims, time) -> dict:
-    """{id(BakedPrim): (carrier, row-vector matrix of the instance relative to the
-    PointInstancer, PointInstancer world matrix)} of the PointInstancer copies among ``prims``
-    (scene reader keys ``<PI>/instance_<i><path in prototype>``); the copy's world matrix is
-    ``proto_local @ M_i @ W``."""
-    from usdahd.usd.transforms import point_instancer_transforms, world_matrices
-
-    out, cache = {}, {}
-    for p in prims:
-        ref = getattr(p.mesh, "instance", None)
-        if ref is None:
-            continue
-        if ref.carrier not in cache:
-            xfs = point_instancer_transforms(stage, ref.carrier, time)
-            world = world_matrices(stage, [ref.carrier], time).get(ref.carrier)
-            cache[ref.carrier] = (xfs, world)
-        xfs, world = cache[ref.carrier]
-        if xfs is None or world is None or not 0 <= ref.index < len(xfs):
-            continue
-        out[id(p)] = (ref.carrier, xfs[ref.index], world)
-    return out
-
-
-def _trs_fields(node: dict, trs) -> None:
+def trs_fields(node: dict, trs) -> None:
+    """Set a node's translation/rotation/scale from :func:`decompose`'s (t, r, s), leaving
+    identity parts out."""
     t, r, s = trs
     if any(abs(x) > 0 for x in t):
         node["translation"] = t
@@ -540,13 +529,6 @@ def _trs_fields(node: dict, trs) -> None:
         node["rotation"] = r
     if s != [1.0, 1.0, 1.0]:
         node["scale"] = s
-
-
-INSTANCING = ("gpu", "nodes")
-GPU_INSTANCING = "EXT_mesh_gpu_instancing"
-#: Per-instance attributes of EXT_mesh_gpu_instancing nodes (docs/gltf.md, "Instances").
-SCALE_OFFSET_ATTRIBUTE = "_LIGHTMAP_SCALE_OFFSET"
-PAGE_ATTRIBUTE = "_LIGHTMAP_PAGE"
 
 
 def build(
@@ -575,7 +557,7 @@ def build(
         root["scale"] = [mpu, mpu, mpu]
     b.doc["nodes"].append(root)
     mats = world_matrices(stage, [p.mesh.path for p in prims], scene.time)
-    copies = _instancer_copies(stage, prims, scene.time)
+    copies = instancer_copies(stage, prims, scene.time)
     pages, stats, cache, mesh_cache = [], [], {}, {}
     page_index: dict = {}  # page_key -> index into pages
 
@@ -625,7 +607,7 @@ def build(
                 continue
         node = {"name": path, "mesh": mesh}
         if trs is not None:
-            _trs_fields(node, trs)
+            trs_fields(node, trs)
         add_node(node)
         if p.results is None:
             continue
@@ -641,37 +623,7 @@ def build(
         }
     instances = 0
     for (carrier, rel, mesh, page), members in groups.items():
-        world = decompose(copies[id(members[0][0])][2])
-        t = np.array([trs[0] for _, trs in members], np.float32)
-        r = np.array([trs[1] for _, trs in members], np.float32)
-        r /= np.linalg.norm(r, axis=1, keepdims=True)
-        s = np.array([trs[2] for _, trs in members], np.float32)
-        so = np.array([sum(placement(p.results), []) for p, _ in members], np.float32)
-        attrs = {
-            "TRANSLATION": b.accessor(t, "VEC3", target=None),
-            "ROTATION": b.accessor(r, "VEC4", target=None),
-            "SCALE": b.accessor(s, "VEC3", target=None),
-            SCALE_OFFSET_ATTRIBUTE: b.accessor(so, "VEC4", target=None),
-            PAGE_ATTRIBUTE: b.accessor(
-                np.full(len(members), page, np.float32), "SCALAR", target=None
-            ),
-        }
-        inner = "" if rel == "." else "/" + rel
-        node = {
-            "name": f"{carrier}{inner} (page {page})",
-            "mesh": mesh,
-            "extensions": {
-                GPU_INSTANCING: {"attributes": attrs},
-                EXTENSION: {
-                    "page": page,
-                    "texCoord": LIGHTMAP_TEXCOORD,
-                    "prim": carrier,
-                    "instances": [p.mesh.path for p, _ in members],
-                },
-            },
-        }
-        _trs_fields(node, world)
-        add_node(node)
+        add_node(instanced_node(b, carrier, rel, mesh, page, members, copies))
         instances += len(members)
     for cam in _cameras(stage, scene.up_axis, mpu):
         cam["camera"] = b._add("cameras", cam.pop("_camera"))

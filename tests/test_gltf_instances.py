@@ -127,6 +127,24 @@ def test_point_instancer_copies_are_one_gpu_instanced_node_over_one_shared_mesh(
         assert _lands_on(got, world[key][0])
 
 
+def test_docs_example_instanced_node_has_the_fields_the_exporter_writes(baked, tmp_path):
+    """docs/gltf.md's example JSON: its EXT_mesh_gpu_instancing node names the same extension
+    fields and instance attributes as a real export."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "gltf.md").read_text("utf-8")
+    (block,) = re.findall(r"```json\n(.*?)```", text, re.S)
+    (ex,) = [n for n in json.loads(block)["nodes"] if "EXT_mesh_gpu_instancing" in n.get(
+        "extensions", {})]  # fmt: skip
+    _export(baked, tmp_path / "gpu.glb")
+    doc, _ = read_glb(tmp_path / "gpu.glb")
+    (got,) = [n for n in doc["nodes"] if "EXT_mesh_gpu_instancing" in n.get("extensions", {})]
+    for name in ("EXT_mesh_gpu_instancing", "USDAHD_lightmap_directional"):
+        assert set(ex["extensions"][name]) == set(got["extensions"][name])
+    gpu = "EXT_mesh_gpu_instancing"
+    assert set(ex["extensions"][gpu]["attributes"]) == set(got["extensions"][gpu]["attributes"])
+
+
 def test_nodes_fallback_writes_a_node_per_copy_sharing_the_mesh(baked, tmp_path):
     rep = _export(baked, tmp_path / "nodes.glb", "--instancing", "nodes")
     assert (rep["nodes"], rep["instanced_nodes"], rep["meshes"]) == (10, 0, 3)

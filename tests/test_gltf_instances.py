@@ -197,14 +197,29 @@ def test_instancing_exports_are_valid(baked, tmp_path):
     assert a["meshes"] == b["meshes"] == 3  # one box mesh for the eight copies
 
 
-@pytest.mark.parametrize("instancing", ["gpu", "nodes"])
-def test_three_js_renders_instances_like_usdahd_preview(baked, tmp_path, instancing):
+@pytest.fixture(scope="module")
+def paged(tmp_path_factory):
+    """The stage baked with 32-texel atlas pages: a page per record, so the PointInstancer's
+    copies are on four pages (four EXT_mesh_gpu_instancing nodes)."""
+    stage = write_camera_stage(tmp_path_factory.mktemp("gltf_instances_paged"))
+    argv = ["bake", str(stage), "--resolution", "16", "--samples", "16", "--bounces", "1"]
+    assert cli.main([*argv, "--atlas-size", "32", "-q"]) == 0
+    return stage.with_name("inst.lightmaps.usda")
+
+
+@pytest.mark.parametrize("instancing", ["gpu", "nodes", "gpu-pages"])
+def test_three_js_renders_instances_like_usdahd_preview(request, tmp_path, instancing):
     """Every copy with its own lightmap in three.js (InstancedMesh with per-instance
-    scale/offset attributes, or a node per copy) within 2 % relRMSE of ``usdahd preview`` of
-    the stage's camera over the pixels both show of the same copy, and per copy."""
+    scale/offset attributes, or a node per copy; ``gpu-pages``: the copies spread over four
+    pages, one instanced node per page) within 2 % relRMSE of ``usdahd preview`` of the
+    stage's camera over the pixels both show of the same copy, and per copy."""
+    baked = request.getfixturevalue("paged" if instancing == "gpu-pages" else "baked")
     site = tmp_path / "site"
     site.mkdir()
-    rep = _export(baked, site / "inst.glb", "--instancing", instancing)
+    mode = instancing.split("-")[0]
+    rep = _export(baked, site / "inst.glb", "--instancing", mode)
+    if instancing == "gpu-pages":
+        assert (rep["pages"], rep["instanced_nodes"], rep["instances"]) == (10, 4, 4)
     img, proj, visible, ids = preview_and_projection(baked, size=SIZE, camera=CAM)
     job = {"gltf": "inst.glb", "size": list(SIZE), "projection": proj, "irradiance": True,
            "ids": ids}  # fmt: skip

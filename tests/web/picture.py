@@ -2,7 +2,7 @@
 Chromium | three.js shading the materials (albedo x lightmap, MeshStandardMaterial) | the
 preview's error heat map of panel 2 against panel 1 (20 % = red).
 
-    python tests/web/picture.py STAGE.lightmaps.usda OUT.png [W H]
+    python tests/web/picture.py STAGE.lightmaps.usda OUT.png [W H [CAMERA]]
 
 Prints the relRMSE of panel 2 against panel 1 over the pixels both show the same mesh.
 """
@@ -30,7 +30,8 @@ def main(argv):
     with tempfile.TemporaryDirectory() as tmp:
         site = Path(tmp)
         export(str(layer), site / "scene.glb")
-        img, proj, visible, ids = T.preview_and_projection(layer, size)
+        camera = argv[4] if len(argv) >= 5 else None  # a UsdGeomCamera, as preview --camera
+        img, proj, visible, ids = T.preview_and_projection(layer, size, camera=camera)
         job = {"gltf": "scene.glb", "size": list(size), "projection": proj, "ids": ids}
         r = T.browser_render(site, {"irr": {**job, "irradiance": True}, "lit": job})
     three, rep = r["irr"]

@@ -38,6 +38,14 @@ def add_parser(sub):
         help="export only the baked meshes (default: also the visible meshes without a bake, "
         "e.g. instances and ahdLightmap:bake = false occluders, as plain meshes)",
     )
+    p.add_argument(
+        "--instancing",
+        choices=("gpu", "nodes"),
+        default="gpu",
+        help="PointInstancer copies: gpu = EXT_mesh_gpu_instancing nodes with per-instance "
+        "lightmap scale/offset and page (default); nodes = one node per copy, for engines "
+        "without the extension (copies share one mesh either way; docs/gltf.md)",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -47,12 +55,19 @@ def run(args) -> int:
 
     if not args.quiet:
         print(f"usdahd export: reading {args.stage}", file=sys.stderr)
-    report = export(args.stage, args.output, hdr=args.hdr, unbaked=not args.baked_only)
+    report = export(
+        args.stage,
+        args.output,
+        hdr=args.hdr,
+        unbaked=not args.baked_only,
+        instancing=args.instancing,
+    )
 
     def human():
         print(
             f"{report['output']}: {report['nodes']} baked meshes (+{report['unbaked_nodes']} "
-            f"without a bake), {report['pages']} lightmap "
+            f"without a bake; {report['instances']} of them in {report['instanced_nodes']} "
+            f"instanced nodes), {report['meshes']} glTF meshes, {report['pages']} lightmap "
             f"pages ({', '.join(report['models'])}), {report['bytes']} bytes; {report['hdr']} "
             f"adds relRMSE {report['hdr_relrmse']:.3%} to the float16 textures"
         )

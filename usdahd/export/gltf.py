@@ -20,6 +20,10 @@ What goes into the file (docs/gltf.md is the user-facing description):
   off``: scale (1, 1), offset (0, 0)); each node's scale/offset is the record's
   ``ahdLightmap:atlas:scaleOffset`` in glTF's top-left texture convention (:func:`placement`).
 
+Instance copies share their prototype's glTF mesh (meshes are deduplicated by content in node
+space); PointInstancer copies are ``EXT_mesh_gpu_instancing`` nodes, or a node each with
+``instancing="nodes"`` (:mod:`usdahd.export.instancing`).
+
 8-bit lightmap textures are embedded byte for byte as the bake wrote them; float16 textures are
 re-encoded as RGBM or RGBE PNG (:mod:`usdahd.export.hdr`).
 """
@@ -37,6 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from usdahd.errors import StageError, UsageError
+from usdahd.export.instancing import (
+    GPU_INSTANCING,
+    INSTANCING,
+    instanced_node,
+    instancer_copies,
+)
 
 EXTENSION = "USDAHD_lightmap_directional"
 #: Vertex attribute of the lightmap tangent (xyz object space, w = handedness sign).
@@ -88,7 +98,9 @@ class _Builder:
         self.bin.extend(data)
         return self._add("bufferViews", bv)
 
-    def accessor(self, array: np.ndarray, kind: str, *, indices: bool = False, bounds=False) -> int:
+    def accessor(
+        self, array: np.ndarray, kind: str, *, indices=False, bounds=False, target=_ARRAY_BUFFER
+    ) -> int:
         if indices:
             a = np.ascontiguousarray(array, np.uint32).reshape(-1)
             view = self.view(a.tobytes(), _ELEMENT_ARRAY_BUFFER)
@@ -96,7 +108,7 @@ class _Builder:
             acc["type"] = "SCALAR"
             return self._add("accessors", acc)
         a = np.ascontiguousarray(array, np.float32)
-        view = self.view(a.tobytes(), _ARRAY_BUFFER)
+        view = self.view(a.tobytes(), target)
         acc = {"bufferView": view, "componentType": _FLOAT, "count": int(len(a)), "type": kind}
         if bounds:
             acc["min"] = [float(x) for x in a.min(axis=0)]
@@ -507,13 +519,33 @@ def _mesh(b: _Builder, p: BakedPrim, local, materials: dict, meshes: dict) -> in
     return meshes[key]
 
 
-def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict, bytes, dict]:
+def trs_fields(node: dict, trs) -> None:
+    """Set a node's translation/rotation/scale from :func:`decompose`'s (t, r, s), leaving
+    identity parts out."""
+    t, r, s = trs
+    if any(abs(x) > 0 for x in t):
+        node["translation"] = t
+    if r != [0.0, 0.0, 0.0, 1.0]:
+        node["rotation"] = r
+    if s != [1.0, 1.0, 1.0]:
+        node["scale"] = s
+
+
+def build(
+    layer: str, *, hdr: str = "rgbm", unbaked: bool = True, instancing: str = "gpu"
+) -> tuple[dict, bytes, dict]:
     """(glTF JSON, binary buffer, report) of a baked layer; ``unbaked``: also the visible meshes
-    without a bake, as plain nodes (no extension)."""
+    without a bake, as plain nodes (no extension). ``instancing``: "gpu" writes the baked
+    copies of a PointInstancer prototype mesh as EXT_mesh_gpu_instancing nodes (one per
+    lightmap page, the copies' lightmap scale/offset and page as per-instance attributes);
+    "nodes" writes one node per copy (for engines without the extension). Either way copies
+    of one prototype mesh share one glTF mesh."""
     from usdahd.usd.transforms import world_matrices
 
     if hdr not in ("rgbm", "rgbe"):
         raise UsageError(f"--hdr {hdr}: choose rgbm or rgbe")
+    if instancing not in INSTANCING:
+        raise UsageError(f"--instancing {instancing}: choose gpu or nodes")
     stage, prims, scene = load_prims(layer, unbaked=unbaked)
     b = _Builder()
     root = {"name": "usdahd_stage", "children": []}
@@ -525,59 +557,79 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         root["scale"] = [mpu, mpu, mpu]
     b.doc["nodes"].append(root)
     mats = world_matrices(stage, [p.mesh.path for p in prims], scene.time)
+    copies = instancer_copies(stage, prims, scene.time)
     pages, stats, cache, mesh_cache = [], [], {}, {}
     page_index: dict = {}  # page_key -> index into pages
-    baked = 0
-    for p in prims:
-        path = p.mesh.path
-        m = mats.get(path)
-        trs = decompose(m) if m is not None else None
-        if trs is None:
-            m = np.eye(4)
-        inv = np.linalg.inv(m)
-        m3 = m[:3, :3]
-        local = (m3, np.linalg.inv(m3), m, inv)
-        node = {"name": path, "mesh": _mesh(b, p, local, cache, mesh_cache)}
-        if trs is not None:
-            t, r, s = trs
-            if any(abs(x) > 0 for x in t):
-                node["translation"] = t
-            if r != [0.0, 0.0, 0.0, 1.0]:
-                node["rotation"] = r
-            if s != [1.0, 1.0, 1.0]:
-                node["scale"] = s
-        root["children"].append(len(b.doc["nodes"]))
-        b.doc["nodes"].append(node)
-        if p.results is None:
-            continue
+
+    def page_of(p: BakedPrim) -> int:
         key = page_key(p.results)
         if key not in page_index:
-            name = f"page {len(pages)}" if p.results.atlas else path
+            name = f"page {len(pages)}" if p.results.atlas else p.mesh.path
             page_index[key] = len(pages)
             pages.append(_page(b, p.results, hdr, name, stats))
         elif pages[page_index[key]]["factors"] != {
             k: float(p.results.factor(k)) for k in _factor_names()
         }:
             raise StageError(
-                f"{path}: its decode factors differ from those of the other records on its "
-                "atlas page (factors are per page); re-bake the stage with usdahd bake"
+                f"{p.mesh.path}: its decode factors differ from those of the other records on "
+                "its atlas page (factors are per page); re-bake the stage with usdahd bake"
             )
+        return page_index[key]
+
+    def add_node(node: dict) -> None:
+        root["children"].append(len(b.doc["nodes"]))
+        b.doc["nodes"].append(node)
+
+    baked = 0
+    groups: dict = {}  # (carrier, prototype mesh, glTF mesh, page) -> [(prim, instance TRS)]
+    for p in prims:
+        path = p.mesh.path
+        m = mats.get(path)
+        inst = copies.get(id(p))
+        if inst is not None:  # a PointInstancer copy: proto_local @ M_i @ W
+            m = inst[1] @ inst[2]
+        trs = decompose(m) if m is not None else None
+        if trs is None:
+            m = np.eye(4)
+        inv = np.linalg.inv(m)
+        m3 = m[:3, :3]
+        local = (m3, np.linalg.inv(m3), m, inv)
+        mesh = _mesh(b, p, local, cache, mesh_cache)
+        if p.results is not None:
+            baked += 1
+        if instancing == "gpu" and inst is not None and trs is not None and p.results is not None:
+            carrier, mi, world = inst
+            itrs, wtrs = decompose(mi), decompose(world)
+            # a mirrored instance would need its winding flipped per instance: a node of its own
+            if itrs is not None and wtrs is not None and np.linalg.det(mi[:3, :3]) > 0:
+                key = (carrier, p.mesh.instance.mesh, mesh, page_of(p))
+                groups.setdefault(key, []).append((p, itrs))
+                continue
+        node = {"name": path, "mesh": mesh}
+        if trs is not None:
+            trs_fields(node, trs)
+        add_node(node)
+        if p.results is None:
+            continue
         scale, offset = placement(p.results)
         node["extensions"] = {
             EXTENSION: {
-                "page": page_index[key],
+                "page": page_of(p),
                 "scale": scale,
                 "offset": offset,
                 "texCoord": LIGHTMAP_TEXCOORD,
                 "prim": path,
             }
         }
-        baked += 1
+    instances = 0
+    for (carrier, rel, mesh, page), members in groups.items():
+        add_node(instanced_node(b, carrier, rel, mesh, page, members, copies))
+        instances += len(members)
     for cam in _cameras(stage, scene.up_axis, mpu):
         cam["camera"] = b._add("cameras", cam.pop("_camera"))
         b.doc["scenes"][0]["nodes"].append(len(b.doc["nodes"]))
         b.doc["nodes"].append(cam)
-    b.doc["extensionsUsed"] = [EXTENSION]
+    b.doc["extensionsUsed"] = [EXTENSION] + ([GPU_INSTANCING] if groups else [])
     b.doc["extensions"] = {
         EXTENSION: {
             "version": EXTENSION_VERSION,
@@ -592,6 +644,10 @@ def build(layer: str, *, hdr: str = "rgbm", unbaked: bool = True) -> tuple[dict,
         "stage": str(layer),
         "nodes": baked,
         "unbaked_nodes": len(prims) - baked,
+        "instanced_nodes": len(groups),
+        "instances": instances,
+        "meshes": len(b.doc["meshes"]),
+        "instancing": instancing,
         "pages": len(pages),
         "models": sorted({f"{p['model']}/{p['ratio']}" for p in pages}),
         "hdr": hdr,
@@ -660,7 +716,9 @@ def write(doc: dict, binary: bytes, out: Path) -> list[Path]:
     return [out, out.parent / bin_name]
 
 
-def export(layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True) -> dict:
+def export(
+    layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True, instancing: str = "gpu"
+) -> dict:
     """Export ``layer`` to ``out`` (.glb or .gltf); returns the report (files, counts, error
     the HDR encoding adds)."""
     out = Path(out)
@@ -670,7 +728,7 @@ def export(layer: str, out, *, hdr: str = "rgbm", unbaked: bool = True) -> dict:
         raise UsageError(f"-o {out}: the folder {out.parent} does not exist; create it first")
     if not os.access(out.parent if str(out.parent) else ".", os.W_OK):
         raise UsageError(f"-o {out}: the folder {out.parent} is not writable; choose another -o")
-    doc, binary, report = build(layer, hdr=hdr, unbaked=unbaked)
+    doc, binary, report = build(layer, hdr=hdr, unbaked=unbaked, instancing=instancing)
     files = write(doc, binary, out)
     report["output"] = str(out)
     report["files"] = [str(f) for f in files]

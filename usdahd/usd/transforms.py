@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
-__all__ = ["camera_paths", "world_matrices"]
+__all__ = ["camera_paths", "point_instancer_transforms", "world_matrices"]
 
 
 def world_matrices(stage, paths, time=None) -> dict[str, np.ndarray]:
@@ -23,6 +23,22 @@ def world_matrices(stage, paths, time=None) -> dict[str, np.ndarray]:
             continue
         out[p] = np.array(cache.GetLocalToWorldTransform(prim), dtype=np.float64)
     return out
+
+
+def point_instancer_transforms(stage, path: str, time=None) -> list[np.ndarray] | None:
+    """The per-instance transforms of the PointInstancer at ``path`` (USD's row-vector
+    convention, one (4, 4) float64 matrix per ``positions`` entry, relative to the
+    PointInstancer: ``UsdGeomPointInstancer.ComputeInstanceTransformsAtTime``, as the scene
+    reader places a copy: ``[p, 1] @ proto_local @ M_i @ world(PointInstancer)``), or None
+    when ``path`` is not a PointInstancer or its transforms cannot be computed."""
+    t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time))
+    prim = stage.GetPrimAtPath(Sdf.Path(path)) if Sdf.Path.IsValidPathString(path) else None
+    if not prim or not prim.IsA(UsdGeom.PointInstancer):
+        return None
+    xfs = UsdGeom.PointInstancer(prim).ComputeInstanceTransformsAtTime(t, t)
+    if not xfs:
+        return None
+    return [np.array(m, dtype=np.float64) for m in xfs]
 
 
 def camera_paths(stage) -> list[str]:

@@ -24,6 +24,9 @@
 //   intensity   a factor on the lightmap (default 1)
 
 export const EXTENSION = 'USDAHD_lightmap_directional';
+// EXT_mesh_gpu_instancing per-instance attributes the exporter writes (docs/gltf.md, "Instances")
+export const SCALE_OFFSET = '_LIGHTMAP_SCALE_OFFSET';
+export const PAGE = '_LIGHTMAP_PAGE';
 
 const FACTORS = ['izScale', 'ambientScale', 'directionalScale', 'coefficientsScale', 'l0Scale',
   'ratioScale'];
@@ -160,21 +163,29 @@ export function patchMaterial(THREE, material, page, textures, placement, option
     placement.scale[1], placement.offset[0], placement.offset[1]) };
   uniforms.usdahdIntensity = { value: options.intensity === undefined ? 1.0 : options.intensity };
   let show = options.irradiance ? '#define USDAHD_SHOW_IRRADIANCE\n' : '';
+  // EXT_mesh_gpu_instancing: each instance's scale/offset comes from its instance attribute
+  const instanced = placement.scaleOffsetAttribute ? '#define USDAHD_INSTANCED\n' : '';
   if (options.irradiance && options.albedo) show += '#define USDAHD_SHOW_ALBEDO\n';
   const texCoord = placement.texCoord === undefined ? 1 : placement.texCoord;
   const uvAttr = texCoord === 0 ? 'uv' : `uv${texCoord}`;
   const tangentAttr = placement.tangentAttribute.toLowerCase();
   material.onBeforeCompile = (shader) => {
     Object.assign(shader.uniforms, uniforms);
-    let decl = `attribute vec4 ${tangentAttr};\n`;
+    let decl = instanced + `attribute vec4 ${tangentAttr};\n`;
+    if (instanced) decl += `attribute vec4 ${placement.scaleOffsetAttribute};\n`;
     if (texCoord > 0) decl += `#ifndef USE_UV${texCoord}\nattribute vec2 ${uvAttr};\n#endif\n`;
     decl += 'uniform vec4 usdahdScaleOffset;\n';
     decl += 'varying vec2 usdahdLmUv;\nvarying vec3 usdahdLmTangent;\nvarying float usdahdLmSign;\n';
     shader.vertexShader = shader.vertexShader
       .replace('#include <common>', '#include <common>\n' + decl)
       .replace('#include <fog_vertex>', '#include <fog_vertex>\n' +
-        `    usdahdLmUv = ${uvAttr} * usdahdScaleOffset.xy + usdahdScaleOffset.zw;\n` +
-        `    usdahdLmTangent = (modelViewMatrix * vec4(${tangentAttr}.xyz, 0.0)).xyz;\n` +
+        '#ifdef USDAHD_INSTANCED\n' +
+        `    vec4 usdahdSO = ${placement.scaleOffsetAttribute || 'usdahdScaleOffset'};\n` +
+        '#else\n    vec4 usdahdSO = usdahdScaleOffset;\n#endif\n' +
+        `    usdahdLmUv = ${uvAttr} * usdahdSO.xy + usdahdSO.zw;\n` +
+        `    vec3 usdahdT = ${tangentAttr}.xyz;\n` +
+        '#ifdef USE_INSTANCING\n    usdahdT = mat3(instanceMatrix) * usdahdT;\n#endif\n' +
+        '    usdahdLmTangent = (modelViewMatrix * vec4(usdahdT, 0.0)).xyz;\n' +
         `    usdahdLmSign = ${tangentAttr}.w;\n`);
     const lib = fragmentLibrary(page);
     shader.fragmentShader = shader.fragmentShader
@@ -188,7 +199,8 @@ export function patchMaterial(THREE, material, page, textures, placement, option
         '#if defined( USDAHD_SHOW_ALBEDO )\n    gl_FragColor = vec4(usdahdI * diffuseColor.rgb, 1.0);\n' +
         '#elif defined( USDAHD_SHOW_IRRADIANCE )\n    gl_FragColor = vec4(usdahdI, 1.0);\n#endif\n');
   };
-  const key = `usdahd:${page.model}:${page.ratio}:${page.textures.length}:${show}:${uvAttr}`;
+  const key = `usdahd:${page.model}:${page.ratio}:${page.textures.length}:${show}:${uvAttr}:` +
+    instanced;
   material.customProgramCacheKey = () => key;
   material.needsUpdate = true;
   material.userData.usdahdLightmap = { page, textures, placement };
@@ -327,6 +339,25 @@ export class UsdahdLightmapPlugin {
       };
       const meshes = obj.isMesh ? [obj] : obj.children.filter((c) => c.isMesh);
       for (const mesh of meshes) {
+        if (place.instances) {
+          // EXT_mesh_gpu_instancing: GLTFLoader made an InstancedMesh whose geometry holds the
+          // per-instance attributes under their glTF names; one page per node (the exporter
+          // splits a PointInstancer's copies by page), so _LIGHTMAP_PAGE only checks that.
+          const so = mesh.geometry.getAttribute(SCALE_OFFSET);
+          if (!mesh.isInstancedMesh || !so) {
+            throw new Error(`${EXTENSION}: node ${place.prim} lists instances but has no ` +
+              `${SCALE_OFFSET} instance attribute (EXT_mesh_gpu_instancing)`);
+          }
+          const pg = mesh.geometry.getAttribute(PAGE);
+          for (let i = 0; pg && i < pg.count; i++) {
+            if (pg.getX(i) !== place.page) {
+              throw new Error(`${EXTENSION}: instance ${i} of ${place.prim} is on page ` +
+                `${pg.getX(i)}, its node on page ${place.page}`);
+            }
+          }
+          placement.scaleOffsetAttribute = SCALE_OFFSET;
+          mesh.userData.usdahdInstances = place.instances; // USD key of each instance
+        }
         mesh.material = patchMaterial(THREE, mesh.material.clone(), page, pages[place.page],
           placement, this.options);
         mesh.userData.usdahdPrim = place.prim; // the USD prim path (node names are sanitized)

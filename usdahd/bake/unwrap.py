@@ -58,6 +58,12 @@ OVERLAP_EPS = 1e-4
 #: to whole texels (stretching it), and a chart exactly n texels wide must not become n + 1
 #: through float rounding.
 SHRINK = 1.0 - 1e-5
+#: Pass 2 places charts with xatlas's brute-force search (every position, the one that keeps
+#: the atlas smallest) instead of its random candidate positions: measured with the automatic
+#: density (``usdahd bake STAGE --dry-run``, covered texels / map texels over every unwrapped
+#: map), classroom 54.6 % -> 58.9 %, Sponza 43.3 % -> 46.6 %, at no measurable cost in time
+#: (docs/scenes.md, "Atlas pages"). Deterministic like the default search.
+PACK_BRUTE_FORCE = True
 #: Gap (pass-1 texels) between charts laid side by side as pass 2's input.
 LAYOUT_GAP = 4.0
 
@@ -412,7 +418,7 @@ def _run_pack(verts, indices, texels_per_unit, padding):
     pack.bilinear = True
     pack.texels_per_unit = float(texels_per_unit)
     pack.resolution = 0
-    pack.bruteForce = False
+    pack.bruteForce = PACK_BRUTE_FORCE
     atlas.generate(xatlas.ChartOptions(), pack)
     if atlas.atlas_count != 1:
         raise BakeError(f"xatlas produced {atlas.atlas_count} atlases, expected 1")

@@ -222,12 +222,14 @@ def _sized(n: int, settings: dict, job: PrimJob) -> int | None:
 
 
 def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
-    from usdahd.bake.unwrap import unwrap
+    from usdahd.bake.unwrap import CHART_PADDING, unwrap
 
     info: dict = {}
     low = int(settings.get("min_resolution") or 1) if _auto_density(settings) else 1
     if settings["resolution"]:
-        uv, res = unwrap(mesh, resolution=int(settings["resolution"]), padding=2, info=info)
+        uv, res = unwrap(
+            mesh, resolution=int(settings["resolution"]), padding=CHART_PADDING, info=info
+        )
     else:
         d = float(settings["texel_density"])
         try:
@@ -236,7 +238,7 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
             uv, res = unwrap(
                 mesh,
                 texels_per_unit=_texels_per_unit(settings, scene),
-                padding=2,
+                padding=CHART_PADDING,
                 max_resolution=DENSITY_MAX_RESOLUTION,
                 info=info,
             )
@@ -244,13 +246,13 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 raise _Small
         except _Small:
             try:
-                uv, res = unwrap(mesh, resolution=low, padding=2, info=info)
+                uv, res = unwrap(mesh, resolution=low, padding=CHART_PADDING, info=info)
             except BakeError:  # more charts than low x low holds: as big as they need
                 scale = low / max(d * mesh_extent(mesh, scene.meters_per_unit), 1e-9)
                 uv, res = unwrap(
                     mesh,
                     texels_per_unit=_texels_per_unit(settings, scene) * scale,
-                    padding=2,
+                    padding=CHART_PADDING,
                     max_resolution=DENSITY_MAX_RESOLUTION,
                     info=info,
                 )
@@ -266,7 +268,9 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 f"{DENSITY_MAX_RESOLUTION}; packed into {DENSITY_MAX_RESOLUTION}x"
                 f"{DENSITY_MAX_RESOLUTION} (pass --resolution to choose)"
             )
-            uv, res = unwrap(mesh, resolution=DENSITY_MAX_RESOLUTION, padding=2, info=info)
+            uv, res = unwrap(
+                mesh, resolution=DENSITY_MAX_RESOLUTION, padding=CHART_PADDING, info=info
+            )
         uv, res = _pad_to_multiple(uv, res, int(settings.get("resolution_multiple") or 1))
     if info.get("split_polygons"):
         job.report.setdefault("notes", []).append(

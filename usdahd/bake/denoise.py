@@ -130,15 +130,17 @@ _CHI2_1_MEDIAN = 0.454936423119572
 #: for OIDN's per-run cost to vanish (a 1024^2 image runs at the per-pixel cost of small
 #: ones), few enough to bound the memory of the charts held (~0.2 GB of canvases).
 MOSAIC_PIXELS = 1 << 20
-#: Extra mirrored context (texels) around each chart's crop in a mosaic, on top of its
-#: ``PAD`` texels of filled context (its canvas alone has 10-17 after rounding to
-#: OIDN_BLOCK). Measured on tests/test_denoise.py's fields, worst texel's I_z error of the
-#: noise-free gradient on one chart / two charts / a tiny chart: chart by chart 0.17 / 0.47 /
-#: 0.49 %, gap 0 0.18 / 0.53 / 0.50 %, 4 0.14 / 0.39 / 0.38 %, 8 0.17 / 0.20 / 0.33 %;
-#: RMS I_z error at 0.2 % noise on two charts (input 0.315 %): chart by chart 0.304 %, gap
-#: 0 / 4 / 8 / 16 0.294 / 0.366 / 0.279 / 0.293 %; at 30 % noise within 10 % of chart by
-#: chart at every gap (the network's own scatter).
-MOSAIC_GAP = 8
+#: Each chart's tile in a mosaic is its whole canvas (10-17 texels of filled context, the
+#: same image OIDN gets chart by chart), so charts are >= 20 texels of their own context
+#: apart and OIDN gets the same pixels as chart by chart. Tried (tests/test_denoise.py, and
+#: OIDN pixels of cornell_box 32^2): a crop to PAD texels of context plus MOSAIC_GAP
+#: mirrored texels (MOSAIC_CROP): gap 0 / 4 put the noise-free gradient's worst texel 0.53
+#: / 0.39 % off (chart by chart 0.47 %) and raised the 0.2 %-noise error of two charts
+#: (0.366 % vs 0.304 %), gap 8 passed but sent OIDN 2x the pixels (64,512 vs 32,768 per
+#: coefficient) and was slower than chart by chart.
+MOSAIC_CROP = False
+#: Extra mirrored texels around each tile (0: the canvas's own context is the gap).
+MOSAIC_GAP = 0
 
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
@@ -678,28 +680,35 @@ def _crop(cv: _Canvas, gap: int) -> tuple[int, int, int, int]:
     the blend still use the whole canvas, so they are the same as chart by chart."""
     y0, y1, x0, x1 = cv.box
     h, w = cv.shape
+    if not MOSAIC_CROP:
+        return 0, h, 0, w
     return max(y0 - PAD, 0), min(y1 + PAD, h), max(x0 - PAD, 0), min(x1 + PAD, w)
 
 
 def _layout(crops: list[tuple[int, int, int, int]], gap: int):
     """Shelf packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
     ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height into rows of
-    the mosaic's width (about square, at least the widest tile), rounded to OIDN_BLOCK."""
+    the mosaic's width, rounded to OIDN_BLOCK; of the widths from the widest tile to twice
+    the square's side, the one with the fewest mosaic pixels (OIDN's time follows them)."""
     tiles = [(y1 - y0 + 2 * gap, x1 - x0 + 2 * gap) for y0, y1, x0, x1 in crops]
-    area = sum(h * w for h, w in tiles)
-    width = max(int(np.sqrt(area)), max(w for _, w in tiles))
-    width = -(-width // OIDN_BLOCK) * OIDN_BLOCK
     order = sorted(range(len(tiles)), key=lambda i: (-tiles[i][0], -tiles[i][1]))
-    pos = [None] * len(tiles)
-    x = y = row = 0
-    for i in order:
-        h, w = tiles[i]
-        if x + w > width:
-            y, x, row = y + row, 0, 0
-        pos[i] = (y + gap, x + gap)
-        x, row = x + w, max(row, h)
-    height = -(-(y + row) // OIDN_BLOCK) * OIDN_BLOCK
-    return (height, width), pos
+    area = sum(h * w for h, w in tiles)
+    lo = max(w for _, w in tiles)
+    hi = max(lo, 2 * int(np.sqrt(area)))
+    best = None
+    for width in range(-(-lo // OIDN_BLOCK) * OIDN_BLOCK, hi + OIDN_BLOCK, OIDN_BLOCK):
+        pos = [None] * len(tiles)
+        x = y = row = 0
+        for i in order:
+            h, w = tiles[i]
+            if x + w > width:
+                y, x, row = y + row, 0, 0
+            pos[i] = (y + gap, x + gap)
+            x, row = x + w, max(row, h)
+        height = -(-(y + row) // OIDN_BLOCK) * OIDN_BLOCK
+        if best is None or height * width < best[0][0] * best[0][1]:
+            best = ((height, width), pos)
+    return best
 
 
 def autoexposure(img: np.ndarray) -> float:

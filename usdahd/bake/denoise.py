@@ -696,14 +696,17 @@ def _layout(crops: list[tuple[int, int, int, int]], gap: int):
     """Shelf packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
     ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height into rows of
     the mosaic's width, rounded to OIDN_BLOCK; of the widths from the widest tile to twice
-    the square's side, the one with the fewest mosaic pixels (OIDN's time follows them)."""
+    the square's side (at most ~32 of them), the one with the fewest mosaic pixels (OIDN's
+    time follows them)."""
     tiles = [(y1 - y0 + 2 * gap, x1 - x0 + 2 * gap) for y0, y1, x0, x1 in crops]
     order = sorted(range(len(tiles)), key=lambda i: (-tiles[i][0], -tiles[i][1]))
     area = sum(h * w for h, w in tiles)
     lo = max(w for _, w in tiles)
     hi = max(lo, 2 * int(np.sqrt(area)))
     best = None
-    for width in range(-(-lo // OIDN_BLOCK) * OIDN_BLOCK, hi + OIDN_BLOCK, OIDN_BLOCK):
+    first = -(-lo // OIDN_BLOCK) * OIDN_BLOCK
+    step = OIDN_BLOCK * max(1, (hi - first) // (32 * OIDN_BLOCK))  # <= ~32 widths tried
+    for width in range(first, hi + step, step):
         pos = [None] * len(tiles)
         x = y = row = 0
         for i in order:

@@ -271,14 +271,14 @@ def test_denoise_trusts_the_integrators_own_variance(tmp_path, capsys, monkeypat
     from usdahd.bake import denoise
 
     seen = []
-    real = denoise.denoise_sh
+    real = denoise.denoise_records
 
-    def spy(sh, texels, **kw):
-        seen.append(kw.get("variance"))
+    def spy(records, **kw):  # every prim's charts in one call (shared OIDN mosaics)
+        seen.extend(r.get("variance") for r in records)
         assert kw.get("variance_bound") and kw.get("variance_pool") == denoise.VARIANCE_POOL
-        return real(sh, texels, **kw)
+        return real(records, **kw)
 
-    monkeypatch.setattr(denoise, "denoise_sh", spy)
+    monkeypatch.setattr(denoise, "denoise_records", spy)
     stage = copy_sample(tmp_path, "open_plane.usda")
     code, out = _bake(
         [str(stage), "--denoise", "--resolution", "16", "--samples", "8", "--quiet"], capsys

@@ -216,17 +216,18 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         from usdahd.bake import denoise
 
         t0 = time.perf_counter()
+        records = []
         for job in ok:
             iz_var = denoise.integrator_iz_variance(job.stats)
             var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
-            job.sh = denoise.denoise_sh(
-                job.sh,
-                job.texels,
-                charts=job.charts,
-                variance=var,
-                variance_bound=True,
-                variance_pool=denoise.VARIANCE_POOL,
-            )
+            records.append(dict(sh=job.sh, texels=job.texels, charts=job.charts, variance=var))
+        # every prim's charts at once: one OIDN run per mosaic image and coefficient
+        denoised = denoise.denoise_records(
+            records, variance_bound=True, variance_pool=denoise.VARIANCE_POOL
+        )
+        del records
+        for job, sh in zip(ok, denoised, strict=True):
+            job.sh = sh
         _status(opts, f"denoised in {time.perf_counter() - t0:.2f}s (--no-denoise skips it)")
     if ok:
         t0 = time.perf_counter()

@@ -15,6 +15,14 @@ import pytest
 
 import usdahd.usd  # noqa: F401  (registers the plugins before any stage exists)
 
+try:  # property tests are seeded and deterministic: the same examples on every machine and run
+    from hypothesis import settings as _hypothesis_settings
+
+    _hypothesis_settings.register_profile("usdahd", derandomize=True, database=None)
+    _hypothesis_settings.load_profile("usdahd")
+except ImportError:  # hypothesis is a test extra; the tests that need it import it themselves
+    pass
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
 

@@ -56,8 +56,12 @@ def test_fit_properties(kind, solver, objective, data, rgb):
     zn = np.broadcast_to(Z, d.shape)
     ev = f.evaluate(zn)
     assert np.all(np.isfinite(ev))
-    # I(z) == I_z: relative float32 precision (C_a + d_z C_d = I_z w_a + I_z (1 - w_a))
-    np.testing.assert_allclose(ev, f.iz, rtol=1e-5, atol=0)
+    # I(z) == I_z: relative float32 precision (C_a + d_z C_d = I_z w_a + I_z (1 - w_a)), plus
+    # float32 rounding of the two terms where they cancel: hlsh's ratio reaches +-16 and a texel
+    # lit almost edge-on has I_z far below its SH's size (I_z ~ 1e-7 under an l1 of 0.5 differs
+    # by 1.3e-5 relative), so the absolute part scales with the texel's largest coefficient.
+    size = np.nan_to_num(np.abs(data), posinf=0.0).max(axis=(1, 2))[:, None]
+    assert np.all(np.abs(ev - f.iz) <= 1e-5 * np.abs(f.iz) + 1e-6 * size)
     mod = models.get(kind)
     ch, factors = mod.encode(f.params, ratio=ratio)
     dec = mod.decode(ch, ratio=ratio, factors=factors)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdahd.bake import denoise
+from usdahd.bake import denoise, mosaic
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh
@@ -510,18 +510,18 @@ def test_autoexposure_is_oidns_own():
     for shape, level in [((32, 32), 0.02), ((48, 80), 7.0), ((33, 70), 300.0)]:
         img = (level * rng.random((*shape, 3)) ** 2).astype(np.float32)
         own = den.run(img, filter_type="RTLightmap", hdr=True)
-        s = np.float32(denoise.autoexposure(img))
+        s = np.float32(mosaic.autoexposure(img))
         ours = den.run(img * s, filter_type="RTLightmap", hdr=True, input_scale=1.0) / s
         np.testing.assert_allclose(ours, own, rtol=0, atol=1e-5 * own.max())
-    assert denoise.autoexposure(np.zeros((16, 16, 3), np.float32)) == 1.0
+    assert mosaic.autoexposure(np.zeros((16, 16, 3), np.float32)) == 1.0
     den.close()
 
 
 def test_layout_tiles_do_not_overlap():
     rng = np.random.default_rng(4)
     crops = [(0, int(h), 0, int(w)) for h, w in rng.integers(3, 90, size=(60, 2))]
-    gap = denoise.MOSAIC_GAP
-    (H, W), pos = denoise._layout(crops, gap)
+    gap = mosaic.MOSAIC_GAP
+    (H, W), pos = mosaic.layout(crops, gap)
     assert H % denoise.OIDN_BLOCK == 0 and W % denoise.OIDN_BLOCK == 0
     used = np.zeros((H, W), int)
     for (y0, y1, x0, x1), (y, x) in zip(crops, pos, strict=True):

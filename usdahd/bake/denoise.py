@@ -36,7 +36,7 @@ stages per chart:
 Charts are never mixed: each chart has its own canvas, only its texels are written back.
 OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every prim of a
 bake): they are laid out side by side as tiles of one mosaic image per coefficient
-(:func:`_layout`), each HDR tile scaled by its own exposure (:func:`autoexposure`), so a
+(:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
 chart sees its own filled context for 10-17 texels on every side and the run count no longer
 grows with the charts (9 runs per mosaic instead of 9 per chart). Results differ from chart
 by chart only by the network's response to what lies beyond a canvas (another tile instead
@@ -47,6 +47,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.bake.mosaic import OIDN_BLOCK, PAD
+from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
 from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
@@ -64,18 +66,6 @@ _RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
 #: error is multiplied by c00 there.)
 
 # Tolerances and sizes (each with its reason)
-#: Least dilated context (texels) on every side of a chart: a constant chart comes back
-#: within 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).
-#: The canvas side is then rounded up to a multiple of OIDN_BLOCK, the extra going to the
-#: context too (10-17 texels per side). Was 16 without rounding: OIDN then padded to
-#: the next multiple of 16, 1.3-2x the pixels of a run; 8 with rounding put OIDN's raw output
-#: on a noise-free gradient 0.9 % off at a chart's border (tests/test_denoise.py), 10 keeps
-#: the blended output's error of 16 (0.49 %) and the stages' error (docs/time-to-quality.md).
-PAD = 10
-#: OIDN pads every image side to a multiple of this and its run time follows the padded
-#: size (measured, 2 cores: 40 / 48 px sides 4.3 / 4.6 ms, 49 / 64 px 7.5 / 6.9 ms): canvas
-#: sides are rounded up to it, so the padding OIDN would add anyway is chart context.
-OIDN_BLOCK = 16
 #: Smallest canvas side given to OIDN: below ~16 its output on constant images is off by
 #: 5-30 % even away from borders; tiny charts are centred in a canvas this big.
 MIN_CROP = 32
@@ -137,17 +127,6 @@ _CHI2_1_MEDIAN = 0.454936423119572
 #: for OIDN's per-run cost to vanish (a 1024^2 image runs at the per-pixel cost of small
 #: ones), few enough to bound the memory of the charts held (~0.2 GB of canvases).
 MOSAIC_PIXELS = 1 << 20
-#: Each chart's tile in a mosaic is its whole canvas (10-17 texels of filled context, the
-#: same image OIDN gets chart by chart), so charts are >= 20 texels of their own context
-#: apart and OIDN gets the same pixels as chart by chart. Tried (tests/test_denoise.py, and
-#: OIDN pixels of cornell_box 32^2): a crop to PAD texels of context plus MOSAIC_GAP
-#: mirrored texels (MOSAIC_CROP): gap 0 / 4 put the noise-free gradient's worst texel 0.53
-#: / 0.39 % off (chart by chart 0.47 %) and raised the 0.2 %-noise error of two charts
-#: (0.366 % vs 0.304 %), gap 8 passed but sent OIDN 2x the pixels (64,512 vs 32,768 per
-#: coefficient) and was slower than chart by chart.
-MOSAIC_CROP = False
-#: Extra mirrored texels around each tile (0: the canvas's own context is the gap).
-MOSAIC_GAP = 0
 
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
@@ -487,7 +466,7 @@ def denoise_sh(
         ``VARIANCE_BOUND_GAIN`` and edges are judged texel by texel; each chart's summed c10
         per channel is then kept equal to the input's (:func:`_keep_chart_energy`).
     mosaic : the charts' canvases are denoised as tiles of a few mosaic images, one OIDN run
-        per image and coefficient (:func:`_run_mosaic`); False runs OIDN on each chart's
+        per image and coefficient (:func:`usdahd.bake.mosaic.run`); False runs OIDN on each chart's
         canvas alone (the reference the mosaic is measured against).
     Charts whose variance is 0 everywhere (noise free, or too small to estimate) are
     returned unchanged without running OIDN.
@@ -635,7 +614,7 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
-            res = _run_mosaic(den, batch, k, kind, use_guides)
+            res = run_mosaic(den, batch, k, kind, use_guides)
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch
@@ -676,116 +655,6 @@ def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:
         r = res[k] if filter == "RTLightmap" else res[k] * 2.0 - 1.0
         out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * _BAND_BOUND[k] * out[:, :, 0]
     return out
-
-
-def _crop(cv: _Canvas, gap: int) -> tuple[int, int, int, int]:
-    """(y0, y1, x0, x1) of the part of chart canvas ``cv`` given to OIDN in a mosaic: the
-    chart's bounding box and ``PAD`` texels of context on every side. The canvas's rounding
-    to OIDN_BLOCK and MIN_CROP serve a run of the canvas alone (OIDN pads an image to whole
-    blocks, and a tiny image has no context at its borders); in a mosaic neither applies, and
-    leaving them out sends OIDN 0.4-0.6x the pixels of small charts. The noise estimate and
-    the blend still use the whole canvas, so they are the same as chart by chart."""
-    y0, y1, x0, x1 = cv.box
-    h, w = cv.shape
-    if not MOSAIC_CROP:
-        return 0, h, 0, w
-    return max(y0 - PAD, 0), min(y1 + PAD, h), max(x0 - PAD, 0), min(x1 + PAD, w)
-
-
-def _layout(crops: list[tuple[int, int, int, int]], gap: int):
-    """Shelf packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
-    ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height into rows of
-    the mosaic's width, rounded to OIDN_BLOCK; of the widths from the widest tile to twice
-    the square's side (at most ~32 of them), the one with the fewest mosaic pixels (OIDN's
-    time follows them)."""
-    tiles = [(y1 - y0 + 2 * gap, x1 - x0 + 2 * gap) for y0, y1, x0, x1 in crops]
-    order = sorted(range(len(tiles)), key=lambda i: (-tiles[i][0], -tiles[i][1]))
-    area = sum(h * w for h, w in tiles)
-    lo = max(w for _, w in tiles)
-    hi = max(lo, 2 * int(np.sqrt(area)))
-    best = None
-    first = -(-lo // OIDN_BLOCK) * OIDN_BLOCK
-    step = OIDN_BLOCK * max(1, (hi - first) // (32 * OIDN_BLOCK))  # <= ~32 widths tried
-    for width in range(first, hi + step, step):
-        pos = [None] * len(tiles)
-        x = y = row = 0
-        for i in order:
-            h, w = tiles[i]
-            if x + w > width:
-                y, x, row = y + row, 0, 0
-            pos[i] = (y + gap, x + gap)
-            x, row = x + w, max(row, h)
-        height = -(-(y + row) // OIDN_BLOCK) * OIDN_BLOCK
-        if best is None or height * width < best[0][0] * best[0][1]:
-            best = ((height, width), pos)
-    return best
-
-
-def autoexposure(img: np.ndarray) -> float:
-    """OIDN's HDR auto exposure of ``img (h, w, 3)``: key 0.18 over the geometric mean of the
-    luminance of up to 16 x 16 pixel bins (bins of luminance <= 1e-8 left out; 1 if none), as
-    OIDN computes it (its ``autoexposure`` kernel), so a canvas scaled by it and run with
-    ``inputScale = 1`` is what OIDN sees of the canvas alone."""
-    h, w = img.shape[:2]
-    nh, nw = -(-h // 16), -(-w // 16)
-    lum = np.asarray(img, np.float32) @ np.array([0.212671, 0.715160, 0.072169], np.float32)
-    if h % 16 == 0 and w % 16 == 0:  # whole 16 x 16 bins (every chart canvas): one reshape
-        m = lum.reshape(nh, 16, nw, 16).mean(axis=(1, 3), dtype=np.float64).ravel()
-        m = m[m > 1e-8]
-        return 0.18 / float(np.exp2(np.mean(np.log2(m)))) if len(m) else 1.0
-    ys = [(i * h) // nh for i in range(nh + 1)]
-    xs = [(j * w) // nw for j in range(nw + 1)]
-    logs = []
-    for i in range(nh):
-        for j in range(nw):
-            m = float(lum[ys[i] : ys[i + 1], xs[j] : xs[j + 1]].mean())
-            if m > 1e-8:
-                logs.append(np.log2(m))
-    return 0.18 / float(np.exp2(np.mean(logs))) if logs else 1.0
-
-
-def _run_mosaic(den, batch: list, k: int, kind: dict, use_guides: bool) -> list:
-    """OIDN's output (a canvas-sized image, valid on the crop) of coefficient ``k`` of every
-    chart of ``batch``, all run as tiles of one mosaic image. Each tile is the chart's
-    :func:`_crop` grown by ``MOSAIC_GAP`` on every side, mirrored (so around a chart's own
-    context there is more of it, not a neighbour: charts are at least 2 PAD texels apart,
-    all of it their own filled context); in HDR mode each tile is scaled by its own
-    :func:`autoexposure` and the mosaic run with ``inputScale`` 1 (OIDN's exposure of the
-    whole mosaic would else follow its brightest charts), and the output divided back."""
-    gap = MOSAIC_GAP
-    crops = [_crop(ch.cv, gap) for ch in batch]
-    (H, W), pos = _layout(crops, gap)
-    hdr = kind.get("hdr", False)
-
-    def part(img, c):
-        y0, y1, x0, x1 = c
-        return img[y0:y1, x0:x1]
-
-    images = [part(ch.images[k], c) for ch, c in zip(batch, crops, strict=True)]
-    scales = [autoexposure(im) if hdr else 1.0 for im in images]
-
-    def build(imgs, scale):
-        mos = np.zeros((H, W, imgs[0].shape[-1]), np.float32)
-        for im, (y, x), s in zip(imgs, pos, scale, strict=True):
-            h, w = im.shape[:2]
-            tile = np.pad(im, ((gap, gap), (gap, gap), (0, 0)), mode="symmetric") if gap else im
-            mos[y - gap : y + h + gap, x - gap : x + w + gap] = tile * np.float32(s)
-        return mos
-
-    guides = {}
-    if use_guides:
-        for name in ("albedo", "normal"):
-            if name in batch[0].guides:
-                parts = [part(ch.guides[name], c) for ch, c in zip(batch, crops, strict=True)]
-                guides[name] = build(parts, [1.0] * len(batch))
-    out = den.run(build(images, scales), **kind, **guides, input_scale=1.0 if hdr else None)
-    res = []
-    for ch, c, (y, x), s in zip(batch, crops, pos, scales, strict=True):
-        y0, y1, x0, x1 = c
-        full = np.zeros(ch.images[k].shape, np.float32)
-        full[y0:y1, x0:x1] = out[y : y + y1 - y0, x : x + x1 - x0] / np.float32(s)
-        res.append(full)
-    return res
 
 
 def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.ndarray:

@@ -162,7 +162,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
             for k, m in enumerate(scene.meshes):
                 r = results.get(m["path"])
                 if m["baked"] and r and r.get("sidecar"):
-                    ours[k] = compare.usdahd_iz(r["sidecar"])
+                    ours[k] = compare.usdahd_iz(r["record"])
             res = compare.compare_images(scene.meshes, ctruth or truth, {}, ours, n, truth_spp)
             ov = res["overall"].get("usdahd", {})
             secs = float(baked["report"].get("seconds", baked["seconds"]))

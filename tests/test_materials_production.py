@@ -505,3 +505,36 @@ def test_texture_product_is_the_product_of_the_outputs(ca, cha, cb, chb):
     n = max(oa.shape[2], ob.shape[2])
     want = np.broadcast_to(oa, oa.shape[:2] + (n,)) * np.broadcast_to(ob, ob.shape[:2] + (n,))
     np.testing.assert_allclose(texture_product(a, b).outputs(), want, rtol=1e-6)
+
+
+def test_materialx_documents_are_built_once_across_threads():
+    """Validation runs its rules in parallel threads. The standard library and each ``.mtlx``
+    document must be one object per process: a second copy built by a racing thread and then
+    dropped by a cache orphans the node definitions taken from it (MaterialX raised "Requested
+    root of orphaned element" inside Staleness on the usd-wg Standard Shader Ball)."""
+    import threading
+
+    from usdahd.usd import materialx as mtx
+
+    mtx._LIBRARY.clear()
+    path = str(DATA / "mtlx_look.mtlx")
+    mtx._DOCUMENTS.pop(path, None)
+    start = threading.Barrier(6)
+    got = []
+
+    def run():
+        start.wait()
+        got.append((mtx.library(), mtx.load_document(path)[0]))
+
+    threads = [threading.Thread(target=run) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(got) == 6
+    assert all(lib is got[0][0] for lib, _ in got)
+    assert all(doc is got[0][1] and doc is not None for _, doc in got)
+    # a node definition default read through the shared library stays valid
+    np.testing.assert_allclose(
+        mtx.nodedef_default("ND_open_pbr_surface_surfaceshader", "base_color"), [0.8] * 3, rtol=1e-6
+    )

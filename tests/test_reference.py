@@ -967,7 +967,7 @@ def test_warm_baker_bakes_what_the_cli_bakes(tmp_path):
     assert ours.keys() == theirs.keys()
     for p in ours:
         np.testing.assert_array_equal(
-            compare.usdahd_iz(ours[p]["sidecar"])[0], compare.usdahd_iz(theirs[p]["sidecar"])[0]
+            compare.usdahd_iz(ours[p]["record"])[0], compare.usdahd_iz(theirs[p]["record"])[0]
         )
 
 

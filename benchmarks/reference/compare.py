@@ -111,18 +111,26 @@ def usdahd_results(layer: Path) -> dict:
             "resolution": list(res.resolution),
             "sidecar": res.textures.get(schema.SIDECAR_ROLE),
             "samples": int((res.settings or {}).get("samples") or 0),
+            "record": res,
         }
     return out
 
 
-def usdahd_iz(sidecar: str) -> tuple[np.ndarray, np.ndarray]:
-    """I_z (h, w, 3) float64 and coverage (h, w) bool from a bake's float32 SH sidecar."""
+def usdahd_iz(record) -> tuple[np.ndarray, np.ndarray]:
+    """I_z (h, w, 3) float64 and coverage (h, w) bool from a bake record's float32 SH sidecar:
+    the record's rectangle of its atlas page (``atlas:scaleOffset``), or its own file with
+    ``--atlas off``. A path (str) reads the whole file (a sidecar that is the record's own)."""
     from usdahd import images
     from usdahd.numerics import sh as shm
     from usdahd.usd import schema
 
-    img = images.read(sidecar, channels=schema.SH_SIDECAR_CHANNELS)
-    px = np.asarray(img.pixels, np.float64)
+    if isinstance(record, (str, Path)):
+        px = images.read(str(record), channels=schema.SH_SIDECAR_CHANNELS).pixels
+    else:
+        px = schema.read_record_pixels(
+            record, schema.SIDECAR_ROLE, channels=schema.SH_SIDECAR_CHANNELS
+        )
+    px = np.asarray(px, np.float64)
     h, w = px.shape[:2]
     sh = px[..., :27].reshape(h, w, 3, 9)
     return shm.iz(sh), px[..., 27] > 0.5
@@ -349,7 +357,7 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
         for k, m in enumerate(scene.meshes):
             r = results.get(m["path"])
             if m["baked"] and r and r.get("sidecar"):
-                ours[k] = usdahd_iz(r["sidecar"])
+                ours[k] = usdahd_iz(r["record"])
         out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp)
         out.update(
             stage=str(stage),

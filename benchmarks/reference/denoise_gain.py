@@ -127,7 +127,7 @@ def judge(baker, stage: Path, work: Path, args, spp: int, seed: int, bpy: str,
                 threads=0, quiet=True, oversample=1, point=True,
             )  # fmt: skip
         ours = {
-            k: C.usdahd_iz(results[m["path"]]["sidecar"])
+            k: C.usdahd_iz(results[m["path"]]["record"])
             for k, m in enumerate(scene.meshes)
             if m["baked"] and results.get(m["path"], {}).get("sidecar")
         }

@@ -37,8 +37,8 @@ texcoord. Anything else is reported (material, node, value used, fix).
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from pxr import Sdf, UsdShade
@@ -79,13 +79,24 @@ def _mx():
     return MaterialX
 
 
-@lru_cache(maxsize=1)
+_LIBRARY = []
+_LIBRARY_LOCK = threading.Lock()
+
+
 def library():
-    """The MaterialX standard data libraries (node definitions and their defaults)."""
-    mx = _mx()
-    lib = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
-    return lib
+    """The MaterialX standard data libraries (node definitions and their defaults): one
+    document for the process, built once. Single-flight under a lock: validation runs rules
+    in parallel threads, and with ``lru_cache`` two first calls each built a document and the
+    cache kept only one, so the other was freed while its node definitions were in use
+    (MaterialX: "Requested root of orphaned element", seen as an InternalError of Staleness
+    on the usd-wg Standard Shader Ball)."""
+    with _LIBRARY_LOCK:
+        if not _LIBRARY:
+            mx = _mx()
+            lib = mx.createDocument()
+            mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
+            _LIBRARY.append(lib)
+        return _LIBRARY[0]
 
 
 def _mx_value(v):
@@ -665,10 +676,21 @@ def find_mtlx(stage, target) -> MtlxSource | None:
     return None
 
 
-@lru_cache(maxsize=64)
+_DOCUMENTS: dict = {}
+_DOCUMENTS_LOCK = threading.Lock()
+
+
 def load_document(path: str):
     """(MaterialX document with the standard libraries imported, error text): a document
-    is read once per path."""
+    is read once per path and kept for the process (single-flight, like :func:`library`: a
+    document freed by a cache while elements taken from it are in use orphans them)."""
+    with _DOCUMENTS_LOCK:
+        if path not in _DOCUMENTS:
+            _DOCUMENTS[path] = _read_document(path)
+        return _DOCUMENTS[path]
+
+
+def _read_document(path: str):
     mx = _mx()
     if not os.path.isfile(path):
         return None, f"{path} does not exist"

@@ -46,11 +46,25 @@ def test_random_sets(seed, padding):
     packing = atlas.pack(sizes, max_size=512, padding=padding)
     _check(packing, sizes, padding, 512)
     assert len(packing.pages) >= 2  # 60 rects of ~100² do not fit one 512² page
-    # fill: rectangle area over page area, at least 65 % over all pages (measured 67-81 %)
-    assert packing.fill() > 0.65
-    # the smaller pages tried never lose: the result has no more page texels than 512² pages
+    # fill: rectangle area over page area, at least 60 % over all pages (measured 63-81 %; each
+    # page counts atlas.PAGE_COST texels more, so fewer, fuller-sized pages can win)
+    assert packing.fill() > 0.60
+    # the smaller pages tried never lose: the result costs no more than 512² pages
     at_max = atlas._pack(sizes, None, max_size=512, padding=padding)
-    assert sum(w * h for w, h in packing.pages) <= sum(w * h for w, h in at_max.pages)
+
+    def cost(p):
+        return sum(w * h + atlas.PAGE_COST for w, h in p.pages)
+
+    assert cost(packing) <= cost(at_max)
+
+
+def test_records_share_a_page_rather_than_one_page_each():
+    """49 maps of 128² (``--resolution 128`` on a 49-prim asset): one 1024² page, not 49 pages
+    of their own (which save the gutters but cost an engine 49 texture bindings)."""
+    packing = atlas.pack([(128, 128)] * 49, max_size=2048, padding=4)
+    assert packing.pages == [(1024, 1024)]
+    packing = atlas.pack([(32, 32)] * 49, max_size=2048, padding=4)
+    assert packing.pages == [(256, 256)]
 
 
 def test_classroom_like_set_prefers_smaller_pages():

@@ -61,6 +61,11 @@ class Packing:
         return used / area if area else 0.0
 
 
+#: Texels a page counts beyond its own in :func:`pack`'s choice (a 128² page's worth): enough
+#: that records sharing a page beat one page each when the gutters cost less than this per page.
+PAGE_COST = 128 * 128
+
+
 def is_power_of_two(n: int) -> bool:
     return isinstance(n, int) and n > 0 and n & (n - 1) == 0
 
@@ -137,16 +142,19 @@ def pack(
     paths, default the index) break ties so the result does not depend on the input order.
 
     Pages of at most ``max_size``, ``max_size / 2``, ... (down to ``max_size / 8``, at least 64)
-    are tried, and the packing with the fewest page texels in total wins (then the fewest
-    pages): one 2048² page holding 2.4 M texels of rectangles is 58 % full, where a 1024² page
-    for the largest map and two more for the rest fill theirs (the classroom)."""
+    are tried, and the packing with the fewest page texels in total wins, each page counted
+    ``PAGE_COST`` texels more (then the fewest pages): one 2048² page holding 2.4 M texels of
+    rectangles is 58 % full, where a 1024² page for the largest map and two more for the rest
+    fill theirs (the classroom); and 49 maps of 128² (``--resolution 128``) take one 1024²
+    page, not 49 pages of their own that save the padding (a page costs an engine a texture
+    binding and splits batches)."""
     if not is_power_of_two(max_size):
         raise ValueError(f"the page size must be a power of two, got {max_size}")
     best = None
     size = max_size
     while size >= max(64, max_size // 8) or size == max_size:
         got = _pack(sizes, keys, max_size=size, padding=padding)
-        area = sum(w * h for w, h in got.pages)
+        area = sum(w * h for w, h in got.pages) + PAGE_COST * len(got.pages)
         if best is None or (area, len(got.pages)) < best[0]:
             best = ((area, len(got.pages)), got)
         size //= 2

@@ -28,7 +28,7 @@ import numpy as np
 from usdahd import models
 from usdahd.errors import BakeError, UsdAhdError
 from usdahd.numerics import atlas as packer
-from usdahd.pipeline.outputs import texture_path
+from usdahd.pipeline.outputs import texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 
@@ -204,7 +204,6 @@ def _write_page(index: int, size, on_page, out: Path, pad: int) -> dict:
     from usdahd import images
     from usdahd._version import __version__
     from usdahd.bake import post
-    from usdahd.pipeline.stages import _factor_attrs
     from usdahd.usd import schema
 
     s0 = on_page[0][0].settings
@@ -267,17 +266,9 @@ def _write_page(index: int, size, on_page, out: Path, pad: int) -> dict:
                 img, ((p.y - y0, y1 - p.y - h), (p.x - x0, x1 - p.x - w), (0, 0)), mode="edge"
             )
             page[y0:y1, x0:x1] = grown
-        path = texture_path(out, stem, lay.role, lay.extension)
-        images.write(
-            path,
-            page,
-            format=lay.format,
-            color_space=lay.color_space,
-            channels=lay.channels,
-            attributes=_factor_attrs(factors),
-        )
-        textures[lay.role] = str(path)
-        digests[lay.role] = schema.file_digest(path)
+        path, digests[lay.role] = write_role_texture(out, stem, lay, page, factors)
+        textures[lay.role] = path
+        path = Path(path)
         if container in ("ktx2", "ktx2-bc"):
             from usdahd import ktx2
 

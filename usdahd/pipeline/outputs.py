@@ -505,3 +505,23 @@ def _write_error(path: Path, exc: OSError, what: str):
     else:
         fix = "check the folder and re-run, or choose another output with -o"
     return OutputError(f"{path}: {what} ({why}); {fix} (the previous bake is intact)")
+
+
+def write_role_texture(out: Path, stem: str, lay, img, factors: dict) -> tuple[str, str]:
+    """Write one texture role (``lay``: a model layout entry) of a prim or an atlas page: the
+    image ``img (h, w, c)`` as the layout's format, colour space and channels, with the decode
+    ``factors`` also in the file's metadata (the schema is authoritative). Returns (path,
+    "sha256:<hex>" digest of the file as written)."""
+    from usdahd import images
+    from usdahd.usd import schema
+
+    path = texture_path(out, stem, lay.role, lay.extension)
+    images.write(
+        path,
+        img,
+        format=lay.format,
+        color_space=lay.color_space,
+        channels=lay.channels,
+        attributes={f"usdahd:{k}": float(v) for k, v in factors.items()},
+    )
+    return str(path), schema.file_digest(path)

@@ -17,7 +17,7 @@ import numpy as np
 from usdahd import models
 from usdahd._version import __version__
 from usdahd.errors import BakeError, UsdAhdError
-from usdahd.pipeline.outputs import LIGHTMAPS_DIR, _fault, texture_path
+from usdahd.pipeline.outputs import LIGHTMAPS_DIR, _fault, texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.scene.hashing import is_dark
@@ -286,11 +286,6 @@ def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict, bc: boo
     job.report.setdefault("ktx2", {})[lay.role] = {"path": str(path), **info}
 
 
-def _factor_attrs(factors: dict) -> dict:
-    """Decode factors also stored in each file's metadata (the schema is authoritative)."""
-    return {f"usdahd:{k}": float(v) for k, v in factors.items()}
-
-
 def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     """Fit the model, quantize, dilate, write textures + SH sidecar; set job.results."""
     from usdahd import images
@@ -323,17 +318,9 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
         values = values.reshape(len(job.texels), -1)
         img = post.dilate(post.to_image(job.texels, values), mask, padding)
         img = img.astype(values.dtype, copy=False)
-        path = texture_path(out, job.path, lay.role, lay.extension)
-        images.write(
-            path,
-            img,
-            format=lay.format,
-            color_space=lay.color_space,
-            channels=lay.channels,
-            attributes=_factor_attrs(factors),
-        )
-        textures[lay.role] = str(path)
-        digests[lay.role] = schema.file_digest(path)
+        path, digests[lay.role] = write_role_texture(out, job.path, lay, img, factors)
+        textures[lay.role] = path
+        path = Path(path)
         if s.get("container") in ("ktx2", "ktx2-bc"):
             bc = s["container"] == "ktx2-bc"
             _write_ktx2(job, lay, img, mask, path.with_suffix(".ktx2"), factors, bc)

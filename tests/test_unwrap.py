@@ -539,16 +539,15 @@ def test_split_rings_cuts_a_frame_into_its_sides_and_keeps_solid_charts():
     u = np.linalg.norm(tris[..., [0, 2]], axis=-1)
     uv = np.stack([u, tris[..., 1]], axis=-1) * 10.0  # 10 texels per metre
     labels = np.zeros(len(uv), np.int64)
-    cut = _split_rings(uv, labels, mesh.face, 1.0)
+    cut = _split_rings(uv, labels, mesh.face, 0.5)  # the frame covers 46 % of its rectangle
     assert len(np.unique(cut)) == 4  # four sides
     for f in np.unique(mesh.face):  # whole polygons move
         assert len(np.unique(cut[mesh.face == f])) == 1
-    # a solid chart (the frame's bounding quad) and a thick ring are left as they are
-    assert np.array_equal(_split_rings(uv, labels, mesh.face, 100.0), labels)
-    box = box_mesh()
-    p = box.points[box.triangles]
-    flat = _split_rings(p[..., :2] * 10.0, np.zeros(len(p), np.int64), box.face, 1.0)
-    assert np.array_equal(flat, np.zeros(len(p), np.int64))
+    # not a ring below that fraction; a solid chart (a square quad) is never one
+    assert np.array_equal(_split_rings(uv, labels, mesh.face, 0.4), labels)
+    square = np.array([[[0, 0], [10, 0], [10, 10]], [[0, 0], [10, 10], [0, 10]]], float)
+    flat = _split_rings(square, np.zeros(2, np.int64), np.zeros(2, np.int64), 0.99)
+    assert np.array_equal(flat, np.zeros(2, np.int64))
 
 
 def test_ring_charts_are_cut_when_that_makes_the_map_smaller(monkeypatch):
@@ -559,7 +558,7 @@ def test_ring_charts_are_cut_when_that_makes_the_map_smaller(monkeypatch):
 
     got = {}
     default = unwrap_module.RING_SOLIDITY
-    for solidity in (default, 0.0):  # 0: no chart is a ring
+    for solidity in (default, ()):  # (): no chart is a ring
         monkeypatch.setattr(unwrap_module, "RING_SOLIDITY", solidity)
         mesh = frames()
         info = {}
@@ -569,6 +568,6 @@ def test_ring_charts_are_cut_when_that_makes_the_map_smaller(monkeypatch):
         again, res2 = unwrap(mesh, texels_per_unit=20.0, isolate=False)
         assert res2 == res and np.array_equal(again, uv)
         got[solidity] = (res[0] * res[1], info["rings_cut"])
-    cut, whole = got[default], got[0.0]
+    cut, whole = got[default], got[()]
     assert cut[1] == 6 and whole[1] == 0
     assert cut[0] < 0.95 * whole[0]

@@ -77,15 +77,15 @@ PACK_BILINEAR = True
 CHART_PADDING = 1
 #: Gap (pass-1 texels) between charts laid side by side as pass 2's input.
 LAYOUT_GAP = 4.0
-#: A chart is a ring (:func:`_split_rings`) when it covers less than this fraction of its
-#: smallest bounding rectangle and its mean band width (area / half its bounding perimeter) is
-#: under RING_BAND texels at the asked density: the frame of a window, an arch's moulding.
-#: xatlas packs such a frame as one piece and can rarely fill its hole with the map's other
-#: charts (Sponza's ``object23_lib_0``: 40 frames, 18.6 % of its 275x279 map covered; cut
-#: into their sides, 58 % of 190x201). Pass 2 packs the mesh both ways and keeps the smaller
-#: map (:func:`_pack`): on the classroom, cutting every ring made the maps 7 % larger.
-RING_SOLIDITY = 0.5
-RING_BAND = 16.0
+#: A chart is a ring (:func:`_split_rings`) when it covers less than a fraction of its
+#: smallest bounding rectangle: the frame of a window, an arch's moulding, a walkway around a
+#: courtyard. xatlas packs such a chart as one piece and rarely fills its hole with the map's
+#: other charts (Sponza's ``object23_lib_0``: 40 frames, 18.6 % of its 275x279 map covered;
+#: cut into their sides, 51 % of 190x168). Pass 2 packs the mesh with the rings of each
+#: fraction here cut and with none, and keeps the smallest map (:func:`_pack`): cutting is
+#: not always smaller (the classroom's maps grew 7 % with every ring cut), and the fractions
+#: differ per mesh (Sponza's walls pack smallest at 0.5, its floors at 0.8).
+RING_SOLIDITY = (0.5, 0.8)
 
 
 def _signed_area2(uv: np.ndarray) -> np.ndarray:
@@ -433,14 +433,14 @@ def _min_rect(hull: np.ndarray):
     return best[1], best[2], best[3]
 
 
-def _split_rings(uv, labels, face, density):
-    """Cut every thin ring chart (see :data:`RING_SOLIDITY`) into its four sides: each polygon
-    goes to the side of the chart's smallest bounding rectangle nearest its centroid. Whole
-    polygons move, at their UVs (a side may be disconnected: its pieces keep their places),
-    so nothing overlaps and every polygon corner keeps one UV; the new seams are between
-    polygons. Returns new labels (t,)."""
+def _split_rings(uv, labels, face, solidity):
+    """Cut every ring chart, one covering less than ``solidity`` of its smallest bounding
+    rectangle, into its four sides: each polygon goes to the side of that rectangle nearest its
+    centroid. Whole polygons move, at their UVs (a side may be disconnected: its pieces keep
+    their places), so nothing overlaps and every polygon corner keeps one UV; the new seams are
+    between polygons. Returns new labels (t,)."""
     labels = np.array(labels, copy=True)
-    if len(labels) == 0 or density <= 0:
+    if len(labels) == 0:
         return labels
     next_label = int(labels.max()) + 1
     order = np.argsort(labels, kind="stable")
@@ -450,11 +450,8 @@ def _split_rings(uv, labels, face, density):
         if len(hull) < 3:
             continue
         rot, lo, hi = _min_rect(hull)
-        size = hi - lo
         area = 0.5 * float(np.abs(_signed_area2(uv[tris])).sum())
-        if area >= RING_SOLIDITY * float(np.prod(size)):
-            continue
-        if area / (2.0 * float(size.sum())) * density >= RING_BAND:
+        if area >= solidity * float(np.prod(hi - lo)):
             continue
         polys, inverse = np.unique(face[tris], return_inverse=True)
         centre = np.zeros((len(polys), 2))
@@ -550,20 +547,25 @@ def _place_ignored(verts, idx, vchart, out) -> None:
 def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):
     """The xatlas part of :func:`unwrap`: returns (w, h, uv (t, 3, 2) texels, target, stats).
 
-    Charts as pass 1 made them, and (when it changes them) with every ring cut into its
-    sides (:func:`_split_rings`): with ``texels_per_unit`` the smaller map wins (then the
-    uncut one), with a ``target`` map the higher density (then the uncut one)."""
+    Pass 2 packs the charts as pass 1 made them and, for each fraction of
+    :data:`RING_SOLIDITY` that changes them, with those rings cut into their sides
+    (:func:`_split_rings`): with ``texels_per_unit`` the smallest map wins, with a ``target``
+    map the highest density (the first of equals: the uncut charts first)."""
     uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
-    stats["rings_cut"] = 0
+    candidates = [labels]
+    for solidity in RING_SOLIDITY:
+        cut = _split_rings(uv1, labels, face, solidity)
+        if not any(np.array_equal(cut, c) for c in candidates):
+            candidates.append(cut)
     if texels_per_unit is not None:
         density = texels_per_unit / scale * SHRINK
-        w, h, uv, _ = _run_pack(*_layout(uv1, labels), density, padding)
-        cut = _split_rings(uv1, labels, face, density)
-        if not np.array_equal(cut, labels):
-            w2, h2, uv2, _ = _run_pack(*_layout(uv1, cut), density, padding)
-            if w2 * h2 < w * h:
-                w, h, uv = w2, h2, uv2
-                stats["rings_cut"] = int(len(np.unique(labels[cut != labels])))
+        best = None
+        for lab in candidates:
+            w, h, uv, _ = _run_pack(*_layout(uv1, lab), density, padding)
+            if best is None or w * h < best[0] * best[1]:
+                best = (w, h, uv, lab)
+        w, h, uv, lab = best
+        stats["rings_cut"] = _rings_cut(labels, lab)
         if max(w, h) > max_resolution:
             raise UsageError(
                 f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
@@ -572,34 +574,35 @@ def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max
         return w, h, uv, (w, h), stats
     area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
     tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
-    best = _fit(uv1, labels, face, scale, tpu, target, padding, path, cut=False)
+    best = None
+    for lab in candidates:
+        got = _fit(uv1, lab, scale, tpu, target, padding, path, strict=lab is labels)
+        if got is not None and (best is None or got[3] > best[3]):
+            best = got
+            stats["rings_cut"] = _rings_cut(labels, lab)
     if best is None:
         raise BakeError(
             f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
             f"(padding {padding}); raise --resolution"
         )
-    other = _fit(uv1, labels, face, scale, tpu, target, padding, path, cut=True)
-    if other is not None and other[3] > best[3]:
-        best = other
-        stats["rings_cut"] = other[4]
     return (*best[:3], target, stats)
 
 
-def _fit(uv1, labels, face, scale, tpu, target, padding, path, *, cut):
-    """Pass 2 at the largest density (from ``tpu``, MAX_ATTEMPTS tries) whose atlas fits
-    ``target``: (w, h, uv, density, rings cut) or None. ``cut``: rings cut into their sides
-    at each density tried (:func:`_split_rings`); None too when that cuts no ring."""
+def _rings_cut(labels, lab) -> int:
+    """How many of pass 1's charts ``labels`` the labels ``lab`` cut."""
+    return int(len(np.unique(labels[lab != labels])))
+
+
+def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict):
+    """Pass 2 of the charts ``labels`` at the largest density (from ``tpu``, MAX_ATTEMPTS
+    tries) whose atlas fits ``target``: (w, h, uv, density) or None. ``strict``: raise when
+    the charts are too many for the map at any density (else None)."""
     best = None
     for _ in range(MAX_ATTEMPTS):
         density = tpu / scale * SHRINK
-        lab = labels
-        if cut:
-            lab = _split_rings(uv1, labels, face, density)
-            if np.array_equal(lab, labels):
-                return None
-        w, h, uv, charts = _run_pack(*_layout(uv1, lab), density, padding)
+        w, h, uv, charts = _run_pack(*_layout(uv1, labels), density, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
-            if cut:
+            if not strict:
                 return None
             # every chart takes at least one texel and its padding: no scale fits them
             side = int(np.ceil(np.sqrt(charts) * (1 + padding)))
@@ -610,7 +613,7 @@ def _fit(uv1, labels, face, scale, tpu, target, padding, path, *, cut):
             )
         fit = max(w / target[0], h / target[1])
         if fit <= 1.0:
-            best = (w, h, uv, density, int(len(np.unique(labels[lab != labels]))))
+            best = (w, h, uv, density)
             if fit > 0.9:
                 break
             tpu *= min(1.0 / fit, 1.5) * 0.98

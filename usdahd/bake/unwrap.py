@@ -832,7 +832,8 @@ def unwrap(
     interlocking neighbours): their tangent frames are left-handed, b = -cross(n, t), as
     docs/texels.md specifies.
     ``info``, when given, receives pass 1's counts: ``charts_xatlas``, ``split_polygons``
-    (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``.
+    (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``, and pass 2's
+    ``rings_cut`` (ring charts packed cut into their sides, :func:`_split_rings`).
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """

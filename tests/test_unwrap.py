@@ -269,7 +269,7 @@ def test_unrepresentable_corners_counts_corners_with_two_uvs():
 
 
 def test_overlap_test_tells_overlap_from_touching():
-    from usdahd.bake.unwrap import _overlaps
+    from usdahd.numerics.charts import overlaps as _overlaps
 
     tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     edge = np.array([[[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]])  # shares the hypotenuse
@@ -340,7 +340,7 @@ def test_a_polygon_that_fits_no_chart_gets_its_own(monkeypatch):
     own: still one UV per corner and no overlap."""
     from usdahd.bake import unwrap as unwrap_mod
 
-    monkeypatch.setattr(unwrap_mod, "_overlaps", lambda tri, others, eps=0: len(others) > 0)
+    monkeypatch.setattr(unwrap_mod, "overlaps", lambda tri, others, eps=0: len(others) > 0)
     mesh = goldberg(2)
     info = {}
     uv, res = unwrap(mesh, resolution=128, isolate=False, info=info)
@@ -532,7 +532,7 @@ def frames(count=6, nx=5, ny=20, q=0.1, seed=0) -> MeshData:
 
 
 def test_split_rings_cuts_a_frame_into_its_sides_and_keeps_solid_charts():
-    from usdahd.bake.unwrap import _split_rings
+    from usdahd.numerics.charts import split_rings as _split_rings
 
     mesh = frames(count=1)
     tris = mesh.points[mesh.triangles]  # the frame lies in one plane through the y axis

@@ -114,7 +114,7 @@ class BakeOptions:
     atlas_padding: int | None = None
 
 
-def _authored_inputs(prim) -> dict:
+def authored_inputs(prim) -> dict:
     """Bake inputs authored on ``prim`` (per-prim overrides), as BakeOptions field names."""
     from usdahd.usd import schema
 
@@ -186,7 +186,7 @@ def record_time(settings: dict, scene) -> None:
     settings["time_auto"] = bool(scene.time_auto)
 
 
-def _check_options(opts: BakeOptions) -> None:
+def check_options(opts: BakeOptions) -> None:
     """Flag combinations that are wrong for every prim: usage errors (exit 2) up front."""
     model = opts.model or DEFAULTS["model"]
     mod = models.get(model)

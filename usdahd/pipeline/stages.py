@@ -17,7 +17,7 @@ import numpy as np
 from usdahd import models
 from usdahd._version import __version__
 from usdahd.errors import BakeError, UsdAhdError
-from usdahd.pipeline.outputs import LIGHTMAPS_DIR, _fault, texture_path, write_role_texture
+from usdahd.pipeline.outputs import LIGHTMAPS_DIR, fault_point, texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.scene.hashing import is_dark
@@ -192,7 +192,7 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
     jobs = [j for j in jobs if j not in refits]
     if jobs:  # no BVH when every job refits
         _trace_jobs(scene, jobs, opts)
-    _fault("traced")
+    fault_point("traced")
     ok = [j for j in jobs if j.report.get("status") != "failed"]
     from usdahd.bake.texels import chart_ids
 

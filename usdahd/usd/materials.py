@@ -526,7 +526,7 @@ class MaterialReader:
             if sig is None:
                 return fb, None
             if sig.tex is None:
-                return materialx._fit(sig.const, fb.size), None
+                return materialx.fit_components(sig.const, fb.size), None
             tc_names.append(sig.tc)
             return fb, sig.tex
         tex_shader = src.shader
@@ -547,7 +547,7 @@ class MaterialReader:
                 g = materialx.Graph(self, self._prim, mat_name)
                 g.surface = (usd_node, inp_name)
                 value, what = g.substitute(fb)
-                value = materialx._fit(value, fb.size)
+                value = materialx.fit_components(value, fb.size)
             self.report_unreadable(
                 self._prim,
                 mat_name,

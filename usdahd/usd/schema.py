@@ -539,7 +539,7 @@ def result_problems(results: BakeResults) -> list[str]:
     return out
 
 
-def _layer_dir(prim) -> Path:
+def edit_layer_dir(prim) -> Path:
     layer = prim.GetStage().GetEditTarget().GetLayer()
     if layer.anonymous or not layer.realPath:
         raise SchemaError(
@@ -559,7 +559,7 @@ def relative_asset_path(path: str | os.PathLike, layer_dir: str | os.PathLike) -
     return rel if rel.startswith("../") else f"./{rel}"
 
 
-def _json(value, what: str) -> str:
+def json_text(value, what: str) -> str:
     try:
         return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
     except (TypeError, ValueError) as exc:
@@ -580,9 +580,9 @@ def write_results(
     problems = result_problems(results)
     if problems:
         raise SchemaError(f"{_prim_label(prim)}: invalid bake results: " + "; ".join(problems))
-    layer_dir = Path(layer_dir) if layer_dir is not None else _layer_dir(prim)
-    settings = _json(results.settings, "bake settings")
-    part_hashes = _json(results.part_hashes, "part hashes")
+    layer_dir = Path(layer_dir) if layer_dir is not None else edit_layer_dir(prim)
+    settings = json_text(results.settings, "bake settings")
+    part_hashes = json_text(results.part_hashes, "part hashes")
     try:
         packing = layout_packing(results.model, results.ratio)
     except Exception:  # an unimplemented model: result_problems accepted its name

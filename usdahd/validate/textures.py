@@ -9,7 +9,7 @@ import numpy as np
 
 from usdahd import models
 from usdahd.usd import inspect, schema
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, file_digest, image_info
 from usdahd.validate.options import OIIO_FORMATS
 
@@ -29,7 +29,7 @@ def check_textures(prim) -> list[Finding]:
     """Rule Textures (see RULES)."""
     from usdahd.usd import assets
 
-    r = _Rule("Textures", prim)
+    r = RuleFindings("Textures", prim)
     results = baked_record(prim)  # None: SchemaValues reports it
     if results is None or results.format_version not in schema.KNOWN_FORMAT_VERSIONS:
         return r.out  # SchemaValues reports the version (RebakeNeeded / UnknownVersion)

@@ -8,7 +8,7 @@ import numpy as np
 
 from usdahd.numerics.raster import coverage, fan_triangulate
 from usdahd.usd import inspect
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record
 from usdahd.validate.options import OPTIONS
 
@@ -31,7 +31,7 @@ def overlap_statistic(uv: np.ndarray, resolution) -> tuple[int, int, np.ndarray]
 
 def check_uv_set(prim) -> list[Finding]:
     """Rule UVSet (see RULES)."""
-    r = _Rule("UVSet", prim)
+    r = RuleFindings("UVSet", prim)
     results = baked_record(prim)
     if results is None or not results.uv_primvar:
         return r.out

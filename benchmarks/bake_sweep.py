@@ -34,7 +34,7 @@ from common import (
     timed,
 )
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.numerics import sh as shm
 
 #: Seeds of the two reference bakes (sweep bakes use 1, 2, 3, ... so they never share streams).

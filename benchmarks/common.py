@@ -97,7 +97,7 @@ def machine_facts() -> dict:
     """What the numbers depend on: date, CPU, cores, load, library versions, commit."""
     from pxr import Usd
 
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     try:
         usable = len(os.sched_getaffinity(0))

@@ -19,7 +19,7 @@ import json
 import os
 import sys
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.errors import UsdAhdError
 
 #: subcommand name -> module in usdahd.commands defining ``add_parser(subparsers)`` and

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.errors import ImageError
 from usdahd.io_util import atomic_path
 

@@ -23,7 +23,7 @@ import os
 import sys
 import time
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.errors import UsageError
 
 

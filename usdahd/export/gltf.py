@@ -130,7 +130,7 @@ class _Builder:
 
 
 def _generator() -> str:
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     return f"usdahd {__version__}"
 

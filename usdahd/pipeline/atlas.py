@@ -202,7 +202,7 @@ def summary(entry: dict, opts: BakeOptions) -> None:
 def _write_page(index: int, size, on_page, out: Path, pad: int) -> dict:
     """Fit, encode (once), scatter, dilate and write one page; set every record's results."""
     from usdahd import images
-    from usdahd._version import __version__
+    from usdahd.version import __version__
     from usdahd.bake import post
     from usdahd.usd import schema
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import models
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.errors import BakeError, UsdAhdError
 from usdahd.pipeline.outputs import LIGHTMAPS_DIR, fault_point, texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 from usdahd.errors import OutputError
 from usdahd.usd import normals, schema
 

@@ -114,7 +114,7 @@ def fit_chunked(res, sh: np.ndarray):
 
 
 def _code_check(bake: Bake) -> tuple[dict, bool]:
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     res = bake.results
     if res.generator and res.generator.split(";")[0].strip() != f"usdahd {__version__}":

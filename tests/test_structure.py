@@ -24,6 +24,7 @@
 from __future__ import annotations
 
 import ast
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -177,15 +178,22 @@ def cross_module_uses(package_dir: Path = PACKAGE_DIR) -> list[Use]:
     )
 
 
-def _declared_all(path: Path) -> set[str] | None:
-    """The names of a module's ``__all__`` (a literal list/tuple), None without one."""
+def _declared_all(path: Path, module: str) -> set[str] | None:
+    """The names of a module's ``__all__``, None without one: read from the source when it is
+    one literal list, else (``__all__ += generated names``, as in ``bake/kernels/layout.py``)
+    from the imported module."""
+    found = None
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
         targets = node.targets if isinstance(node, ast.Assign) else []
         if isinstance(node, ast.AnnAssign | ast.AugAssign):
             targets = [node.target]
-        if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
-            return {e.value for e in node.value.elts if isinstance(e, ast.Constant)}
-    return None
+        if not any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
+            continue
+        literal = isinstance(node, ast.Assign) and isinstance(node.value, ast.List | ast.Tuple)
+        if found is not None or not literal:
+            return set(importlib.import_module(module).__all__)
+        found = {e.value for e in node.value.elts if isinstance(e, ast.Constant)}
+    return found
 
 
 def seam_violations(package_dir: Path = PACKAGE_DIR) -> tuple[list[Use], list[Use]]:
@@ -193,7 +201,7 @@ def seam_violations(package_dir: Path = PACKAGE_DIR) -> tuple[list[Use], list[Us
     modules = _module_names(package_dir)
     uses = cross_module_uses(package_dir)
     private = [u for u in uses if _is_private(u.name)]
-    alls = {name: _declared_all(path) for name, path in modules.items()}
+    alls = {name: _declared_all(path, name) for name, path in modules.items()}
     unlisted = [
         u
         for u in uses

@@ -34,6 +34,16 @@ from usdahd.numerics.raster import rasterize_uv, signed_area2
 from usdahd.numerics.sampling import orthonormal_basis, r2_sequence, to_world, uniform_hemisphere
 from usdahd.scene.types import MeshData
 
+__all__ = [
+    "MAX_RESOLUTION",
+    "chart_ids",
+    "push_off_contacts",
+    "rasterize",
+    "resolution_for_density",
+    "tangent_frames",
+    "walled_in",
+]
+
 #: Largest lightmap side accepted by default: 8192^2 texels x 27 SH floats is already 7 GB.
 MAX_RESOLUTION = 8192
 

@@ -20,6 +20,22 @@ from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.usd.author import layer_assets, referenced_assets
 
+__all__ = [
+    "FAULT_POINTS",
+    "LIGHTMAPS_DIR",
+    "author_layer",
+    "cleanup_outputs",
+    "commit_textures",
+    "fault_point",
+    "inside_lightmaps",
+    "layer_prefix",
+    "output_lock",
+    "remove_legacy",
+    "sanitize",
+    "texture_path",
+    "write_role_texture",
+]
+
 #: Folder beside the output layer that holds its textures.
 LIGHTMAPS_DIR = "lightmaps"
 #: Hex digits of the content hash in a texture's file name.

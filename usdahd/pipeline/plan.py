@@ -35,6 +35,17 @@ if TYPE_CHECKING:
     from usdahd.scene.types import ComputedNormals, MeshData
     from usdahd.usd.schema import BakeResults
 
+__all__ = [
+    "PrimJob",
+    "REFIT_SETTINGS",
+    "auto_texel_density",
+    "mesh_extent",
+    "plan_job",
+    "refit_source",
+    "settings_as_stored",
+    "settings_resolution_given",
+]
+
 
 @dataclass
 class PrimJob:

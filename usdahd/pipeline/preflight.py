@@ -16,6 +16,8 @@ from usdahd.errors import InputError, StageError, UsageError
 from usdahd.pipeline.outputs import LIGHTMAPS_DIR
 from usdahd.pipeline.settings import BakeOptions
 
+__all__ = ["check_stage_inputs", "check_stage_values", "default_output", "files_exist", "preflight"]
+
 
 def default_output(stage_path: Path, scenario: str | None = None) -> Path:
     """``dir/name.usda`` -> ``dir/name.lightmaps.usda`` (``dir/name.NAME.lightmaps.usda`` for

@@ -54,6 +54,8 @@ from usdahd.usd import author
 from usdahd.usd.checks import no_mesh_message
 from usdahd.usd.stage import meters_per_unit_authored, open_stage, prim_at, utf8_problem
 
+__all__ = ["MAX_BAKE_BYTES", "bake"]
+
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
     """(prim path -> BakeResults, warnings) from an existing output layer (empty if none).

@@ -10,6 +10,25 @@ from dataclasses import dataclass
 from usdahd import models
 from usdahd.errors import UsageError
 
+__all__ = [
+    "BakeOptions",
+    "DEFAULTS",
+    "DEFAULT_TEXEL_BUDGET",
+    "DENSITY_AUTO_MAX",
+    "DENSITY_LADDER",
+    "DENSITY_MAX_RESOLUTION",
+    "MAX_RESOLUTION",
+    "MIN_RESOLUTION",
+    "RESOLUTION_MULTIPLE",
+    "TINY_RESOLUTION",
+    "UV_DEGENERATE_LIMIT",
+    "UV_OUTSIDE_LIMIT",
+    "authored_inputs",
+    "check_options",
+    "record_time",
+    "resolve_settings",
+]
+
 #: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
 DEFAULTS = {
     "model": "hhd",

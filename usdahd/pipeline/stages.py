@@ -15,12 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import models
-from usdahd.version import __version__
 from usdahd.errors import BakeError, UsdAhdError
 from usdahd.pipeline.outputs import LIGHTMAPS_DIR, fault_point, texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.scene.hashing import is_dark
+from usdahd.version import __version__
+
+__all__ = ["bake_jobs"]
 
 
 def _status(opts: BakeOptions, msg: str) -> None:

@@ -42,6 +42,8 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = ["error_stats", "heat_map", "reference", "side_by_side"]
+
 #: Batches K of the reference (per-pixel noise estimate with K - 1 degrees of freedom).
 BATCHES = 8
 #: Relative error mapped to the top of the heat map's ramp.

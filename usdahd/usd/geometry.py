@@ -29,7 +29,7 @@ from usdahd.scene.types import ComputedNormals, MeshData
 from usdahd.usd import normals as N
 from usdahd.usd.materials import SubsetError
 
-__all__ = ["GeometryReader", "MeshFailure", "Topology", "tessellate"]
+__all__ = ["GeometryReader", "MeshFailure", "Topology", "tessellate", "SINGULAR_DET_REL"]
 
 #: A mesh is unusable when its bounding-box diagonal spans fewer than this many float32 ulps
 #: of its largest world coordinate: the tracer stores float32 positions, so its vertices

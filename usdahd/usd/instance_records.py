@@ -45,6 +45,7 @@ __all__ = [
     "read_instance_records",
     "stage_records",
     "write_instance_records",
+    "point_instancer_time",
 ]
 
 #: Schema identifier of the API that holds instance records.

@@ -59,6 +59,8 @@ __all__ = [
     "load_document",
     "nodedef_default",
     "surface_terms",
+    "fit_components",
+    "mtlx_surface",
 ]
 
 #: MaterialX surface node definitions the bake reads -> their kind.

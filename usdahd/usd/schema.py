@@ -77,7 +77,6 @@ __all__ = [
     "file_digest",
     "layout_packing",
     "OLD_FORMAT_VERSIONS",
-    # instance records (usdahd.usd.instance_records)
     "INSTANCE_API_NAME",
     "INSTANCE_NAMESPACE",
     "instance_carrier",
@@ -94,6 +93,14 @@ __all__ = [
     "read_record_pixels",
     "crop_record",
     "rect_problem",
+    "INPUT_KEYS",
+    "SETTING_KEYS",
+    "SchemaError",
+    "api_prims",
+    "authored_input_fields",
+    "edit_layer_dir",
+    "json_text",
+    "relative_asset_path",
 ]
 
 #: Property namespace of every schema property.

@@ -8,6 +8,8 @@ import numpy as np
 
 from usdahd.errors import StageError
 
+__all__ = ["corner_primvar", "normal_input"]
+
 
 def corner_primvar(prim, name: str, mesh, time) -> np.ndarray | None:
     """(t, 3, 2) float32 values of a float2 primvar at the mesh's triangle corners, or None."""

@@ -122,6 +122,22 @@ from usdahd.validate.uvset import (  # noqa: F401
     overlap_statistic,
 )
 
+__all__ = [
+    "BUILTIN_VALIDATORS",
+    "FINDING_DATA",
+    "Finding",
+    "KEYWORD",
+    "LOCK",
+    "OPTIONS",
+    "PLUGIN_NAME",
+    "RULES",
+    "RULE_NAMES",
+    "STAGE_RULES",
+    "SkipRule",
+    "jsonable",
+    "load_bake",
+]
+
 # Plug imports this package to load the plugin: register the implementations now.
 register()
 

@@ -21,6 +21,8 @@ from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, image_info
 
+__all__ = ["check_atlas"]
+
 #: Rectangle offsets are multiples of this (block-compressed formats code 4 x 4 blocks).
 ALIGN = 4
 #: Fewest texels between two rectangles of a page (bilinear taps and the gutter's dilation

@@ -13,6 +13,17 @@ import numpy as np
 from usdahd.usd import validation as usd_validation
 from usdahd.validate.registry import PLUGIN_NAME
 
+__all__ = [
+    "FINDING_DATA",
+    "Finding",
+    "RuleFindings",
+    "SkipRule",
+    "dumps",
+    "finding_from_usd",
+    "findings_json",
+    "jsonable",
+]
+
 # --------------------------------------------------------------------------------- findings
 
 

@@ -15,6 +15,16 @@ from usdahd.validate.loading import Bake, load_for
 from usdahd.validate.options import IRRADZ, MODEL_RMSE_NOTE, OPTIONS
 from usdahd.validate.texel_values import texel_xy
 
+__all__ = [
+    "TOLERANCE_SLACK",
+    "check_encoding_error",
+    "check_iz",
+    "code_step",
+    "decoded_iz",
+    "fit_chunked",
+    "quantization_tolerance",
+]
+
 # ---------------------------------------------------------------------------- rule 4: IzCheck
 
 

@@ -16,6 +16,22 @@ from usdahd.usd import schema
 from usdahd.validate.findings import RuleFindings, SkipRule
 from usdahd.validate.options import DZ_FLOOR, FORMAT_DTYPES
 
+__all__ = [
+    "Bake",
+    "Image",
+    "LOCK",
+    "baked_record",
+    "clear_caches",
+    "decode_factors",
+    "file_digest",
+    "image_info",
+    "load_bake",
+    "load_for",
+    "read_image",
+    "record_encoder",
+    "record_image",
+]
+
 # ------------------------------------------------------------------------------ image reading
 
 

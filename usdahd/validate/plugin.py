@@ -19,6 +19,8 @@ from usdahd.validate.texel_values import check_texel_values
 from usdahd.validate.textures import check_textures
 from usdahd.validate.uvset import check_uv_set
 
+__all__ = ["CHECKS", "check_lightmapped", "register", "run_rule"]
+
 # ------------------------------------------------------------------------------ registration
 
 CHECKS = {

@@ -66,6 +66,9 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = ["DESCRIPTION", "KEYWORD", "MIN_TEXELS", "OPTIONS", "RULE", "RetraceOptions"]
+__all__ += ["register", "validator_name"]
+
 #: Rule name, UsdValidation keyword (opt-in) and the one-sentence doc (the plugInfo ``doc``).
 RULE = "Retrace"
 KEYWORD = "UsdAhdRetrace"

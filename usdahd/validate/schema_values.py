@@ -6,6 +6,8 @@ from usdahd import models
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, RuleFindings
 
+__all__ = ["check_schema_values"]
+
 # ----------------------------------------------------------------------- rule 1: SchemaValues
 
 

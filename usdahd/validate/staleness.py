@@ -12,6 +12,8 @@ from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import LOCK, baked_record
 
+__all__ = ["check_staleness", "settings_drift"]
+
 # -------------------------------------------------------------------------- rule 6: Staleness
 
 

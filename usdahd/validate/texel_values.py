@@ -9,6 +9,8 @@ from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import Bake, load_for, read_image, record_image
 from usdahd.validate.options import DZ_FLOOR, IRRADZ, NONNEGATIVE_COLOURS, UNIT_TOLERANCE
 
+__all__ = ["check_texel_values", "texel_xy"]
+
 # ------------------------------------------------------------------------ rule 3: TexelValues
 
 

@@ -13,6 +13,8 @@ from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, file_digest, image_info
 from usdahd.validate.options import OIIO_FORMATS
 
+__all__ = ["check_textures"]
+
 # --------------------------------------------------------------------------- rule 2: Textures
 
 

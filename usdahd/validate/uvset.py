@@ -12,6 +12,8 @@ from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record
 from usdahd.validate.options import OPTIONS
 
+__all__ = ["check_uv_set", "overlap_statistic"]
+
 # ------------------------------------------------------------------------------ rule 7: UVSet
 
 

@@ -88,6 +88,8 @@ from usdahd.models.irradz.reference import (  # noqa: F401  (public constants an
     wa_literal,
 )
 
+__all__ = ["RATIO_RANGE", "SOLVERS", "colors", "expand", "fit"]
+
 #: The ambient ratio range w_a of each model: [0, 1], except HLSH whose stored w_a is
 #: clamped to +-HLSH_RATIO_SCALE_MAX (usdahd.validate's RatioRange).
 RATIO_RANGE = {

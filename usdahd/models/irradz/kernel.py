@@ -35,6 +35,8 @@ from usdahd.models.irradz.reference import (
 from usdahd.numerics import encoding, numba_cache
 from usdahd.numerics import sh as shm
 
+__all__ = ["BLK_ROWS", "BLOCK", "dir_error", "fit", "line_coeffs", "line_error"]
+
 # ---------------------------------------------------------------------------------------------
 # numba kernels. The directional light of colour C_d in direction d has irradiance SH
 # C_d * pi * conv(Y(d)); with the I_z constraint C_a = I_z - d_z C_d the model is

@@ -13,6 +13,47 @@ from usdahd.numerics import encoding
 from usdahd.numerics import sh as shm
 from usdahd.numerics.hemi import self_bounce
 
+__all__ = [
+    "AMB_AHD",
+    "AMB_HHD",
+    "B_Z",
+    "DZ_FLOOR",
+    "GOLDEN_ITERS",
+    "GOLDEN_SCAN",
+    "GRAM_I",
+    "GRAM_J",
+    "GRAM_PAIRS",
+    "G_BY",
+    "G_B_SCALE",
+    "IZ_FROM_L10",
+    "IZ_MAX",
+    "IZ_TINY",
+    "KINDS",
+    "PHI_HALF_WIDTH",
+    "PHI_ITERS",
+    "PHI_SCAN",
+    "SOLVERS",
+    "SQRT_PI",
+    "WA_ONE",
+    "ambient_sh",
+    "c_bounded",
+    "colors",
+    "directional_sh",
+    "evaluate",
+    "expand",
+    "gram_hemi",
+    "hhd_direct_linear",
+    "hlsh_direct",
+    "linear_sh",
+    "model_sh",
+    "nullspace_bounds",
+    "nullspace_colors",
+    "sh_error",
+    "sparse_gram",
+    "wa_bounded",
+    "wa_literal",
+]
+
 # ---------------------------------------------------------------------------------------------
 # Tolerances, in one place, with the reason for each.
 #: Smallest d_z: an 8-bit hemi-octahedral code cannot decode anything closer to the horizon

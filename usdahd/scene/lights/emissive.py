@@ -10,6 +10,8 @@ from usdahd.numerics.sampling import sample_discrete
 from usdahd.numerics.sh import LUMINANCE
 from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, Bound, Light, LightHits, LightSamples, norm
 
+__all__ = ["EmissiveTriangles"]
+
 
 @dataclass
 class EmissiveTriangles(Light):

@@ -6,9 +6,11 @@ Error measures (all against the model-free SH irradiance target ``usdahd.sh.irra
 - ``hemi_errors(model, params, sh)`` integrates the squared RGB difference and the squared target
   over the upper hemisphere with a 12 x 24 Gauss-Legendre product rule (288 directions: exact
   for the polynomial target, and at most ~1e-3 relative off for models with a ``max()``);
-- the *relative hemispherical RMSE* of a texel is sqrt(err / target energy); of a set of texels
-  (a scene) it is sqrt(sum err / sum target energy), i.e. dominated by bright texels, as an image
-  difference would be.
+- the *relative hemispherical RMSE* of a texel is sqrt(err / target energy)
+  (``usdahd.numerics.stats.rmse_over_rms``); of a set of texels (a scene) it is
+  sqrt(sum err / sum target energy) (``pooled_rmse_over_rms``), i.e. dominated by bright
+  texels, as an image difference would be. ``usdahd validate`` and ``usdahd fit`` report the
+  other definition, RMSE over mean |target| (``rmse_over_mean_abs``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ if str(REPO) not in sys.path:
 
 from usdahd import models  # noqa: E402
 from usdahd.numerics import sh as shm  # noqa: E402
+from usdahd.numerics.stats import pooled_rmse_over_rms, rmse_over_rms  # noqa: E402
 
 SAMPLES = REPO / "samples"
 CACHE = REPO / "benchmarks" / "cache"
@@ -167,14 +170,14 @@ def hemi_errors(model: str, params: dict, sh: np.ndarray) -> tuple[np.ndarray, n
 
 
 def relative_rmse(err: np.ndarray, energy: np.ndarray) -> tuple[float, float]:
-    """(aggregate sqrt(sum err / sum energy), mean over texels of per-texel relative RMSE).
+    """(``pooled_rmse_over_rms``, mean over texels of ``rmse_over_rms``): the "over RMS"
+    definitions of :mod:`usdahd.numerics.stats`.
 
     Texels with zero target energy are left out of the per-texel mean.
     """
-    tot = float(energy.sum())
-    agg = float(np.sqrt(err.sum() / tot)) if tot > 0 else float(np.sqrt(err.sum()))
+    agg = pooled_rmse_over_rms(err, energy)
     ok = energy > 0
-    per = float(np.mean(np.sqrt(err[ok] / energy[ok]))) if ok.any() else 0.0
+    per = float(np.mean(rmse_over_rms(err[ok], energy[ok]))) if ok.any() else 0.0
     return agg, per
 
 

@@ -139,7 +139,8 @@ def section(result: dict) -> str:
         "**texture2ddecoder** for BC7 and Mesa's decoder (lavapipe through wgpu) for BC6H. "
         "`rel. RMSE`: model decoded from KTX2 level 0 vs the same model decoded from the "
         "EXR/PNG textures, over 32 upper-hemisphere normals and every covered texel (RMSE / "
-        "mean |irradiance|). `BC7 code RMSE`: in 8-bit codes. Bytes per texel: level 0, and "
+        "mean |irradiance|: `pooled_rmse_over_mean_abs` of `usdahd.numerics.stats`). "
+        "`BC7 code RMSE`: in 8-bit codes. Bytes per texel: level 0, and "
         "the full chart-aware mip chain. "
         f"Run: `{result.get('command', DEFAULT_COMMAND)}` "
         f"({result['seconds']:.0f} s here).",

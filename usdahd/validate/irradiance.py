@@ -10,6 +10,7 @@ import numpy as np
 
 from usdahd import models
 from usdahd.numerics import sh as shm
+from usdahd.numerics.stats import pooled_rmse_over_mean_abs, rmse_over_mean_abs
 from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import Bake, load_for
 from usdahd.validate.options import IRRADZ, MODEL_RMSE_NOTE, OPTIONS
@@ -471,13 +472,6 @@ def check_iz(prim) -> list[Finding]:
 # ---------------------------------------------------------------------- rule 5: EncodingError
 
 
-def _relative_rmse(got: np.ndarray, ref: np.ndarray, scale: np.ndarray):
-    """(per texel (n,), whole prim) RMSE of got - ref (n, d, 3) relative to ``scale`` (n,)."""
-    sq = ((got - ref) ** 2).mean(axis=(1, 2))
-    per_texel = np.sqrt(sq) / np.where(scale > 0, scale, np.inf)
-    return per_texel, float(np.sqrt(sq.mean()) / max(float(scale.mean()), 1e-30))
-
-
 def hemisphere_irradiance(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """``shm.irradiance(sh[:, None], dirs[None])`` (n, d, 3) float64 as one matrix product
     (the SH basis at the d normals, once): 6x faster than the einsum at 64 normals, equal to
@@ -502,7 +496,9 @@ def check_encoding_error(prim) -> list[Finding]:
     """Rule EncodingError (see RULES and docs/validate.md).
 
     Three hemispherical RMSEs over OPTIONS.rmse_normals upper-hemisphere normals (spherical
-    Fibonacci), each relative to the mean |SH irradiance| over those normals and texels:
+    Fibonacci), each relative to the mean |SH irradiance| over those normals and texels
+    (:func:`usdahd.numerics.stats.pooled_rmse_over_mean_abs`; per texel
+    :func:`~usdahd.numerics.stats.rmse_over_mean_abs`):
     ``relative_rmse`` decoded textures vs the SH irradiance (what a renderer gets), ``model_rmse``
     the unquantized refit vs the SH irradiance (the model's own approximation error, a note:
     a model choice, not a defect), ``quantization_rmse`` decoded vs the unquantized refit (what
@@ -543,9 +539,11 @@ def check_encoding_error(prim) -> list[Finding]:
         exact = bake.mod.evaluate(models.representable(refit(bake, idx), bake.mod), normals)
         exact = exact.astype(np.float64)
     scale = np.abs(target).mean(axis=(1, 2))
-    per_texel, total = _relative_rmse(got, target, scale)
-    _, model_total = _relative_rmse(exact, target, scale)
-    q_texel, q_total = _relative_rmse(got, exact, scale)
+    per_texel = rmse_over_mean_abs(got, target, scale)
+    total = pooled_rmse_over_mean_abs(got, target, scale)
+    model_total = pooled_rmse_over_mean_abs(exact, target, scale)
+    q_texel = rmse_over_mean_abs(got, exact, scale)
+    q_total = pooled_rmse_over_mean_abs(got, exact, scale)
     worst = int(np.argmax(per_texel))
     x, y = int(bake.xy[idx[worst], 0]), int(bake.xy[idx[worst], 1])
     qw = int(np.argmax(np.where(np.isfinite(q_texel), q_texel, 0.0)))
@@ -650,7 +648,7 @@ def _closer_models(sh, target, scale, model: str, model_rmse: float) -> str:
             with np.errstate(all="ignore"):
                 fitted = models.fit(sub, name)
                 got = mod.evaluate(models.representable(fitted, mod), normals)
-            found[name] = _relative_rmse(got.astype(np.float64), tgt, sc)[1]
+            found[name] = pooled_rmse_over_mean_abs(got.astype(np.float64), tgt, sc)
         except Exception:  # a model that cannot be fitted here is not advised
             continue
     own = found.get(model, model_rmse)

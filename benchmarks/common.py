@@ -215,6 +215,7 @@ def read_baked_sh(layer: Path) -> dict:
     """
     from pxr import Sdf, Usd
 
+    from usdahd import sidecar
     from usdahd.usd import plugin, schema
 
     plugin.register()
@@ -227,10 +228,8 @@ def read_baked_sh(layer: Path) -> dict:
         res = schema.read_results(prim)
         if res is None or schema.SIDECAR_ROLE not in res.textures:
             continue
-        img = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
-        px = np.asarray(img, dtype=np.float32)  # the record's rectangle of its atlas page
-        h, w = px.shape[:2]
-        out[str(prim.GetPath())] = (px[..., :27].reshape(h, w, 3, 9), px[..., 27] > 0.5)
+        px = np.asarray(sidecar.read_record(res), dtype=np.float32)  # rectangle of its page
+        out[str(prim.GetPath())] = sidecar.split(px)
     return dict(sorted(out.items()))
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from usdahd.errors import SchemaError
 from usdahd.models import REGISTRY
 from usdahd.models.base import ROLES
+from usdahd.sidecar import CHANNELS
 from usdahd.usd.plugin import API_NAME, SCHEMA_TYPE_NAME, register
 
 register()  # idempotent; the schema must be known before any prim definition is queried
@@ -147,10 +148,9 @@ FACTORS = {
     "coefficientsScale": 1.0,
     "l0Scale": 1.0,
 }
-#: Channel names of the SH sidecar EXR (float32): radiance SH of R, G, B (coefficient order of
-#: usdahd.sh, so reshape (..., 3, 9)), then coverage A (1 = texel baked, 0 = empty). Look
-#: channels up by name: EXR files store them sorted.
-SH_SIDECAR_CHANNELS = tuple(f"{c}{k}" for c in "RGB" for k in range(9)) + ("A",)
+#: Channel names of the SH sidecar EXR (float32): :data:`usdahd.sidecar.CHANNELS`, whose module
+#: reads and writes the file.
+SH_SIDECAR_CHANNELS = CHANNELS
 
 
 def property_name(key: str) -> str:

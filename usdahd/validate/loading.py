@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usdahd import models
+from usdahd import models, sidecar
 from usdahd.usd import schema
 from usdahd.validate.findings import RuleFindings, SkipRule
 from usdahd.validate.options import DZ_FLOOR, FORMAT_DTYPES
@@ -291,7 +291,7 @@ _SIDECAR_BYTES = 256 << 20
 
 def read_sidecar(path: str) -> Sidecar:
     """The SH sidecar at ``path``, sparse (cached by path, size and mtime; read once per
-    file). Raises OSError (unreadable), ValueError (a channel of SH_SIDECAR_CHANNELS missing)."""
+    file). Raises OSError (unreadable), ValueError (a channel of sidecar.CHANNELS missing)."""
     from usdahd.usd import assets
 
     key = assets.stamp(path)
@@ -304,12 +304,12 @@ def read_sidecar(path: str) -> Sidecar:
             if key is not None and key in _SIDECARS:
                 return _SIDECARS[key]
         img = read_image(path)  # cached: Textures (image_info) reads the same file
-        names = schema.SH_SIDECAR_CHANNELS
+        names = sidecar.CHANNELS
         idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures reports it
-        ys, xs = np.nonzero(img.data[..., idx[27]] > 0.5)
+        ys, xs = np.nonzero(img.data[..., idx[sidecar.COVERAGE]] > 0.5)
         rows = np.full((img.height, img.width), -1, np.int32)
         rows[ys, xs] = np.arange(len(ys), dtype=np.int32)
-        sh = _gather(img.data, ys, xs, idx[:27]).astype(np.float32, copy=False)
+        sh = _gather(img.data, ys, xs, idx[: sidecar.COVERAGE]).astype(np.float32, copy=False)
         side = Sidecar(rows, sh.reshape(-1, 3, 9))
         info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
         del img

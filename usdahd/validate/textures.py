@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from usdahd import models
+from usdahd import models, sidecar
 from usdahd.usd import inspect, schema
 from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, file_digest, image_info
@@ -124,7 +124,7 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
             if role == schema.SIDECAR_ROLE:
-                missing_ch = [c for c in schema.SH_SIDECAR_CHANNELS if c not in img.channel_names]
+                missing_ch = [c for c in sidecar.CHANNELS if c not in img.channel_names]
                 if missing_ch:
                     r.error(
                         "Channels",

@@ -28,6 +28,9 @@ import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 import usdahd
 
 PACKAGE_DIR = Path(usdahd.__file__).resolve().parent
@@ -292,3 +295,92 @@ def test_the_seam_rules_flag_planted_violations_and_pass_clean_code(tmp_path):
         },
     )
     assert seam_violations(clean) == ([], [])
+
+
+# -------------------------------------------------------------------------------------------
+# One home each: triangle geometry, statistics, the SH sidecar. Each checked against a formula
+# computed independently of the module (Heron, the plane equation, a determinant, a direct
+# mean), so the one copy the package keeps is also a right one.
+
+
+def test_triangle_geometry_agrees_with_independent_formulas():
+    from usdahd.numerics import triangles as T
+
+    rng = np.random.default_rng(7)
+    p = rng.normal(size=(200, 3, 3))
+    a, b, c = (np.linalg.norm(p[:, i] - p[:, j], axis=1) for i, j in ((1, 2), (2, 0), (0, 1)))
+    s = 0.5 * (a + b + c)
+    heron = np.sqrt(np.maximum(s * (s - a) * (s - b) * (s - c), 0.0))
+    np.testing.assert_allclose(T.triangle_areas(p), heron, rtol=1e-7, atol=1e-12)
+    n, ok = T.unit_normals(p)
+    assert ok.all()
+    np.testing.assert_allclose(np.einsum("ni,ni->n", n, p[:, 1] - p[:, 0]), 0.0, atol=1e-12)
+    lam_true = rng.dirichlet([1.0, 1.0, 1.0], size=200)
+    q = np.einsum("nc,nci->ni", lam_true, p)
+    np.testing.assert_allclose(T.barycentrics(p, q), lam_true, atol=1e-9)
+    degenerate = np.zeros((1, 3, 3))
+    assert T.triangle_areas(degenerate)[0] == 0 and not T.unit_normals(degenerate)[1][0]
+
+    shade, _ = T.normalize(rng.normal(size=(50, 3)))
+    sign = np.where(rng.random(50) < 0.5, -1.0, 1.0)
+    tangent = rng.normal(size=(50, 3))
+    tangent[0] = shade[0] * 2.0  # parallel to the normal: falls back to a perpendicular
+    f = T.texel_frame(shade, tangent, sign)
+    np.testing.assert_allclose(
+        np.einsum("nij,nkj->nik", f, f), np.broadcast_to(np.eye(3), f.shape), atol=1e-12
+    )
+    np.testing.assert_allclose(np.linalg.det(f), sign, atol=1e-12)
+    np.testing.assert_array_equal(f[:, 2], shade)
+
+
+def test_rmse_definitions_agree_with_direct_formulas():
+    from usdahd.numerics import stats
+
+    rng = np.random.default_rng(3)
+    ref = rng.random((40, 16, 3)) + 0.1
+    got = ref + 0.05 * rng.normal(size=ref.shape)
+    per = stats.rmse_over_mean_abs(got, ref)
+    for i in (0, 17, 39):
+        d = (got[i] - ref[i]).ravel()
+        assert per[i] == pytest.approx(np.sqrt(np.mean(d * d)) / np.mean(np.abs(ref[i])))
+    d = (got - ref).ravel()
+    pooled = stats.pooled_rmse_over_mean_abs(got, ref)
+    assert pooled == pytest.approx(np.sqrt(np.mean(d * d)) / np.mean(np.abs(ref)))
+    # Equal-weight quadrature over the same directions: err, energy are means of squares.
+    err, energy = ((got - ref) ** 2).mean(axis=(1, 2)), (ref**2).mean(axis=(1, 2))
+    over_rms = stats.rmse_over_rms(err, energy)
+    assert (over_rms <= per + 1e-15).all()  # RMS >= mean |.|
+    flat = np.ones_like(ref)
+    np.testing.assert_allclose(
+        stats.rmse_over_rms(((got - flat) ** 2).mean(axis=(1, 2)), np.ones(40)),
+        stats.rmse_over_mean_abs(got, flat),
+    )  # a constant target: the two definitions agree
+    assert stats.pooled_rmse_over_rms(err, energy) == pytest.approx(
+        np.sqrt(err.sum() / energy.sum())
+    )
+    black = np.zeros((1, 16, 3))
+    assert stats.rmse_over_mean_abs(black + 1.0, black)[0] == 0.0
+    assert np.isnan(stats.rmse_over_rms(np.ones(1), np.zeros(1))[0])
+
+
+def test_sidecar_round_trip_through_exr(tmp_path):
+    from usdahd import images, sidecar
+
+    rng = np.random.default_rng(5)
+    h, w = 4, 6
+    xy = np.array([[0, 0], [5, 1], [2, 3]], np.int32)
+    sh = rng.normal(size=(3, 3, 9)).astype(np.float32)
+    px = np.zeros((h, w, 28), np.float32)
+    px[xy[:, 1], xy[:, 0]] = sidecar.pack(sh)
+    path = tmp_path / "side.exr"
+    sidecar.write(path, px)
+    stored = images.read(path).channels
+    assert sorted(stored) == list(stored) != list(sidecar.CHANNELS)  # EXR sorts channels
+    back = sidecar.read(path)
+    np.testing.assert_array_equal(back, px)
+    got_xy, got_sh = sidecar.covered(back)
+    order = np.lexsort((xy[:, 0], xy[:, 1]))  # row-major
+    np.testing.assert_array_equal(got_xy, xy[order])
+    np.testing.assert_array_equal(got_sh, sh[order])
+    img_sh, cov = sidecar.split(back)
+    assert cov.sum() == 3 and (img_sh[1, 5] == sh[1]).all()

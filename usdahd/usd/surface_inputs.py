@@ -50,7 +50,7 @@ def normal_input(reader, stage, material: str):
     if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
         return None, None, None
     names: list[str] = []
-    const, tex = reader._input(shader, "normal", (0.0, 0.0, 1.0), material, names)
+    const, tex = reader.surface_input(shader, "normal", (0.0, 0.0, 1.0), material, names)
     if tex is not None and len(tex.channels) != 3:
         raise StageError(
             f"{material}: UsdPreviewSurface inputs:normal is connected to a one-channel output "

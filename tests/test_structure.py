@@ -228,10 +228,14 @@ def test_no_module_uses_another_modules_private_names():
 
 def test_every_name_used_across_modules_is_in_its_modules_all():
     _, unlisted = seam_violations()
+    missing: dict[str, set[str]] = {}
+    for u in unlisted:
+        missing.setdefault(u.source, set()).add(u.name)
     assert not unlisted, (
         f"{len(unlisted)} names used across modules but missing from their module's __all__:\n"
         + "\n".join(map(str, unlisted))
-        + "\nlist each in its module's __all__ (the module's public interface)"
+        + "\nlist each in its module's __all__ (the module's public interface):\n"
+        + "\n".join(f"  {m}: {', '.join(sorted(n))}" for m, n in sorted(missing.items()))
     )
 
 

@@ -36,6 +36,8 @@ from usdahd.numerics.charts import (
 )
 from usdahd.scene.types import MeshData
 
+__all__ = ["CHART_PADDING", "PACK_EFFICIENCY", "unwrap"]
+
 #: Attempts at shrinking texels_per_unit until the atlas fits a requested resolution.
 MAX_ATTEMPTS = 8
 #: Rough packing efficiency of xatlas charts (atlas area / chart area), used only for the first

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = ["DEFAULT_SIZE", "MIN_PADDING", "is_power_of_two", "pack", "scale_offset", "territory"]
+
 #: Offsets and cell sizes are multiples of this (the 4x4 block of BC6H / BC7).
 ALIGN = 4
 #: Smallest padding between two rectangles (bilinear filtering reads one texel beyond a

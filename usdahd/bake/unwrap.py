@@ -34,6 +34,7 @@ from usdahd.numerics.charts import (
     split_rings,
     unfold_polygon,
 )
+from usdahd.numerics.triangles import triangle_areas
 from usdahd.scene.types import MeshData
 
 __all__ = ["CHART_PADDING", "PACK_EFFICIENCY", "unwrap"]
@@ -52,8 +53,8 @@ UNWRAP_TIMEOUT_PER_TRIANGLE_S = 2e-3
 
 
 def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
-    p = points[triangles]
-    return float(0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
+    """Total area of the triangles (t, 3) int of ``points`` (n, 3) float64."""
+    return float(triangle_areas(points[triangles]).sum())
 
 
 #: Pass 1 scales the mesh so its bounding-box diagonal is this long: xatlas's epsilons are

@@ -30,7 +30,18 @@ numpy only at import; the baker is imported when a prim is replayed.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+#: The replay aims at catching a rescale of TARGET_SCALE with probability TARGET_POWER
+#: (:func:`needed_texels`), replaying up to REPLAY_CAP times the first count of texels.
+TARGET_SCALE = 0.01
+TARGET_POWER = 0.95
+REPLAY_CAP = 8
+#: The replay test's share of the rule's false-alarm rate alpha (the independent mean test
+#: has another quarter, the per-texel warning half).
+REPLAY_ALPHA = 0.25
 
 
 def replay_problem(results, settings: dict, tracer) -> str | None:
@@ -144,15 +155,39 @@ def compare_replay(baked, replayed, population: int, *, margin: float, alpha: fl
     }
 
 
+def needed_texels(st: dict, population: int, margin: float) -> int:
+    """Texels to replay so that a :data:`TARGET_SCALE` rescale is caught with probability
+    :data:`TARGET_POWER`: the standard error must fall to (TARGET_SCALE - margin) / (q + z),
+    z the normal quantile of the power; from the measured scatter of the n texels replayed,
+    with the finite-population factor (Stein's two-stage rule: the count depends on the
+    scatter, never on the ratio, so the test's level is kept)."""
+    from statistics import NormalDist
+
+    n = st["n"]
+    if n >= population or not st["tested"].any():
+        return n
+    z = NormalDist().inv_cdf(TARGET_POWER)
+    target = (TARGET_SCALE - margin) / (st["q"] + z)
+    if target <= 0:
+        return population
+    se = float(np.max(np.where(st["tested"], st["se"], 0.0)))
+    rel_var = se * se * n / max(st["fpc"], 1e-12)  # per-texel relative variance of b - R p
+    if rel_var <= 0:
+        return n
+    return int(math.ceil(1.0 / (target * target / rel_var + 1.0 / population)))
+
+
 def run(path: str, got: tuple, opt) -> dict | str:
     """The replay test of one prim: ``got`` is ``retrace._candidates``' tuple, ``opt`` the
-    :class:`usdahd.validate.retrace.RetraceOptions`. Returns the :func:`compare_replay` dict
-    with ``texels``, ``population``, ``inside``, ``rays``, ``seconds``, or a str: why the bake
-    was not replayed."""
+    :class:`usdahd.validate.retrace.RetraceOptions`. Replays :func:`replay_count` texels,
+    then more (in a seeded random order, up to :data:`REPLAY_CAP` times as many) while
+    :func:`needed_texels` asks for them. Returns the :func:`compare_replay` dict with
+    ``texels``, ``population``, ``inside``, ``rays``, ``seconds``, ``needed``, or a str: why
+    the bake was not replayed."""
     import time
 
     from usdahd.bake import integrate
-    from usdahd.validate.retrace import _backface_threshold, _baked_iz, pick_texels, retrace_seed
+    from usdahd.validate.retrace import _backface_threshold, _baked_iz, retrace_seed
 
     bake, scene, tracer, mesh, texels, rows, _, estimated = got
     settings = bake.results.settings or {}
@@ -160,36 +195,49 @@ def run(path: str, got: tuple, opt) -> dict | str:
     if why is not None:
         return why
     samples = int(settings["samples"])
-    count = replay_count(len(estimated), opt.texels, opt.samples, samples)
-    # its own texel choice (not the independent test's texels)
-    pick = pick_texels(estimated, count, retrace_seed(opt.seed, path) ^ 0x5EED)
-    if opt.progress:
-        opt.progress(f"replay {path}: {len(pick)} of {len(estimated)} texels x {samples} samples")
+    first = replay_count(len(estimated), opt.texels, opt.samples, samples)
+    cap = min(len(estimated), REPLAY_CAP * first)
+    # its own texel order (not the independent test's texels), extended while needed
+    rng = np.random.default_rng([retrace_seed(opt.seed, path), 2])
+    order = rng.permutation(np.asarray(estimated))
     mi = next((i for i, m in enumerate(scene.meshes) if m is mesh), None)
+    bounces = int(settings.get("bounces") or integrate.DEFAULT_BOUNCES)
+    seed = bake_seed(int(settings["seed"]), path)
     t0 = time.perf_counter()
-    iz, backface, rays = replay_iz(
-        scene,
-        tracer,
-        texels,
-        pick,
-        seed=bake_seed(int(settings["seed"]), path),
-        samples=samples,
-        bounces=int(settings.get("bounces") or integrate.DEFAULT_BOUNCES),
-        mesh=mi,
-    )
-    sub = texels.take(pick)
-    inside = integrate.inside_geometry(
-        tracer, sub, tracer.texel_offsets(sub, mi), backface, _backface_threshold()
-    )
-    baked = _baked_iz(bake, rows[pick])
-    use = ~inside & np.isfinite(baked).all(axis=1) & np.isfinite(iz).all(axis=1)
-    if int(use.sum()) < 4:
-        return f"only {int(use.sum())} replayed texels lie outside geometry"
-    # the population: the estimated texels outside geometry (scaled by the replayed share)
-    population = int(round(len(estimated) * use.sum() / max(len(pick), 1)))
-    st = compare_replay(
-        baked[use], iz[use], population, margin=float(opt.margin), alpha=0.25 * float(opt.alpha)
-    )
+    parts, rays, done, target = [], 0, 0, first
+    while True:
+        pick = order[done:target]
+        if opt.progress:
+            opt.progress(f"replay {path}: {len(pick)} texels x {samples} samples")
+        iz, backface, r = replay_iz(
+            scene, tracer, texels, pick, seed=seed, samples=samples, bounces=bounces, mesh=mi
+        )
+        sub = texels.take(pick)
+        inside = integrate.inside_geometry(
+            tracer, sub, tracer.texel_offsets(sub, mi), backface, _backface_threshold()
+        )
+        parts.append((_baked_iz(bake, rows[pick]), iz, inside))
+        rays, done = rays + r, target
+        baked = np.concatenate([x[0] for x in parts])
+        iz = np.concatenate([x[1] for x in parts])
+        inside = np.concatenate([x[2] for x in parts])
+        use = ~inside & np.isfinite(baked).all(axis=1) & np.isfinite(iz).all(axis=1)
+        if int(use.sum()) < 4:
+            return f"only {int(use.sum())} replayed texels lie outside geometry"
+        # the population: estimated texels outside geometry (scaled by the replayed share)
+        population = int(round(len(estimated) * use.sum() / done))
+        st = compare_replay(
+            baked[use],
+            iz[use],
+            population,
+            margin=float(opt.margin),
+            alpha=REPLAY_ALPHA * opt.alpha,
+        )
+        need = needed_texels(st, population, float(opt.margin))
+        want = int(math.ceil(need * done / max(int(use.sum()), 1)))  # in replayed texels
+        if want <= done or done >= cap:
+            break
+        target = min(cap, max(want, done + 64))
     st.update(
         texels=int(use.sum()),
         population=population,
@@ -197,6 +245,8 @@ def run(path: str, got: tuple, opt) -> dict | str:
         rays=int(rays),
         seconds=time.perf_counter() - t0,
         samples=samples,
+        needed=int(need),
+        first=int(first),
     )
     return st
 
@@ -215,6 +265,7 @@ def data(st: dict | str) -> dict:
         "replay_population": st["population"],
         "replay_rays": st["rays"],
         "replay_seconds": st["seconds"],
+        "replay_texels_needed": st["needed"],
     }
 
 

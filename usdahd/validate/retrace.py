@@ -543,7 +543,7 @@ def _check(prim, opt: RetraceOptions) -> list:
         texel_mask=interior[use],
         adaptive_tol=adaptive,
         denoised=denoised,
-        mean_alpha=None if isinstance(rp, str) else 0.25 * float(opt.alpha),
+        mean_alpha=None if isinstance(rp, str) else replay.REPLAY_ALPHA * float(opt.alpha),
     )
     xy = sub.xy[use]
     base.update(replay.data(rp))
@@ -644,7 +644,7 @@ def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
                 prim,
                 "error",
                 "RetraceMismatch",
-                replay.message(rp, CHANNELS, opt.margin, 0.25 * opt.alpha),
+                replay.message(rp, CHANNELS, opt.margin, replay.REPLAY_ALPHA * opt.alpha),
                 "check Staleness, re-bake the prim",
                 **data,
             )

@@ -7,13 +7,17 @@ tests/test_retrace.py); each validated with ``--retrace N`` at the default sampl
 retrace seed = the bake seed. A prim is *detected* when it has a ``RetraceMismatch`` error.
 Factor 1.0 gives the false-alarm rate.
 
-``--bias`` instead measures the residual bias of the default bake's mean over the retrace's
-candidate texels: per prim, the denoised bake against a ``--no-denoise`` bake at
-``--long`` samples (and against the un-denoised bake of the same seed, which isolates the
-denoiser's own change). Prints one JSON line per prim and a summary.
+Each row also says which test caught it (``replay_hit``: the bake's own random stream
+replayed; ``retrace_hit``: the independent retrace) and the replay's texels and population.
+Stages: sample names (samples/) or the shared Cornell boxes (``cornell-box.usda``,
+``cornell-box_rectlight.usda`` from ../shared/scenes/cornell_box).
+
+``--bias`` instead replays *every* estimated texel of every prim of default bakes and prints
+the replay's residual |sum b / sum p - 1| per prim (the denoiser's, fill's and stitching's
+change of the prim's mean, no sampling error) and the largest: what the margin must bound.
 
     python benchmarks/retrace_power.py --resolution 16 --seeds 3 cornell_box.usda
-    python benchmarks/retrace_power.py --bias --resolution 16
+    python benchmarks/retrace_power.py --bias --resolution 32 --seeds 2
 """
 
 from __future__ import annotations

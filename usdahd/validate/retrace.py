@@ -25,6 +25,11 @@ quantization is IzCheck's job, not this rule's), else the decoded textures at n 
 Statistics (per RGB channel c, over the n usable texels; docs/validate.md has the derivation,
 the measured margin, the power curve and the cost):
 
+- Replay (:mod:`usdahd.validate.replay`): the bake's own random stream re-run at a random
+  subset of the prim's estimated texels gives the raw pre-denoise I_z bit for bit, so the
+  bake's noise cancels; ``sum b / sum p`` is tested against the margin plus q standard errors
+  of the texel choice (alpha / 4), with as many texels as a 1 % rescale needs for 95 % power.
+  Skipped (with the reason in the finding) where the replay would not be exact.
 - The retrace runs in K independent batches of s samples (``K * s`` = the retrace samples;
   s is at most the bake's sample count when possible), giving per texel a mean ``r_i`` and a
   sample variance ``v_i`` (K - 1 degrees of freedom). A prim with fewer candidate texels than
@@ -36,7 +41,8 @@ the measured margin, the power curve and the cost):
   raw noise, but the prim's mean keeps it, since the denoiser restores each chart's sum). A
   finding when ``|R - 1| > margin + q SE``, margin the measured bound on the denoiser's
   residual bias (:data:`DENOISE_BIAS_BOUND`), q the Student-t quantile with n - 1 degrees of
-  freedom at two-sided level ``alpha`` (0.01) Bonferroni-split over channels.
+  freedom at two-sided level ``alpha / 2`` (``alpha / 4`` when the replay ran; alpha 0.01)
+  Bonferroni-split over channels.
 - Per-texel test (texels whose 5 x 5 neighbourhood is covered by the same chart, so seam
   stitching and gutter dilation did not touch them): a *warning* when
   ``|b_i - r_i| > margin max(r_i, 0.1 mean r) + q_t sqrt(v_i / K + v_b,i)``, q_t the t

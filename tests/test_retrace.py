@@ -4,7 +4,10 @@ Real bakes of the samples at 16 x 16 (default samples and bounces) are re-traced
 baker's integrator: default bakes pass, a ``--bounces 1`` bake of the closed Cornell box and a
 bake whose irradiance textures and SH sidecar were both scaled by 1.1 are caught. The
 statistics are checked against scipy's Student t and, for their false-alarm rate, on synthetic
-data where the null hypothesis holds exactly.
+data where the null hypothesis holds exactly. The replay of the bake's own random stream
+(usdahd.validate.replay) reproduces a --no-denoise bake bit for bit and catches a 1 % scale of
+a 16 x 16 bake on every prim; its two-stage texel count keeps alpha and reaches 95 % power on
+synthetic populations.
 """
 
 from __future__ import annotations

@@ -35,9 +35,11 @@ import math
 import numpy as np
 
 #: The replay aims at catching a rescale of TARGET_SCALE with probability TARGET_POWER
-#: (:func:`needed_texels`), replaying up to REPLAY_CAP times the first count of texels.
+#: (:func:`needed_texels`), replaying up to REPLAY_CAP times the first count of texels. 99 %:
+#: headroom over the stated 95 %, since the scatter that sizes the sample is an estimate too
+#: (at 95 % a 64 x 64 floor_lamp wall missed 0.99 on one of two seeds, docs/validate.md).
 TARGET_SCALE = 0.01
-TARGET_POWER = 0.95
+TARGET_POWER = 0.99
 REPLAY_CAP = 8
 #: The replay test's share of the rule's false-alarm rate alpha (the independent mean test
 #: has another quarter, the per-texel warning half).

@@ -28,7 +28,8 @@ the measured margin, the power curve and the cost):
 - Replay (:mod:`usdahd.validate.replay`): the bake's own random stream re-run at a random
   subset of the prim's estimated texels gives the raw pre-denoise I_z bit for bit, so the
   bake's noise cancels; ``sum b / sum p`` is tested against the margin plus q standard errors
-  of the texel choice (alpha / 4), with as many texels as a 1 % rescale needs for 95 % power.
+  of the texel choice (alpha / 4), with as many texels as a 1 % rescale needs for 99 % power (the
+  stated 95 % with headroom).
   Skipped (with the reason in the finding) where the replay would not be exact.
 - The retrace runs in K independent batches of s samples (``K * s`` = the retrace samples;
   s is at most the bake's sample count when possible), giving per texel a mean ``r_i`` and a

@@ -85,6 +85,7 @@ from usdahd.numerics.sampling import r2_sequence
 __all__ = [
     "ADAPTIVE_TOL",
     "DEFAULT_BOUNCES",
+    "NativeCtx",
     "bake_texels",
     "chunk_texels",
     "inside_geometry",
@@ -182,7 +183,7 @@ def bake_texels(
     passes, per_pass = _passes(samples, adaptive)
     native = uses_native(scene, getattr(tracer, "backend", "embreex"))
     if native:
-        ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
+        ctx = NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
     chunk = chunk_texels(samples, adaptive, native)
     offsets = tracer.texel_offsets(texels, mesh)  # ray-origin offset per texel
     est_rays_per_sample = None
@@ -334,7 +335,7 @@ def _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
     }
 
 
-class _NativeCtx:
+class NativeCtx:
     """Drives :func:`native_pass` over the tracer's threads (backend "native")."""
 
     def __init__(self, scene, tracer, bounces, estimator, strategy="mis", mesh=None):

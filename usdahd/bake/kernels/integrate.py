@@ -1,5 +1,5 @@
 """The numba integrator: the estimator of :class:`usdahd.bake.reference.ReferenceCtx` per texel,
-tracing through libembree4 from numba (backend "native", driven by ``integrate._NativeCtx``).
+tracing through libembree4 from numba (backend "native", driven by ``integrate.NativeCtx``).
 
 Entry points: :func:`native_pass` (one pass of samples for a set of texels, on one thread),
 :func:`native_result` (the per-texel SH solve, twin of ``reference.Accum.result``) and

@@ -70,7 +70,7 @@ def add_parser(sub):
         metavar="N",
         help="also run the opt-in Retrace rule: re-trace I_z at N random covered texel centres "
         "per prim with the baker's integrator and compare with the bake, and replay the bake's "
-        "own random stream at up to 8N texels so a 1 %% rescale of the files is caught "
+        "own random stream at texels sized to catch a 1 %% rescale of the files "
         "(costs time; docs/validate.md gives the cost per texel and the power)",
     )
     p.add_argument(

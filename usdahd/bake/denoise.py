@@ -130,6 +130,8 @@ MOSAIC_PIXELS = 1 << 20
 
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
+#: Texels blended at once (_blend's temporaries are ~10 (m, 3, 9) float64 arrays).
+_BLEND_BLOCK = 65536
 
 
 def _pyoidn():
@@ -551,7 +553,12 @@ def _check_record(r: dict):
     variance = r.get("variance")
     if variance is not None:
         try:
-            variance = np.broadcast_to(np.asarray(variance, np.float64), sh.shape)
+            # kept in its own float type (a bake passes float32: half the memory of every
+            # record's variance held through the denoise); charts convert their own share
+            variance = np.asarray(variance)
+            if not np.issubdtype(variance.dtype, np.floating):
+                variance = variance.astype(np.float64)
+            variance = np.broadcast_to(variance, sh.shape)
         except ValueError:
             raise InputError(f"variance of shape {np.shape(variance)} does not fit SH "
                              f"{sh.shape}") from None  # fmt: skip
@@ -619,11 +626,15 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch
             ]
-        for store, r in zip(den_out, res, strict=True):
+        for store, r, ch in zip(den_out, res, batch, strict=True):
             store[k] = r
+            ch.images[k] = None  # its input canvas is done with (holds the peak at ~1 copy)
     for ch, store in zip(batch, den_out, strict=True):
         d = _chart_output(ch, store, filter)
+        store.clear()  # the canvases are done with: free them chart by chart (peak memory)
+        ch.images = ch.guides = None
         x, var, cv, groups = ch.x, ch.var, ch.cv, ch.groups
+        ch.x = ch.var = None  # held by the locals only from here: freed with them
         if blend and variance_bound:
             var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups))
         if blend:
@@ -639,7 +650,11 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
                     edges=variance_bound,
                 )
                 weights[:, :, g] = cv.gather(w).reshape(len(x), 3, len(g))
-            d = _blend(x, d, weights)
+            # texel by texel, so in blocks (bounded temporaries; d is this chart's own array)
+            for a in range(0, len(x), _BLEND_BLOCK):
+                b = a + _BLEND_BLOCK
+                d[a:b] = _blend(x[a:b], d[a:b], weights[a:b])
+            del weights
             if variance_bound:
                 d = _keep_chart_energy(x, d)
         outs[ch.record][ch.sel] = d.astype(np.float32)
@@ -703,10 +718,15 @@ def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
     """Per-texel ``v (m, 3, 9)`` averaged over the chart texels within ``radius`` (Chebyshev)
     of each texel; ``v`` itself for radius 0."""
     if radius <= 0:
-        return v
+        return np.asarray(v, np.float64)
     flat = v.reshape(len(v), -1)
-    img = np.nan_to_num(cv.image(flat, fill=False).astype(np.float64))
-    return cv.gather(_box_mean(img, cv.mask, radius)).reshape(v.shape)
+    out = np.empty(flat.shape, np.float64)
+    # channels in groups (each channel's mean is its own): canvases of at most ~_WORK_ELEMENTS
+    per = max(1, _WORK_ELEMENTS // (cv.shape[0] * cv.shape[1]))
+    for a in range(0, flat.shape[1], per):
+        img = np.nan_to_num(cv.image(flat[:, a : a + per], fill=False).astype(np.float64))
+        out[:, a : a + per] = cv.gather(_box_mean(img, cv.mask, radius))
+    return out.reshape(v.shape)
 
 
 def _blend(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -747,4 +767,5 @@ def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:
     s_out = d[:, :, 2].sum(axis=0)
     ok = (s_out > 0) & (s_in > 0)
     scale = np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
-    return d * scale[None, :, None]
+    d *= scale[None, :, None]  # in place: d is the caller's own blended array
+    return d

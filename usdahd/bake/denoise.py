@@ -124,9 +124,15 @@ ROBUST_CAP = 16.0
 _CHI2_1_MEDIAN = 0.454936423119572
 
 #: Canvas pixels of the charts denoised together (one mosaic image per coefficient): enough
-#: for OIDN's per-run cost to vanish (a 1024^2 image runs at the per-pixel cost of small
-#: ones), few enough to bound the memory of the charts held (~0.2 GB of canvases).
-MOSAIC_PIXELS = 1 << 20
+#: for OIDN's per-run cost to vanish, few enough to bound the memory of the charts held and
+#: OIDN's scratch, which follows the image (RTLightmap, quality high, pyoidn 2.5.1: +600 MB at
+#: 1024^2, +150 MB at 512^2, at the same CPU time per pixel, 2.3 us; 2026-12-06, session
+#: script oidn_mem2.py). Was 1 << 20: the classroom's denoise peaked at +660 MB in OIDN.
+MOSAIC_PIXELS = 1 << 18
+#: OIDN's scratch cap (``maxMemoryMB``) for an image above ``MOSAIC_PIXELS`` (one large chart):
+#: OIDN then denoises it in tiles, the same output (checked: equal sums at 1024^2). 512 costs
+#: ~7 % more CPU at 1024^2 (+410 MB, 3.06 s vs +590 MB, 2.87 s); 256 would cost 2x.
+OIDN_LARGE_MEMORY_MB = 512
 
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
@@ -189,6 +195,9 @@ class _Denoiser:
         key = (filter_type, bool(hdr), bool(directional), color.shape,
                albedo is not None, normal is not None, input_scale is not None)  # fmt: skip
         flt = self._filter(key, filter_type, hdr, directional)
+        large = color.shape[0] * color.shape[1] > MOSAIC_PIXELS
+        if large:
+            flt.set_int("maxMemoryMB", OIDN_LARGE_MEMORY_MB)
         if input_scale is not None:
             flt.set_float("inputScale", float(input_scale))
         flt.set_image(oidn.OIDN_IMAGE_COLOR, color, oidn.OIDN_FORMAT_FLOAT3)
@@ -204,6 +213,10 @@ class _Denoiser:
         err = self.device.get_error()
         if err is not None:
             raise InputError(f"Open Image Denoise failed: {err}")
+        if large:
+            # a large image (one big chart): OIDN keeps its scratch (~600 MB at 1024^2) while
+            # a filter that used it lives; release it now, not at the end of the denoise
+            self.filters.pop(key).release()
         return out
 
     def close(self):

@@ -514,18 +514,27 @@ def denoise_records(
     variance_bound: bool = False,
     variance_pool: int = 0,
     mosaic: bool = True,
+    inplace: bool = False,
 ) -> list[np.ndarray]:
     """:func:`denoise_sh` of several records at once (e.g. every prim of a bake), their charts
     sharing OIDN runs: each record a dict with ``sh`` and ``texels`` and optionally
     ``charts``, ``albedo``, ``normal``, ``variance`` (as :func:`denoise_sh`'s arguments).
     Returns the denoised SH (float32) of each record, in order. Charts are gathered until
-    their canvases hold ``MOSAIC_PIXELS`` pixels, then denoised together (bounded memory)."""
+    their canvases hold ``MOSAIC_PIXELS`` pixels, then denoised together (bounded memory).
+    ``inplace``: a record's ``sh`` that is a writable float32 array receives its result (and is
+    returned) instead of a copy; safe because each texel's input is read (its chart prepared)
+    before its chart's output is written, and charts are disjoint (a bake: no second copy of
+    every SH, 108 bytes per texel)."""
     if filter not in FILTERS:
         raise UsageError(f"unknown denoise filter {filter!r}; use one of {FILTERS}")
     if quality not in ("high", "balanced", "fast"):
         raise UsageError(f"unknown denoise quality {quality!r}")
     checked = [_check_record(r) for r in records]  # every record before any work
-    outs = [sh.astype(np.float32, copy=True) for sh, *_ in checked]
+    outs = [
+        sh if inplace and sh.dtype == np.float32 and sh.flags.writeable
+        else sh.astype(np.float32, copy=True)
+        for sh, *_ in checked
+    ]  # fmt: skip
     den = None
     batch: list[_Chart] = []
     pixels = 0

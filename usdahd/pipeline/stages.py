@@ -225,7 +225,7 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
             records.append(dict(sh=job.sh, texels=job.texels, charts=job.charts, variance=var))
         # every prim's charts at once: one OIDN run per mosaic image and coefficient
         denoised = denoise.denoise_records(
-            records, variance_bound=True, variance_pool=denoise.VARIANCE_POOL
+            records, variance_bound=True, variance_pool=denoise.VARIANCE_POOL, inplace=True
         )
         del records
         for job, sh in zip(ok, denoised, strict=True):

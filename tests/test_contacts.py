@@ -195,6 +195,23 @@ def test_push_leaves_texels_outside_a_single_sided_shell_alone():
     assert pushed is texels and not invalid.any()
 
 
+def test_push_in_chunks_gives_the_same_points(monkeypatch):
+    """push_off_contacts probes its texels in chunks of CONTACT_CHUNK (bounded memory): chunks
+    of 7 texels (boundaries through the moved rows) give exactly the result of one chunk."""
+    import usdahd.bake.texels as tx
+
+    scene, tracer = _tracer(_box_stage())
+    ground = _mesh_of(scene, "/ground")
+    texels = rasterize(ground, (RES, RES))
+    whole, inv_whole = push_off_contacts(texels, ground, tracer)
+    monkeypatch.setattr(tx, "CONTACT_CHUNK", 7)
+    chunked, inv_chunked = push_off_contacts(texels, ground, tracer)
+    assert whole.stats["contact_texels"] > 0 and len(texels) > 7 * 10
+    np.testing.assert_array_equal(chunked.position, whole.position)
+    np.testing.assert_array_equal(inv_chunked, inv_whole)
+    assert chunked.stats == whole.stats
+
+
 def test_push_leaves_texels_without_contacts_alone():
     """The box's own texels touch the ground only with front faces (or not at all), and a ground
     without anything on it has no contact: the same object comes back."""

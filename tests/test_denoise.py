@@ -564,3 +564,41 @@ def test_denoise_records_checks_every_record_first():
     with pytest.raises(InputError, match="shape"):
         denoise.denoise_records([good, dict(sh=np.zeros((3, 3, 9)), texels=t)])
     assert denoise.denoise_records([]) == []
+
+
+def test_a_chart_above_the_mosaic_size_is_denoised_alike_and_its_scratch_released(monkeypatch):
+    """A chart whose canvas exceeds MOSAIC_PIXELS runs alone with OIDN's scratch capped
+    (``maxMemoryMB``) and its filter released right after (OIDN keeps ~600 MB of scratch for a
+    1024^2 image while a filter that used it lives): the same output as a normal run."""
+    mesh, t = full_quad()
+    _, noisy = noisy_field(t, 0.05, seed=3)
+    ref = denoise.denoise_sh(noisy, t)
+    made = []
+    real = denoise._Denoiser
+
+    class Watched(real):
+        def __init__(self, quality):
+            super().__init__(quality)
+            made.append(self)
+
+    monkeypatch.setattr(denoise, "_Denoiser", Watched)
+    monkeypatch.setattr(denoise, "MOSAIC_PIXELS", 64)  # every canvas is "large" now
+    big = denoise.denoise_sh(noisy, t)
+    np.testing.assert_array_equal(big, ref)
+    assert made and all(not d.filters for d in made)  # every large run's filter released
+
+
+def test_denoise_records_in_place_gives_the_same_result():
+    """``inplace=True`` (what a bake passes) writes each record's result into its own float32
+    SH array, chart after chart: the same values as the copying call, and the same array."""
+    recs = []
+    for k, make in enumerate((two_chart_plane, quad_and_sliver)):
+        mesh, t = make()
+        _, noisy = noisy_field(t, 0.05, seed=20 + k)
+        recs.append(dict(sh=noisy.astype(np.float32), texels=t, charts=charts_of(mesh, t)))
+    ref = denoise.denoise_records([dict(r, sh=r["sh"].copy()) for r in recs])
+    inputs = [r["sh"] for r in recs]
+    out = denoise.denoise_records(recs, inplace=True)
+    for o, r, i in zip(out, ref, inputs, strict=True):
+        assert o is i
+        np.testing.assert_array_equal(o, r)

@@ -126,12 +126,20 @@ ROBUST_CAP = 16.0
 _CHI2_1_MEDIAN = 0.454936423119572
 
 #: Canvas pixels of the charts denoised together (one mosaic image per coefficient): enough
-#: for OIDN's per-run cost to vanish (a 1024^2 image runs at the per-pixel cost of small
-#: ones), few enough to bound the memory of the charts held (~0.2 GB of canvases).
-MOSAIC_PIXELS = 1 << 20
+#: for OIDN's per-run cost to vanish, few enough to bound the memory of the charts held and
+#: OIDN's scratch, which follows the image (RTLightmap, quality high, pyoidn 2.5.1: +600 MB at
+#: 1024^2, +150 MB at 512^2, at the same CPU time per pixel, 2.3 us; 2026-12-06, session
+#: script oidn_mem2.py). Was 1 << 20: the classroom's denoise peaked at +660 MB in OIDN.
+MOSAIC_PIXELS = 1 << 18
+#: OIDN's scratch cap (``maxMemoryMB``) for an image above ``MOSAIC_PIXELS`` (one large chart):
+#: OIDN then denoises it in tiles, the same output (checked: equal sums at 1024^2). 512 costs
+#: ~7 % more CPU at 1024^2 (+410 MB, 3.06 s vs +590 MB, 2.87 s); 256 would cost 2x.
+OIDN_LARGE_MEMORY_MB = 512
 
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
+#: Texels blended at once (_blend's temporaries are ~10 (m, 3, 9) float64 arrays).
+_BLEND_BLOCK = 65536
 
 
 def _pyoidn():
@@ -189,6 +197,9 @@ class _Denoiser:
         key = (filter_type, bool(hdr), bool(directional), color.shape,
                albedo is not None, normal is not None, input_scale is not None)  # fmt: skip
         flt = self._filter(key, filter_type, hdr, directional)
+        large = color.shape[0] * color.shape[1] > MOSAIC_PIXELS
+        if large:
+            flt.set_int("maxMemoryMB", OIDN_LARGE_MEMORY_MB)
         if input_scale is not None:
             flt.set_float("inputScale", float(input_scale))
         flt.set_image(oidn.OIDN_IMAGE_COLOR, color, oidn.OIDN_FORMAT_FLOAT3)
@@ -204,6 +215,10 @@ class _Denoiser:
         err = self.device.get_error()
         if err is not None:
             raise InputError(f"Open Image Denoise failed: {err}")
+        if large:
+            # a large image (one big chart): OIDN keeps its scratch (~600 MB at 1024^2) while
+            # a filter that used it lives; release it now, not at the end of the denoise
+            self.filters.pop(key).release()
         return out
 
     def close(self):
@@ -501,18 +516,27 @@ def denoise_records(
     variance_bound: bool = False,
     variance_pool: int = 0,
     mosaic: bool = True,
+    inplace: bool = False,
 ) -> list[np.ndarray]:
     """:func:`denoise_sh` of several records at once (e.g. every prim of a bake), their charts
     sharing OIDN runs: each record a dict with ``sh`` and ``texels`` and optionally
     ``charts``, ``albedo``, ``normal``, ``variance`` (as :func:`denoise_sh`'s arguments).
     Returns the denoised SH (float32) of each record, in order. Charts are gathered until
-    their canvases hold ``MOSAIC_PIXELS`` pixels, then denoised together (bounded memory)."""
+    their canvases hold ``MOSAIC_PIXELS`` pixels, then denoised together (bounded memory).
+    ``inplace``: a record's ``sh`` that is a writable float32 array receives its result (and is
+    returned) instead of a copy; safe because each texel's input is read (its chart prepared)
+    before its chart's output is written, and charts are disjoint (a bake: no second copy of
+    every SH, 108 bytes per texel)."""
     if filter not in FILTERS:
         raise UsageError(f"unknown denoise filter {filter!r}; use one of {FILTERS}")
     if quality not in ("high", "balanced", "fast"):
         raise UsageError(f"unknown denoise quality {quality!r}")
     checked = [_check_record(r) for r in records]  # every record before any work
-    outs = [sh.astype(np.float32, copy=True) for sh, *_ in checked]
+    outs = [
+        sh if inplace and sh.dtype == np.float32 and sh.flags.writeable
+        else sh.astype(np.float32, copy=True)
+        for sh, *_ in checked
+    ]  # fmt: skip
     den = None
     batch: list[_Chart] = []
     pixels = 0
@@ -553,7 +577,12 @@ def _check_record(r: dict):
     variance = r.get("variance")
     if variance is not None:
         try:
-            variance = np.broadcast_to(np.asarray(variance, np.float64), sh.shape)
+            # kept in its own float type (a bake passes float32: half the memory of every
+            # record's variance held through the denoise); charts convert their own share
+            variance = np.asarray(variance)
+            if not np.issubdtype(variance.dtype, np.floating):
+                variance = variance.astype(np.float64)
+            variance = np.broadcast_to(variance, sh.shape)
         except ValueError:
             raise InputError(f"variance of shape {np.shape(variance)} does not fit SH "
                              f"{sh.shape}") from None  # fmt: skip
@@ -621,11 +650,15 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch
             ]
-        for store, r in zip(den_out, res, strict=True):
+        for store, r, ch in zip(den_out, res, batch, strict=True):
             store[k] = r
+            ch.images[k] = None  # its input canvas is done with (holds the peak at ~1 copy)
     for ch, store in zip(batch, den_out, strict=True):
         d = _chart_output(ch, store, filter)
+        store.clear()  # the canvases are done with: free them chart by chart (peak memory)
+        ch.images = ch.guides = None
         x, var, cv, groups = ch.x, ch.var, ch.cv, ch.groups
+        ch.x = ch.var = None  # held by the locals only from here: freed with them
         if blend and variance_bound:
             var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups))
         if blend:
@@ -641,7 +674,11 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
                     edges=variance_bound,
                 )
                 weights[:, :, g] = cv.gather(w).reshape(len(x), 3, len(g))
-            d = _blend(x, d, weights)
+            # texel by texel, so in blocks (bounded temporaries; d is this chart's own array)
+            for a in range(0, len(x), _BLEND_BLOCK):
+                b = a + _BLEND_BLOCK
+                d[a:b] = _blend(x[a:b], d[a:b], weights[a:b])
+            del weights
             if variance_bound:
                 d = _keep_chart_energy(x, d)
         outs[ch.record][ch.sel] = d.astype(np.float32)
@@ -705,10 +742,15 @@ def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
     """Per-texel ``v (m, 3, 9)`` averaged over the chart texels within ``radius`` (Chebyshev)
     of each texel; ``v`` itself for radius 0."""
     if radius <= 0:
-        return v
+        return np.asarray(v, np.float64)
     flat = v.reshape(len(v), -1)
-    img = np.nan_to_num(cv.image(flat, fill=False).astype(np.float64))
-    return cv.gather(_box_mean(img, cv.mask, radius)).reshape(v.shape)
+    out = np.empty(flat.shape, np.float64)
+    # channels in groups (each channel's mean is its own): canvases of at most ~_WORK_ELEMENTS
+    per = max(1, _WORK_ELEMENTS // (cv.shape[0] * cv.shape[1]))
+    for a in range(0, flat.shape[1], per):
+        img = np.nan_to_num(cv.image(flat[:, a : a + per], fill=False).astype(np.float64))
+        out[:, a : a + per] = cv.gather(_box_mean(img, cv.mask, radius))
+    return out.reshape(v.shape)
 
 
 def _blend(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -749,4 +791,5 @@ def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:
     s_out = d[:, :, 2].sum(axis=0)
     ok = (s_out > 0) & (s_in > 0)
     scale = np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
-    return d * scale[None, :, None]
+    d *= scale[None, :, None]  # in place: d is the caller's own blended array
+    return d

@@ -555,15 +555,53 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
     invalid = np.zeros(n, bool)
     if n == 0:
         return texels, invalid
-    half = half_texel_vectors(mesh, texels.resolution)[texels.triangle]  # (n, 2, 3)
+    # Each texel's probes depend on that texel only, so the texels go in chunks of
+    # CONTACT_CHUNK (the same result; the probe arrays take ~1.5 kB per texel, which was a
+    # 1 GB transient on the classroom's largest map).
+    half_t = half_texel_vectors(mesh, texels.resolution)  # (t, 2, 3)
+    scales = tracer.texel_offsets(texels, mesh)  # the integrator's ray offsets
+    moved = np.zeros(n, bool)
+    position = None
+    for a in range(0, n, CONTACT_CHUNK):
+        b = min(n, a + CONTACT_CHUNK)
+        pos, mv, inv = _push_off_chunk(
+            half_t[texels.triangle[a:b]],
+            texels.position[a:b].astype(np.float64),
+            texels.geom_normal[a:b].astype(np.float64),
+            scales[a:b],
+            tracer,
+        )
+        moved[a:b], invalid[a:b] = mv, inv
+        if mv.any():
+            if position is None:
+                position = texels.position.copy()
+            position[a:b][mv] = pos[mv]
+    if not moved.any() and not invalid.any():
+        return texels, invalid
+    # invalid texels keep their original point
+    if position is None:
+        position = texels.position.copy()
+    stats = dict(texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum()))
+    return replace(texels, position=position, stats=stats), invalid
+
+
+#: Texels probed at once by :func:`push_off_contacts` (bounds its memory; any value gives the
+#: same result).
+CONTACT_CHUNK = 65536
+
+
+def _push_off_chunk(half, pos, ng, scales, tracer):
+    """:func:`push_off_contacts` of m texels: half (m, 2, 3) half-texel vectors, pos / ng
+    (m, 3) float64 points and geometric normals, scales (m,) ray offsets. Returns (pos (m, 3)
+    float64 moved points, moved (m,) bool, invalid (m,) bool); moved excludes invalid."""
+    n = len(pos)
+    invalid = np.zeros(n, bool)
     probes = np.einsum("kj,njc->nkc", CONTACT_PROBES, half)  # (n, 8, 3)
     length = np.linalg.norm(probes, axis=2)
     ok = length > 0
     dirs = probes / np.where(ok, length, 1.0)[..., None]
     k = len(CONTACT_PROBES)
-    pos = texels.position.astype(np.float64)
-    ng = texels.geom_normal.astype(np.float64)
-    scales = tracer.texel_offsets(texels, mesh)  # the integrator's ray offsets
+    pos = pos.copy()
     moved = np.zeros(n, bool)
     todo = np.nonzero(ok.any(axis=1))[0]
     for rnd in range(CONTACT_ROUNDS + 1):
@@ -607,12 +645,7 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
         moved[go] = True
         todo = go
     moved &= ~invalid
-    if not moved.any() and not invalid.any():
-        return texels, invalid
-    # invalid texels keep their original point
-    position = np.where(moved[:, None], pos, texels.position).astype(np.float32)
-    stats = dict(texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum()))
-    return replace(texels, position=position, stats=stats), invalid
+    return pos, moved, invalid
 
 
 #: Directions of the walled-in test: evenly spread azimuths in the surface's tangent plane.

@@ -287,6 +287,13 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         jobs.append(job)
     if not jobs and not failed:
         raise InputError(no_mesh_message(src, api_prims))
+    # The plan's unwrapping is done: stop the xatlas worker process now (~60 MB held through
+    # tracing and denoising otherwise; a later pack starts a new one).
+    import sys
+
+    _unwrap = sys.modules.get("usdahd.bake.unwrap")
+    if _unwrap is not None and hasattr(_unwrap, "_stop_worker"):
+        _unwrap._stop_worker()
     # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
     # (the validator recomputes these from the output stage).
     parts = scene_hash_parts(scene)

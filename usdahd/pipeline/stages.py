@@ -220,10 +220,12 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         for job in ok:
             iz_var = denoise.integrator_iz_variance(job.stats)
             var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
+            if var is not None:  # float32: the denoiser pools it on float32 canvases anyway
+                var = var.astype(np.float32)
             records.append(dict(sh=job.sh, texels=job.texels, charts=job.charts, variance=var))
         # every prim's charts at once: one OIDN run per mosaic image and coefficient
         denoised = denoise.denoise_records(
-            records, variance_bound=True, variance_pool=denoise.VARIANCE_POOL
+            records, variance_bound=True, variance_pool=denoise.VARIANCE_POOL, inplace=True
         )
         del records
         for job, sh in zip(ok, denoised, strict=True):

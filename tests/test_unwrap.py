@@ -110,7 +110,7 @@ def test_a_wedged_xatlas_child_is_stopped_with_an_error_naming_the_prim(monkeypa
     # A limit far below the child's interpreter start-up stands in for a child that never ends.
     from usdahd.bake import unwrap as unwrap_mod
 
-    unwrap_mod._stop_worker()  # the next request waits for a fresh worker's start-up
+    unwrap_mod.stop_worker()  # the next request waits for a fresh worker's start-up
     monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_S", 0.01)
     monkeypatch.setattr(unwrap_mod, "UNWRAP_TIMEOUT_PER_TRIANGLE_S", 0.0)
     with pytest.raises(BakeError, match=r"/box: xatlas did not finish .* within 0 s.*--uv"):
@@ -125,7 +125,7 @@ def test_one_worker_unwraps_mesh_after_mesh_and_survives_a_crash(monkeypatch):
     new worker; a worker that died between meshes is replaced without failing anyone."""
     from usdahd.bake import unwrap as unwrap_mod
 
-    unwrap_mod._stop_worker()
+    unwrap_mod.stop_worker()
     a = unwrap(box_mesh(), texels_per_unit=20.0)
     pid = unwrap_mod._worker.proc.pid
     b = unwrap(box_mesh(), texels_per_unit=20.0)
@@ -135,7 +135,7 @@ def test_one_worker_unwraps_mesh_after_mesh_and_survives_a_crash(monkeypatch):
     assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], a[0])
     assert unwrap_mod._worker.proc.pid != pid
     # a worker that dies while unwrapping (stands in for xatlas's segfault)
-    unwrap_mod._stop_worker()
+    unwrap_mod.stop_worker()
     crash = (
         "import os, sys; sys.stdin.buffer.read(8); "
         "sys.stderr.write('Segmentation fault\\n'); sys.stderr.flush(); os._exit(139)"
@@ -152,9 +152,9 @@ def test_a_worker_killed_during_one_mesh_fails_no_prim(monkeypatch, tmp_path):
     worker: the mesh unwraps. (A crash that follows the mesh fails twice: the test above.)"""
     from usdahd.bake import unwrap as unwrap_mod
 
-    unwrap_mod._stop_worker()
+    unwrap_mod.stop_worker()
     want = unwrap(box_mesh(), texels_per_unit=20.0)
-    unwrap_mod._stop_worker()
+    unwrap_mod.stop_worker()
     marker = tmp_path / "died"
     once = (
         f"import os, sys; m = {str(marker)!r}\n"
@@ -165,7 +165,7 @@ def test_a_worker_killed_during_one_mesh_fails_no_prim(monkeypatch, tmp_path):
     monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
     got = unwrap(box_mesh(), texels_per_unit=20.0)
     assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
-    unwrap_mod._stop_worker()
+    unwrap_mod.stop_worker()
 
 
 def test_too_many_charts_for_the_resolution_fail_at_once():

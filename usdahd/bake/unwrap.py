@@ -37,7 +37,7 @@ from usdahd.numerics.charts import (
 from usdahd.numerics.triangles import triangle_areas
 from usdahd.scene.types import MeshData
 
-__all__ = ["CHART_PADDING", "PACK_EFFICIENCY", "unwrap"]
+__all__ = ["CHART_PADDING", "PACK_EFFICIENCY", "stop_worker", "unwrap"]
 
 #: Attempts at shrinking texels_per_unit until the atlas fits a requested resolution.
 MAX_ATTEMPTS = 8
@@ -440,7 +440,7 @@ class _Worker:
 _worker: _Worker | None = None
 
 
-def _stop_worker() -> None:
+def stop_worker() -> None:
     global _worker
     if _worker is not None:
         _worker.stop()
@@ -461,7 +461,7 @@ def _pack_isolated(args, path):
     for attempt in range(2):
         if _worker is None or not _worker.alive():
             if _worker is None:
-                atexit.register(_stop_worker)
+                atexit.register(stop_worker)
             else:
                 _worker.stop()
             _worker = _Worker()

@@ -291,9 +291,9 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # tracing and denoising otherwise; a later pack starts a new one).
     import sys
 
-    _unwrap = sys.modules.get("usdahd.bake.unwrap")
-    if _unwrap is not None and hasattr(_unwrap, "_stop_worker"):
-        _unwrap._stop_worker()
+    unwrap_module = sys.modules.get("usdahd.bake.unwrap")  # not imported: nothing was unwrapped
+    if unwrap_module is not None:
+        unwrap_module.stop_worker()
     # Hash after planning, so unwrapped meshes hash the UVs that the output layer will hold
     # (the validator recomputes these from the output stage).
     parts = scene_hash_parts(scene)

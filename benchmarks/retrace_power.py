@@ -3,7 +3,7 @@
 For each sample stage and bake seed: a default (denoised) bake at ``--resolution``; copies
 whose irradiance textures *and* SH sidecar are scaled by each factor (the sidecar consistent
 with the rescaled textures, so IzCheck passes and only the physics can tell, as in
-tests/test_retrace.py); each validated with ``--retrace N`` at the default samples and the
+tests/validate/test_retrace.py); each validated with ``--retrace N`` at the default samples and the
 retrace seed = the bake seed. A prim is *detected* when it has a ``RetraceMismatch`` error.
 Factor 1.0 gives the false-alarm rate.
 
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))  # the checkout: tests.conftest, tests.validate.test_retrace
 
 FACTORS = (1.0, 1.005, 1.01, 1.02, 1.03)
 
@@ -70,8 +70,8 @@ def _mismatch(layer: Path, n: int, seed: int) -> dict:
 
 
 def power(args) -> None:
-    from conftest import copy_sample, sample_stages
-    from test_retrace import _scaled_copy
+    from tests.conftest import copy_sample, sample_stages
+    from tests.validate.test_retrace import _scaled_copy
 
     stages = args.stages or sample_stages()
     counts = {f: [0, 0] for f in FACTORS}
@@ -120,9 +120,9 @@ def power(args) -> None:
 
 
 def bias(args) -> None:
-    from conftest import copy_sample, sample_stages
     from pxr import Usd
 
+    from tests.conftest import copy_sample, sample_stages
     from usdahd import validate as V
     from usdahd.usd import schema
     from usdahd.validate import retrace as RT

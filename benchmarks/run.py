@@ -452,7 +452,7 @@ def section_bake(result, plan: Plan, no_denoise) -> str:
             "relative) is listed below and drawn dotted in the plot; errors near it are not "
             "resolved. The reference uses the same integrator, so a bias of the integrator "
             "itself (e.g. the O(1/S) bias of the regression estimator) is not visible here; "
-            "the analytic light tests (`tests/test_integrate.py`) cover that.",
+            "the analytic light tests (`tests/bake/test_integrate.py`) cover that.",
             "",
             bake_sweep.sweep_markdown(
                 result, resolution=plan.resolution, ref_samples=plan.ref_samples

@@ -108,13 +108,60 @@ def test_md_table_and_fmt():
     assert "nan" in t.splitlines()[3]
 
 
-def test_bench_command_finds_checkout():
-    assert bench_cmd.benchmarks_dir() == REPO / "benchmarks"
+def test_bench_command_imports_the_installed_harness():
+    """``usdahd bench`` imports the installed usdahd-bench package (benchmarks/pyproject.toml),
+    whose files are this checkout's benchmarks/ (an editable install)."""
+    import importlib.metadata
+
+    runner = bench_cmd.load_runner()
+    assert runner.__name__ == "benchmarks.run"
+    assert Path(runner.__file__).resolve() == REPO / "benchmarks" / "run.py"
+    assert importlib.metadata.distribution(bench_cmd.HARNESS).metadata["Name"] == "usdahd-bench"
 
 
-def test_bench_command_without_checkout(tmp_path):
-    with pytest.raises(UsageError, match="source checkout"):
-        bench_cmd.benchmarks_dir(tmp_path)
+def test_bench_command_without_the_harness_names_the_install_command(tmp_path, capsys):
+    """Without the harness installed, ``usdahd bench`` is a usage error (exit 2, also as JSON)
+    naming the install command, in-process and as a subprocess; it never falls back to a
+    checkout's files found by path. The subprocess runs outside the checkout with the
+    ``benchmarks`` import blocked (``sys.modules`` entry None: Python's own way to make an
+    import fail), as on a machine where only usdahd is installed."""
+    import json
+    import subprocess
+
+    from usdahd import cli
+
+    with pytest.raises(UsageError, match=r"pip install -e benchmarks/"):
+        bench_cmd.load_runner("benchmarks.no_such_runner")
+    with pytest.MonkeyPatch.context() as mp:  # in-process: the harness's import blocked
+        mp.setitem(sys.modules, "benchmarks", None)
+        mp.setitem(sys.modules, "benchmarks.run", None)
+        assert cli.main(["bench", "--quick", "--json"]) == 2
+    cap = capsys.readouterr()
+    assert "pip install -e benchmarks/" in json.loads(cap.out)["error"]
+    assert "usdahd bench: error: usdahd bench runs the benchmark harness" in cap.err
+    code = (
+        "import sys; sys.modules['benchmarks'] = None; from usdahd import cli; "
+        "sys.exit(cli.main(sys.argv[1:]))"
+    )
+    for argv in (["bench", "--quick"], ["bench", "--quick", "--json"]):
+        proc = subprocess.run(
+            [sys.executable, "-c", code, *argv], capture_output=True, text=True, cwd=tmp_path
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr
+        text = json.loads(proc.stdout)["error"] if "--json" in argv else proc.stderr
+        assert "usdahd-bench, which is not installed" in text
+        assert "pip install -e benchmarks/" in text
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_bench_command_reports_a_missing_dependency_of_the_harness_as_itself(tmp_path, monkeypatch):
+    """A harness that is installed but lacks one of its own imports is not "not installed": the
+    ModuleNotFoundError names the missing module."""
+    (tmp_path / "harness_runner_x.py").write_text("import usdahd_no_such_dependency\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ModuleNotFoundError, match="usdahd_no_such_dependency"):
+        bench_cmd.load_runner("harness_runner_x")
 
 
 def test_bench_unknown_section(tmp_path):

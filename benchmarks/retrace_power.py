@@ -70,7 +70,7 @@ def _mismatch(layer: Path, n: int, seed: int) -> dict:
 
 
 def power(args) -> None:
-    from tests.conftest import copy_sample, sample_stages
+    from tests.scenes import copy_sample, sample_stages
     from tests.validate.test_retrace import _scaled_copy
 
     stages = args.stages or sample_stages()
@@ -122,7 +122,7 @@ def power(args) -> None:
 def bias(args) -> None:
     from pxr import Usd
 
-    from tests.conftest import copy_sample, sample_stages
+    from tests.scenes import copy_sample, sample_stages
     from usdahd import validate as V
     from usdahd.usd import schema
     from usdahd.validate import retrace as RT

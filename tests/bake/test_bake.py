@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT, SAMPLES, copy_sample, sample_stages
+from tests.scenes import ROOT, SAMPLES, copy_sample, sample_stages
 from usdahd import cli, models
 from usdahd.numerics import sh as shmod
 from usdahd.usd import schema

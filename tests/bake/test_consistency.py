@@ -16,8 +16,9 @@ floor case at 5.6 sigma; the lights are large and close so that MIS weights are 
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Usd, UsdGeom, UsdLux
 
+from tests.scenes import define_quad, preview_material
 from tests.stats import assert_mean
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
@@ -29,42 +30,24 @@ from usdahd.usd.reader import load_scene
 N_TEX = 96
 
 
-def _material(st, path, albedo, emission=(0.0, 0.0, 0.0)):
-    mat = UsdShade.Material.Define(st, path)
-    s = UsdShade.Shader.Define(st, path + "/pbr")
-    s.CreateIdAttr("UsdPreviewSurface")
-    s.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*albedo))
-    s.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
-    mat.CreateSurfaceOutput().ConnectToSource(s.ConnectableAPI(), "surface")
-    return mat
-
-
-def _quad(st, path, corners, mat):
-    m = UsdGeom.Mesh.Define(st, path)
-    m.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
-    m.CreateFaceVertexCountsAttr([4])
-    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
-
-
 def _room():
     """A closed 4 x 4 x 3 m room (inward faces, albedo 0.7/0.5) lit by a down-facing RectLight
     under the ceiling, a SphereLight near the floor, a DiskLight on a wall and an emissive
     panel: every area-light kind, interreflection, and an indirect-only ceiling."""
     st = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(st, "Z")
-    wall = _material(st, "/mat/wall", (0.7, 0.7, 0.7))
-    floor = _material(st, "/mat/floor", (0.5, 0.4, 0.3))
+    wall = preview_material(st, "/mat/wall", (0.7, 0.7, 0.7))
+    floor = preview_material(st, "/mat/floor", (0.5, 0.4, 0.3))
     a, h = 2.0, 3.0
-    _quad(st, "/floor", [(-a, -a, 0), (a, -a, 0), (a, a, 0), (-a, a, 0)], floor)
-    _quad(st, "/ceiling", [(-a, -a, h), (-a, a, h), (a, a, h), (a, -a, h)], wall)
-    _quad(st, "/wx0", [(-a, -a, 0), (-a, a, 0), (-a, a, h), (-a, -a, h)], wall)
-    _quad(st, "/wx1", [(a, -a, 0), (a, -a, h), (a, a, h), (a, a, 0)], wall)
-    _quad(st, "/wy0", [(-a, -a, 0), (-a, -a, h), (a, -a, h), (a, -a, 0)], wall)
-    _quad(st, "/wy1", [(-a, a, 0), (a, a, 0), (a, a, h), (-a, a, h)], wall)
-    panel = _material(st, "/mat/panel", (0.0, 0.0, 0.0), emission=(3.0, 2.0, 1.0))
+    define_quad(st, "/floor", [(-a, -a, 0), (a, -a, 0), (a, a, 0), (-a, a, 0)], floor)
+    define_quad(st, "/ceiling", [(-a, -a, h), (-a, a, h), (a, a, h), (a, -a, h)], wall)
+    define_quad(st, "/wx0", [(-a, -a, 0), (-a, a, 0), (-a, a, h), (-a, -a, h)], wall)
+    define_quad(st, "/wx1", [(a, -a, 0), (a, -a, h), (a, a, h), (a, a, 0)], wall)
+    define_quad(st, "/wy0", [(-a, -a, 0), (-a, -a, h), (a, -a, h), (a, -a, 0)], wall)
+    define_quad(st, "/wy1", [(-a, a, 0), (a, a, 0), (a, a, h), (-a, a, h)], wall)
+    panel = preview_material(st, "/mat/panel", (0.0, 0.0, 0.0), emission=(3.0, 2.0, 1.0))
     y = a - 1e-3  # just in front of the +y wall, facing -y
-    _quad(st, "/panel", [(-0.8, y, 0.8), (0.8, y, 0.8), (0.8, y, 1.8), (-0.8, y, 1.8)], panel)
+    define_quad(st, "/panel", [(-0.8, y, 0.8), (0.8, y, 0.8), (0.8, y, 1.8), (-0.8, y, 1.8)], panel)
     r = UsdLux.RectLight.Define(st, "/rect")  # emits along its -Z: down
     r.CreateIntensityAttr(1.5)
     r.CreateWidthAttr(2.0)

@@ -20,8 +20,9 @@ Two analytic stages (Z up, a 4 x 4 m ground quad at z = 0 with a 32 x 32 lightma
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, UsdGeom, UsdLux, UsdShade
 
+from tests.scenes import define_mesh, new_stage, preview_material
 from tests.stats import SIGMAS, standard_error
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.texels import half_texel_vectors, push_off_contacts, rasterize
@@ -37,34 +38,10 @@ HORIZON = 2e-3
 BOX = (-0.53, 0.61, -0.47, 0.58)  # x0, x1, y0, y1: edges off the 0.125 m texel grid
 
 
-def _mesh(st, path, points, faces, uv, material=None):
-    m = UsdGeom.Mesh.Define(st, path)
-    m.CreatePointsAttr([Gf.Vec3f(*p) for p in points])
-    m.CreateFaceVertexCountsAttr([len(f) for f in faces])
-    m.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
-    m.CreateSubdivisionSchemeAttr("none")
-    pv = UsdGeom.PrimvarsAPI(m).CreatePrimvar(
-        "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying
-    )
-    pv.Set([Gf.Vec2f(*c) for c in uv])
-    if material is not None:
-        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material)
-    return m
-
-
-def _black(st):
-    mat = UsdShade.Material.Define(st, "/black")
-    s = UsdShade.Shader.Define(st, "/black/pbr")
-    s.CreateIdAttr("UsdPreviewSurface")
-    s.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-    mat.CreateSurfaceOutput().ConnectToSource(s.ConnectableAPI(), "surface")
-    return mat
-
-
 def _ground(st, material=None):
     pts = [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)]
     uv = [((x + 2) / 4, (y + 2) / 4) for x, y, _ in pts]
-    return _mesh(st, "/ground", pts, [[0, 1, 2, 3]], uv, material)
+    return define_mesh(st, "/ground", pts, [[0, 1, 2, 3]], uv, material)
 
 
 def _solid(st, path, bottom, top, z1, material=None):
@@ -81,7 +58,7 @@ def _solid(st, path, bottom, top, z1, material=None):
     uv = []
     for (u0, v0), _f in zip(cell, faces, strict=True):
         uv += [(u0, v0), (u0 + s, v0), (u0 + s, v0 + s), (u0, v0 + s)]
-    return _mesh(st, path, pts, faces, uv, material)
+    return define_mesh(st, path, pts, faces, uv, material)
 
 
 def _tracer(st):
@@ -90,8 +67,7 @@ def _tracer(st):
 
 
 def _box_stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
+    st = new_stage()
     _ground(st)
     _solid(st, "/box", BOX, BOX, 1.0)
     UsdLux.DomeLight.Define(st, "/sky")
@@ -99,9 +75,8 @@ def _box_stage():
 
 
 def _frustum_stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
-    black = _black(st)
+    st = new_stage()
+    black = preview_material(st, "/black", (0, 0, 0), emission=None)
     _ground(st, black)
     # a black skirt out to 200 m: the frustum's sides see no dome below the horizon past the
     # ground's edge (what is left is within 0.23 degrees of the horizon: < HORIZON of I_z)
@@ -167,8 +142,7 @@ def test_push_leaves_texels_outside_a_single_sided_shell_alone():
     Nothing may move (before the rule asked which side is inside, the outside texels whose
     footprint crosses a wall were moved into the room: on the classroom 4.2 m, black where
     Cycles has them sunlit)."""
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
+    st = new_stage()
     _ground(st)
     room = _solid(st, "/room", BOX, BOX, 1.0)
     room.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)  # normals inward
@@ -203,8 +177,7 @@ def test_push_leaves_texels_without_contacts_alone():
     texels = rasterize(box, (RES, RES))
     pushed, invalid = push_off_contacts(texels, box, tracer)
     assert pushed is texels and not invalid.any()
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/sky")
     scene, tracer = _tracer(st)

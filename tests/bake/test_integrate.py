@@ -10,8 +10,9 @@ randomness (delta lights, uniform dome with the regression estimator) are checke
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, UsdGeom, UsdLux
 
+from tests.scenes import define_box, define_quad, new_stage, preview_material
 from tests.stats import assert_mean
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
@@ -23,34 +24,8 @@ N_TEX = 48
 FLOAT_TOL = 2e-5  # float32 positions/directions and SH accumulation
 
 
-def _stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
-    return st
-
-
-def _quad(st, path, corners, material=None):
-    m = UsdGeom.Mesh.Define(st, path)
-    m.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
-    m.CreateFaceVertexCountsAttr([4])
-    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    if material is not None:
-        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material)
-    return m
-
-
 def _ground(st, s=50.0, z=0.0, material=None):
-    return _quad(st, "/ground", [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], material)
-
-
-def _material(st, path, albedo=(0.5, 0.5, 0.5), emission=(0, 0, 0)):
-    mat = UsdShade.Material.Define(st, path)
-    sh_ = UsdShade.Shader.Define(st, path + "/pbr")
-    sh_.CreateIdAttr("UsdPreviewSurface")
-    sh_.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*albedo))
-    sh_.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emission))
-    mat.CreateSurfaceOutput().ConnectToSource(sh_.ConnectableAPI(), "surface")
-    return mat
+    return define_quad(st, "/ground", [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], material)
 
 
 def _texels(points, normal=(0, 0, 1)):
@@ -106,7 +81,7 @@ def _same_point(p, n=N_TEX):
 
 
 def test_uniform_dome_gives_iz_one_and_hemisphere_sh():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome")  # intensity fallback 1, colour 1
     out, _ = _bake(st, _texels(_same_point((0, 0, 0), 8)), estimator="regression", samples=64)
@@ -117,7 +92,7 @@ def test_uniform_dome_gives_iz_one_and_hemisphere_sh():
 
 
 def test_uniform_dome_mc_estimator_unbiased():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome")
     out, _ = _bake(st, _texels(_same_point((0, 0, 0))), estimator="mc", samples=32)
@@ -127,7 +102,7 @@ def test_uniform_dome_mc_estimator_unbiased():
 @pytest.mark.parametrize("normalize", [True, False])
 @pytest.mark.parametrize("tilt", [0.0, 60.0])
 def test_distant_light(normalize, tilt):
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.DistantLight.Define(st, "/sun")
     lt.CreateIntensityAttr(3.0)
@@ -142,7 +117,7 @@ def test_distant_light(normalize, tilt):
 
 
 def test_distant_delta_exact_and_direction():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.DistantLight.Define(st, "/sun")
     lt.CreateIntensityAttr(2.0)
@@ -163,7 +138,7 @@ def test_distant_delta_exact_and_direction():
 
 
 def test_distant_cone_direction_points_at_light():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.DistantLight.Define(st, "/sun")
     UsdGeom.Xformable(lt).AddRotateYOp().Set(-40.0)
@@ -203,12 +178,12 @@ def test_sun_penumbra_is_not_moved_by_a_far_away_ground(dx_mm):
     quadrature: the ray offset is local to the receiver (issue 17: offsets of 1e-5 of the
     scene's diagonal, 5.7 mm here, shifted such points across the whole penumbra)."""
     h, elev = 0.25, np.radians(30.0)
-    st = _stage()
-    black = _material(st, "/black", albedo=(0, 0, 0))
-    _quad(st, "/receiver", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], black)
-    _quad(st, "/blade", [(-3, -2, h), (-3, 2, h), (0, 2, h), (0, -2, h)], black)  # faces down
-    _quad(st, "/far", [(-200, -200, -200), (-200, 200, -200), (200, 200, -200),
-                       (200, -200, -200)], black)  # fmt: skip
+    st = new_stage()
+    black = preview_material(st, "/black", albedo=(0, 0, 0))
+    define_quad(st, "/receiver", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], black)
+    define_quad(st, "/blade", [(-3, -2, h), (-3, 2, h), (0, 2, h), (0, -2, h)], black)  # faces down
+    far = [(-200, -200, -200), (-200, 200, -200), (200, 200, -200), (200, -200, -200)]
+    define_quad(st, "/far", far, black)
     lt = UsdLux.DistantLight.Define(st, "/sun")
     lt.CreateIntensityAttr(1.0)
     lt.CreateNormalizeAttr(True)
@@ -231,7 +206,7 @@ def test_sun_penumbra_is_not_moved_by_a_far_away_ground(dx_mm):
 @pytest.mark.parametrize("point", [False, True])
 def test_sphere_light(normalize, point):
     r, h, x = 0.5, 2.0, 1.0
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.SphereLight.Define(st, "/bulb")
     lt.CreateRadiusAttr(r)
@@ -256,7 +231,7 @@ def test_many_sphere_lights_are_chosen_by_their_bound_at_the_texel(strategy):
     all give the sum of the 12 spheres' exact irradiance, L r^2 cos / d^2 each."""
     from usdahd.bake.reference import ALL_LIGHTS_MAX
 
-    st = _stage()
+    st = new_stage()
     _ground(st)
     rng = np.random.default_rng(7)
     n = 12
@@ -291,7 +266,7 @@ def _polygon_iz(p, verts, radiance):
 
 @pytest.mark.parametrize("normalize", [False, True])
 def test_rect_light(normalize):
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.RectLight.Define(st, "/panel")
     lt.CreateWidthAttr(2.0)
@@ -308,7 +283,7 @@ def test_rect_light(normalize):
 
 def test_disk_light_coaxial():
     R, h = 0.75, 1.25
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.DiskLight.Define(st, "/disk")
     lt.CreateRadiusAttr(R)
@@ -319,22 +294,22 @@ def test_disk_light_coaxial():
 
 
 def test_emissive_quad_and_back_facing():
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    mat = _material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    mat = preview_material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
     # corners ordered clockwise seen from above: the front face points down (-Z)
     verts = [(-0.5, -0.5, 1.0), (-0.5, 0.5, 1.0), (0.5, 0.5, 1.0), (0.5, -0.5, 1.0)]
-    _quad(st, "/emitter", verts, mat)
+    define_quad(st, "/emitter", verts, mat)
     p = np.array([0.2, 0.0, 0.0])
     out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=64)
     exact = _polygon_iz(p, verts, 1.0)
     for c, le in enumerate((2.0, 1.0, 0.5)):
         _check_mc(sh.iz(out)[:, c], le * exact)
     # flip the quad: its back faces the texel -> no light at all
-    st2 = _stage()
+    st2 = new_stage()
     _ground(st2)
-    mat2 = _material(st2, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
-    _quad(st2, "/emitter", verts[::-1], mat2)
+    mat2 = preview_material(st2, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    define_quad(st2, "/emitter", verts[::-1], mat2)
     out2, _ = _bake(st2, _texels(_same_point(p, 4)), samples=64)
     assert np.all(out2 == 0)
 
@@ -345,11 +320,11 @@ def test_double_sided_emitter_lights_both_sides(strategy):
     doubleSided surfaces): with its front turned away, the texel below gets Lambert's polygon
     irradiance all the same, by light samples, by BSDF hits and by their MIS; the same quad
     without doubleSided leaves it dark (test above)."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    mat = _material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
+    mat = preview_material(st, "/mat/emit", albedo=(0, 0, 0), emission=(2.0, 1.0, 0.5))
     verts = [(-0.5, -0.5, 1.0), (0.5, -0.5, 1.0), (0.5, 0.5, 1.0), (-0.5, 0.5, 1.0)]  # faces up
-    _quad(st, "/emitter", verts, mat).CreateDoubleSidedAttr(True)
+    define_quad(st, "/emitter", verts, mat).CreateDoubleSidedAttr(True)
     p = np.array([0.2, 0.0, 0.0])
     out, _ = _bake(st, _texels(_same_point(p)), estimator="mc", samples=64, strategy=strategy)
     exact = _polygon_iz(p, verts, 1.0)
@@ -361,12 +336,12 @@ def test_emissive_quad_is_light_sampled_no_black_texels():
     """Emissive triangles are sampled by NEE (power-proportional): at 4 spp every texel under a
     small emitter is lit (hemisphere rays alone hit its 0.6 % of the hemisphere at 4 spp in
     ~2 % of texels), and the estimate is unbiased."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    mat = _material(st, "/mat/emit", albedo=(0, 0, 0), emission=(50.0, 50.0, 50.0))
+    mat = preview_material(st, "/mat/emit", albedo=(0, 0, 0), emission=(50.0, 50.0, 50.0))
     s = 0.05
     verts = [(-s, -s, 1.0), (-s, s, 1.0), (s, s, 1.0), (s, -s, 1.0)]
-    _quad(st, "/emitter", verts, mat)
+    define_quad(st, "/emitter", verts, mat)
     rng = np.random.default_rng(5)
     pts = np.c_[rng.uniform(-0.5, 0.5, (N_TEX, 2)), np.zeros(N_TEX)]
     out, _ = _bake(st, _texels(pts), estimator="mc", samples=4)
@@ -379,7 +354,7 @@ def test_emissive_quad_is_light_sampled_no_black_texels():
 
 
 def test_back_facing_rect_light_gives_zero():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     lt = UsdLux.RectLight.Define(st, "/panel")
     lt.CreateIntensityAttr(100.0)
@@ -390,25 +365,17 @@ def test_back_facing_rect_light_gives_zero():
     assert np.all(out == 0)
 
 
-def _box(st, half, material, inward=True):
-    """Closed cube of half-size ``half`` centred at the origin, faces pointing inward."""
-    m = UsdGeom.Mesh.Define(st, "/box")
-    s = half
-    p = [(x, y, z) for x in (-s, s) for y in (-s, s) for z in (-s, s)]
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    if inward:
-        quads = [q[::-1] for q in quads]
-    m.CreatePointsAttr(p)
-    m.CreateFaceVertexCountsAttr([4] * 6)
-    m.CreateFaceVertexIndicesAttr([i for q in quads for i in q])
-    UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(material)
-    return m
-
-
 def test_white_furnace():
     rho, le = 0.5, 1.0
-    st = _stage()
-    _box(st, 1.0, _material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3))
+    st = new_stage()
+    define_box(
+        st,
+        "/box",
+        (-1.0,) * 3,
+        (1.0,) * 3,
+        preview_material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3),
+        inward=True,
+    )
     rng = np.random.default_rng(3)
     pts = np.c_[rng.uniform(-0.8, 0.8, (N_TEX, 2)), np.full(N_TEX, -1.0)]
     out, stats = _bake(st, _texels(pts), estimator="mc", samples=32, bounces=40)
@@ -426,8 +393,15 @@ def test_white_furnace_at_default_settings(rho):
     from usdahd.pipeline import DEFAULTS
 
     le = 1.0
-    st = _stage()
-    _box(st, 1.0, _material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3))
+    st = new_stage()
+    define_box(
+        st,
+        "/box",
+        (-1.0,) * 3,
+        (1.0,) * 3,
+        preview_material(st, "/mat/f", albedo=(rho,) * 3, emission=(le,) * 3),
+        inward=True,
+    )
     rng = np.random.default_rng(4)
     pts = np.c_[rng.uniform(-0.8, 0.8, (N_TEX, 2)), np.full(N_TEX, -1.0)]
     out, _ = _bake(st, _texels(pts), estimator="mc", samples=32, bounces=DEFAULTS["bounces"])
@@ -448,10 +422,10 @@ def test_under_a_card_is_a_surface_not_inside(double_sided, height):
     neighbours; with doubleSided that lit McUsd's plant-card shadows, one-sided it lit the
     ceiling behind emissive_only's panel). The texel is valid and in the card's shadow (the
     sun's term is exact: I_z = 0 under the card, E/pi beside it)."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
     h = height
-    card = _quad(st, "/card", [(-2, -2, h), (2, -2, h), (2, 2, h), (-2, 2, h)])
+    card = define_quad(st, "/card", [(-2, -2, h), (2, -2, h), (2, 2, h), (-2, 2, h)])
     if double_sided:
         card.CreateDoubleSidedAttr(True)
     sun = UsdLux.DistantLight.Define(st, "/sun")
@@ -471,9 +445,11 @@ def test_under_a_card_is_a_surface_not_inside(double_sided, height):
 def test_texels_inside_geometry_flagged_invalid(bottom):
     """A texel inside a box standing in the floor is inside geometry, closed box or not: a box
     without a bottom face (a common game asset) walls the floor in all the same."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    box = _box(st, 0.5, _material(st, "/mat/g"), inward=False)
+    box = define_box(
+        st, "/box", (-0.5,) * 3, (0.5,) * 3, preview_material(st, "/mat/g"), inward=False
+    )
     if not bottom:  # drop the z = -0.5 face (the 5th quad)
         idx = list(box.GetFaceVertexIndicesAttr().Get())
         box.GetFaceVertexIndicesAttr().Set(idx[:16] + idx[20:])
@@ -492,12 +468,12 @@ def test_beside_a_lone_one_sided_wall_is_estimated_not_filled():
     (rays the other way leave): it is estimated, not filled. Its sky term is the exact
     unoccluded-half value: a uniform dome of radiance L over a wall plane through the
     texel's neighbourhood gives I_z = L/2 (the wall's back, albedo 0 here, hides the rest)."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    black = _material(st, "/mat/black", albedo=(0.0, 0.0, 0.0))
+    black = preview_material(st, "/mat/black", albedo=(0.0, 0.0, 0.0))
     # a tall wall in the plane x = 0.05 facing +x: its back faces the texel at the origin
-    _quad(st, "/wall", [(0.05, -200, -1), (0.05, 200, -1), (0.05, 200, 200), (0.05, -200, 200)],
-          black)  # fmt: skip
+    wall = [(0.05, -200, -1), (0.05, 200, -1), (0.05, 200, 200), (0.05, -200, 200)]
+    define_quad(st, "/wall", wall, black)
     dome = UsdLux.DomeLight.Define(st, "/dome")
     dome.CreateIntensityAttr(1.0)
     pts = np.c_[np.zeros(N_TEX), np.linspace(-1.0, 1.0, N_TEX), np.zeros(N_TEX)]
@@ -508,9 +484,16 @@ def test_beside_a_lone_one_sided_wall_is_estimated_not_filled():
 
 
 def test_deterministic_for_seed_and_bounces_add_light():
-    st = _stage()
-    _ground(st, material=_material(st, "/mat/g", albedo=(0.8, 0.8, 0.8)))
-    _box(st, 0.5, _material(st, "/mat/b", albedo=(0.8, 0.8, 0.8)), inward=False)
+    st = new_stage()
+    _ground(st, material=preview_material(st, "/mat/g", albedo=(0.8, 0.8, 0.8)))
+    define_box(
+        st,
+        "/box",
+        (-0.5,) * 3,
+        (0.5,) * 3,
+        preview_material(st, "/mat/b", albedo=(0.8, 0.8, 0.8)),
+        inward=False,
+    )
     UsdGeom.Xformable(st.GetPrimAtPath("/box")).AddTranslateOp().Set(Gf.Vec3d(1.2, 0, 0.5))
     lt = UsdLux.DistantLight.Define(st, "/sun")
     UsdGeom.Xformable(lt).AddRotateYOp().Set(-60.0)
@@ -526,7 +509,7 @@ def test_deterministic_for_seed_and_bounces_add_light():
 
 
 def test_adaptive_saves_rays_on_easy_texels():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome")
     tex = _texels(_same_point((0, 0, 0), 16))
@@ -537,7 +520,7 @@ def test_adaptive_saves_rays_on_easy_texels():
 
 
 def test_progress_callback_and_bad_arguments():
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome")
     calls = []
@@ -560,7 +543,7 @@ def test_iz_variance_bounds_the_spread_of_independent_bakes():
     I_z varies because the hemisphere pdf (1 + 2z) / 4 pi is not the cosine). n = 1024: the
     mean of d^2 has a relative standard deviation ~ sqrt(2 / n) = 4.4 %, so the ratio is held
     in [0.4, 1.2] (the upper end about 4.5 sigma above 1)."""
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome").CreateIntensityAttr(1.0)
     rng = np.random.default_rng(11)
@@ -599,9 +582,9 @@ def test_two_halves_variance_bounds_the_stratified_error_where_s2_is_loose():
     a relative standard deviation of ~4.4 % (more in the penumbra, whose values are
     heavy-tailed), so the bounds below leave >= 4 sigma."""
     rng = np.random.default_rng(12)
-    st = _stage()
+    st = new_stage()
     _ground(st)
-    _quad(st, "/edge", [(-50, -50, 1), (0, -50, 1), (0, 50, 1), (-50, 50, 1)])
+    define_quad(st, "/edge", [(-50, -50, 1), (0, -50, 1), (0, 50, 1), (-50, 50, 1)])
     sun = UsdLux.DistantLight.Define(st, "/sun")
     sun.CreateAngleAttr(10.0)
     pts = np.c_[np.linspace(-0.08, 0.08, 1024), rng.uniform(-5, 5, 1024), np.zeros(1024)]
@@ -609,7 +592,7 @@ def test_two_halves_variance_bounds_the_stratified_error_where_s2_is_loose():
     assert real > 0
     assert real <= 0.6 * halves and real <= 0.6 * both  # bounds (measured 0.26-0.29)
     assert halves <= 0.6 * s2  # and tighter than s^2 / S (measured 0.42-0.47 of it)
-    st = _stage()
+    st = new_stage()
     _ground(st)
     UsdLux.DomeLight.Define(st, "/dome")
     pts = np.c_[rng.uniform(-5, 5, (1024, 2)), np.zeros(1024)]

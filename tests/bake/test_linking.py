@@ -8,8 +8,9 @@ shading path on the native tracer as well). Delta-light cases are exact to FLOAT
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import UsdLux
 
+from tests.scenes import define_quad, distant_light, new_stage, preview_material, square
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
@@ -20,31 +21,9 @@ FLOAT_TOL = 2e-5
 
 
 def _stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
-    mat = UsdShade.Material.Define(st, "/mat/black")
-    s = UsdShade.Shader.Define(st, "/mat/black/pbr")
-    s.CreateIdAttr("UsdPreviewSurface")
-    s.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-    mat.CreateSurfaceOutput().ConnectToSource(s.ConnectableAPI(), "surface")
-    return st, mat
-
-
-def _quad(st, path, z, half, mat):
-    m = UsdGeom.Mesh.Define(st, path)
-    h = half
-    m.CreatePointsAttr([Gf.Vec3f(-h, -h, z), Gf.Vec3f(h, -h, z), Gf.Vec3f(h, h, z),
-                        Gf.Vec3f(-h, h, z)])  # fmt: skip
-    m.CreateFaceVertexCountsAttr([4])
-    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
-
-
-def _sun(st, path="/Sun", intensity=2.0):
-    sun = UsdLux.DistantLight.Define(st, path)
-    sun.CreateIntensityAttr(intensity)
-    sun.CreateAngleAttr(0.0)
-    return sun
+    """A Z-up stage and its black material (no bounce light: the sun alone lights a texel)."""
+    st = new_stage()
+    return st, preview_material(st, "/mat/black", (0, 0, 0), emission=None)
 
 
 def _texels(n=8):
@@ -76,39 +55,39 @@ def _bake(st, backend, mesh_path, **kw):
 @pytest.mark.parametrize("backend", ["native", "embreex"])
 def test_light_link_excludes_the_ground(backend):
     st, mat = _stage()
-    _quad(st, "/Ground", 0.0, 5.0, mat)
-    _quad(st, "/Wall", -1.0, 0.5, mat)  # another mesh (below the ground, not in the way)
-    sun = _sun(st)
+    define_quad(st, "/Ground", square(0.0, 5.0), mat)
+    define_quad(st, "/Wall", square(-1.0, 0.5), mat)  # another mesh, below the ground
+    sun = distant_light(st, "/Sun", intensity=2.0)
     link = UsdLux.LightAPI(sun.GetPrim()).GetLightLinkCollectionAPI()
     link.GetExcludesRel().AddTarget("/Ground")
     np.testing.assert_allclose(_bake(st, backend, "/Ground"), 0.0, atol=FLOAT_TOL)
     # the same light without the exclusion lights it: E / pi at normal incidence
     st2, mat2 = _stage()
-    _quad(st2, "/Ground", 0.0, 5.0, mat2)
-    _quad(st2, "/Wall", -1.0, 0.5, mat2)
-    _sun(st2)
+    define_quad(st2, "/Ground", square(0.0, 5.0), mat2)
+    define_quad(st2, "/Wall", square(-1.0, 0.5), mat2)
+    distant_light(st2, "/Sun", intensity=2.0)
     np.testing.assert_allclose(_bake(st2, backend, "/Ground"), 2.0 / np.pi, rtol=FLOAT_TOL)
 
 
 @pytest.mark.parametrize("backend", ["native", "embreex"])
 def test_light_link_include_list_and_other_lights_unaffected(backend):
     st, mat = _stage()
-    _quad(st, "/Ground", 0.0, 5.0, mat)
-    _quad(st, "/Wall", -1.0, 0.5, mat)
-    sun = _sun(st)
+    define_quad(st, "/Ground", square(0.0, 5.0), mat)
+    define_quad(st, "/Wall", square(-1.0, 0.5), mat)
+    sun = distant_light(st, "/Sun", intensity=2.0)
     link = UsdLux.LightAPI(sun.GetPrim()).GetLightLinkCollectionAPI()
     link.GetIncludeRootAttr().Set(False)
     link.GetIncludesRel().AddTarget("/Wall")  # lights the wall only
-    _sun(st, "/Fill", intensity=0.5)  # default collection: lights everything
+    distant_light(st, "/Fill", intensity=0.5)  # default collection: lights everything
     np.testing.assert_allclose(_bake(st, backend, "/Ground"), 0.5 / np.pi, rtol=FLOAT_TOL)
 
 
 @pytest.mark.parametrize("backend", ["native", "embreex"])
 def test_shadow_link_lets_an_excluded_blocker_cast_no_shadow(backend):
     st, mat = _stage()
-    _quad(st, "/Ground", 0.0, 5.0, mat)
-    _quad(st, "/Blocker", 1.0, 1.0, mat)  # right above the texels
-    sun = _sun(st)
+    define_quad(st, "/Ground", square(0.0, 5.0), mat)
+    define_quad(st, "/Blocker", square(1.0, 1.0), mat)  # right above the texels
+    sun = distant_light(st, "/Sun", intensity=2.0)
     np.testing.assert_allclose(_bake(st, backend, "/Ground"), 0.0, atol=FLOAT_TOL)
     shadow = UsdLux.LightAPI(sun.GetPrim()).GetShadowLinkCollectionAPI()
     shadow.GetExcludesRel().AddTarget("/Blocker")
@@ -121,8 +100,8 @@ def test_shadow_link_on_an_area_light(backend):
     (I_z = 1). Uniform domes are reached by hemisphere rays only, so those must pass through
     the excluded blocker too; every texel is then exact (the sky is in the SH span)."""
     st, mat = _stage()
-    _quad(st, "/Ground", 0.0, 5.0, mat)
-    _quad(st, "/Blocker", 1.0, 1.0, mat)
+    define_quad(st, "/Ground", square(0.0, 5.0), mat)
+    define_quad(st, "/Blocker", square(1.0, 1.0), mat)
     dome = UsdLux.DomeLight.Define(st, "/Sky")
     shadow = UsdLux.LightAPI(dome.GetPrim()).GetShadowLinkCollectionAPI()
     shadow.GetExcludesRel().AddTarget("/Blocker")

@@ -14,6 +14,7 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
+from tests.scenes import new_stage
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
@@ -42,13 +43,6 @@ def _half_metal(tmp_path, name="metal.png", w=4, h=4):
     px = np.zeros((h, w), np.uint8)
     px[:, w // 2 :] = 255
     return _png(tmp_path / name, px)
-
-
-def _stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
-    UsdGeom.SetStageMetersPerUnit(st, 1.0)
-    return st
 
 
 def _quad(st, path, z=0.0, half=0.5, down=False, uv_name="st"):
@@ -116,7 +110,7 @@ def _albedo_at(sc, mesh_path, uv):
 
 
 def test_constant_diffuse_times_a_metallic_texture(tmp_path):
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     metal = _texture(st, "/World/M/Metal", _half_metal(tmp_path))
     _bind(q.GetPrim(), _material(st, "/World/M", (0.8, 0.4, 0.2), metal=metal))
@@ -136,7 +130,7 @@ def test_diffuse_texture_times_metallic_texture_on_a_common_grid(tmp_path):
     4 x 4 metallic texture give a 4 x 4 product; the diffuse one is resampled bilinearly."""
     diffuse = np.array([[[0.2, 0.2, 0.2], [1.0, 1.0, 1.0]]] * 2, np.float32)
     dpng = _png(tmp_path / "d.png", (diffuse * 65535).round().astype(np.uint16), "uint16")
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     metal = _texture(st, "/World/M/Metal", _half_metal(tmp_path))
     dtex = _texture(st, "/World/M/Diffuse", dpng, out="rgb")
@@ -149,7 +143,7 @@ def test_diffuse_texture_times_metallic_texture_on_a_common_grid(tmp_path):
     np.testing.assert_allclose(tex.data[0, :, 0], [0.2, 0.4, 0.0, 0.0], atol=1e-4)
     np.testing.assert_allclose(tex.data[:, 1, 1], 0.4, atol=1e-4)
     # same resolution: the product of the texels themselves
-    st2 = _stage()
+    st2 = new_stage(meters_per_unit=1.0)
     q2 = _quad(st2, "/World/Plane")
     d4 = np.linspace(0.1, 0.9, 16, dtype=np.float32).reshape(4, 4)
     d4png = _png(tmp_path / "d4.png", (np.repeat(d4[..., None], 3, 2) * 65535).round()
@@ -163,7 +157,7 @@ def test_diffuse_texture_times_metallic_texture_on_a_common_grid(tmp_path):
 
 
 def test_metallic_texture_fallback_and_specular_workflow(tmp_path):
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     a = _quad(st, "/World/A")
     b = _quad(st, "/World/B", z=1)
     missing = _texture(st, "/World/MA/Metal", tmp_path / "nope.png")
@@ -184,7 +178,7 @@ def test_metallic_texture_fallback_and_specular_workflow(tmp_path):
 
 def test_metallic_and_diffuse_textures_on_different_primvars_warn(tmp_path):
     dpng = _png(tmp_path / "d.png", np.full((2, 2, 3), 128, np.uint8))
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     UsdGeom.PrimvarsAPI(q).CreatePrimvar("st1", F.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
         [Gf.Vec2f(0, 0), Gf.Vec2f(1, 0), Gf.Vec2f(1, 1), Gf.Vec2f(0, 1)]
@@ -206,7 +200,7 @@ def test_metallic_connected_to_rgb_reads_the_first_channel(tmp_path):
     rgb = np.zeros((4, 4, 3), np.uint8)
     rgb[:, 2:, 0] = 255  # r: right half metal; g, b: 0
     png = _png(tmp_path / "rgb.png", rgb)
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     metal = _texture(st, "/World/M/Metal", png, out="rgb")
     _bind(q.GetPrim(), _material(st, "/World/M", metal=metal, metal_out="rgb"))
@@ -222,7 +216,7 @@ def test_metallic_connected_to_rgb_reads_the_first_channel(tmp_path):
 
 def test_metallic_channel_missing_from_the_file_warns(tmp_path):
     png = _png(tmp_path / "rgb.png", np.zeros((2, 2, 3), np.uint8))
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     metal = _texture(st, "/World/M/Metal", png, out="a")
     _bind(q.GetPrim(), _material(st, "/World/M", metal=metal, metal_out="a"))
@@ -237,7 +231,7 @@ def test_metallic_channel_missing_from_the_file_warns(tmp_path):
 
 
 def test_metallic_texture_out_of_range_is_clamped_with_a_warning(tmp_path):
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     scale = (F.Float4, Gf.Vec4f(2, 2, 2, 1))  # right half 2, left half 0 - 0.25 = -0.25
     bias = (F.Float4, Gf.Vec4f(-0.25, -0.25, -0.25, 0))
@@ -255,7 +249,7 @@ def test_metallic_texture_out_of_range_is_clamped_with_a_warning(tmp_path):
 
 def test_different_wrap_modes_warn(tmp_path):
     dpng = _png(tmp_path / "d.png", np.full((2, 2, 3), 128, np.uint8))
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     q = _quad(st, "/World/Plane")
     metal = _texture(st, "/World/M/Metal", _half_metal(tmp_path), wrap="repeat")
     dtex = _texture(st, "/World/M/Diffuse", dpng, out="rgb", wrap="clamp")
@@ -276,7 +270,7 @@ def test_different_wrap_modes_warn(tmp_path):
 def _reflector_stage(tmp_path, metal):
     """Receiver /Ground (black) at z = 0 facing +Z; reflector /Ceiling (diffuseColor 0.8,
     metallic ``metal``: None, "half" or "full") at z = 1 facing -Z; a sun shining upwards."""
-    st = _stage()
+    st = new_stage(meters_per_unit=1.0)
     black = _material(st, "/Mat/Black", (0, 0, 0))
     _bind(_quad(st, "/Ground").GetPrim(), black)
     ceil = _quad(st, "/Ceiling", z=1.0, half=3.0, down=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from tests.conftest import baked_mean_iz
+from tests.scenes import baked_mean_iz
 from usdahd import cli, pipeline
 from usdahd.usd.author import referenced_assets
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import copy_sample
+from tests.scenes import copy_sample
 from usdahd import cli
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import usdahd
-from tests.conftest import copy_sample
+from tests.scenes import copy_sample
 from usdahd import cli
 from usdahd.bake import integrate, tiles
 

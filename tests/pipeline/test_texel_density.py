@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from tests.conftest import SAMPLES, sample_stages
+from tests.scenes import SAMPLES, sample_stages
 from usdahd import cli
 from usdahd.pipeline.plan import _pad_to_multiple, auto_texel_density
 from usdahd.pipeline.settings import (

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import copy_sample
+from tests.scenes import copy_sample
 from usdahd import cli, images
 from usdahd.preview import tonemap as T
 

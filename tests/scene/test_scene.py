@@ -7,25 +7,12 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
+from tests.scenes import define_mesh, new_stage
 from usdahd.bake.trace import Tracer
 from usdahd.errors import StageError
 from usdahd.usd.reader import load_scene
 
 SCENES = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "scenes")
-
-
-def _stage():
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, "Z")
-    return st
-
-
-def _mesh(st, path, pts, counts, idx):
-    m = UsdGeom.Mesh.Define(st, path)
-    m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts])
-    m.CreateFaceVertexCountsAttr(counts)
-    m.CreateFaceVertexIndicesAttr(idx)
-    return m
 
 
 QUAD = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
@@ -38,8 +25,8 @@ def _tri_normals(md):
 
 
 def test_ngon_triangulation_and_corners():
-    st = _stage()
-    _mesh(st, "/m", PENT + QUAD, [5, 4], [0, 1, 2, 3, 4, 5, 6, 7, 8])
+    st = new_stage()
+    define_mesh(st, "/m", PENT + QUAD, [(0, 1, 2, 3, 4), (5, 6, 7, 8)], scheme=None)
     md = load_scene(st).meshes[0]
     assert md.triangles.shape == (5, 3)
     assert md.face.tolist() == [0, 0, 0, 1, 1]
@@ -60,8 +47,8 @@ def test_ngon_triangulation_and_corners():
 
 def test_left_handed_and_mirror_flip_winding():
     for left, mirror in [(False, False), (True, False), (False, True), (True, True)]:
-        st = _stage()
-        m = _mesh(st, "/m", QUAD, [4], [0, 1, 2, 3])
+        st = new_stage()
+        m = define_mesh(st, "/m", QUAD, [(0, 1, 2, 3)], scheme=None)
         if left:
             m.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
         if mirror:
@@ -76,15 +63,15 @@ def test_left_handed_and_mirror_flip_winding():
 
 
 def test_transform_time_samples_visibility_purpose():
-    st = _stage()
-    m = _mesh(st, "/a", QUAD, [4], [0, 1, 2, 3])
+    st = new_stage()
+    m = define_mesh(st, "/a", QUAD, [(0, 1, 2, 3)], scheme=None)
     m.AddTranslateOp().Set(Gf.Vec3d(0, 0, 5))
     pts = m.GetPointsAttr()
     pts.Clear()
     pts.Set([Gf.Vec3f(*p) for p in QUAD], Usd.TimeCode(3))  # time samples only
-    _mesh(st, "/hidden", QUAD, [4], [0, 1, 2, 3]).CreateVisibilityAttr("invisible")
-    _mesh(st, "/guide", QUAD, [4], [0, 1, 2, 3]).CreatePurposeAttr("guide")
-    _mesh(st, "/render", QUAD, [4], [0, 1, 2, 3]).CreatePurposeAttr("render")
+    define_mesh(st, "/hidden", QUAD, [(0, 1, 2, 3)], scheme=None).CreateVisibilityAttr("invisible")
+    define_mesh(st, "/guide", QUAD, [(0, 1, 2, 3)], scheme=None).CreatePurposeAttr("guide")
+    define_mesh(st, "/render", QUAD, [(0, 1, 2, 3)], scheme=None).CreatePurposeAttr("render")
     sc = load_scene(st)
     assert [m.path for m in sc.meshes] == ["/a", "/render"]
     np.testing.assert_allclose(sc.meshes[0].points[:, 2], 5.0)
@@ -93,9 +80,9 @@ def test_transform_time_samples_visibility_purpose():
 
 
 def test_instances_pointinstancer_and_implicit_gprims():
-    st = _stage()
+    st = new_stage()
     proto = st.DefinePrim("/Proto", "Xform")
-    _mesh(st, "/Proto/m", QUAD, [4], [0, 1, 2, 3])
+    define_mesh(st, "/Proto/m", QUAD, [(0, 1, 2, 3)], scheme=None)
     for i in range(2):
         p = st.DefinePrim(f"/inst{i}", "Xform")
         p.GetReferences().AddInternalReference("/Proto")
@@ -136,8 +123,10 @@ def test_instances_pointinstancer_and_implicit_gprims():
 
 
 def test_geomsubset_materials_and_uv_interpolations():
-    st = _stage()
-    m = _mesh(st, "/m", QUAD + [(2, 0, 0), (2, 1, 0)], [4, 4], [0, 1, 2, 3, 1, 4, 5, 2])
+    st = new_stage()
+    m = define_mesh(
+        st, "/m", QUAD + [(2, 0, 0), (2, 1, 0)], [(0, 1, 2, 3), (1, 4, 5, 2)], scheme=None
+    )
     mats = []
     for name, c in (("red", (1, 0, 0)), ("blue", (0, 0, 1))):
         mat = UsdShade.Material.Define(st, f"/mat/{name}")
@@ -177,8 +166,8 @@ def test_geomsubset_materials_and_uv_interpolations():
 
 
 def test_authored_normals_transformed():
-    st = _stage()
-    m = _mesh(st, "/m", QUAD, [4], [0, 1, 2, 3])
+    st = new_stage()
+    m = define_mesh(st, "/m", QUAD, [(0, 1, 2, 3)], scheme=None)
     m.CreateNormalsAttr([Gf.Vec3f(0, 0, 1)] * 4)
     m.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     m.AddRotateXOp().Set(90.0)
@@ -187,9 +176,9 @@ def test_authored_normals_transformed():
 
 
 def test_hash_parts_track_changes():
-    st = _stage()
-    m = _mesh(st, "/m", QUAD, [4], [0, 1, 2, 3])
-    _mesh(st, "/occ", QUAD, [4], [0, 1, 2, 3])
+    st = new_stage()
+    m = define_mesh(st, "/m", QUAD, [(0, 1, 2, 3)], scheme=None)
+    define_mesh(st, "/occ", QUAD, [(0, 1, 2, 3)], scheme=None)
     h1 = load_scene(st, prims=["/m"]).hash_parts()
     assert set(h1) == {"/m", "occluders", "lights", "materials"}
     assert load_scene(st, prims=["/m"]).hash_parts() == h1
@@ -199,9 +188,9 @@ def test_hash_parts_track_changes():
 
 
 def test_tracer_maps_hits_back(tmp_path):
-    st = _stage()
-    _mesh(st, "/a", QUAD, [4], [0, 1, 2, 3])
-    m = _mesh(st, "/b", QUAD, [4], [0, 1, 2, 3])
+    st = new_stage()
+    define_mesh(st, "/a", QUAD, [(0, 1, 2, 3)], scheme=None)
+    m = define_mesh(st, "/b", QUAD, [(0, 1, 2, 3)], scheme=None)
     m.AddTranslateOp().Set(Gf.Vec3d(0, 0, 2))
     sc = load_scene(st)
     tr = Tracer(sc)
@@ -229,16 +218,16 @@ def test_errors(tmp_path):
     with pytest.raises(StageError, match="not a readable USD"):
         load_scene(bad)
     with pytest.raises(StageError, match="no visible"):
-        load_scene(_stage())
-    st = _stage()
-    _mesh(st, "/m", QUAD, [4], [0, 1, 2, 3])
+        load_scene(new_stage())
+    st = new_stage()
+    define_mesh(st, "/m", QUAD, [(0, 1, 2, 3)], scheme=None)
     with pytest.raises(StageError, match="/nowhere"):
         load_scene(st, prims=["/nowhere"])
 
 
 def _good_and(st):
     """A valid quad /good next to the defect, so the stage itself stays usable."""
-    _mesh(st, "/good", QUAD, [4], [0, 1, 2, 3])
+    define_mesh(st, "/good", QUAD, [(0, 1, 2, 3)], scheme=None)
     return st
 
 
@@ -269,8 +258,8 @@ NAN, INF = float("nan"), float("inf")
     ],
 )
 def test_bad_mesh_goes_to_failed(pts, counts, idx, pattern):
-    st = _good_and(_stage())
-    _mesh(st, "/bad", pts, counts, idx)
+    st = _good_and(new_stage())
+    define_mesh(st, "/bad", pts, counts=counts, indices=idx, scheme=None)
     assert pattern in _failed(st)
 
 
@@ -281,41 +270,45 @@ def test_bad_transforms_go_to_failed():
         ("translate", Gf.Vec3d(NAN, 0, 0), "NaN"),
         ("translate", Gf.Vec3d(1e9, 0, 0), "precision"),
     ]:
-        st = _good_and(_stage())
-        m = _mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3])
+        st = _good_and(new_stage())
+        m = define_mesh(st, "/bad", QUAD, [(0, 1, 2, 3)], scheme=None)
         getattr(m, f"Add{op.capitalize()}Op")().Set(value)
         assert pattern in _failed(st), op
     # a rank-2 matrix (the bad_stages corpus case) and a zero-scaled parent
-    st = _good_and(_stage())
-    m = _mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3])
+    st = _good_and(new_stage())
+    m = define_mesh(st, "/bad", QUAD, [(0, 1, 2, 3)], scheme=None)
     m.AddTransformOp().Set(Gf.Matrix4d(1, 0, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1))
     assert "transform" in _failed(st)
-    st = _good_and(_stage())
+    st = _good_and(new_stage())
     UsdGeom.Xform.Define(st, "/grp").AddScaleOp().Set(Gf.Vec3f(0, 1, 1))
-    _mesh(st, "/grp/bad", QUAD, [4], [0, 1, 2, 3])
+    define_mesh(st, "/grp/bad", QUAD, [(0, 1, 2, 3)], scheme=None)
     assert "not invertible" in _failed(st, "/grp/bad")
 
 
 def test_precision_rule_scales_with_size():
     # a 1 cm quad 1 km from the origin is fine (ulp 6e-5 m: 160 ulps across) ...
-    st = _stage()
-    m = _mesh(st, "/far", [(x * 0.01, y * 0.01, 0) for x, y, _ in QUAD], [4], [0, 1, 2, 3])
+    st = new_stage()
+    m = define_mesh(
+        st, "/far", [(x * 0.01, y * 0.01, 0) for x, y, _ in QUAD], [(0, 1, 2, 3)], scheme=None
+    )
     m.AddTranslateOp().Set(Gf.Vec3d(1000.0, 0, 0))
     sc = load_scene(st)
     assert not sc.failed and np.isfinite(sc.meshes[0].points).all()
     # ... a 1e-9 quad at the origin bakes with a "small" warning next to a 1 m quad
-    st = _good_and(_stage())
-    _mesh(st, "/tiny", [(x * 1e-9, y * 1e-9, 1e-9) for x, y, _ in QUAD], [4], [0, 1, 2, 3])
+    st = _good_and(new_stage())
+    define_mesh(
+        st, "/tiny", [(x * 1e-9, y * 1e-9, 1e-9) for x, y, _ in QUAD], [(0, 1, 2, 3)], scheme=None
+    )
     sc = load_scene(st)
     assert not sc.failed and "/tiny" in [m.path for m in sc.meshes]
     assert any("1 baked meshes are very small" in w and "/tiny (" in w for w in sc.warnings)
 
 
 def test_degenerate_triangles_dropped_with_warning():
-    st = _stage()
+    st = new_stage()
     pts = QUAD + [(2, 0, 0), (3, 0, 0)]
     # quad, a triangle with a repeated vertex, a triangle of three collinear points
-    _mesh(st, "/m", pts, [4, 3, 3], [0, 1, 2, 3, 0, 0, 1, 1, 4, 5])
+    define_mesh(st, "/m", pts, [(0, 1, 2, 3), (0, 0, 1), (1, 4, 5)], scheme=None)
     sc = load_scene(st)
     md = sc.meshes[0]
     assert md.triangles.shape == (2, 3) and md.face.tolist() == [0, 0]
@@ -324,10 +317,10 @@ def test_degenerate_triangles_dropped_with_warning():
 
 
 def test_empty_meshes_skipped_with_warning():
-    st = _good_and(_stage())
+    st = _good_and(new_stage())
     UsdGeom.Mesh.Define(st, "/empty")
-    _mesh(st, "/nofaces", QUAD, [], [])
-    _mesh(st, "/lines", QUAD, [2, 2], [0, 1, 2, 3])
+    define_mesh(st, "/nofaces", QUAD, counts=[], indices=[], scheme=None)
+    define_mesh(st, "/lines", QUAD, counts=[2, 2], indices=[0, 1, 2, 3], scheme=None)
     sc = load_scene(st)
     assert [m.path for m in sc.meshes] == ["/good"] and not sc.failed
     text = "\n".join(sc.warnings)
@@ -354,35 +347,35 @@ def test_bad_lightmap_uvs_go_to_failed():
         (dict(values=fv[:2], idx=[0, 1, 7, 1]), "indices out of range"),
     ]
     for kw, pattern in cases:
-        st = _good_and(_stage())
-        _uv(_mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3]), **kw)
+        st = _good_and(new_stage())
+        _uv(define_mesh(st, "/bad", QUAD, [(0, 1, 2, 3)], scheme=None), **kw)
         msg = _failed(st)
         assert pattern in msg and "primvars:st" in msg, (pattern, msg)
     # the same primvar is only a warning when it is not the lightmap set (a material's)
-    st = _good_and(_stage())
-    _uv(_mesh(st, "/bad", QUAD, [4], [0, 1, 2, 3]), values=[(0, 0, 0)] * 4,
+    st = _good_and(new_stage())
+    _uv(define_mesh(st, "/bad", QUAD, [(0, 1, 2, 3)], scheme=None), values=[(0, 0, 0)] * 4,
         type_name=Sdf.ValueTypeNames.Float3Array)  # fmt: skip
     sc = load_scene(st, uv_name="uv2")
     assert not sc.failed and len(sc.meshes) == 2
 
 
 def test_failed_outside_prims_selection_is_a_warning():
-    st = _good_and(_stage())
-    _mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    st = _good_and(new_stage())
+    define_mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [(0, 1, 2)], scheme=None)
     sc = load_scene(st, prims=["/good"])
     assert not sc.failed
     assert any(w.startswith("/bad: points contain NaN") for w in sc.warnings)
     # a mesh whose only problem is fatal and which is the only one: failed, no raise
-    st = _stage()
-    _mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    st = new_stage()
+    define_mesh(st, "/bad", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [(0, 1, 2)], scheme=None)
     sc = load_scene(st)
     assert list(sc.failed) == ["/bad"] and sc.meshes == []
 
 
 def test_bad_instance_prototype_is_a_warning():
-    st = _good_and(_stage())
+    st = _good_and(new_stage())
     pi = UsdGeom.PointInstancer.Define(st, "/pi")
-    _mesh(st, "/pi/protos/m", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [3], [0, 1, 2])
+    define_mesh(st, "/pi/protos/m", [(0, 0, 0), (1, 0, 0), (NAN, 1, 0)], [(0, 1, 2)], scheme=None)
     pi.CreatePrototypesRel().SetTargets([Sdf.Path("/pi/protos/m")])
     pi.CreateProtoIndicesAttr([0, 0])
     pi.CreatePositionsAttr([Gf.Vec3f(0, 0, 2), Gf.Vec3f(0, 0, 3)])
@@ -395,11 +388,11 @@ def test_bad_instance_prototype_is_a_warning():
 
 def test_stage_metadata(tmp_path):
     for mpu in (0.0, -1.0, INF):
-        st = _good_and(_stage())
+        st = _good_and(new_stage())
         UsdGeom.SetStageMetersPerUnit(st, mpu)
         with pytest.raises(StageError, match="metersPerUnit"):
             load_scene(st)
-    st = _good_and(_stage())
+    st = _good_and(new_stage())
     st.SetMetadata("upAxis", "X")
     sc = load_scene(st)
     assert sc.up_axis == "Y" and any("upAxis = 'X'" in w for w in sc.warnings)
@@ -422,7 +415,7 @@ def test_composition_errors(tmp_path):
 
 
 def _light_stage(kind="SphereLight", **inputs):
-    st = _good_and(_stage())
+    st = _good_and(new_stage())
     lt = getattr(UsdLux, kind).Define(st, "/L")
     for k, v in inputs.items():
         lt.GetPrim().GetAttribute(f"inputs:{k}").Set(v) if lt.GetPrim().GetAttribute(
@@ -523,9 +516,9 @@ def test_material_values():
         (dict(opacity=NAN), "inputs:opacity is NaN"),
     ]:
         with pytest.raises(StageError, match="/Looks/M") as err:
-            load_scene(_material(_good_and(_stage()), **inputs))
+            load_scene(_material(_good_and(new_stage()), **inputs))
         assert pattern in str(err.value)
-    sc = load_scene(_material(_good_and(_stage()), diffuseColor=Gf.Vec3f(1.5, -0.5, 0.5)))
+    sc = load_scene(_material(_good_and(new_stage()), diffuseColor=Gf.Vec3f(1.5, -0.5, 0.5)))
     np.testing.assert_allclose(sc.materials[0].albedo, [1.0, 0.0, 0.5])
     assert any("/Looks/M: inputs:diffuseColor (1.5, -0.5, 0.5)" in w for w in sc.warnings)
 

@@ -14,7 +14,6 @@ import sys
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT
 from tests.instance_scene import (
     HIDDEN,
     OPEN_POINTS,
@@ -25,6 +24,7 @@ from tests.instance_scene import (
     top_iz,
     write_stage,
 )
+from tests.scenes import ROOT
 from tests.stats import assert_mean
 from usdahd import cli
 from usdahd.numerics import sh as shmod

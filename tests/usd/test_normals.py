@@ -14,6 +14,7 @@ import pytest
 import trimesh
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
+from tests.scenes import BOX_QUADS, box_points, define_mesh, new_stage
 from usdahd import cli
 from usdahd.usd import normals as N
 from usdahd.usd.reader import load_scene
@@ -22,24 +23,8 @@ ROOT = Path(__file__).resolve().parents[2]
 FAST = ["--resolution", "64", "--samples", "16", "--bounces", "0", "--quiet"]
 
 # A unit box with shared points (every corner is used by three faces), outward CCW quads.
-BOX_P = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
-BOX_Q = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-
-
-def _stage(up="Z"):
-    st = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, up)
-    return st
-
-
-def _mesh(st, path, pts, faces, scheme="none"):
-    m = UsdGeom.Mesh.Define(st, path)
-    m.CreatePointsAttr([Gf.Vec3f(*map(float, p)) for p in pts])
-    m.CreateFaceVertexCountsAttr([len(f) for f in faces])
-    m.CreateFaceVertexIndicesAttr([int(i) for f in faces for i in f])
-    if scheme is not None:
-        m.CreateSubdivisionSchemeAttr(scheme)
-    return m
+BOX_P = box_points((0, 0, 0), (1, 1, 1))
+BOX_Q = list(BOX_QUADS)
 
 
 def _cylinder(n=32, r=1.0, h=2.0, caps=True):
@@ -65,8 +50,8 @@ def _box_normals_by_triangle(md):
 
 
 def test_box_is_exactly_flat_per_face():
-    st = _stage()
-    _mesh(st, "/Box", BOX_P, BOX_Q)
+    st = new_stage()
+    define_mesh(st, "/Box", BOX_P, BOX_Q)
     sc = load_scene(st)
     md = sc.meshes[0]
     n, g = _box_normals_by_triangle(md)
@@ -81,8 +66,8 @@ def test_box_is_exactly_flat_per_face():
 
 
 def test_box_flat_under_rotation_nonuniform_scale_and_mirror():
-    st = _stage()
-    m = _mesh(st, "/Box", BOX_P, BOX_Q)
+    st = new_stage()
+    m = define_mesh(st, "/Box", BOX_P, BOX_Q)
     m.AddRotateXYZOp().Set(Gf.Vec3f(20, 35, -50))
     m.AddScaleOp().Set(Gf.Vec3f(3.0, 0.5, -1.5))  # mirrored: the winding is flipped back
     md = load_scene(st).meshes[0]
@@ -95,8 +80,8 @@ def test_box_flat_under_rotation_nonuniform_scale_and_mirror():
 
 def test_32_segment_cylinder_is_smooth_and_its_caps_flat():
     pts, faces = _cylinder(32)
-    st = _stage()
-    _mesh(st, "/Cyl", pts, faces)
+    st = new_stage()
+    define_mesh(st, "/Cyl", pts, faces)
     md = load_scene(st).meshes[0]
     side = md.face < 32
     p = md.points[md.triangles[side]]
@@ -173,8 +158,8 @@ def test_chunked_pairs_match_unchunked(monkeypatch):
 def test_subdivision_surfaces_get_smooth_normals_equal_to_trimesh():
     sphere = trimesh.creation.icosphere(subdivisions=1)
     pts, faces = sphere.vertices, sphere.faces
-    st = _stage()
-    _mesh(st, "/Loop", pts, faces, scheme="loop")
+    st = new_stage()
+    define_mesh(st, "/Loop", pts, faces, scheme="loop")
     sc = load_scene(st)
     md = sc.meshes[0]
     assert sc.computed_normals["/Loop"].rule == N.RULE_SMOOTH
@@ -182,17 +167,17 @@ def test_subdivision_surfaces_get_smooth_normals_equal_to_trimesh():
     want = sphere.vertex_normals[faces]
     np.testing.assert_allclose(md.normals, want, atol=2e-6)
     # a catmullClark box is smooth: corners lean diagonally (1, 1, 1) / sqrt 3
-    st = _stage()
-    _mesh(st, "/Box", BOX_P, BOX_Q, scheme="catmullClark")
+    st = new_stage()
+    define_mesh(st, "/Box", BOX_P, BOX_Q, scheme="catmullClark")
     md = load_scene(st).meshes[0]
     d = md.points[md.triangles] - 0.5
     np.testing.assert_allclose(md.normals, d / np.linalg.norm(d, axis=-1, keepdims=True), atol=1e-6)
 
 
 def test_unauthored_scheme_uses_the_crease_rule_and_warns_once():
-    st = _stage()
-    _mesh(st, "/A", BOX_P, BOX_Q, scheme=None)
-    m = _mesh(st, "/B", BOX_P, BOX_Q, scheme=None)
+    st = new_stage()
+    define_mesh(st, "/A", BOX_P, BOX_Q, scheme=None)
+    m = define_mesh(st, "/B", BOX_P, BOX_Q, scheme=None)
     m.AddTranslateOp().Set(Gf.Vec3d(3, 0, 0))
     sc = load_scene(st)
     n, g = _box_normals_by_triangle(sc.meshes[0])
@@ -204,8 +189,8 @@ def test_unauthored_scheme_uses_the_crease_rule_and_warns_once():
 
 
 def test_left_handed_mesh_normals_face_its_front():
-    st = _stage()
-    m = _mesh(st, "/Q", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)])
+    st = new_stage()
+    m = define_mesh(st, "/Q", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)])
     m.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
     sc = load_scene(st)
     np.testing.assert_allclose(sc.meshes[0].normals.reshape(-1, 3), [[0, 0, -1]] * 6)
@@ -226,8 +211,8 @@ def test_degenerate_polygon_corners_get_a_unit_normal():
 
 @pytest.mark.parametrize("interp", ["faceVarying", "vertex", "uniform", "constant", "primvar"])
 def test_authored_normals_win(interp):
-    st = _stage()
-    m = _mesh(st, "/Box", BOX_P, BOX_Q)
+    st = new_stage()
+    m = define_mesh(st, "/Box", BOX_P, BOX_Q)
     tilt = np.array([0.3, -0.2, 0.9])
     tilt /= np.linalg.norm(tilt)
     n_fv = 24
@@ -258,11 +243,11 @@ def _box_stage(tmp_path, scheme="none", name="box.usda"):
     UsdGeom.SetStageUpAxis(st, "Z")
     UsdGeom.SetStageMetersPerUnit(st, 1.0)
     pts, faces = _cylinder(12, r=0.5, h=1.0)
-    m = _mesh(st, "/World/Cyl", pts, faces, scheme=scheme)
+    m = define_mesh(st, "/World/Cyl", pts, faces, scheme=scheme)
     m.AddRotateXYZOp().Set(Gf.Vec3f(10, 20, 30))
-    _mesh(st, "/World/Box", BOX_P, BOX_Q, scheme=scheme)
+    define_mesh(st, "/World/Box", BOX_P, BOX_Q, scheme=scheme)
     # mirrored and left-handed (clockwise quads: outward): still bit for bit after the trip
-    lh = _mesh(st, "/World/Mirrored", BOX_P, [q[::-1] for q in BOX_Q], scheme=scheme)
+    lh = define_mesh(st, "/World/Mirrored", BOX_P, [q[::-1] for q in BOX_Q], scheme=scheme)
     lh.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
     lh.AddTranslateOp().Set(Gf.Vec3d(3, 0, 0))
     lh.AddScaleOp().Set(Gf.Vec3f(-1, 1, 2))

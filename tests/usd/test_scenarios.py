@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 import usdahd.usd  # noqa: F401  (registers the plugins first)
-from tests.conftest import baked_mean_iz
+from tests.scenes import baked_mean_iz
 from usdahd.errors import UsageError
 from usdahd.usd import scenarios as S
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdUtils, UsdValidation
 
-from tests.conftest import SAMPLES, sample_stages
+from tests.scenes import SAMPLES, sample_stages
 from usdahd import cli, images, models
 from usdahd.usd import schema
 

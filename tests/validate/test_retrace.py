@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import usdahd.usd  # noqa: F401  (registers the plugins first)
-from tests.conftest import ROOT, SAMPLES, copy_sample, sample_stages
+from tests.scenes import ROOT, SAMPLES, copy_sample, sample_stages
 from usdahd import cli
 from usdahd import validate as V
 from usdahd.errors import UsageError

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from pxr import Usd
 
-from tests.conftest import copy_sample, sample_stages  # noqa: E402
+from tests.scenes import copy_sample, sample_stages  # noqa: E402
 from usdahd import cli, images, models
 from usdahd import validate as V
 from usdahd.usd import schema

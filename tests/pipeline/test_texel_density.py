@@ -271,7 +271,7 @@ def test_a_bad_texel_budget_is_a_usage_error(tmp_path, capsys):
 
 
 def test_an_unchanged_rebake_on_the_automatic_density_is_skipped(tmp_path, capsys):
-    from conftest import copy_sample
+    from tests.scenes import copy_sample
 
     stage = copy_sample(tmp_path, "open_plane.usda")
     argv = ["bake", str(stage), "--samples", "4", "--bounces", "0", "--json", "--quiet"]

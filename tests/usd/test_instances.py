@@ -504,9 +504,9 @@ def test_multi_mesh_prototypes_nested_instances_and_columns(tmp_path, capsys):
     instance whose prototype holds a mesh and a nested instance: every copy is baked, the
     PointInstancer's arrays are N x M with no entry where an instance uses the other
     prototype, keys follow the reader's names, and validate is clean."""
-    from instance_scene import _mesh
     from pxr import Usd
 
+    from tests.instance_scene import _mesh
     from usdahd.usd import schema
 
     text = NESTED

@@ -284,7 +284,7 @@ def test_one_percent_power_and_false_alarms_on_the_synthetic_model(texels, power
     wall) with >= 80% (the bake's own noise is the limit). A clean bake is flagged at most
     alpha = 1% of the time. Over 2000 seeded trials, with tests/stats.py's standard error; the
     reported SE is the scatter of R over trials (what the test is derived from)."""
-    from stats import SIGMAS, standard_error
+    from tests.stats import SIGMAS, standard_error
 
     rng = np.random.default_rng(41)
     o = RT.RetraceOptions()

@@ -68,11 +68,12 @@ def baked_mean_iz(layer: Path) -> float:
 # --- small stages built with pxr -----------------------------------------------------------
 
 
-def new_stage(up: str = "Z", meters_per_unit: float | None = None):
-    """An in-memory stage with ``up`` as its up axis (and ``metersPerUnit`` when given)."""
+def new_stage(up: str = "Z", meters_per_unit: float | None = None, path: Path | None = None):
+    """A stage with ``up`` as its up axis (and ``metersPerUnit`` when given): in memory, or a
+    new layer file at ``path`` (saved by the caller)."""
     from pxr import Usd, UsdGeom
 
-    st = Usd.Stage.CreateInMemory()
+    st = Usd.Stage.CreateNew(str(path)) if path is not None else Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(st, up)
     if meters_per_unit is not None:
         UsdGeom.SetStageMetersPerUnit(st, meters_per_unit)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.scenes import new_stage
 from tests.stats import SIGMAS
 
 pytest.importorskip("pxr")
@@ -33,12 +34,6 @@ if str(ROOT) not in sys.path:
 from benchmarks.reference import calibrate, compare, export, probes, runner  # noqa: E402
 
 REL = 1e-6  # float32 storage of authored values
-
-
-def _stage(tmp_path, name="s.usda"):
-    stage = Usd.Stage.CreateNew(str(tmp_path / name))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    return stage
 
 
 def _plane(stage, path="/World/Plane", st=True, normals=False):
@@ -81,7 +76,7 @@ def _by_path(scene, path):
 
 
 def test_sphere_rect_disk_radiance_and_normalize(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     s = _light(st, UsdLux.SphereLight, "/L/S", 3.0, 1.0, (1, 0.5, 0.25))
     s.CreateRadiusAttr(0.2)
@@ -108,7 +103,7 @@ def test_sphere_rect_disk_radiance_and_normalize(tmp_path):
 
 
 def test_treat_as_point_and_distant_light_illuminance(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     p = _light(st, UsdLux.SphereLight, "/L/P", 10.0)
     p.CreateRadiusAttr(0.1)
@@ -131,7 +126,7 @@ def test_treat_as_point_and_distant_light_illuminance(tmp_path):
 
 
 def test_dome_colour_and_texture_orientation(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     _light(st, UsdLux.DomeLight, "/L/Dome", 0.5, 1.0, (0.2, 0.4, 0.8))
     sc = _export(st)
@@ -168,7 +163,7 @@ def test_an_8bit_dome_texture_is_srgb_decoded(tmp_path):
 
 
 def test_emissive_material_and_texture_path(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     m = _plane(st)
     mat = UsdShade.Material.Define(st, "/M")
     sh = UsdShade.Shader.Define(st, "/M/S")
@@ -197,7 +192,7 @@ def _cutout_stage(tmp_path, alpha: float, name="cut.usda"):
     out.open(str(png), oiio.ImageSpec(4, 4, 4, oiio.UINT8))
     out.write_image(img)
     out.close()
-    st = _stage(tmp_path, name)
+    st = new_stage("Y", path=tmp_path / name)
     _plane(st)
     occ = _plane(st, "/World/Occluder")
     occ.AddTranslateOp().Set(Gf.Vec3d(0, 0.5, 0))
@@ -280,7 +275,7 @@ def test_metallic_reduces_the_exported_diffuse_albedo(tmp_path, metallic, spec, 
     """The reference renders the diffuse transport usdahd bakes: diffuseColor x (1 - metallic)
     in the metallic workflow, diffuseColor in the specular one (classroom's metal chairs were
     exported white, so the reference was ~20 % brighter than the bake there)."""
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     m = _plane(st)
     mat = UsdShade.Material.Define(st, "/M")
     sh = UsdShade.Shader.Define(st, "/M/S")
@@ -313,7 +308,7 @@ def _box(stage, path, scheme="none"):
 
 
 def test_box_without_normals_is_flat_and_outward(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     _box(st, "/Box")
     sc = _export(st)
@@ -330,7 +325,7 @@ def test_box_without_normals_is_flat_and_outward(tmp_path):
 def test_left_handed_box_without_normals_faces_its_front(tmp_path):
     """orientation = leftHanded makes the clockwise side the front: computed normals (and
     the exported winding) then point into this cube."""
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     _box(st, "/Box").CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
     sc = _export(st)
@@ -343,7 +338,7 @@ def test_left_handed_box_without_normals_faces_its_front(tmp_path):
 
 
 def test_subdivision_mesh_without_normals_is_smooth(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     _box(st, "/Box", scheme=None)  # catmullClark fallback: smooth normals
     sc = _export(st)
@@ -355,7 +350,7 @@ def test_subdivision_mesh_without_normals_is_smooth(tmp_path):
 
 
 def test_authored_normals_win_and_left_handed_flips_winding(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     m = _plane(st, normals=True)
     m.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
     sc = _export(st)
@@ -438,7 +433,7 @@ def test_texels_next_to_unlit_ones_are_reported_apart():
 
 
 def test_export_errors_name_the_problem(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st, st=False)
     st.GetRootLayer().Save()
     with pytest.raises(export.ExportError, match="no mesh has the lightmap UV primvar 'st'"):
@@ -452,7 +447,7 @@ def test_export_errors_name_the_problem(tmp_path):
 
 
 def test_missing_dome_texture_is_an_error(tmp_path):
-    st = _stage(tmp_path)
+    st = new_stage("Y", path=tmp_path / "s.usda")
     _plane(st)
     d = _light(st, UsdLux.DomeLight, "/L/Dome", 1.0)
     d.CreateTextureFileAttr(Sdf.AssetPath("./nope.exr"))

@@ -12,6 +12,7 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils
 
+from tests.scenes import new_stage
 from usdahd import cli
 from usdahd.numerics import sh as shmod
 from usdahd.scene import lights as L
@@ -23,13 +24,6 @@ FAST = ["--resolution", "8", "--samples", "32", "--bounces", "0", "--quiet"]
 
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def _new_stage(path=None, up="Z"):
-    st = Usd.Stage.CreateNew(str(path)) if path else Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(st, up)
-    UsdGeom.SetStageMetersPerUnit(st, 1.0)
-    return st
 
 
 def _plane(st, path="/World/Plane", size=1.0, z=0.0, st_uv=True):
@@ -148,7 +142,7 @@ def _run(argv, capsys):
 
 def test_time_sampled_only_distant_light_bakes_at_start_time_code(tmp_path, capsys):
     src = tmp_path / "sun.usda"
-    st = _new_stage(src)
+    st = new_stage(meters_per_unit=1.0, path=src)
     st.SetStartTimeCode(1)
     st.SetEndTimeCode(10)
     _plane(st)
@@ -179,7 +173,7 @@ def test_time_sampled_only_distant_light_bakes_at_start_time_code(tmp_path, caps
 
 def test_validate_reports_stale_when_the_values_at_the_bake_time_change(tmp_path, capsys):
     src = tmp_path / "sun.usda"
-    st = _new_stage(src)
+    st = new_stage(meters_per_unit=1.0, path=src)
     st.SetStartTimeCode(1)
     _plane(st)
     _sun(st).GetIntensityAttr().Set(8.0, 1.0)
@@ -209,7 +203,7 @@ def test_validate_reports_stale_when_the_values_at_the_bake_time_change(tmp_path
 
 
 def test_samples_only_xform_and_points_are_read_at_the_bake_time():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     st.SetStartTimeCode(2)
     m = _plane(st)
     op = m.AddTranslateOp()
@@ -223,7 +217,7 @@ def test_samples_only_xform_and_points_are_read_at_the_bake_time():
 
 
 def test_default_plus_samples_warns_and_uses_the_sample():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     st.SetStartTimeCode(1)
     _plane(st)
     sun = _sun(st, intensity=3.0)  # a default ...
@@ -248,7 +242,7 @@ def test_default_plus_samples_warns_and_uses_the_sample():
 
 
 def test_static_stage_reads_the_default_time_without_warnings():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     _plane(st)
     _sun(st, intensity=1.0)
     t, auto = resolve_time(st, None)
@@ -259,7 +253,7 @@ def test_static_stage_reads_the_default_time_without_warnings():
 
 
 def test_samples_without_start_time_code_use_the_first_sample():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     m.AddTranslateOp().Set(Gf.Vec3d(0, 0, 4), 7.0)
     warnings = []
@@ -271,7 +265,7 @@ def test_samples_without_start_time_code_use_the_first_sample():
 @pytest.mark.parametrize("value", ["soon", "nan", "inf"])
 def test_bad_time_is_a_usage_error(tmp_path, capsys, value):
     src = tmp_path / "p.usda"
-    st = _new_stage(src)
+    st = new_stage(meters_per_unit=1.0, path=src)
     _plane(st)
     _sun(st, intensity=1.0)
     st.GetRootLayer().Save()
@@ -280,7 +274,7 @@ def test_bad_time_is_a_usage_error(tmp_path, capsys, value):
 
 
 def test_time_sampled_visibility_is_read_at_the_bake_time():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     st.SetStartTimeCode(1)
     _plane(st)
     hidden = _plane(st, "/World/Blinker", z=1.0)
@@ -296,7 +290,7 @@ def test_time_sampled_visibility_is_read_at_the_bake_time():
 
 
 def test_full_purpose_binding_wins_over_all_purpose():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     red, _ = _material(st, "/World/Red", (0.8, 0.1, 0.1))
     green, _ = _material(st, "/World/Green", (0.1, 0.8, 0.1))
@@ -312,7 +306,7 @@ def test_full_purpose_binding_wins_over_all_purpose():
 
 
 def test_metallic_scales_the_diffuse_albedo():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     _plane(st, "/World/A")
     _plane(st, "/World/B", z=1)
     _plane(st, "/World/C", z=2)
@@ -343,7 +337,7 @@ def test_metallic_scales_the_diffuse_albedo():
 def test_metallic_scales_an_albedo_texture(tmp_path):
     png = tmp_path / "grey.png"
     _write_png(png, np.full((4, 4, 3), 255, np.uint8))
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat = _textured_material(st, "/World/Tex", png)
     UsdShade.Shader(st.GetPrimAtPath("/World/Tex/Surface")).CreateInput(
@@ -357,7 +351,7 @@ def test_metallic_scales_an_albedo_texture(tmp_path):
 
 
 def test_unhonoured_inputs_get_one_warning():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat, sh = _material(
         st,
@@ -391,7 +385,7 @@ def test_unhonoured_inputs_get_one_warning():
 def test_transform2d_applies_to_the_texture_coordinates(tmp_path):
     png = tmp_path / "c.png"
     _write_png(png, np.full((4, 4, 3), 128, np.uint8))
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat = _textured_material(st, "/World/Tiled", png, transform=((2.0, 3.0), 90.0, (0.25, -0.5)))
     _bind(m.GetPrim(), mat)
@@ -405,7 +399,7 @@ def test_transform2d_applies_to_the_texture_coordinates(tmp_path):
     want = np.stack([-s[..., 1], s[..., 0]], axis=-1) + [0.25, -0.5]
     np.testing.assert_allclose(sc.texcoords[0][name], want, atol=1e-5)
     # an identity transform keeps the primvar's own name
-    st2 = _new_stage()
+    st2 = new_stage(meters_per_unit=1.0)
     m2 = _plane(st2)
     _bind(m2.GetPrim(), _textured_material(st2, "/World/T", png, transform=((1, 1), 0.0, (0, 0))))
     sc2 = load_scene(st2)
@@ -455,7 +449,7 @@ def test_auto_colour_space_follows_hydra(tmp_path):
 def test_colour_space_metadata_on_the_file_input_is_used(tmp_path):
     png = tmp_path / "lin.png"
     _write_png(png, np.full((2, 2, 3), 128, np.uint8))
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat = _textured_material(st, "/World/Lin", png)
     UsdShade.Shader(st.GetPrimAtPath("/World/Lin/Tex")).GetInput("file").GetAttr().SetColorSpace(
@@ -489,7 +483,7 @@ def _usdz_source(tmp_path):
     out.open(str(work / "textures" / "sky.exr"), oiio.ImageSpec(16, 8, 3, "float"))
     out.write_image(sky)
     out.close()
-    st = _new_stage(work / "scene.usda")
+    st = new_stage(meters_per_unit=1.0, path=work / "scene.usda")
     st.SetDefaultPrim(st.DefinePrim("/World", "Xform"))
     m = _plane(st)
     _bind(m.GetPrim(), _textured_material(st, "/World/Look", "./textures/albedo.png"))
@@ -547,7 +541,7 @@ def test_missing_asset_in_a_package_is_reported(tmp_path, capsys):
 
 
 def test_render_purpose_child_of_a_guide_parent_is_baked():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     g = UsdGeom.Xform.Define(st, "/World/Guides")
     g.CreatePurposeAttr(UsdGeom.Tokens.guide)
     _plane(st, "/World/Guides/Rendered").CreatePurposeAttr(UsdGeom.Tokens.render)
@@ -557,7 +551,7 @@ def test_render_purpose_child_of_a_guide_parent_is_baked():
 
 
 def test_shadow_color_and_unauthored_intensity_warn():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     _plane(st)
     sun = UsdLux.DistantLight.Define(st, "/World/Sun")  # no intensity authored
     UsdLux.ShadowAPI.Apply(sun.GetPrim())
@@ -572,7 +566,7 @@ def test_shadow_color_and_unauthored_intensity_warn():
 
 
 def test_unauthored_subdivision_scheme_warns_for_meshes_with_normals():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     m.GetSubdivisionSchemeAttr().Clear()
     sc = load_scene(st)
@@ -582,7 +576,7 @@ def test_unauthored_subdivision_scheme_warns_for_meshes_with_normals():
 
 
 def test_too_dim_distant_light_warns():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     _plane(st)
     _sun(st, "/World/Sun", intensity=1000.0)
     _sun(st, "/World/Moon", intensity=1.0, normalize=False)  # radiance 1: E = 6.7e-5
@@ -594,7 +588,7 @@ def test_too_dim_distant_light_warns():
 
 
 def test_light_and_shadow_link_membership():
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     _plane(st, "/World/Ground")
     _plane(st, "/World/Wall", z=1)
     sun = _sun(st, intensity=1.0)
@@ -618,7 +612,7 @@ def test_light_and_shadow_link_membership():
 
 def test_validate_a_stage_without_lightmaps_fails(tmp_path, capsys):
     src = tmp_path / "src.usda"
-    st = _new_stage(src)
+    st = new_stage(meters_per_unit=1.0, path=src)
     _plane(st)
     _sun(st, intensity=1.0)
     st.GetRootLayer().Save()
@@ -637,14 +631,14 @@ def test_validate_a_stage_without_lightmaps_fails(tmp_path, capsys):
 def test_bad_metallic_values(tmp_path):
     from usdahd.errors import StageError
 
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat, _ = _material(st, "/World/Odd", metallic=(Sdf.ValueTypeNames.Float, 1.5))
     _bind(m.GetPrim(), mat)
     sc = load_scene(st)
     assert any("/World/Odd: metallic 1.5 outside [0, 1]; clamped" in w for w in sc.warnings)
     np.testing.assert_allclose(sc.materials[sc.meshes[0].material[0]].albedo, 0.0)
-    st2 = _new_stage()
+    st2 = new_stage(meters_per_unit=1.0)
     m2 = _plane(st2)
     nan, _ = _material(st2, "/World/Nan", metallic=(Sdf.ValueTypeNames.Float, float("nan")))
     _bind(m2.GetPrim(), nan)
@@ -657,13 +651,13 @@ def test_bad_transform2d(tmp_path):
 
     png = tmp_path / "c.png"
     _write_png(png, np.full((2, 2, 3), 128, np.uint8))
-    st = _new_stage()
+    st = new_stage(meters_per_unit=1.0)
     m = _plane(st)
     mat = _textured_material(st, "/World/T", png, transform=((float("nan"), 1), 0.0, (0, 0)))
     _bind(m.GetPrim(), mat)
     with pytest.raises(StageError, match="/World/T/Transform: UsdTransform2d inputs are NaN"):
         load_scene(st)
-    st2 = _new_stage()
+    st2 = new_stage(meters_per_unit=1.0)
     m2 = _plane(st2)
     mat2 = _textured_material(st2, "/World/T", png, transform=((2, 2), 0.0, (0, 0)))
     UsdShade.Shader(st2.GetPrimAtPath("/World/T/Transform")).GetInput("in").ClearSources()
@@ -688,7 +682,7 @@ def test_moving_a_baked_project_keeps_it_fresh(tmp_path, capsys):
     work = tmp_path / "a"
     work.mkdir()
     _write_png(work / "albedo.png", np.full((4, 4, 3), 180, np.uint8))
-    st = _new_stage(work / "s.usda")
+    st = new_stage(meters_per_unit=1.0, path=work / "s.usda")
     m = _plane(st)
     _bind(m.GetPrim(), _textured_material(st, "/World/Look", "./albedo.png"))
     _sun(st, intensity=3.0)

@@ -436,7 +436,7 @@ def plot(rows: list[dict], path: Path) -> bool:
         import matplotlib.pyplot as plt
         from matplotlib.ticker import NullFormatter
     except ImportError:
-        _log("matplotlib not installed (pip install -e '.[bench]'): no plot")
+        _log("matplotlib not installed (pip install -e benchmarks/): no plot")
         return False
     stages = list(dict.fromkeys(r["stage"] for r in rows))
     cols = min(len(stages), 4) or 1

@@ -3,7 +3,7 @@
 For each sample stage and bake seed: a default (denoised) bake at ``--resolution``; copies
 whose irradiance textures *and* SH sidecar are scaled by each factor (the sidecar consistent
 with the rescaled textures, so IzCheck passes and only the physics can tell, as in
-tests/test_retrace.py); each validated with ``--retrace N`` at the default samples and the
+tests/validate/test_retrace.py); each validated with ``--retrace N`` at the default samples and the
 retrace seed = the bake seed. A prim is *detected* when it has a ``RetraceMismatch`` error.
 Factor 1.0 gives the false-alarm rate.
 
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))  # the checkout: tests.conftest, tests.validate.test_retrace
 
 FACTORS = (1.0, 0.99, 1.0025, 1.005, 1.01, 1.02, 1.04)
 #: The third-party Cornell boxes (tests read ../shared relative to the repository root).
@@ -45,7 +45,7 @@ def _stage(folder: Path, name: str) -> Path:
     """A sample stage (samples/<name>) or a shared Cornell box file copied into ``folder``."""
     import shutil
 
-    from conftest import copy_sample
+    from tests.scenes import copy_sample
 
     if (SHARED / name).is_file():
         folder.mkdir(parents=True, exist_ok=True)
@@ -88,8 +88,8 @@ def _beyond(ratio, bound) -> bool:
 
 
 def power(args) -> None:
-    from conftest import sample_stages
-    from test_retrace import _scaled_copy
+    from tests.scenes import sample_stages
+    from tests.validate.test_retrace import _scaled_copy
 
     stages = args.stages or sample_stages()
     counts: dict = {}
@@ -175,9 +175,9 @@ def bias(args) -> None:
     stitching's change of the prim's mean, no sampling error), and the two-stage test
     resampled ``--trials`` times on that real population (random texel orders, the rule's own
     functions, N = 1024 at the default samples): false alarms and detections of 0.5 % and 1 %."""
-    from conftest import sample_stages
     from pxr import Usd
 
+    from tests.scenes import sample_stages
     from usdahd import validate as V
     from usdahd.bake import integrate
     from usdahd.usd import schema

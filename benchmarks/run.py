@@ -7,7 +7,7 @@
                                         # boxes): `reference_bench.py --truths-only` first
     python benchmarks/run.py --reference-stages cornell_box floor_lamp   # a subset of stages
     python benchmarks/run.py --quick    # ~2-3 min: fewer samples, texels and repeats
-    usdahd bench [--quick]              # the same, from a source checkout
+    usdahd bench [--quick]              # the same (or usdahd-bench): pip install -e benchmarks/
 
 Sections (issue 7): 1 bake run time against error, 2 fit speed and error per model x solver,
 3 encodings side by side after quantization, 4 what skipping saves, and a soak of random and
@@ -453,7 +453,7 @@ def section_bake(result, plan: Plan, no_denoise) -> str:
             "relative) is listed below and drawn dotted in the plot; errors near it are not "
             "resolved. The reference uses the same integrator, so a bias of the integrator "
             "itself (e.g. the O(1/S) bias of the regression estimator) is not visible here; "
-            "the analytic light tests (`tests/test_integrate.py`) cover that.",
+            "the analytic light tests (`tests/bake/test_integrate.py`) cover that.",
             "",
             bake_sweep.sweep_markdown(
                 result, resolution=plan.resolution, ref_samples=plan.ref_samples

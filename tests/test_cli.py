@@ -16,11 +16,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import mounts
 import numpy as np
 import pytest
 
 import usdahd
+from tests import mounts
 from usdahd import cli
 from usdahd.pipeline import run
 

@@ -20,10 +20,10 @@ from usdahd import validate as V
 from usdahd.numerics import sh as shm
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "tests" / "data" / "validate"))
-import docs_decoder as DD  # noqa: E402
 import make_assets as MA  # noqa: E402
+
+from tests import docs_decoder as DD  # noqa: E402
 
 VARIANTS = [(m, r) for m in models.names() for r in models.get(m).RATIOS]
 

@@ -2,7 +2,7 @@
 files, write failures that name the file and the fix, Ctrl-C while importing, and the
 full-disk / read-only-mount tests running where CI runs them (as root).
 
-The lock rows of the issue are in tests/test_locks.py.
+The lock rows of the issue are in tests/pipeline/test_locks.py.
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import time
 import zlib
 from pathlib import Path
 
-import mounts
 import numpy as np
 import pytest
 
 import usdahd
+from tests import mounts
 from usdahd import cli, images
 from usdahd.errors import ImageError, InputError
 from usdahd.usd import normals as N
@@ -441,7 +441,7 @@ def test_mount_tests_fail_instead_of_skipping_as_root_without_the_capability():
     proc = subprocess.run(
         ["setpriv", "--bounding-set", "-sys_admin", "--", sys.executable, "-m", "pytest",
          "-q", "-p", "no:cacheprovider", "-rs", "--timeout", "300",
-         "tests/test_faults.py::test_full_disk_keeps_the_previous_bake_and_a_rerun_succeeds[16]"],
+         "tests/pipeline/test_faults.py::test_full_disk_keeps_the_previous_bake_and_a_rerun_succeeds[16]"],
         cwd=ROOT,
         capture_output=True,
         text=True,

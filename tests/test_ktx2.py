@@ -25,8 +25,7 @@ from usdahd.numerics import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import ktx2_reader as KR  # noqa: E402
+from tests import ktx2_reader as KR  # noqa: E402
 
 VARIANTS = [(m, r) for m in models.names() for r in models.get(m).RATIOS]
 

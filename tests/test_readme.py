@@ -35,7 +35,7 @@ def _commands() -> list[str]:
 def test_readme_quick_start_is_the_two_commands():
     bake, tests = _commands()[:2]
     assert bake.endswith("pip install . && usdahd warmup && usdahd bake samples/cornell_box.usda")
-    assert tests.endswith("pip install '.[test]' && pytest")
+    assert tests.endswith("pip install '.[test]' && pip install -e benchmarks/ && pytest")
 
 
 def _clone(tmp_path: Path) -> Path:
@@ -135,7 +135,7 @@ def test_readme_commands_in_order(tmp_path):
             "-q",
             "-p",
             "no:cacheprovider",
-            "tests/test_bake.py",
+            "tests/bake/test_bake.py",
             "tests/test_samples.py",
             "-k",
             "every_sample or regenerate or size_budget",

@@ -619,7 +619,7 @@ CASE_KEYS = {
     "setup": (str, type(None)),
 }
 CHECKS = {None, "distinct_texture_names", "texture_names_fit", "inside_output_dir", "no_warning"}
-#: Defects of the surroundings the corpus test creates (tests/test_bad_stages.py::_setup).
+#: Defects of the surroundings the corpus test creates (tests/pipeline/test_bad_stages.py::_setup).
 SETUPS = {
     None,
     "lightmaps_file",

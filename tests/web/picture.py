@@ -13,10 +13,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 
-import test_export_gltf as T  # noqa: E402
+from tests.export import test_export_gltf as T  # noqa: E402
 
 
 def main(argv):

@@ -1,5 +1,5 @@
 // Headless Chromium (Debian's chromium, WebGL through SwiftShader) renders test jobs with the
-// three.js importer (tests/test_export_gltf.py).
+// three.js importer (tests/export/test_export_gltf.py).
 // Usage: node render.mjs BASE_URL OUT_DIR JOB.json...  (modules from $USDAHD_WEB_MODULES)
 // For each job writes OUT_DIR/<job stem>.f32 (RGBA float32, row 0 at the bottom), <stem>.ids.f32
 // (the node id pass) and prints one

@@ -419,7 +419,7 @@ def integrator_iz_variance(stats: dict) -> np.ndarray | None:
     bounds, ``iz_variance`` (s^2 / S, tight for a smooth integrand) and
     ``iz_variance_halves`` (the two interleaved halves, tight where stratification pays
     most: a penumbra's s^2 / S is ~8x the real variance, the halves' ~3.5x;
-    tests/test_integrate.py)."""
+    tests/bake/test_integrate.py)."""
     s2 = stats.get("iz_variance")
     if s2 is None:
         return None

@@ -58,7 +58,7 @@ Two implementations of the same estimator, chosen by the tracer's backend:
 - ``embreex``: the numpy wavefront reference (:class:`usdahd.bake.reference.ReferenceCtx`),
   batched embreex queries.
 
-They agree within Monte Carlo tolerance (tests/test_trace.py), not bit for bit (different
+They agree within Monte Carlo tolerance (tests/bake/test_trace.py), not bit for bit (different
 random streams; the native continuation rays draw cosine directions by disk rejection).
 """
 

@@ -16,7 +16,7 @@ __all__ = ["OIDN_BLOCK", "PAD", "run"]
 #: The canvas side is then rounded up to a multiple of OIDN_BLOCK, the extra going to the
 #: context too (10-17 texels per side). Was 16 without rounding: OIDN then padded to
 #: the next multiple of 16, 1.3-2x the pixels of a run; 8 with rounding put OIDN's raw output
-#: on a noise-free gradient 0.9 % off at a chart's border (tests/test_denoise.py), 10 keeps
+#: on a noise-free gradient 0.9 % off at a chart's border (tests/bake/test_denoise.py), 10 keeps
 #: the blended output's error of 16 (0.49 %) and the stages' error (docs/time-to-quality.md).
 PAD = 10
 #: OIDN pads every image side to a multiple of this and its run time follows the padded
@@ -25,7 +25,7 @@ PAD = 10
 OIDN_BLOCK = 16
 #: Each chart's tile in a mosaic is its whole canvas (10-17 texels of filled context, the
 #: same image OIDN gets chart by chart), so charts are >= 20 texels of their own context
-#: apart and OIDN gets the same pixels as chart by chart. Tried (tests/test_denoise.py, and
+#: apart and OIDN gets the same pixels as chart by chart. Tried (tests/bake/test_denoise.py, and
 #: OIDN pixels of cornell_box 32^2): a crop to PAD texels of context plus MOSAIC_GAP
 #: mirrored texels (MOSAIC_CROP): gap 0 / 4 put the noise-free gradient's worst texel 0.53
 #: / 0.39 % off (chart by chart 0.47 %) and raised the 0.2 %-noise error of two charts

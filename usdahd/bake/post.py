@@ -260,7 +260,7 @@ def sh_frame_matrices(frames: np.ndarray) -> np.ndarray:
     d^T A_k d with traceless symmetric A_k, which the SH basis spans orthogonally under the
     Frobenius product, so M_jk = <A_j, F^T A_k F> / <A_j, A_j> (trace F^T A F = trace A = 0
     for any orthonormal F, mirrored or not). Equal to a least-squares projection on sampled
-    directions up to rounding (tests/test_post.py), at a fraction of its cost.
+    directions up to rounding (tests/bake/test_post.py), at a fraction of its cost.
     """
     a, q = _FORMS
     f = np.asarray(frames, dtype=np.float64)

@@ -4,9 +4,9 @@
 wavefronts over batched tracer queries (``Tracer.intersect``/``occluded``), including UsdLux
 light linking; :mod:`usdahd.bake.kernels.integrate` is its numba port (per-texel, Embree called
 from numba). :class:`Accum` holds the per-texel sums both fill, and ``Accum.result`` is the
-numpy twin of ``kernels.integrate.native_result`` (tests/test_trace.py). The MIS weights
+numpy twin of ``kernels.integrate.native_result`` (tests/bake/test_trace.py). The MIS weights
 (:func:`_w_light`/:func:`_w_bsdf`), :func:`_shadow` and the constants below have numba twins in
-the kernel (tests/test_kernel_parity.py).
+the kernel (tests/bake/test_kernel_parity.py).
 """
 
 from __future__ import annotations

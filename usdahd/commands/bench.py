@@ -1,16 +1,17 @@
 """``usdahd bench``: regenerate docs/benchmarks.md and its plots (runs benchmarks/run.py).
 
 The benchmark scripts and the sample stages they bake live in the source checkout
-(``benchmarks/``, ``samples/``), not in the installed package, so this command works from a
-checkout (``pip install -e '.[bench]'`` or ``PYTHONPATH=.``) and says so otherwise.
+(``benchmarks/``, ``samples/``), not in the usdahd package. They are their own development
+package, ``usdahd-bench`` (benchmarks/pyproject.toml, import name ``benchmarks``), installed
+editable from a clone: ``pip install -e benchmarks/``. This command imports that installed
+package and nothing else from a checkout (never a path guessed from usdahd's own location or
+the current directory); without it, it says which command installs it.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
-from pathlib import Path
+import importlib
 
 from usdahd.commands.output import emit
 from usdahd.errors import UsageError
@@ -18,56 +19,40 @@ from usdahd.errors import UsageError
 #: benchmarks/run.py's sections, all run by default (its DEFAULT_SECTIONS; kept equal by a test).
 SECTIONS = "bake,fit,encodings,skipping,soak,ktx2,reference"
 
-#: The checkout's root, when usdahd is imported from one (``<root>/usdahd/commands/bench.py``).
-CHECKOUT = Path(__file__).resolve().parents[2]
+#: The distribution and module of the benchmark harness (benchmarks/pyproject.toml).
+HARNESS = "usdahd-bench"
+RUNNER = "benchmarks.run"
+
+MISSING = (
+    "usdahd bench runs the benchmark harness usdahd-bench, which is not installed; it is a "
+    "development package of the source checkout: from a git clone of usdahd run "
+    "pip install -e benchmarks/ then usdahd bench (or usdahd-bench, or python benchmarks/run.py)"
+)
 
 
-def _is_checkout(root: Path) -> bool:
-    return (root / "benchmarks" / "run.py").is_file() and (root / "samples").is_dir()
-
-
-def benchmarks_dir(root: Path | None = None) -> Path:
-    """``<checkout>/benchmarks``: of ``root``, else of the checkout usdahd is imported from,
-    else of the current directory (a clone with usdahd installed from it non-editably).
-    UsageError when none has benchmarks/run.py and samples/."""
-    candidates = [root] if root is not None else [CHECKOUT, Path.cwd()]
-    for cand in candidates:
-        if _is_checkout(cand):
-            return cand / "benchmarks"
-    raise UsageError(
-        "usdahd bench needs the source checkout (benchmarks/run.py and samples/), but usdahd is "
-        f"imported from {CHECKOUT / 'usdahd'} and the current directory "
-        f"{candidates[-1]} is not a checkout either. Run it from a git clone: "
-        "pip install '.[bench]' && usdahd bench (or: python benchmarks/run.py)"
-    )
-
-
-def load_runner(root: Path | None = None):
-    """Import benchmarks/run.py of the checkout as a module."""
-    bench = benchmarks_dir(root)
-    if str(bench) not in sys.path:
-        sys.path.insert(0, str(bench))
-    name = "usdahd_benchmarks_run"
-    spec = importlib.util.spec_from_file_location(name, bench / "run.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up while executing it
+def load_runner(module: str = RUNNER):
+    """The installed harness's runner module (``benchmarks.run``); UsageError naming the install
+    command when the harness is not installed."""
     try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[name]
-        raise
-    return module
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        # only the harness itself missing is this message; a missing dependency *of* the
+        # harness (matplotlib, ...) propagates with its own name
+        if exc.name is None or not (module == exc.name or module.startswith(exc.name + ".")):
+            raise
+        raise UsageError(MISSING) from None
 
 
 def add_parser(sub):
     p = sub.add_parser(
         "bench",
-        help="regenerate docs/benchmarks.md and its plots (needs a source checkout)",
+        help="regenerate docs/benchmarks.md and its plots (pip install -e benchmarks/ first)",
         description=(
             "Run the benchmarks (bake run time against error, fit speed and error per model and "
             "solver, encodings after quantization, skipping, soak, KTX2 containers, usdahd vs "
             "Blender Cycles) and write docs/benchmarks.md with PNG plots in docs/benchmarks/. "
-            "Same as python benchmarks/run.py; needs matplotlib (pip install 'usdahd[bench]')."
+            "Same as python benchmarks/run.py and usdahd-bench; needs the benchmark harness, a "
+            "development package of the source checkout (pip install -e benchmarks/)."
         ),
     )
     p.add_argument("--quick", action="store_true", help="~2-3 minute run (fewer samples)")
@@ -94,7 +79,7 @@ def run(args) -> int:
     runner = load_runner()
     ns = argparse.Namespace(
         quick=args.quick,
-        out=args.out or str(CHECKOUT / "docs" / "benchmarks.md"),
+        out=args.out or str(runner.common.DOCS / "benchmarks.md"),
         sections=args.sections,
         reference_stages=args.reference_stages,
         fresh=args.fresh,
@@ -104,7 +89,7 @@ def run(args) -> int:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        raise UsageError("usdahd bench needs matplotlib: pip install 'usdahd[bench]'") from None
+        raise UsageError("usdahd bench needs matplotlib: pip install -e benchmarks/") from None
     out = runner.run(ns)
     emit(args, {"report": str(out), "exit_code": 0}, lambda: print(out))
     return 0

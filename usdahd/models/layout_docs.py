@@ -2,7 +2,7 @@
 
 The layouts every model writes (``layout(ratio)``, :class:`usdahd.models.base.TextureLayout`)
 and the channel codes (:data:`usdahd.models.base.CODES`) are the single source: this module
-renders them as Markdown between two markers in docs/schema.md, and tests/test_schema.py fails
+renders them as Markdown between two markers in docs/schema.md, and tests/usd/test_schema.py fails
 when the page and the code drift. Regenerate with::
 
     python -m usdahd.models.layout_docs docs/schema.md          # rewrite the block

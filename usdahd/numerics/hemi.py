@@ -1,7 +1,7 @@
 """Hemisphere and cone multiplies of quadratic SH, hemisphere lights and self-bounce (numpy only).
 
 Formulas of Roughton et al. 2024 ("Hemispherical Lighting Insights"), with the corrections of
-issue 2 applied (each pinned by ``tests/test_hemi_corrections.py``):
+issue 2 applied (each pinned by ``tests/numerics/test_hemi_corrections.py``):
 
 - App. B Eq 47, row 6 col 2 is ``3*sqrt(5)/16`` (printed ``3*sqrt(5)/15``; the matrix is
   symmetric): :data:`HEMISPHERE_GRAM`.

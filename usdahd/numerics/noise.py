@@ -8,7 +8,7 @@ median and count of the squared second differences of the 4 directions centred i
 whose three texels are all in ``support``; and the same over the whole canvas.
 
 Two implementations behind one function: a numba kernel (default) and a numpy reference
-(``backend="numpy"``, the definition; tests/test_denoise.py checks their parity). The numpy
+(``backend="numpy"``, the definition; tests/bake/test_denoise.py checks their parity). The numpy
 one materializes a (h, w, 4, c) array and sorts every block: on a 46 x 46 canvas of 27
 channels 7 ms, the kernel ~1 ms (usdahd/bake/denoise.py's noise estimate ran twice per chart
 and was a third of the denoise time).

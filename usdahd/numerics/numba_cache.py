@@ -6,7 +6,7 @@ keys the cache index only on the *defining* file's mtime and size. A kernel that
 constant imported from another module (``DZ_FLOOR = encoding.DZ_MIN``) keeps the old value
 after that other module is edited: a stale kernel, silently. :func:`track` folds a hash of the
 sources of the constant-providing modules into each kernel's cache stamp, so editing any of
-them recompiles the kernel (tested in tests/test_numba_cache.py).
+them recompiles the kernel (tested in tests/numerics/test_numba_cache.py).
 
 Usage, at the end of a kernel module::
 

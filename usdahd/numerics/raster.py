@@ -52,7 +52,7 @@ DEGENERATE_UV_AREA2 = 1e-10
 #: candidate).
 CHUNK = 1 << 20
 #: Rasteriser implementations: "numba" (default, dense per-texel buffers of 9 bytes per texel)
-#: and "numpy" (the reference; the same result, tested in tests/test_texels.py).
+#: and "numpy" (the reference; the same result, tested in tests/bake/test_texels.py).
 BACKENDS = ("numba", "numpy")
 
 

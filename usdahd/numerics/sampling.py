@@ -125,7 +125,7 @@ def cone_local(u: np.ndarray, one_minus_cos_max) -> np.ndarray:
     Stable for tiny cones (distant spheres, the sun): the sine is sqrt(u0 (1 - cos_max)(1 + z))
     (= sqrt(1 - z^2) without its cancellation), so pass 1 - cos_max, not cos_max. The one cone
     sampler: :func:`uniform_cone`, the numpy lights (usdahd.scene.lights) and its numba twin
-    ``usdahd.bake.kernels.lights._cone`` (tests/test_kernel_parity.py) use this rule.
+    ``usdahd.bake.kernels.lights._cone`` (tests/bake/test_kernel_parity.py) use this rule.
     u : (..., 2); one_minus_cos_max : broadcastable to (...,), in (0, 2].
     """
     z = 1.0 - u[..., 0] * one_minus_cos_max

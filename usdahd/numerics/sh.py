@@ -1,6 +1,6 @@
 """Real spherical harmonics through band 2 (9 coefficients), numpy only.
 
-Conventions (pinned in docs/conventions.md, tested in tests/test_sh.py):
+Conventions (pinned in docs/conventions.md, tested in tests/numerics/test_sh.py):
 
 - Order and signs of Roughton et al. 2024, Eq 2-3::
 
@@ -190,6 +190,6 @@ def hemispherical_gram(n_theta: int = 8) -> np.ndarray:
 
 #: The hemispherical Gram matrix (9, 9) float64, read-only: :func:`hemispherical_gram` at its
 #: default (exact) rule. The one copy the fits and the integrator use (usdahd.numerics.hemi
-#: HEMISPHERE_GRAM is its closed form, equal to rounding, tested in tests/test_hemi.py).
+#: HEMISPHERE_GRAM is its closed form, equal to rounding, tested in tests/numerics/test_hemi.py).
 HEMISPHERICAL_GRAM = hemispherical_gram()
 HEMISPHERICAL_GRAM.flags.writeable = False

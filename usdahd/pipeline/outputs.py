@@ -422,7 +422,7 @@ def output_lock(out: Path, opts: BakeOptions):
             os.close(fd)
 
 
-#: Fault-injection points of a bake, in order (tests/test_faults.py kills a bake at each).
+#: Fault-injection points of a bake, in order (tests/pipeline/test_faults.py kills a bake at each).
 FAULT_POINTS = (
     "traced",
     "textures_staged",

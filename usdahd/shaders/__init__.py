@@ -4,7 +4,7 @@ For every model a *decode* function (texture samples + the ``ahdLightmap:baked:*
 -> model parameters, a struct) and an *evaluate* function (parameters, tangent-space unit
 normal -> normalized irradiance RGB), plus, in ``common``, the channel codes, the hemi-octahedral
 direction decode, the lightmap tangent frame, normal-map application and the 2024 self-bounce.
-The formulas are those of docs/schema.md; ``tests/test_shaders.py`` runs every function on a
+The formulas are those of docs/schema.md; ``tests/shaders/test_shaders.py`` runs every function on a
 Vulkan implementation and compares it with :mod:`usdahd.models`.
 
 Each language has one file per model family (``irradz`` serves ahd, hhd and hlsh) and a shared

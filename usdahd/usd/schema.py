@@ -2,7 +2,7 @@
 
 This is the only module that writes ``ahdLightmap:*`` properties; the baker and the validator go
 through it. Property names, fallbacks and docs are defined in ``schema/schema.usda`` (see
-``docs/schema.md``); the constants below mirror it and tests/test_schema.py keeps them in sync.
+``docs/schema.md``); the constants below mirror it and tests/usd/test_schema.py keeps them in sync.
 
 - :class:`BakeInputs` — what a TD authors before baking (every field has the schema fallback).
 - :class:`BakeResults` — what a bake writes: one file per texture role (``models.base.ROLES``)

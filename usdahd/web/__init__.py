@@ -2,8 +2,9 @@
 
 The ES module embeds usdahd's reference GLSL decoders (``usdahd/shaders/glsl``) between two
 marker lines; ``python -m usdahd.web`` regenerates that block from the shader files and
-``python -m usdahd.web --check`` exits 1 when it is out of date (tests/test_export_gltf.py runs
-the check), so the importer always decodes with the shipped shaders.
+``python -m usdahd.web --check`` exits 1 when it is out of date
+(tests/export/test_export_gltf.py runs the check), so the importer always decodes with the
+shipped shaders.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Build the clean and one-defect-each baked stages that tests/test_validate.py validates.
+"""Build the clean and one-defect-each baked stages that tests/validate/test_validate.py validates.
 
 A synthetic bake (no path tracing): a 4 x 4-quad mesh with a lightmap UV set and a distant
 light, random but plausible hemispherical radiance SH at every covered texel (a sky term plus a

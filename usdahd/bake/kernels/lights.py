@@ -3,8 +3,8 @@
 :func:`pack_lights` flattens the numpy light objects into a :class:`LightTable`; the scalar
 ``@njit`` routines below (:func:`light_sample`, :func:`light_intersect`, :func:`light_pdf`)
 mirror the numpy ``sample``/``intersect``/``pdf`` methods of :mod:`usdahd.scene.lights` line by
-line (parity: tests/test_lights.py, tests/test_kernel_parity.py). The parameter rows are named
-in :mod:`usdahd.bake.kernels.layout`.
+line (parity: tests/scene/test_lights.py, tests/bake/test_kernel_parity.py). The parameter
+rows are named in :mod:`usdahd.bake.kernels.layout`.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ UsdLux light linking (numba twins of :class:`usdahd.bake.reference.ReferenceCtx`
 
 ``lt`` is the :class:`~usdahd.bake.kernels.layout.LightArrays` of
 :func:`usdahd.bake.kernels.lights.pack_lights`, ``tb`` the tracer's
-:class:`~usdahd.bake.kernels.layout.NativeTables`. Parity: tests/test_kernel_parity.py.
+:class:`~usdahd.bake.kernels.layout.NativeTables`. Parity: tests/bake/test_kernel_parity.py.
 """
 
 from __future__ import annotations

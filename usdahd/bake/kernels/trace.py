@@ -3,8 +3,8 @@
 ``tb`` is the :class:`usdahd.bake.kernels.layout.NativeTables` of
 :meth:`usdahd.bake.trace.Tracer.native_tables`, ``st`` a (1,) uint64 splitmix64 state, ``scene``
 the RTCScene address (:attr:`Tracer.native_handle`), ``rec``/``pk`` the scratch records of
-:mod:`usdahd.bake.kernels.embree`. Parity with the numpy methods: tests/test_kernel_parity.py
-and tests/test_trace.py.
+:mod:`usdahd.bake.kernels.embree`. Parity with the numpy methods: tests/bake/test_kernel_parity.py
+and tests/bake/test_trace.py.
 """
 
 from __future__ import annotations

@@ -92,7 +92,7 @@ SOLVERS = {
 
 # ---------------------------------------------------------------------------------------------
 # Constants of the models in (normalized) irradiance SH. Each is checked by quadrature in
-# tests/test_models_irradz.py and tests/test_irradz_corrections.py.
+# tests/models/test_models_irradz.py and tests/models/test_irradz_corrections.py.
 SQRT_PI = shm.SQRT_PI
 #: Irradiance SH of a unit ambient light (AHD): constant 1 -> Y00 coefficient 2 sqrt(pi).
 AMB_AHD = np.array([2.0 * SQRT_PI, 0, 0, 0, 0, 0, 0, 0, 0])

@@ -1,0 +1,240 @@
+"""Smoke tests of the benchmark's cheapest pieces (benchmarks/run.py), in-process.
+
+The soak runs every model on a few hundred adversarial texels; the invariant is the one the
+full soak reports: no NaN/Inf anywhere in fit -> encode -> decode -> evaluate.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import common  # noqa: E402
+import encoding_bench  # noqa: E402
+import soak  # noqa: E402
+
+from usdahd import models  # noqa: E402
+from usdahd.commands import bench as bench_cmd  # noqa: E402
+from usdahd.errors import UsageError  # noqa: E402
+
+SOAK_TEXELS = 100  # per category
+
+
+@pytest.fixture(scope="module")
+def soak_data():
+    return {cat: soak.texels(cat, SOAK_TEXELS, seed=7) for cat in soak.CATEGORIES}
+
+
+def _variant_params():
+    out = []
+    for model, ratio in common.variants():
+        out.append(pytest.param(model, ratio, id=f"{model}-{ratio}"))
+    return out
+
+
+@pytest.mark.parametrize(("model", "ratio"), _variant_params())
+def test_soak_is_finite(soak_data, model, ratio):
+    data = {c: x for c, x in soak_data.items() if c != "beyond float32"}
+    row = soak.run_variant(model, ratio, data)
+    assert row["texels"] == SOAK_TEXELS * len(data)
+    assert row["nonfinite_total"] == 0, row["nonfinite_where"]
+    # I(z) == I_z before quantization holds exactly for the IrradZ models (float32 rounding).
+    if model in ("ahd", "hhd", "hlsh"):
+        assert row["iz_worst_exact"] < 1e-6
+
+
+@pytest.mark.parametrize(("model", "ratio"), _variant_params())
+def test_soak_beyond_float32_is_finite(soak_data, model, ratio):
+    row = soak.run_variant(model, ratio, {"beyond float32": soak_data["beyond float32"]})
+    assert row["nonfinite_total"] == 0, row["nonfinite_where"]
+
+
+def test_soak_categories_are_what_they_say():
+    phys = soak.texels("physical", 200)
+    # non-negative hemispherical radiance: I_z >= 0 in every channel
+    assert (common.shm.iz(phys) >= 0).all()
+    assert soak.texels("float16 input", 10).dtype == np.float16
+    bad = soak.texels("NaN/Inf", 200)
+    assert (~np.isfinite(bad)).any(axis=(1, 2)).mean() > 0.5
+
+
+def test_soak_table_has_a_row_per_variant():
+    variants = [("hhd", "luminance"), ("sh_l2", "none")]
+    result = soak.soak(90, variant_list=variants)
+    table = soak.soak_markdown(result)
+    assert len(result["rows"]) == 2
+    assert table.count("\n") == 1 + len(variants)  # header, rule, one line per row
+
+
+def test_one_fit_row():
+    fams = {
+        "sky+sun": encoding_bench.envs.sky_sun(64),
+        "black": np.zeros((16, 3, 9)),
+    }
+    result = encoding_bench.fit_table(
+        fams, speed_texels=6000, repeats=1, cases=[("hhd", "luminance", "golden")]
+    )
+    (row,) = result["rows"]
+    assert row["texels_per_s"] > 0 and np.isfinite(row["texels_per_s"])
+    assert 0 <= row["errors"]["sky+sun"] < 1
+    assert row["errors"]["black"] == 0
+    assert "hhd" in encoding_bench.fit_markdown(result)
+
+
+def test_hemi_errors_zero_for_exact_model():
+    # sh_l2 stores the band-2 irradiance SH itself: its only error is float32 rounding.
+    sh = encoding_bench.envs.sky_sun(32)
+    p = models.fit(sh, "sh_l2").params
+    err, energy = common.hemi_errors("sh_l2", p, sh)
+    agg, per = common.relative_rmse(err, energy)
+    assert agg < 1e-6 and per < 1e-6
+
+
+def test_bytes_per_texel_follows_layout():
+    # hhd luminance: I_z half RGB (6) + direction (u, v, w_a) unorm8 RGB (3)
+    assert common.bytes_per_texel("hhd", "luminance") == 9
+    assert common.bytes_per_texel("sh_l2", "none") == 27 * 2
+
+
+def test_md_table_and_fmt():
+    t = common.md_table(["a", "b"], [["x", 1.5], ["y", float("nan")]])
+    assert t.splitlines()[2] == "| x | 1.5 |"
+    assert "nan" in t.splitlines()[3]
+
+
+def test_bench_command_imports_the_installed_harness():
+    """``usdahd bench`` imports the installed usdahd-bench package (benchmarks/pyproject.toml),
+    whose files are this checkout's benchmarks/ (an editable install)."""
+    import importlib.metadata
+
+    runner = bench_cmd.load_runner()
+    assert runner.__name__ == "benchmarks.run"
+    assert Path(runner.__file__).resolve() == REPO / "benchmarks" / "run.py"
+    assert importlib.metadata.distribution(bench_cmd.HARNESS).metadata["Name"] == "usdahd-bench"
+
+
+def test_bench_command_without_the_harness_names_the_install_command(tmp_path, capsys):
+    """Without the harness installed, ``usdahd bench`` is a usage error (exit 2, also as JSON)
+    naming the install command, in-process and as a subprocess; it never falls back to a
+    checkout's files found by path. The subprocess runs outside the checkout with the
+    ``benchmarks`` import blocked (``sys.modules`` entry None: Python's own way to make an
+    import fail), as on a machine where only usdahd is installed."""
+    import json
+    import subprocess
+
+    from usdahd import cli
+
+    with pytest.raises(UsageError, match=r"pip install -e benchmarks/"):
+        bench_cmd.load_runner("benchmarks.no_such_runner")
+    with pytest.MonkeyPatch.context() as mp:  # in-process: the harness's import blocked
+        mp.setitem(sys.modules, "benchmarks", None)
+        mp.setitem(sys.modules, "benchmarks.run", None)
+        assert cli.main(["bench", "--quick", "--json"]) == 2
+    cap = capsys.readouterr()
+    assert "pip install -e benchmarks/" in json.loads(cap.out)["error"]
+    assert "usdahd bench: error: usdahd bench runs the benchmark harness" in cap.err
+    code = (
+        "import sys; sys.modules['benchmarks'] = None; from usdahd import cli; "
+        "sys.exit(cli.main(sys.argv[1:]))"
+    )
+    for argv in (["bench", "--quick"], ["bench", "--quick", "--json"]):
+        proc = subprocess.run(
+            [sys.executable, "-c", code, *argv], capture_output=True, text=True, cwd=tmp_path
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr
+        text = json.loads(proc.stdout)["error"] if "--json" in argv else proc.stderr
+        assert "usdahd-bench, which is not installed" in text
+        assert "pip install -e benchmarks/" in text
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_bench_command_reports_a_missing_dependency_of_the_harness_as_itself(tmp_path, monkeypatch):
+    """A harness that is installed but lacks one of its own imports is not "not installed": the
+    ModuleNotFoundError names the missing module."""
+    (tmp_path / "harness_runner_x.py").write_text("import usdahd_no_such_dependency\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ModuleNotFoundError, match="usdahd_no_such_dependency"):
+        bench_cmd.load_runner("harness_runner_x")
+
+
+def test_bench_unknown_section(tmp_path):
+    runner = bench_cmd.load_runner()
+    args = runner.parse_args(["--sections", "nope", "--out", str(tmp_path / "b.md")])
+    with pytest.raises(UsageError, match="unknown --sections"):
+        runner.run(args)
+
+
+def test_run_names_an_unknown_reference_stage_before_any_work(capsys):
+    """``--reference-stages`` takes file stems; a wrong one is a usage error listing the
+    choices, raised before the first section starts (the full run takes hours)."""
+    import run as bench_run
+
+    assert bench_run.main(["--sections", "reference", "--reference-stages", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown reference stage nope; choose from cornell_box, pillar_room" in err
+    assert "section" not in err.split("error:")[0]  # nothing ran before the message
+    assert bench_run.main(["--sections", "fit", "--reference-stages", "cornell_box"]) == 2
+    assert "--sections fit leaves that section out; add reference" in capsys.readouterr().err
+
+
+def test_report_header_names_the_command_that_reproduces_it():
+    import run as bench_run
+
+    args = bench_run.parse_args(["--reference-stages", "cornell_box", "floor_lamp"])
+    assert bench_run.command(args) == (
+        "python benchmarks/run.py --reference-stages cornell_box floor_lamp"
+    )
+    args = bench_run.parse_args(["--quick", "--sections", "fit"])
+    assert bench_run.command(args) == "python benchmarks/run.py --quick --sections fit"
+    assert bench_run.command(bench_run.parse_args([])) == "python benchmarks/run.py"
+
+
+def test_bench_command_runs_what_run_py_runs(capsys):
+    """``usdahd bench`` is benchmarks/run.py: the same default sections, and a wrong reference
+    stage is the same usage error (exit 2, also as JSON), in-process and as a subprocess."""
+    import json
+    import subprocess
+
+    import run as bench_run
+
+    from usdahd import cli
+
+    assert bench_cmd.SECTIONS == bench_run.DEFAULT_SECTIONS
+    argv = ["bench", "--sections", "reference", "--reference-stages", "nope", "--json"]
+    assert cli.main(argv) == 2
+    cap = capsys.readouterr()
+    assert "usdahd bench: error: unknown reference stage nope; choose from" in cap.err
+    assert json.loads(cap.out)["exit_code"] == 2
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", *argv], capture_output=True, text=True, cwd=REPO
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "unknown reference stage nope" in json.loads(proc.stdout)["error"]
+
+
+def test_reference_summary_names_the_largest_ratio_and_stages_not_reached():
+    import run as bench_run
+
+    ttq = [
+        {"stage": "a", "renderer": "usdahd", "ratio": 0.05},
+        {"stage": "b", "renderer": "usdahd", "ratio": 0.17},
+        {"stage": "c", "renderer": "usdahd", "ratio": 0.08},
+        {"stage": "a", "renderer": "usdahd (warm)", "ratio": 0.04},
+        {"stage": "b", "renderer": "usdahd (warm)", "ratio": None},
+    ]
+    lines = bench_run.reference_summary(ttq)
+    assert lines[0] == (
+        "- usdahd vs Cycles (as a command): usdahd reaches Cycles' 1024-spp error in at most "
+        "0.17x Cycles' time on every one of 3 stages (largest: b; median 0.08x)."
+    )
+    assert lines[1] == (
+        "- usdahd vs Cycles (as a call in a running process): usdahd does not reach Cycles' "
+        "1024-spp error on b."
+    )

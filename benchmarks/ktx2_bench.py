@@ -243,7 +243,13 @@ def main(argv=None) -> int:
         "--default-only", action="store_true", help="only the default model/ratio (quick check)"
     )
     ap.add_argument("--json", metavar="PATH", help="also save the rows as JSON")
+    ap.add_argument(
+        "--from-json", metavar="PATH", help="render the section from a saved --json (no bake)"
+    )
     a = ap.parse_args(argv)
+    if a.from_json:
+        result = json.loads(Path(a.from_json).read_text())
+        return _emit(result, a.update)
     stages = a.stages.split(",")
     if a.stages == "all":
         stages = sorted(f.name for f in (REPO / "samples").glob("*.usda"))
@@ -254,12 +260,16 @@ def main(argv=None) -> int:
         m = DEFAULTS["model"]
         variants = [(m, DEFAULTS["ratio"] or models.get(m).RATIOS[0])]
     result = run(stages, resolution=a.resolution, samples=a.samples, variants=variants)
+    result["command"] = "python benchmarks/ktx2_bench.py " + " ".join(argv or sys.argv[1:])
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))
-    result["command"] = "python benchmarks/ktx2_bench.py " + " ".join(argv or sys.argv[1:])
+    return _emit(result, a.update)
+
+
+def _emit(result: dict, update: str | None) -> int:
     block = section(result)
-    if a.update:
-        p = Path(a.update)
+    if update:
+        p = Path(update)
         p.write_text(splice(p.read_text(), block))
     else:
         print(block)

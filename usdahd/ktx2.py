@@ -258,6 +258,9 @@ def encode_levels(levels, fmt: str, compression: str = "none") -> tuple[int, lis
     if fmt == "half":
         pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
         if bc and all(not (p < 0).any() for p in pxs):
+            # -0.0 (sign bit set, e.g. an SH coefficient that cancels) passes "not < 0" but
+            # an unsigned BC6H encoder reads its bits 0x8000 as the largest value: 65504
+            pxs = [np.where(p == 0, np.float16(0), p) for p in pxs]
             return VK_FORMAT_BC6H_UFLOAT_BLOCK, [_bc6h(p) for p in pxs]
         return VK_FORMAT_R16G16B16A16_SFLOAT, [p.tobytes() for p in pxs]
     if fmt == "unorm8":

@@ -157,7 +157,7 @@ def bias(args) -> None:
                     bake = V.load_bake(prim)
                     iz = V.shm.iz(np.asarray(bake.sh[cand], np.float64)).sum(axis=0)
                     sums.setdefault(str(prim.GetPath()), {})[name] = (iz, len(cand))
-                V._BAKE_CACHE.clear()
+                V.clear_caches()
             for prim, s in sums.items():
                 if len(s) < 3 or not (s["long"][0] > 0).all():
                     continue

@@ -82,6 +82,16 @@ from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_li
 from usdahd.bake.texels import walled_in
 from usdahd.numerics.sampling import r2_sequence
 
+__all__ = [
+    "ADAPTIVE_TOL",
+    "DEFAULT_BOUNCES",
+    "bake_texels",
+    "chunk_texels",
+    "inside_geometry",
+    "iz_batches",
+    "uses_native",
+]
+
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
 CHUNK_RAYS = 1 << 16
 #: Samples per chunk of the native kernel (memory is per texel there, ~1.4 kB).

@@ -23,8 +23,8 @@ import os
 import sys
 import time
 
-from usdahd._version import __version__
 from usdahd.errors import UsageError
+from usdahd.version import __version__
 
 
 def add_parser(sub):

@@ -66,6 +66,9 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = ["DESCRIPTION", "KEYWORD", "MIN_TEXELS", "OPTIONS", "RULE", "RetraceOptions"]
+__all__ += ["register", "validator_name"]
+
 #: Rule name, UsdValidation keyword (opt-in) and the one-sentence doc (the plugInfo ``doc``).
 RULE = "Retrace"
 KEYWORD = "UsdAhdRetrace"
@@ -449,10 +452,10 @@ _RETRACE_LOCK = threading.Lock()
 
 
 def _finding(prim, severity, code, message, fix="", **data):
-    from usdahd.validate import Finding, _jsonable
+    from usdahd.validate import Finding, jsonable
 
     text = message.rstrip(".") + "." + (f" Fix: {fix.rstrip('.')}." if fix else "")
-    return Finding(RULE, severity, str(prim.GetPath()), code, text, _jsonable(data))
+    return Finding(RULE, severity, str(prim.GetPath()), code, text, jsonable(data))
 
 
 def _baked_iz(bake, rows: np.ndarray) -> np.ndarray:
@@ -486,7 +489,7 @@ def _candidates(prim):
     path = str(prim.GetPath())
     try:
         bake = V.load_bake(prim)
-    except V._Skip as why:
+    except V.SkipRule as why:
         return str(why)
     res = bake.results
     uv_name = str(res.uv_primvar or res.settings.get("uv") or "st")
@@ -765,7 +768,7 @@ def _recorded(prim) -> list:
                 "report this as a usdahd bug (with the stage) and check the prim by hand",
             )
         ]
-    with V._LOCK:
+    with V.LOCK:
         for f in found:
             V.FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
     return found

@@ -61,6 +61,8 @@ from usdahd.bake.kernels.trace import nb_offset, nb_random, nb_trace_rays
 from usdahd.bake.reference import ALL_LIGHTS_MAX, G_HEMI, LIGHT_SHIFT
 from usdahd.numerics import sh as shmod
 
+__all__ = ["native_pass", "native_result", "native_work"]
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def native_result(ids, acc, regression, out, bf):

@@ -289,6 +289,7 @@ def run(args) -> Path:
 
         md.append(reference_bench.section(results["reference"]))
     out.parent.mkdir(parents=True, exist_ok=True)
+    md += kept_blocks(out.read_text() if out.exists() else "")
     out.write_text("\n\n".join(md).rstrip() + "\n")
     raw = CACHE / f"results-{plan_name}.json"
     CACHE.mkdir(parents=True, exist_ok=True)
@@ -562,6 +563,14 @@ def section_soak(result) -> str:
             soak.soak_markdown(result),
         ]
     )
+
+
+def kept_blocks(text: str) -> list[str]:
+    """Hand-run sections of the old file (``<!-- BEGIN kept: ... -->`` to ``<!-- END kept
+    -->``, e.g. the Cycles comparison through the atlas): a regeneration keeps them, in order."""
+    import re
+
+    return re.findall(r"<!-- BEGIN kept:.*?<!-- END kept -->", text, flags=re.S)
 
 
 def main(argv=None) -> int:

@@ -222,6 +222,25 @@ LOSSLESS = {KR.VK_R16G16B16A16_SFLOAT, KR.VK_R8G8B8A8_UNORM}
 
 
 @pytest.mark.slow  # 28 refits, half of them block-compressed: ~3 min on 2 busy cores
+def test_bc6h_reads_a_negative_zero_as_zero(tmp_path):
+    """-0.0 (an SH coefficient that cancels: open_plane's L1 x/y, sh_l1 / sh_l2) is not < 0,
+    so the texture goes BC6H UFLOAT, whose encoder read its bits 0x8000 as 65504: open_plane's
+    sh_l1 irradiance from KTX2 was 76 % off (docs/benchmarks.md). Now +0, decoded 0 by Mesa."""
+    h, w = 8, 8
+    src = np.full((h, w, 3), 0.5, np.float16)
+    src[:4, :4] = np.float16(-0.0)
+    src[4:, 4:, 1] = np.float16(0.0)
+    assert np.signbit(src[0, 0, 0]) and not (src < 0).any()
+    m = np.ones((h, w), bool)
+    ktx2.write(tmp_path / "z.ktx2", src, m, np.zeros((h, w), int), "half", compression="bc")
+    f = KR.read(tmp_path / "z.ktx2")
+    assert f["vk_format"] == KR.VK_BC6H_UFLOAT_BLOCK
+    got = f["images"][0][..., :3].astype(np.float64)
+    np.testing.assert_allclose(got, np.abs(src.astype(np.float64)), atol=1e-3)
+    for img in f["images"][1:]:  # the mips average zeros and halves: within [0, 0.5]
+        assert img[..., :3].max() <= 0.5 + 1e-3
+
+
 def test_every_model_through_ktx2_and_an_independent_decoder(baked, capsys):
     stage = baked / "cornell_box.usda"
     layer = baked / "cornell_box.lightmaps.usda"

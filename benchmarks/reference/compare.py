@@ -302,6 +302,44 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: The per-mesh bounds of README.md ("the issue's targets"): |usdahd bias| and usdahd's relRMSE
+#: over Cycles' at equal spp.
+BIAS_BOUND = 0.01
+RATIO_BOUND = 1.5
+
+
+def bounds(results: list[dict]) -> str:
+    """Per mesh of every stage: usdahd's bias and relRMSE ratio against README.md's bounds
+    (|bias| <= 1 %, ratio <= 1.5x), the meshes outside first named in a last line."""
+    lines = [
+        "| stage | mesh | texels | usdahd bias | usdahd relRMSE | Cycles relRMSE | ratio "
+        "| within |",
+        "|---" * 8 + "|",
+    ]
+    out, n = [], 0
+    for r in results:
+        for m in r["meshes"]:
+            if "usdahd" not in m or not np.isfinite(m["usdahd"]["bias"]):
+                continue
+            n += 1
+            b, ratio = m["usdahd"]["bias"], m.get("rmse_ratio")
+            ok = abs(b) <= BIAS_BOUND and (ratio is None or ratio <= RATIO_BOUND)
+            if not ok:
+                out.append(f"{Path(r['stage']).name} {m['path']}")
+            lines.append(
+                f"| {Path(r['stage']).name} | {m['path']} | {m.get('compared', 0)} | {_pct(b)} | "
+                f"{_pct0(m['usdahd'].get('rel_rmse'))} | "
+                f"{_pct0(m.get('cycles', {}).get('rel_rmse'))} | "
+                f"{'—' if ratio is None else f'{ratio:.2f}x'} | {'yes' if ok else '**no**'} |"
+            )
+    lines += [
+        "",
+        f"{n - len(out)} of {n} meshes within |bias| <= {100 * BIAS_BOUND:g} % and ratio <= "
+        f"{RATIO_BOUND:g}x" + (f"; outside: {', '.join(out)}" if out else ""),
+    ]
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------------------- driver
 
 
@@ -432,6 +470,9 @@ def main(argv=None) -> int:
     b.add_argument("--quiet", action="store_true")
     s = sub.add_parser("summary", help="one line per stage from compare --json files")
     s.add_argument("files", nargs="+")
+    s.add_argument(
+        "--meshes", action="store_true", help="one line per mesh against README.md's bounds"
+    )
     a = p.parse_args(argv)
     if a.cmd == "summary":
         res = []
@@ -442,7 +483,7 @@ def main(argv=None) -> int:
         except (OSError, json.JSONDecodeError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        print(summary(res))
+        print(bounds(res) if a.meshes else summary(res))
         return 0
     try:
         if a.cmd == "bake":

@@ -238,3 +238,20 @@ def test_reference_summary_names_the_largest_ratio_and_stages_not_reached():
         "- usdahd vs Cycles (as a call in a running process): usdahd does not reach Cycles' "
         "1024-spp error on b."
     )
+
+
+def test_regeneration_keeps_hand_run_sections():
+    """benchmarks/run.py rewrites docs/benchmarks.md from scratch; hand-run sections between
+    ``<!-- BEGIN kept: ... -->`` and ``<!-- END kept -->`` are carried over, in order."""
+    import run as bench_run
+
+    text = (
+        "# old\n\n<!-- BEGIN kept: a -->\n## A\n| x |\n<!-- END kept -->\n\ngenerated\n\n"
+        "<!-- BEGIN kept: b -->\nB\n<!-- END kept -->\n"
+    )
+    got = bench_run.kept_blocks(text)
+    assert got == [
+        "<!-- BEGIN kept: a -->\n## A\n| x |\n<!-- END kept -->",
+        "<!-- BEGIN kept: b -->\nB\n<!-- END kept -->",
+    ]
+    assert bench_run.kept_blocks("# nothing kept\n") == []

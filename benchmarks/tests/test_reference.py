@@ -989,3 +989,31 @@ def test_smoke_truths_only_caches_what_bench_stage_reads(tmp_path, bpy_python, m
     rows = rb.bench_stage(stage, 8, [4], 8, bpy_python, cycles_samples=[4])
     assert calls == [(4, compare.EQUAL_SEED, False)]
     assert {r["renderer"] for r in rows} == {"usdahd", "cycles"}
+
+
+def test_summary_meshes_checks_the_readme_bounds(tmp_path, capsys):
+    """`summary --meshes`: one row per mesh against README.md's bounds (|bias| <= 1 %, ratio
+    <= 1.5x); a mesh outside is marked and named in the last line."""
+    import json
+
+    def mesh(path, bias, ratio):
+        return {
+            "path": path,
+            "compared": 100,
+            "usdahd": {"bias": bias, "rel_rmse": 0.02},
+            "cycles": {"bias": 0.0, "rel_rmse": 0.02 / ratio},
+            "rmse_ratio": ratio,
+        }
+
+    res = {
+        "stage": "/x/room.usda",
+        "meshes": [mesh("/A", 0.004, 0.7), mesh("/B", -0.012, 0.9), mesh("/C", 0.0, 1.6)],
+    }
+    f = tmp_path / "r.json"
+    f.write_text(json.dumps([res]))
+    assert compare.main(["summary", "--meshes", str(f)]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| room.usda")]
+    assert [r.rstrip(" |").rsplit("| ", 1)[1] for r in rows] == ["yes", "**no**", "**no**"]
+    assert "1 of 3 meshes within |bias| <= 1 % and ratio <= 1.5x" in out
+    assert "outside: room.usda /B, room.usda /C" in out

@@ -401,13 +401,43 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
 
 def _atlas_rebuild(jobs: list[PrimJob], todo: list[PrimJob], opts: BakeOptions) -> list[PrimJob]:
     """Records not re-baked whose page must be rebuilt (usdahd.pipeline.atlas): every kept or
-    skipped record of an encoding group that has a record re-baked now, and, with the atlas
-    on, every record that has textures of its own (from a ``--atlas off`` bake)."""
+    skipped record of an encoding group that has a record re-baked now, or whose pages the
+    current ``--atlas-size`` / ``--atlas-padding`` lay out differently (page sizes, which
+    records share a page, rectangles: re-packed from the SH sidecars, 0 rays), and, with the
+    atlas on, every record that has textures of its own (from a ``--atlas off`` bake)."""
     if not opts.atlas:
         return []
-    from usdahd.pipeline.atlas import group_key
+    from usdahd.numerics import atlas as packer
+    from usdahd.pipeline.atlas import group_key, max_size, padding
+    from usdahd.usd import schema
 
     affected = {group_key(j.settings) for j in todo}
+    kept: dict[tuple, list[PrimJob]] = {}
+    for j in jobs:
+        old = j.previous
+        if j.report.get("status") in ("skipped", "kept") and old is not None and old.atlas:
+            kept.setdefault(group_key(old.settings), []).append(j)
+    relaid = set()
+    for key, members in kept.items():
+        if key in affected:
+            continue
+        pages: dict[int, set] = {}
+        for j in members:
+            W, H = schema.page_size(j.previous)
+            x, y, _, _ = schema.record_rect(j.previous, (W, H))
+            pages.setdefault(j.previous.page, set()).add((j.path, x, y, W, H))
+        packing = packer.pack(
+            [tuple(int(r) for r in j.previous.resolution) for j in members],
+            [j.path for j in members],
+            max_size=max_size(opts),
+            padding=padding(opts),
+        )
+        now: dict[int, set] = {}
+        for j, p in zip(members, packing.placements, strict=True):
+            now.setdefault(p.page, set()).add((j.path, p.x, p.y, *packing.pages[p.page]))
+        if {frozenset(v) for v in pages.values()} != {frozenset(v) for v in now.values()}:
+            affected.add(key)
+            relaid.add(key)
     out = []
     for j in jobs:
         old = j.previous
@@ -415,6 +445,11 @@ def _atlas_rebuild(jobs: list[PrimJob], todo: list[PrimJob], opts: BakeOptions) 
             continue
         if group_key(old.settings) in affected or not old.atlas:
             out.append(j)
+            if old.atlas and group_key(old.settings) in relaid:
+                j.report["reason"] = (
+                    "atlas layout changed (--atlas-size / --atlas-padding): re-packed from the "
+                    "SH sidecar, 0 rays traced"
+                )
     return out
 
 

@@ -17,7 +17,7 @@ import pytest
 from usdahd import cli
 from usdahd.usd import schema
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FAST = ["--resolution", "16", "--samples", "16", "--bounces", "1"]
 
 

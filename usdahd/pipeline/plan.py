@@ -163,6 +163,10 @@ def _uv_problem(texels) -> str | None:
 #: box faces are about a texel apart at their planned size, reach 16 % (validated against
 #: Cycles as they are); a chart 8 texels wide touching neighbours on both sides, 25 %.
 TOUCHING_LIMIT = 0.25
+#: A map raised for touching texels (TOUCHING_LIMIT) is doubled until at most this share of
+#: its texels touch another chart (or the prop cap is reached): the chess set's board and rooks
+#: still had 17 % at 64x64.
+TOUCHING_TARGET = 0.05
 #: Share of an authored UV set's area whose charts' width decides whether the set is too fine
 #: for its lightmap (:func:`narrow_chart_width`): the narrowest charts holding 10 % of it.
 NARROW_SHARE = 0.1
@@ -601,7 +605,8 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
     """Whether a valid authored UV set (on the automatic density) is a usable lightmap layout:
     a texture UV layout packs its charts edge to edge, so at the planned size texels next to
     another chart mix two surfaces in a bilinear lookup (TOUCHING_LIMIT). The map is doubled
-    (up to ``prop_side``) until few enough texels touch another chart, keeping the asset's UVs
+    (up to ``prop_side``) until few texels touch another chart (TOUCHING_TARGET), keeping the
+    asset's UVs
     (with a note); if even that is not enough the mesh is unwrapped instead, except an instance
     copy (it cannot be, and keeps the largest map). Returns (texels, res, None) to bake the UV
     set at ``res``, or (None, res, why) to unwrap."""
@@ -617,7 +622,7 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
         "lookup there mixes unrelated surfaces)"
     )
     side = int(res[0])
-    while share > TOUCHING_LIMIT and side < prop_side:
+    while share > TOUCHING_TARGET and side < prop_side:
         side = min(_round_up(2 * side, RESOLUTION_MULTIPLE), int(prop_side))
         res = (side, side)
         texels = rasterize(mesh, res)
@@ -625,7 +630,7 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
     instance = getattr(mesh, "instance", None) is not None
     if share > TOUCHING_LIMIT and not instance:
         return None, first, f"{why}, also at {res[0]}x{res[1]} ({100 * share:.0f}%)"
-    if res != first:
+    if res != first or share > TOUCHING_LIMIT:
         fix = (
             "an instance copy cannot be unwrapped, so its map is raised to"
             if share > TOUCHING_LIMIT

@@ -604,7 +604,8 @@ def _plan(
 def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dict):
     """Whether a valid authored UV set (on the automatic density) is a usable lightmap layout:
     a texture UV layout packs its charts edge to edge, so at the planned size texels next to
-    another chart mix two surfaces in a bilinear lookup (TOUCHING_LIMIT). The map is doubled
+    another chart mix two surfaces in a bilinear lookup (TOUCHING_LIMIT; TOUCHING_TARGET when
+    its narrowest charts are under CHART_MIN_TEXELS across: all border). The map is doubled
     (up to ``prop_side``) until few texels touch another chart (TOUCHING_TARGET), keeping the
     asset's UVs
     (with a note); if even that is not enough the mesh is unwrapped instead, except an instance
@@ -613,15 +614,23 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
     from usdahd.bake.texels import rasterize
 
     share = touching_share(mesh, texels)
-    if share <= TOUCHING_LIMIT:
+    if share <= TOUCHING_TARGET:
+        return texels, res, None
+    side = int(res[0])
+    narrow = narrow_chart_width(np.asarray(mesh.uv, np.float64)) * side
+    if share <= TOUCHING_LIMIT and narrow >= CHART_MIN_TEXELS:
         return texels, res, None
     first, first_share = tuple(res), share
     why = (
         f"packs its charts with no lightmap gutter (at {first[0]}x{first[1]}, "
-        f"{100 * first_share:.0f}% of its texels lie next to another chart's, so a bilinear "
-        "lookup there mixes unrelated surfaces)"
+        f"{100 * first_share:.0f}% of its texels lie next to another chart's"
+        + (
+            f", its narrowest charts {narrow:.1f} texels across"
+            if narrow < CHART_MIN_TEXELS
+            else ""
+        )
+        + ", so a bilinear lookup there mixes unrelated surfaces)"
     )
-    side = int(res[0])
     while share > TOUCHING_TARGET and side < prop_side:
         side = min(_round_up(2 * side, RESOLUTION_MULTIPLE), int(prop_side))
         res = (side, side)

@@ -61,6 +61,14 @@ def _check_plan(report):
     assert f"also at {PROP_MAX_RESOLUTION}x{PROP_MAX_RESOLUTION} (" in note
     assert "unwrapped with xatlas into a new primvar 'st_lightmap'" in note
     assert not any("gutter" in w for w in fence["warnings"])
+    # Under 25 % touching, but its narrowest charts are under 4 texels (all border): raised.
+    ribbons = prims["/World/Ribbons"]
+    note = next(n for n in ribbons.get("notes", []) if "no lightmap gutter" in n)
+    share = float(note.split("at 32x32, ")[1].split("%")[0]) / 100
+    assert TOUCHING_TARGET < share < TOUCHING_LIMIT, note
+    width = float(note.split("its narrowest charts ")[1].split(" texels")[0])
+    assert width < CHART_MIN_TEXELS, note
+    assert ribbons["resolution"] == [64, 64] and "its map is raised to 64x64" in note
     # Instance copies: raised like the box (they could not be unwrapped).
     for path in ("/World/Pieces/A/Geom", "/World/Pieces/B/Geom"):
         copy = prims[path]
@@ -99,9 +107,9 @@ def test_explicit_settings_keep_the_authored_texture_uvs(capsys, tmp_path):
         str(tmp_path / "o.usda"),
         "--resolution",
         "32",
-        *sum((["--prim", f"/World/{n}"] for n in ("StripBox", "Fence")), []),
+        *sum((["--prim", f"/World/{n}"] for n in ("StripBox", "Fence", "Ribbons")), []),
     )
-    for path in ("/World/StripBox", "/World/Fence"):
+    for path in ("/World/StripBox", "/World/Fence", "/World/Ribbons"):
         box = _prims(report)[path]
         assert box["resolution"] == [32, 32]
         assert not any("gutter" in n for n in box.get("notes", []) + box["warnings"])

@@ -17,6 +17,9 @@ default prim ``/World``. The meshes:
 - ``Fence``: 40 upright 1 x 10 cm cards in a row, each card one of 40 strips of ``st`` side by
   side: even at the largest raised map (128x128) the strips are 3 texels wide and touch, so
   the baker unwraps it into ``st_lightmap`` and says why in a note.
+- ``Ribbons``: six cards, one on a big chart of ``st`` and five on strips 2 texels wide at
+  32x32, two of which touch (fewer than 25 % of the texels touch another chart's, the share
+  that alone would trigger a raise): the narrow charts make it raise all the same.
 - ``Pieces``: two instanceable references to ``/Proto`` (a box with the strip layout): their
   maps are raised like ``StripBox``'s (an instance copy could not be unwrapped).
 - ``Sparks``: 27 separate 1 cm cubes in one mesh with no ``st``: unwrapped, its 162 charts are
@@ -102,6 +105,36 @@ def _fence(cards: int = 40) -> str:
     )
 
 
+def _ribbons() -> str:
+    """Six upright cards: card 0 on st [0.02, 0.5] x [0.02, 0.98], cards 1-5 on 0.06-wide
+    strips, the first two touching (0.54-0.6, 0.6-0.66), the others 0.02-0.06 apart."""
+    boxes = [(0.02, 0.5), (0.54, 0.6), (0.6, 0.66), (0.72, 0.78), (0.84, 0.9), (0.92, 0.98)]
+    boxes.insert(3, None)  # no card here: a gap in the row (keeps card k at x = k)
+    pts, idx, st = [], [], []
+    for k, b in enumerate(boxes):
+        if b is None:
+            continue
+        x, w = -0.8 + 0.2 * k, (0.12 if k == 0 else 0.02)
+        n = len(pts)
+        pts += [(x, 0.0, -0.6), (x + w, 0.0, -0.6), (x + w, 0.15, -0.6), (x, 0.15, -0.6)]
+        idx += [n, n + 1, n + 2, n + 3]
+        u0, u1 = b
+        st += [(u0, 0.02), (u1, 0.02), (u1, 0.98), (u0, 0.98)]
+    return "\n".join(
+        [
+            "        int[] faceVertexCounts = [" + ", ".join(["4"] * (len(idx) // 4)) + "]",
+            "        int[] faceVertexIndices = [" + ", ".join(map(str, idx)) + "]",
+            "        point3f[] points = ["
+            + ", ".join("(" + ", ".join(_f(v) for v in p) + ")" for p in pts)
+            + "]",
+            "        texCoord2f[] primvars:st = ["
+            + ", ".join(f"({_f(u)}, {_f(v)})" for u, v in st)
+            + '] (\n            interpolation = "faceVarying"\n        )',
+            '        uniform token subdivisionScheme = "none"',
+        ]
+    )
+
+
 def write(out: Path) -> Path:
     sparks = [(0.3 + 0.03 * i, 0.02 + 0.03 * j, -0.3 + 0.03 * k)
               for i in range(3) for j in range(3) for k in range(3)]  # fmt: skip
@@ -134,6 +167,11 @@ def Xform "World"
     def Mesh "Fence"
     {{
 {_fence()}
+    }}
+
+    def Mesh "Ribbons"
+    {{
+{_ribbons()}
     }}
 
     def Xform "Pieces"

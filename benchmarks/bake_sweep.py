@@ -34,8 +34,8 @@ from common import (
     timed,
 )
 
-from usdahd._version import __version__
 from usdahd.numerics import sh as shm
+from usdahd.version import __version__
 
 #: Seeds of the two reference bakes (sweep bakes use 1, 2, 3, ... so they never share streams).
 REFERENCE_SEEDS = (1001, 1002)

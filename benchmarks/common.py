@@ -6,9 +6,11 @@ Error measures (all against the model-free SH irradiance target ``usdahd.sh.irra
 - ``hemi_errors(model, params, sh)`` integrates the squared RGB difference and the squared target
   over the upper hemisphere with a 12 x 24 Gauss-Legendre product rule (288 directions: exact
   for the polynomial target, and at most ~1e-3 relative off for models with a ``max()``);
-- the *relative hemispherical RMSE* of a texel is sqrt(err / target energy); of a set of texels
-  (a scene) it is sqrt(sum err / sum target energy), i.e. dominated by bright texels, as an image
-  difference would be.
+- the *relative hemispherical RMSE* of a texel is sqrt(err / target energy)
+  (``usdahd.numerics.stats.rmse_over_rms``); of a set of texels (a scene) it is
+  sqrt(sum err / sum target energy) (``pooled_rmse_over_rms``), i.e. dominated by bright
+  texels, as an image difference would be. ``usdahd validate`` and ``usdahd fit`` report the
+  other definition, RMSE over mean |target| (``rmse_over_mean_abs``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ if str(REPO) not in sys.path:
 
 from usdahd import models  # noqa: E402
 from usdahd.numerics import sh as shm  # noqa: E402
+from usdahd.numerics.stats import pooled_rmse_over_rms, rmse_over_rms  # noqa: E402
 
 SAMPLES = REPO / "samples"
 CACHE = REPO / "benchmarks" / "cache"
@@ -97,7 +100,7 @@ def machine_facts() -> dict:
     """What the numbers depend on: date, CPU, cores, load, library versions, commit."""
     from pxr import Usd
 
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     try:
         usable = len(os.sched_getaffinity(0))
@@ -167,14 +170,14 @@ def hemi_errors(model: str, params: dict, sh: np.ndarray) -> tuple[np.ndarray, n
 
 
 def relative_rmse(err: np.ndarray, energy: np.ndarray) -> tuple[float, float]:
-    """(aggregate sqrt(sum err / sum energy), mean over texels of per-texel relative RMSE).
+    """(``pooled_rmse_over_rms``, mean over texels of ``rmse_over_rms``): the "over RMS"
+    definitions of :mod:`usdahd.numerics.stats`.
 
     Texels with zero target energy are left out of the per-texel mean.
     """
-    tot = float(energy.sum())
-    agg = float(np.sqrt(err.sum() / tot)) if tot > 0 else float(np.sqrt(err.sum()))
+    agg = pooled_rmse_over_rms(err, energy)
     ok = energy > 0
-    per = float(np.mean(np.sqrt(err[ok] / energy[ok]))) if ok.any() else 0.0
+    per = float(np.mean(rmse_over_rms(err[ok], energy[ok]))) if ok.any() else 0.0
     return agg, per
 
 
@@ -212,6 +215,7 @@ def read_baked_sh(layer: Path) -> dict:
     """
     from pxr import Sdf, Usd
 
+    from usdahd import sidecar
     from usdahd.usd import plugin, schema
 
     plugin.register()
@@ -224,10 +228,8 @@ def read_baked_sh(layer: Path) -> dict:
         res = schema.read_results(prim)
         if res is None or schema.SIDECAR_ROLE not in res.textures:
             continue
-        img = schema.read_record_pixels(res, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS)
-        px = np.asarray(img, dtype=np.float32)  # the record's rectangle of its atlas page
-        h, w = px.shape[:2]
-        out[str(prim.GetPath())] = (px[..., :27].reshape(h, w, 3, 9), px[..., 27] > 0.5)
+        px = np.asarray(sidecar.read_record(res), dtype=np.float32)  # rectangle of its page
+        out[str(prim.GetPath())] = sidecar.split(px)
     return dict(sorted(out.items()))
 
 

@@ -34,7 +34,7 @@ sys.path[:0] = [str(REPO), str(REPO / "tests")]
 
 import ktx2_reader as KR  # noqa: E402
 
-from usdahd import cli, images, models  # noqa: E402
+from usdahd import cli, images, models, sidecar  # noqa: E402
 from usdahd.numerics import sh as shm  # noqa: E402
 from usdahd.usd import schema  # noqa: E402
 
@@ -55,8 +55,7 @@ def measure(layer: Path) -> dict:
     for prim in schema.prims_with_api(stage):
         res = schema.read_results(prim)
         mod = models.get(res.model)
-        side = images.read(res.textures["sh"], channels=schema.SH_SIDECAR_CHANNELS).pixels
-        cov = side[..., 27] > 0.5
+        _, cov = sidecar.split(sidecar.read(res.textures["sh"]))
         files, packed = {}, {}
         for lay in mod.layout(res.ratio):
             files[lay.role] = images.read(res.textures[lay.role], channels=lay.channels).pixels[cov]
@@ -139,7 +138,8 @@ def section(result: dict) -> str:
         "**texture2ddecoder** for BC7 and Mesa's decoder (lavapipe through wgpu) for BC6H. "
         "`rel. RMSE`: model decoded from KTX2 level 0 vs the same model decoded from the "
         "EXR/PNG textures, over 32 upper-hemisphere normals and every covered texel (RMSE / "
-        "mean |irradiance|). `BC7 code RMSE`: in 8-bit codes. Bytes per texel: level 0, and "
+        "mean |irradiance|: `pooled_rmse_over_mean_abs` of `usdahd.numerics.stats`). "
+        "`BC7 code RMSE`: in 8-bit codes. Bytes per texel: level 0, and "
         "the full chart-aware mip chain. "
         f"Run: `{result.get('command', DEFAULT_COMMAND)}` "
         f"({result['seconds']:.0f} s here).",

@@ -374,6 +374,7 @@ def section_summary(results) -> str:
             lines.append(
                 f"- Best encoding at <= 12 bytes/texel on the baked samples: {best['model']} "
                 f"{best['ratio']} ({best['bytes']} B), relative hemispherical RMSE "
+                "(pooled_rmse_over_rms) "
                 f"{mean_q(best):.3g} after quantization."
             )
     if "skipping" in results:
@@ -472,7 +473,9 @@ def section_fit(result, plan: Plan) -> str:
             f"end-to-end fit of up to {plan.speed_texels:,} tiled sky+sun texels (slow solvers "
             "on fewer, about 2 s per call: *timed on*), median of "
             f"{plan.speed_repeats} after a warm-up, all cores. Other columns: mean over texels "
-            "of the relative hemispherical RMSE of the fitted model (as engines evaluate it, "
+            "of the relative hemispherical RMSE (`rmse_over_rms` of `usdahd.numerics.stats`: "
+            "sqrt of squared error over squared target, per texel) of the fitted model (as "
+            "engines evaluate it, "
             "before quantization) against the SH irradiance target, on "
             f"{plan.fit_texels:,} texels of each synthetic family of "
             "`benchmarks/make_sample_sh.py` and on real texels of the baked samples (section "
@@ -494,7 +497,8 @@ def section_encodings(result, plan: Plan) -> str:
             "quantized as written (`encode` -> `decode`: float16 I_z/colours, 8-bit "
             "directions/ratios, per-texture scale factors) and evaluated as an engine does. "
             "Per scene: relative hemispherical RMSE over all its texels, sqrt(sum of squared "
-            "error / sum of squared target) against the SH irradiance of the bake. "
+            "error / sum of squared target) (`pooled_rmse_over_rms` of `usdahd.numerics.stats`) "
+            "against the SH irradiance of the bake. "
             "*max I_z error*: largest |I(z) - I_z| / max_c |I_z| of any texel after "
             "quantization (the IrradZ models reproduce I_z up to float16 rounding by "
             "construction; the others do not try to). Bytes per texel count every texture "

@@ -153,7 +153,7 @@ def time_seams(stage: Path, resolution: int, prims: int | None, seed: int = 0) -
 def _decoded_iz(results) -> tuple[np.ndarray, np.ndarray]:
     """Decoded I_z luminance (h, w) over the whole (dilated) texture, as a viewer samples it,
     and the sidecar's (undecoded SH) I_z luminance (h, w) (NaN outside the covered texels)."""
-    from usdahd import models
+    from usdahd import models, sidecar
     from usdahd.numerics import sh as shmod
     from usdahd.usd import schema
     from usdahd.validate.loading import FORMAT_DTYPES, decode_factors, read_image, record_image
@@ -172,9 +172,8 @@ def _decoded_iz(results) -> tuple[np.ndarray, np.ndarray]:
     rgb = np.asarray(mod.evaluate(params, z), np.float64)
     decoded = (rgb @ shmod.LUMINANCE).reshape(h, w)
     side = record_image(results, read_image(results.textures[schema.SIDECAR_ROLE]))
-    data = side.channels(schema.SH_SIDECAR_CHANNELS).astype(np.float64)
-    c10 = data[..., :27].reshape(h, w, 3, 9)[..., 2]
-    raw = np.where(data[..., 27] > 0.5, (c10 * shmod.IZ_FROM_L10) @ shmod.LUMINANCE, np.nan)
+    sh, cov = sidecar.split(side.channels(sidecar.CHANNELS).astype(np.float64))
+    raw = np.where(cov, (sh[..., 2] * shmod.IZ_FROM_L10) @ shmod.LUMINANCE, np.nan)
     return decoded, raw
 
 

@@ -176,21 +176,21 @@ def test_golden_matches_brute_force_along_phi(sky, kind):
 @pytest.mark.parametrize("kind", ["ahd", "hhd"])
 def test_line_error_polynomial_form_equals_direct_form(kind):
     # the search evaluates E(d_z) from p(z) = R.(1, z, z^2, s, s z) and a quartic q(z); it must
-    # equal the direct u^T G u form (_dir_error) for any target, azimuth and d_z
+    # equal the direct u^T G u form (dir_error) for any target, azimuth and d_z
     rng = np.random.default_rng(21)
-    gd, go = iz._sparse_gram(iz.gram_hemi())
+    gd, go = iz.sparse_gram(iz.gram_hemi())
     amb = iz.ambient_sh(kind)
-    blk = np.empty((iz._BLK_ROWS, 1))
+    blk = np.empty((iz.BLK_ROWS, 1))
     cdb, cd, u = np.empty((3, 1)), np.empty(3), np.empty(9)
     for _ in range(200):
         gt = rng.normal(size=(3, 9))
         e0 = rng.uniform(5, 10, 3)
         izv = rng.uniform(0, 2, 3)
         phi, z = rng.uniform(-np.pi, np.pi), rng.uniform(iz.DZ_FLOOR, 1)
-        iz._line_coeffs(np.cos(phi), np.sin(phi), gt, e0, izv, 3, amb, gd, go, 0, blk)
-        got = iz._line_error(z, 0, blk, 3, cdb, True)
+        iz.line_coeffs(np.cos(phi), np.sin(phi), gt, e0, izv, 3, amb, gd, go, 0, blk)
+        got = iz.line_error(z, 0, blk, 3, cdb, True)
         s = np.sqrt(1 - z * z)
-        ref = iz._dir_error(
+        ref = iz.dir_error(
             s * np.cos(phi), s * np.sin(phi), z, gt, e0, izv, 3, amb, gd, go, True, u, cd
         )
         assert abs(got - ref) <= 1e-12 * max(1.0, abs(ref))
@@ -227,9 +227,9 @@ def test_objective_rgb_matches_brute_force_along_phi(sky, kind):
 
 @pytest.mark.parametrize("ratio", ["luminance", "rgb"])
 def test_lockstep_search_is_per_texel(ratio):
-    # texels are searched in blocks of _BLOCK in lockstep: results must not depend on a texel's
+    # texels are searched in blocks of BLOCK in lockstep: results must not depend on a texel's
     # neighbours or its position (block boundaries, chunk boundaries, a single-texel call)
-    data = envs.sky_sun(2 * iz._BLOCK + 7, seed=3)
+    data = envs.sky_sun(2 * iz.BLOCK + 7, seed=3)
     perm = np.random.default_rng(0).permutation(len(data))
     a = iz.fit(data, "hhd", ratio=ratio)
     b = iz.fit(data[perm], "hhd", ratio=ratio)

@@ -8,17 +8,17 @@ import pytest
 
 from usdahd import models
 from usdahd.errors import ModelError, UsageError
-from usdahd.pipeline.settings import BakeOptions, _check_options, resolve_settings
+from usdahd.pipeline.settings import BakeOptions, check_options, resolve_settings
 
 
 def test_flags_the_model_lacks_are_named_as_flags():
     with pytest.raises(UsageError, match=r"^model 'sh_l2' supports --ratio none, not 'rgb'$"):
-        _check_options(BakeOptions(model="sh_l2", ratio="rgb"))
+        check_options(BakeOptions(model="sh_l2", ratio="rgb"))
     with pytest.raises(UsageError, match=r"^model 'hl2' has --solver hemisphere, not 'golden'$"):
-        _check_options(BakeOptions(model="hl2", solver="golden"))
+        check_options(BakeOptions(model="hl2", solver="golden"))
     with pytest.raises(UsageError, match=r"^model 'sh_l2' supports --ratio none, not 'rgb'$"):
         resolve_settings(BakeOptions(model="sh_l2", ratio="rgb"), {})
-    _check_options(BakeOptions(model="hhd", ratio="rgb", solver="direct"))  # offered: no error
+    check_options(BakeOptions(model="hhd", ratio="rgb", solver="direct"))  # offered: no error
 
 
 def test_an_authored_ratio_the_model_lacks_falls_back_and_a_solver_is_refused():
@@ -47,7 +47,7 @@ def test_one_setting_name_map_for_the_baker_and_the_staleness_rule():
     record through it, so an authored input the bake used never reads as drift."""
     from pxr import Usd, UsdGeom
 
-    from usdahd.pipeline.settings import DEFAULTS, _authored_inputs
+    from usdahd.pipeline.settings import DEFAULTS, authored_inputs
     from usdahd.usd import schema
     from usdahd.validate.staleness import settings_drift
 
@@ -67,7 +67,7 @@ def test_one_setting_name_map_for_the_baker_and_the_staleness_rule():
         samples=32,
         bounces=3,
     )
-    authored = _authored_inputs(prim)
+    authored = authored_inputs(prim)
     assert set(authored) == set(schema.SETTING_KEYS.values())
     assert authored["uv"] == "lm"
     settings = resolve_settings(BakeOptions(), authored)
@@ -86,7 +86,7 @@ def test_settings_drift_reads_a_hand_edited_record_of_the_wrong_type():
     one is no drift; a value that cannot be the input's reads as drift naming that value."""
     from pxr import Usd, UsdGeom
 
-    from usdahd.pipeline.settings import _authored_inputs
+    from usdahd.pipeline.settings import authored_inputs
     from usdahd.usd import schema
     from usdahd.validate.staleness import settings_drift
 
@@ -94,7 +94,7 @@ def test_settings_drift_reads_a_hand_edited_record_of_the_wrong_type():
     prim = UsdGeom.Mesh.Define(stage, "/Quad").GetPrim()
     schema.apply(prim)
     schema.write_inputs(prim, resolution=64, samples=32)
-    settings = resolve_settings(BakeOptions(), _authored_inputs(prim))
+    settings = resolve_settings(BakeOptions(), authored_inputs(prim))
     settings["resolution"] = 64
     assert settings_drift(prim, settings) == []
     settings["resolution"] = "64x64"
@@ -107,7 +107,7 @@ def test_settings_drift_reads_a_hand_edited_record_of_the_wrong_type():
     dense = UsdGeom.Mesh.Define(stage, "/Dense").GetPrim()
     schema.apply(dense)
     schema.write_inputs(dense, texel_density=8.0)
-    settings = resolve_settings(BakeOptions(), _authored_inputs(dense))
+    settings = resolve_settings(BakeOptions(), authored_inputs(dense))
     settings["texel_density"] = "eight"
     assert settings_drift(dense, settings) == ["ahdLightmap:texelDensity ('eight' -> 8.0)"]
     settings["texel_density"] = [8.0]

@@ -269,7 +269,7 @@ def test_unrepresentable_corners_counts_corners_with_two_uvs():
 
 
 def test_overlap_test_tells_overlap_from_touching():
-    from usdahd.bake.unwrap import _overlaps
+    from usdahd.numerics.charts import overlaps as _overlaps
 
     tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     edge = np.array([[[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]])  # shares the hypotenuse
@@ -340,7 +340,7 @@ def test_a_polygon_that_fits_no_chart_gets_its_own(monkeypatch):
     own: still one UV per corner and no overlap."""
     from usdahd.bake import unwrap as unwrap_mod
 
-    monkeypatch.setattr(unwrap_mod, "_overlaps", lambda tri, others, eps=0: len(others) > 0)
+    monkeypatch.setattr(unwrap_mod, "overlaps", lambda tri, others, eps=0: len(others) > 0)
     mesh = goldberg(2)
     info = {}
     uv, res = unwrap(mesh, resolution=128, isolate=False, info=info)
@@ -506,3 +506,68 @@ def test_small_charts_keep_one_texel_of_padding_and_fill_their_map():
         share[padding] = len(t.xy) / (res[0] * res[1])
     assert covered[1] == pytest.approx(covered[2], rel=0.05)
     assert share[1] > 1.6 * share[2] and share[1] > 0.3
+
+
+def frames(count=6, nx=5, ny=20, q=0.1, seed=0) -> MeshData:
+    """``count`` flat picture frames (an nx x ny grid of q-metre quads without its inner
+    (nx - 2) x (ny - 2) quads: a window's moulding), each at its own place and turn."""
+    rng = np.random.default_rng(seed)
+    pts, counts, idx = [], [], []
+    gx, gy = np.arange(nx + 1) * q, np.arange(ny + 1) * q
+    for f in range(count):
+        a = rng.uniform(0, np.pi)
+        rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        base = len(pts)
+        for y in gy:
+            for x in gx:
+                pts.append(rot @ np.array([x, y, 0.0]) + np.array([3.0 * f, 0.0, 0.0]))
+        for j in range(ny):
+            for i in range(nx):
+                if 0 < i < nx - 1 and 0 < j < ny - 1:
+                    continue
+                v = base + j * (nx + 1) + i
+                counts.append(4)
+                idx += [v, v + 1, v + nx + 2, v + nx + 1]
+    return fan_mesh(np.array(pts), counts, idx, path="/frames")
+
+
+def test_split_rings_cuts_a_frame_into_its_sides_and_keeps_solid_charts():
+    from usdahd.numerics.charts import split_rings as _split_rings
+
+    mesh = frames(count=1)
+    tris = mesh.points[mesh.triangles]  # the frame lies in one plane through the y axis
+    u = np.linalg.norm(tris[..., [0, 2]], axis=-1)
+    uv = np.stack([u, tris[..., 1]], axis=-1) * 10.0  # 10 texels per metre
+    labels = np.zeros(len(uv), np.int64)
+    cut = _split_rings(uv, labels, mesh.face, 0.5)  # the frame covers 46 % of its rectangle
+    assert len(np.unique(cut)) == 4  # four sides
+    for f in np.unique(mesh.face):  # whole polygons move
+        assert len(np.unique(cut[mesh.face == f])) == 1
+    # not a ring below that fraction; a solid chart (a square quad) is never one
+    assert np.array_equal(_split_rings(uv, labels, mesh.face, 0.4), labels)
+    square = np.array([[[0, 0], [10, 0], [10, 10]], [[0, 0], [10, 10], [0, 10]]], float)
+    flat = _split_rings(square, np.zeros(2, np.int64), np.zeros(2, np.int64), 0.99)
+    assert np.array_equal(flat, np.zeros(2, np.int64))
+
+
+def test_ring_charts_are_cut_when_that_makes_the_map_smaller(monkeypatch):
+    """Window frames (thin rings) packed whole leave their holes empty; cut into their sides
+    the map is smaller for the same texels per metre, with every chart still disjoint and
+    every polygon whole (measured: 56x57 against 54x63 at 20 texels/m)."""
+    import usdahd.bake.unwrap as unwrap_module
+
+    got = {}
+    default = unwrap_module.RING_SOLIDITY
+    for solidity in (default, ()):  # (): no chart is a ring
+        monkeypatch.setattr(unwrap_module, "RING_SOLIDITY", solidity)
+        mesh = frames()
+        info = {}
+        uv, res = unwrap(mesh, texels_per_unit=20.0, isolate=False, info=info)
+        _check_representable(mesh, uv, res)
+        assert tx.texel_density(mesh, res) == pytest.approx(20.0, rel=2e-2)
+        again, res2 = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+        assert res2 == res and np.array_equal(again, uv)
+        got[solidity] = (res[0] * res[1], info["rings_cut"])
+    cut, whole = got[default], got[()]
+    assert cut[1] == 6 and whole[1] == 0
+    assert cut[0] < 0.95 * whole[0]

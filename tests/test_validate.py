@@ -474,7 +474,7 @@ def test_module_entry_point_subprocess(assets):
 
 def _sensitivities(bake):
     """(n, channels, 3) |I(z; code + 1 step) - I(z)| (max of both sides) per stored channel."""
-    base = V._at_z(bake, bake.channels)
+    base = V.decoded_iz(bake, bake.channels)
     out, where = [], []
     for role, codes in bake.channels.items():
         for j, code in enumerate(bake.layout[role].codes):
@@ -484,9 +484,9 @@ def _sensitivities(bake):
             for up in (True, False):
                 moved = dict(bake.channels)
                 c = codes.copy()
-                c[:, j] = V._step(codes[:, j], up)
+                c[:, j] = V.code_step(codes[:, j], up)
                 moved[role] = c
-                worst = np.maximum(worst, np.abs(V._at_z(bake, moved) - base))
+                worst = np.maximum(worst, np.abs(V.decoded_iz(bake, moved) - base))
             out.append(worst)
             where.append((role, j))
     return np.stack(out, axis=1), where
@@ -516,17 +516,18 @@ def test_iz_tolerance_is_the_quantization_and_one_flipped_code_is_caught(tmp_pat
     texel, k, colour = np.unravel_index(np.argmax(share), share.shape)
     assert share[texel, k, colour] > 0.55, f"{variant}: no channel dominates I(z) anywhere"
     role, j = where[k]
-    ref_err = V._at_z(bake, bake.channels)[texel] - _reference(bake)[texel]
+    ref_err = V.decoded_iz(bake, bake.channels)[texel] - _reference(bake)[texel]
     x, y = (int(v) for v in bake.xy[texel])
     img = V.read_image(bake.results.textures[role])
     name = bake.layout[role].channels[j]
     for up in (True, False):
         moved = dict(bake.channels)
         c = bake.channels[role].copy()
-        c[texel, j] = V._step(c[texel : texel + 1, j], up)[0]
+        c[texel, j] = V.code_step(c[texel : texel + 1, j], up)[0]
         moved[role] = c
         if np.sign(
-            V._at_z(bake, moved)[texel, colour] - V._at_z(bake, bake.channels)[texel, colour]
+            V.decoded_iz(bake, moved)[texel, colour]
+            - V.decoded_iz(bake, bake.channels)[texel, colour]
         ) == np.sign(ref_err[colour] or 1.0):
             break
     path = Path(bake.results.textures[role])

@@ -83,9 +83,9 @@ def test_one_bad_code_in_any_channel_is_caught(default_bakes, tmp_path, model, r
     i = int(covered[len(covered) // 2])  # a texel inside the chart
     x, y = (int(v) for v in bake.xy[i])
     code = bake.channels[role][i : i + 1, j]
-    moved = V._step(code, up=True)
+    moved = V.code_step(code, up=True)
     if np.array_equal(moved.view(np.uint8), code.view(np.uint8)):  # at the top of the range
-        moved = V._step(code, up=False)
+        moved = V.code_step(code, up=False)
     path = Path(bake.results.textures[role])
     img = images.read(path)
     data = np.array(img.pixels)

@@ -13,7 +13,7 @@ the validator and the CLI before they open a stage; Python code that creates sta
 AhdLightmapAPI schema itself imports ``usdahd.usd`` first.
 """
 
-from usdahd._version import __version__
+from usdahd.version import __version__
 
 __all__ = ["__version__", "fit"]
 

@@ -1,5 +1,5 @@
 import sys
 
-from usdahd._console import main
+from usdahd.console import main
 
 sys.exit(main())

@@ -16,6 +16,8 @@ from __future__ import annotations
 import os
 import re
 
+__all__ = ["check"]
+
 #: Environment variable that sets the budget (bytes; K/M/G/T suffixes, powers of 1024).
 ENV = "USDAHD_MEMORY_BUDGET"
 _UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}

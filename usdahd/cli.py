@@ -19,8 +19,10 @@ import json
 import os
 import sys
 
-from usdahd._version import __version__
 from usdahd.errors import UsdAhdError
+from usdahd.version import __version__
+
+__all__ = ["main"]
 
 #: subcommand name -> module in usdahd.commands defining ``add_parser(subparsers)`` and
 #: ``run(args) -> int``.

@@ -3,6 +3,18 @@
 Every message should name what is wrong (a prim path, a file, a flag) and what to do.
 """
 
+__all__ = [
+    "BakeError",
+    "ImageError",
+    "InputError",
+    "ModelError",
+    "OutputError",
+    "SchemaError",
+    "StageError",
+    "UsageError",
+    "UsdAhdError",
+]
+
 
 class UsdAhdError(Exception):
     """Base class of every error usdahd raises on purpose."""

@@ -42,6 +42,8 @@ import numpy as np
 from usdahd.errors import ImageError, UsageError
 from usdahd.io_util import atomic_path
 
+__all__ = ["convert_color", "convert_color_8bit", "read", "read_native", "read_texels", "write"]
+
 FORMAT_DTYPES = {
     "half": np.float16,
     "float": np.float32,

@@ -45,9 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
-from usdahd._version import __version__
 from usdahd.errors import ImageError
 from usdahd.io_util import atomic_path
+from usdahd.version import __version__
+
+__all__ = ["write"]
 
 IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
 VK_FORMAT_R8G8B8A8_UNORM = 37

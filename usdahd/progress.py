@@ -15,6 +15,8 @@ import sys
 import threading
 import time
 
+__all__ = ["CompileNotice", "Progress", "clear_line"]
+
 #: Said after a compile: the command that compiles every bake kernel ahead of a first bake.
 WARMUP_HINT = "after installing or upgrading usdahd, `usdahd warmup` compiles them ahead"
 #: Seconds numba spent compiling in this process (outermost compile events only).

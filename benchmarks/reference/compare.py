@@ -120,20 +120,15 @@ def usdahd_iz(record) -> tuple[np.ndarray, np.ndarray]:
     """I_z (h, w, 3) float64 and coverage (h, w) bool from a bake record's float32 SH sidecar:
     the record's rectangle of its atlas page (``atlas:scaleOffset``), or its own file with
     ``--atlas off``. A path (str) reads the whole file (a sidecar that is the record's own)."""
-    from usdahd import images
+    from usdahd import sidecar
     from usdahd.numerics import sh as shm
-    from usdahd.usd import schema
 
     if isinstance(record, (str, Path)):
-        px = images.read(str(record), channels=schema.SH_SIDECAR_CHANNELS).pixels
+        px = sidecar.read(str(record))
     else:
-        px = schema.read_record_pixels(
-            record, schema.SIDECAR_ROLE, channels=schema.SH_SIDECAR_CHANNELS
-        )
-    px = np.asarray(px, np.float64)
-    h, w = px.shape[:2]
-    sh = px[..., :27].reshape(h, w, 3, 9)
-    return shm.iz(sh), px[..., 27] > 0.5
+        px = sidecar.read_record(record)
+    sh, covered = sidecar.split(np.asarray(px, np.float64))
+    return shm.iz(sh), covered
 
 
 # ------------------------------------------------------------------------------- stats

@@ -56,15 +56,12 @@ def stage_path(name: str) -> Path:
 def tilted_irradiance(sidecar: str) -> tuple[np.ndarray, np.ndarray]:
     """(h, w, 3, 4) float64 irradiance / pi at the ``TILTED`` normals (cosine-convolved SH)
     and coverage (h, w) bool, from a bake's SH sidecar."""
-    from usdahd import images
+    from usdahd import sidecar as sc
     from usdahd.numerics import sh as shm
-    from usdahd.usd import schema
 
-    px = np.asarray(images.read(sidecar, channels=schema.SH_SIDECAR_CHANNELS).pixels, np.float64)
-    h, w = px.shape[:2]
-    sh = px[..., :27].reshape(h, w, 3, 9)
+    sh, covered = sc.split(np.asarray(sc.read(sidecar), np.float64))
     e = np.stack([shm.irradiance(sh, n) for n in TILTED], axis=-1)
-    return e, px[..., 27] > 0.5
+    return e, covered
 
 
 def sidecars(layer: Path) -> dict[str, str]:

@@ -54,6 +54,8 @@ from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics.noise import second_differences, tile_stats
 
+__all__ = ["VARIANCE_POOL", "denoise_records", "integrator_iz_variance", "sh_variance"]
+
 FILTERS = ("RTLightmap", "RT")
 #: sqrt(2l + 1) per coefficient: |c_lm| <= sqrt(2l+1) c00 for non-negative functions.
 _BAND_BOUND = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)

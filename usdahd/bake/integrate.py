@@ -82,6 +82,17 @@ from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_li
 from usdahd.bake.texels import walled_in
 from usdahd.numerics.sampling import r2_sequence
 
+__all__ = [
+    "ADAPTIVE_TOL",
+    "DEFAULT_BOUNCES",
+    "NativeCtx",
+    "bake_texels",
+    "chunk_texels",
+    "inside_geometry",
+    "iz_batches",
+    "uses_native",
+]
+
 #: Rays per wavefront chunk (texels x samples): bounds memory (~100 B per ray per array).
 CHUNK_RAYS = 1 << 16
 #: Samples per chunk of the native kernel (memory is per texel there, ~1.4 kB).
@@ -172,7 +183,7 @@ def bake_texels(
     passes, per_pass = _passes(samples, adaptive)
     native = uses_native(scene, getattr(tracer, "backend", "embreex"))
     if native:
-        ctx = _NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
+        ctx = NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
     chunk = chunk_texels(samples, adaptive, native)
     offsets = tracer.texel_offsets(texels, mesh)  # ray-origin offset per texel
     est_rays_per_sample = None
@@ -324,7 +335,7 @@ def _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
     }
 
 
-class _NativeCtx:
+class NativeCtx:
     """Drives :func:`native_pass` over the tracer's threads (backend "native")."""
 
     def __init__(self, scene, tracer, bounces, estimator, strategy="mis", mesh=None):

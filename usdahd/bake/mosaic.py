@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["OIDN_BLOCK", "PAD", "run"]
+
 #: Least dilated context (texels) on every side of a chart: a constant chart comes back
 #: within 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).
 #: The canvas side is then rounded up to a multiple of OIDN_BLOCK, the extra going to the

@@ -25,6 +25,16 @@ from usdahd.numerics import sh as shmod
 from usdahd.numerics.raster import uv_to_pixel
 from usdahd.scene.types import MeshData
 
+__all__ = [
+    "coverage_mask",
+    "dilate",
+    "fill_invalid",
+    "find_seams",
+    "from_image",
+    "stitch",
+    "to_image",
+]
+
 # 8-neighbourhood offsets (dx, dy)
 _NEIGHBOURS = np.array(
     [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)], dtype=np.int64

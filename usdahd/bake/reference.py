@@ -27,6 +27,20 @@ from usdahd.numerics.sampling import (
 )
 from usdahd.scene.lights import EmissiveTriangles, selection_pmf
 
+__all__ = [
+    "ALL_LIGHTS_MAX",
+    "Accum",
+    "G_HEMI",
+    "LIGHT_SELECTION_FLOOR",
+    "LIGHT_SHIFT",
+    "LINK_MAX_CROSSINGS",
+    "LightGroups",
+    "RR_DEPTH",
+    "ReferenceCtx",
+    "SHADOW_SHORTEN",
+    "has_light_linking",
+]
+
 #: Reflections before Russian roulette starts (bounces <= RR_DEPTH are never terminated).
 RR_DEPTH = 3
 #: Adaptive: floor of the convergence test, relative to the chunk's largest Iz.

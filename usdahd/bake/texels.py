@@ -32,13 +32,28 @@ from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics.raster import rasterize_uv, signed_area2
 from usdahd.numerics.sampling import orthonormal_basis, r2_sequence, to_world, uniform_hemisphere
+from usdahd.numerics.triangles import (
+    any_perpendicular,
+    normalize,
+    texel_frame,
+    triangle_areas,
+    unit_normals,
+)
+from usdahd.numerics.triangles import barycentrics as triangle_barycentrics
 from usdahd.scene.types import MeshData
+
+__all__ = [
+    "MAX_RESOLUTION",
+    "chart_ids",
+    "push_off_contacts",
+    "rasterize",
+    "resolution_for_density",
+    "tangent_frames",
+    "walled_in",
+]
 
 #: Largest lightmap side accepted by default: 8192^2 texels x 27 SH floats is already 7 GB.
 MAX_RESOLUTION = 8192
-
-#: Squared length below which a vector is treated as zero (tangent/normal fallbacks).
-TINY2 = 1e-24
 
 
 # --------------------------------------------------------------------------------------------
@@ -97,9 +112,7 @@ def mesh_from_arrays(
     tri = np.asarray(triangles, dtype=np.int32)
     t = len(tri)
     if normals is None:
-        g, _ = _normalize(
-            np.cross(pts[tri[:, 1]] - pts[tri[:, 0]], pts[tri[:, 2]] - pts[tri[:, 0]])
-        )
+        g, _ = unit_normals(pts[tri])
         nrm = np.repeat(g[:, None, :], 3, axis=1)
     else:
         nrm = np.asarray(normals, dtype=np.float64)
@@ -126,22 +139,6 @@ def mesh_from_arrays(
 # small vector helpers
 
 
-def _normalize(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit vectors and a mask of which inputs were non-zero."""
-    n2 = np.einsum("...i,...i->...", v, v)
-    ok = n2 > TINY2
-    out = np.where(ok[..., None], v / np.sqrt(np.where(ok, n2, 1.0))[..., None], 0.0)
-    return out, ok
-
-
-def _any_perpendicular(n: np.ndarray) -> np.ndarray:
-    """A unit vector perpendicular to unit ``n`` (..., 3): Duff et al. 2017 branchless ONB."""
-    sign = np.where(n[..., 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[..., 2])
-    b = n[..., 0] * n[..., 1] * a
-    return np.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], axis=-1)
-
-
 # --------------------------------------------------------------------------------------------
 # tangent frames
 
@@ -166,7 +163,7 @@ def tangent_frames(mesh: MeshData) -> tuple[np.ndarray, np.ndarray]:
     uv = _check_mesh(mesh)
     pts = np.asarray(mesh.points, dtype=np.float64)
     tri = np.asarray(mesh.triangles, dtype=np.int64)
-    nrm, _ = _normalize(np.asarray(mesh.normals, dtype=np.float64))
+    nrm, _ = normalize(np.asarray(mesh.normals, dtype=np.float64))
     p = pts[tri]  # (t, 3, 3)
     t = len(tri)
 
@@ -181,9 +178,9 @@ def tangent_frames(mesh: MeshData) -> tuple[np.ndarray, np.ndarray]:
 
     # per-corner projection and angle weight
     proj = tri_t[:, None, :] - nrm * np.einsum("tci,ti->tc", nrm, tri_t)[..., None]
-    corner_t, ok = _normalize(proj)
-    e_next, _ = _normalize(p[:, [1, 2, 0]] - p)
-    e_prev, _ = _normalize(p[:, [2, 0, 1]] - p)
+    corner_t, ok = normalize(proj)
+    e_next, _ = normalize(p[:, [1, 2, 0]] - p)
+    e_prev, _ = normalize(p[:, [2, 0, 1]] - p)
     angle = np.arccos(np.clip(np.einsum("tci,tci->tc", e_next, e_prev), -1.0, 1.0))
     weight = np.where(ok & ~degenerate[:, None], angle, 0.0)
 
@@ -198,18 +195,18 @@ def tangent_frames(mesh: MeshData) -> tuple[np.ndarray, np.ndarray]:
     contrib = (corner_t * weight[..., None]).reshape(-1, 3)
     for k in range(3):
         acc[:, k] = np.bincount(group, weights=contrib[:, k], minlength=len(acc))
-    summed, ok_sum = _normalize(acc[group].reshape(t, 3, 3))
+    summed, ok_sum = normalize(acc[group].reshape(t, 3, 3))
     # re-project (corners of a group share the normal, so this is exact up to rounding)
     summed = summed - nrm * np.einsum("tci,tci->tc", nrm, summed)[..., None]
-    summed, ok_sum = _normalize(summed)
-    fallback = np.where(ok[..., None], corner_t, _any_perpendicular(_safe_normal(nrm, p)))
+    summed, ok_sum = normalize(summed)
+    fallback = np.where(ok[..., None], corner_t, any_perpendicular(_safe_normal(nrm, p)))
     tangent = np.where(ok_sum[..., None], summed, fallback)
     return tangent, sign
 
 
 def _safe_normal(nrm: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Corner normals, replaced by the geometric normal (or +z) where zero."""
-    g, gok = _normalize(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]))
+    g, gok = unit_normals(p)
     g = np.where(gok[:, None], g, np.array([0.0, 0.0, 1.0]))
     n2 = np.einsum("...i,...i->...", nrm, nrm)
     return np.where((n2 > 0.5)[..., None], nrm, g[:, None, :])
@@ -284,7 +281,7 @@ def uv_charts(uv: np.ndarray) -> np.ndarray:
 def _areas(mesh: MeshData) -> tuple[float, float]:
     uv = _check_mesh(mesh)
     p = np.asarray(mesh.points, dtype=np.float64)[np.asarray(mesh.triangles, dtype=np.int64)]
-    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    world = triangle_areas(p).sum()
     uv_area = 0.5 * np.abs(signed_area2(uv)).sum()
     return float(world), float(uv_area)
 
@@ -369,9 +366,9 @@ def rasterize(
     p = pts[tri[tri_idx]]  # (n, 3, 3)
     position = np.einsum("nc,nci->ni", lam, p)
     gp = pts[tri]
-    gnorm, gok = _normalize(np.cross(gp[:, 1] - gp[:, 0], gp[:, 2] - gp[:, 0]))
-    nrm_c, _ = _normalize(np.asarray(mesh.normals, dtype=np.float64))
-    shade, sok = _normalize(np.einsum("nc,nci->ni", lam, nrm_c[tri_idx]))
+    gnorm, gok = unit_normals(gp)
+    nrm_c, _ = normalize(np.asarray(mesh.normals, dtype=np.float64))
+    shade, sok = normalize(np.einsum("nc,nci->ni", lam, nrm_c[tri_idx]))
     geom = gnorm[tri_idx]
     geom = np.where(gok[tri_idx][:, None], geom, shade)
     shade = np.where(sok[:, None], shade, geom)
@@ -379,13 +376,8 @@ def rasterize(
     shade = np.where((np.abs(shade).sum(axis=1) > 0)[:, None], shade, [0.0, 0.0, 1.0])
 
     tangent_c, sign = tangent_frames(mesh)
-    tan = np.einsum("nc,nci->ni", lam, tangent_c[tri_idx])
-    tan = tan - shade * np.einsum("ni,ni->n", shade, tan)[:, None]
-    tan, tok = _normalize(tan)
-    tan = np.where(tok[:, None], tan, _any_perpendicular(shade))
     sgn = sign[tri_idx]
-    bit = sgn[:, None] * np.cross(shade, tan)
-    frame = np.stack([tan, bit, shade], axis=1)
+    frame = texel_frame(shade, np.einsum("nc,nci->ni", lam, tangent_c[tri_idx]), sgn)
 
     xy = np.stack([x, y], axis=1).astype(np.int32)
     stats = {
@@ -414,19 +406,7 @@ def rasterize(
 def barycentrics(texels: Texels, mesh: MeshData) -> np.ndarray:
     """Barycentric weights (n, 3) float64 of each texel's sample point on its triangle."""
     p = np.asarray(mesh.points, dtype=np.float64)[np.asarray(mesh.triangles)[texels.triangle]]
-    q = texels.position.astype(np.float64)
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    nn = np.einsum("ni,ni->n", n, n)
-    nn = np.where(nn > 0, nn, 1.0)
-    lam = np.stack(
-        [
-            np.einsum("ni,ni->n", np.cross(p[:, 2] - p[:, 1], q - p[:, 1]), n),
-            np.einsum("ni,ni->n", np.cross(p[:, 0] - p[:, 2], q - p[:, 2]), n),
-            np.einsum("ni,ni->n", np.cross(p[:, 1] - p[:, 0], q - p[:, 0]), n),
-        ],
-        axis=1,
-    )
-    return lam / nn[:, None]
+    return triangle_barycentrics(p, texels.position.astype(np.float64))
 
 
 # --------------------------------------------------------------------------------------------

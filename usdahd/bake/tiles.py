@@ -25,6 +25,8 @@ import numpy as np
 
 from usdahd.bake.types import Texels
 
+__all__ = ["TILE_TEXELS", "Tile", "gather", "slice_texels", "split", "trace_tile"]
+
 #: Target texels per tile (~64k: ~5 MB of texel data in, ~7 MB of SH out, and a few seconds of
 #: tracing at 256 samples); rounded to whole integrator chunks.
 TILE_TEXELS = 1 << 16

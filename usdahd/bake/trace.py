@@ -42,6 +42,8 @@ from usdahd.bake.kernels.layout import (
 )
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS, triangle_offset_scale
 
+__all__ = ["MAX_TRANSMIT", "Tracer"]
+
 #: Re-traces through cut-out/transmissive surfaces before a ray is considered blocked.
 MAX_TRANSMIT = 8
 #: Work items per thread in :meth:`Tracer.run_parallel` (dynamic load balance).

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = ["Texels"]
+
 
 @dataclass
 class Texels:

@@ -13,6 +13,7 @@ from usdahd import budget, models
 from usdahd.commands.output import emit
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh as shmod
+from usdahd.numerics.stats import rmse_over_mean_abs
 
 
 def add_parser(sub):
@@ -245,9 +246,11 @@ def load_sh(path: str) -> np.ndarray:
 
 
 def hemispherical_rmse(sh: np.ndarray, fitted, n_dirs: int = 256) -> np.ndarray:
-    """RMSE over the upper hemisphere of the fitted irradiance against the SH irradiance.
+    """Per-texel RMSE over the upper hemisphere of the fitted irradiance against the SH
+    irradiance, relative to the texel's mean |target|
+    (:func:`usdahd.numerics.stats.rmse_over_mean_abs`; 0 for a black texel).
 
-    sh : (n, 3, 9); returns (n,) relative to the mean target irradiance (luminance).
+    sh : (n, 3, 9); returns (n,).
     The target is a (n, d, 3) float64 product of the SH with a (9, d) irradiance basis
     (irradiance is linear in the SH), so no (n, d, 3, 9) temporary is built.
     """
@@ -255,9 +258,7 @@ def hemispherical_rmse(sh: np.ndarray, fitted, n_dirs: int = 256) -> np.ndarray:
     basis = shmod.basis(dirs) * shmod.COSINE_FACTORS  # (d, 9)
     target = np.einsum("nck,dk->ndc", sh, basis)  # (n, d, 3)
     got = fitted.evaluate(np.broadcast_to(dirs, (sh.shape[0],) + dirs.shape))
-    err = np.sqrt(((got - target) ** 2).mean(axis=(1, 2)))
-    scale = np.abs(target).mean(axis=(1, 2))
-    return err / np.where(scale > 0, scale, 1.0)
+    return rmse_over_mean_abs(got, target)
 
 
 def _check_output(path: str | None) -> None:
@@ -302,6 +303,8 @@ def run(args) -> int:
         "texels": int(src.n),
         "relative_rmse_mean": rel_sum / src.n,
         "relative_rmse_max": rel_max,
+        # which of the RMSE definitions of usdahd.numerics.stats the two numbers above are
+        "relative_rmse_definition": "rmse_over_mean_abs",
         "params": {k: list(v) for k, v in shapes.items()},
     }
     if args.output:
@@ -313,7 +316,7 @@ def run(args) -> int:
     def human():
         print(
             f"{report['texels']} texels  model={fitted.model} ratio={fitted.ratio} "
-            f"solver={fitted.solver}  hemispherical relative RMSE mean "
+            f"solver={fitted.solver}  per-texel hemispherical RMSE over mean |I| mean "
             f"{report['relative_rmse_mean']:.4g} max {report['relative_rmse_max']:.4g}"
         )
         for k, v in shapes.items():

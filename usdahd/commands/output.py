@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 
+__all__ = ["emit"]
+
 
 def emit(args, report: dict, human: Callable[[], None]) -> None:
     """Print ``report`` as indented JSON when ``args.json``; else call ``human()`` (which prints

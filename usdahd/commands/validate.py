@@ -23,8 +23,8 @@ import os
 import sys
 import time
 
-from usdahd._version import __version__
 from usdahd.errors import UsageError
+from usdahd.version import __version__
 
 
 def add_parser(sub):
@@ -69,8 +69,9 @@ def add_parser(sub):
         default=None,
         metavar="N",
         help="also run the opt-in Retrace rule: re-trace I_z at N random covered texel centres "
-        "per prim with the baker's integrator and compare with the bake (costs time; "
-        "docs/validate.md gives the cost per texel)",
+        "per prim with the baker's integrator and compare with the bake, and replay the bake's "
+        "own random stream at texels sized to catch a 1 %% rescale of the files "
+        "(costs time; docs/validate.md gives the cost per texel and the power)",
     )
     p.add_argument(
         "--retrace-samples",

@@ -48,6 +48,16 @@ from usdahd.export.instancing import (
     instancer_copies,
 )
 
+__all__ = [
+    "EXTENSION",
+    "LIGHTMAP_TEXCOORD",
+    "check_stage",
+    "decompose",
+    "export",
+    "placement",
+    "trs_fields",
+]
+
 EXTENSION = "USDAHD_lightmap_directional"
 #: Vertex attribute of the lightmap tangent (xyz object space, w = handedness sign).
 TANGENT_ATTRIBUTE = "_LIGHTMAP_TANGENT"
@@ -130,7 +140,7 @@ class _Builder:
 
 
 def _generator() -> str:
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     return f"usdahd {__version__}"
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["ENCODINGS", "decode", "encode"]
+
 ENCODINGS = ("rgbm", "rgbe")
 
 

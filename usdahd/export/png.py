@@ -10,6 +10,8 @@ import zlib
 
 import numpy as np
 
+__all__ = ["encode"]
+
 #: PNG colour type by channel count.
 _COLOR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}
 

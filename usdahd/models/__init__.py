@@ -20,6 +20,17 @@ from usdahd.models.base import (  # noqa: F401  (re-exported)
     choice_problem,
 )
 
+__all__ = [
+    "Fit",
+    "REGISTRY",
+    "check_choice",
+    "choice_problem",
+    "fit",
+    "get",
+    "names",
+    "representable",
+]
+
 #: name -> module path, or "module:attribute" for a model object in a module. Add a model by
 #: adding a line here.
 REGISTRY = {

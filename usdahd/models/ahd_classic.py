@@ -19,6 +19,7 @@ from usdahd.errors import InputError
 from usdahd.models import irradz as _irradz
 from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
 from usdahd.numerics import encoding
+from usdahd.numerics.hemi import self_bounce
 
 NAME = "ahd_classic"
 RATIOS = ("none",)
@@ -46,11 +47,11 @@ def evaluate(params, normals, *, albedo=None):
     cd = np.asarray(params["directional"], dtype=np.float64)
     d = np.asarray(params["direction"], dtype=np.float64)
     nd = max(n.ndim, ca.ndim)
-    ca, cd, d = (_irradz._expand(x, nd) for x in (ca, cd, d))
+    ca, cd, d = (_irradz.expand(x, nd) for x in (ca, cd, d))
     out = ca + np.maximum(np.sum(n * d, axis=-1, keepdims=True), 0.0) * cd
     if albedo is not None:
         iz = ca + d[..., 2:3] * cd
-        out = out + _irradz._self_bounce(iz, n, albedo)
+        out = out + self_bounce(iz, n, albedo)
     return out.astype(np.float32)
 
 

@@ -22,7 +22,7 @@ from math import gamma
 
 import numpy as np
 
-from usdahd.models import _linear
+from usdahd.models import linear
 from usdahd.models.base import check_choice
 from usdahd.numerics import sh as shm
 
@@ -111,8 +111,8 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 6, 3), invalid}."""
     check_choice(NAME, "ratio", ratio, RATIOS)
     check_choice(NAME, "solver", solver, SOLVERS)
-    x, bad = _linear.prepare(sh)
-    return _linear.finish(_linear.apply_fit_matrix(FIT, _linear.irradiance_sh(x)), bad)
+    x, bad = linear.prepare(sh)
+    return linear.finish(linear.apply_fit_matrix(FIT, linear.irradiance_sh(x)), bad)
 
 
 def weights(normals: np.ndarray) -> np.ndarray:
@@ -127,4 +127,4 @@ def weights(normals: np.ndarray) -> np.ndarray:
     return w
 
 
-evaluate, layout, encode, decode = _linear.coefficient_model(NAME, BASIS, RATIOS, weights)
+evaluate, layout, encode, decode = linear.coefficient_model(NAME, BASIS, RATIOS, weights)

@@ -33,6 +33,19 @@ import numpy as np
 
 from usdahd.errors import ModelError
 
+__all__ = [
+    "CHOICE_TEXT",
+    "CODES",
+    "Fit",
+    "MAX_COEFFICIENT_TEXTURES",
+    "RESERVED_CODE",
+    "ROLES",
+    "TextureLayout",
+    "check_choice",
+    "choice_problem",
+    "rgb_layout",
+]
+
 #: Texture roles shared by the schema (one asset-valued property per role), the baker and the
 #: validator (format version 2). Every texture has 3 or 4 channels (R, G, B[, A]): what engines'
 #: importers take (at most 4 channels; no 1- or 2-channel PNGs, which are grey/grey+alpha).

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.errors import InputError
-from usdahd.models import _linear
+from usdahd.models import linear
 from usdahd.models.base import check_choice, rgb_layout
 from usdahd.numerics import encoding
 from usdahd.numerics import sh as shm
@@ -32,30 +32,30 @@ DEFAULT_SOLVER = "iz"
 #: The basis function h = (1 + z)/2 as SH: sqrt(pi) Y00 + sqrt(pi/3) Y10.
 H_SH = np.array([np.sqrt(np.pi), 0, np.sqrt(np.pi / 3), 0, 0, 0, 0, 0, 0])
 #: Least-squares fit row over Omega+ (1, 9): C = FIT @ irradiance_sh; int h^2 = 7 pi / 6.
-FIT = _linear.hemisphere_fit_matrix(H_SH[None])
+FIT = linear.hemisphere_fit_matrix(H_SH[None])
 
 
 def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {ambient (..., 3), invalid (..., 1)}."""
     check_choice(NAME, "ratio", ratio, RATIOS)
     check_choice(NAME, "solver", solver, SOLVERS)
-    x, bad = _linear.prepare(sh)
+    x, bad = linear.prepare(sh)
     if solver == "iz":
         c = shm.iz(x)
     else:
-        c = _linear.apply_fit_matrix(FIT, _linear.irradiance_sh(x))[..., 0, :]
-    c = np.clip(np.where(bad[..., None], 0.0, np.maximum(c, 0.0)), 0.0, _linear.F32_MAX)
+        c = linear.apply_fit_matrix(FIT, linear.irradiance_sh(x))[..., 0, :]
+    c = np.clip(np.where(bad[..., None], 0.0, np.maximum(c, 0.0)), 0.0, linear.F32_MAX)
     return {"ambient": c.astype(np.float32), "invalid": bad[..., None].astype(np.float32)}
 
 
 def _eval(params, n):
-    c = _linear.expand(params["ambient"], n, 1)
+    c = linear.expand(params["ambient"], n, 1)
     return c * (0.5 * (1.0 + n[..., 2:3]))
 
 
 def evaluate(params, normals, *, albedo=None):
     """Normalized irradiance (..., 3) float32 at tangent-space unit normals (..., 3)."""
-    return _linear.with_self_bounce(_eval, params, normals, albedo)
+    return linear.with_self_bounce(_eval, params, normals, albedo)
 
 
 def layout(ratio="none"):
@@ -75,4 +75,4 @@ def decode(channels, *, ratio="none", factors=None):
     if "ambient" not in channels:
         raise InputError("hemisphere model needs the 'ambient' texture")
     c = encoding.decode_half(channels["ambient"], (factors or {}).get("ambientScale", 1.0))
-    return {"ambient": c, "invalid": _linear.valid_flag(c.shape[:-1])}
+    return {"ambient": c, "invalid": linear.valid_flag(c.shape[:-1])}

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import legendre
 
-from usdahd.models import _linear
+from usdahd.models import linear
 from usdahd.models.base import check_choice
 from usdahd.numerics import sh as shm
 
@@ -110,8 +110,8 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 3, 3), invalid}."""
     check_choice(NAME, "ratio", ratio, RATIOS)
     check_choice(NAME, "solver", solver, SOLVERS)
-    x, bad = _linear.prepare(sh)
-    return _linear.finish(_linear.apply_fit_matrix(FIT, _linear.irradiance_sh(x)), bad)
+    x, bad = linear.prepare(sh)
+    return linear.finish(linear.apply_fit_matrix(FIT, linear.irradiance_sh(x)), bad)
 
 
-evaluate, layout, encode, decode = _linear.coefficient_model(NAME, BASIS, RATIOS, weights)
+evaluate, layout, encode, decode = linear.coefficient_model(NAME, BASIS, RATIOS, weights)

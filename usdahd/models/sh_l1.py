@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd.models import _linear
+from usdahd.models import linear
 from usdahd.models.base import TextureLayout, check_choice
 from usdahd.numerics import sh as shm
 
@@ -49,7 +49,7 @@ DEFAULT_SOLVER = "auto"
 BASIS = ("Y00", "Y1m1", "Y10", "Y11")
 
 #: Hemispherical least-squares fit matrix (4, 9): L1 irradiance SH = FIT @ irradiance SH.
-FIT = _linear.hemisphere_fit_matrix(np.eye(9)[:4])
+FIT = linear.hemisphere_fit_matrix(np.eye(9)[:4])
 #: Enlighten's 8-bit L1 codes: ratio code = 127 + 127 * L1/L0 in [0, 254].
 U8_CENTER = 127.0
 #: log2 slack when picking the power-of-two l0Scale (float32 rounding is ~1e-7 relative).
@@ -64,16 +64,16 @@ def fit(sh, *, ratio="linear", solver=DEFAULT_SOLVER, **options):
     check_choice(NAME, "solver", solver, SOLVERS)
     if solver == "auto":
         solver = "hemisphere" if ratio == "linear" else "project"
-    x, bad = _linear.prepare(sh)
+    x, bad = linear.prepare(sh)
     if solver == "project":
         c = np.swapaxes(x[..., :4], -1, -2)
     else:
-        irr = _linear.apply_fit_matrix(FIT, _linear.irradiance_sh(x))
+        irr = linear.apply_fit_matrix(FIT, linear.irradiance_sh(x))
         c = irr / shm.COSINE_FACTORS[:4, None]
     extra = {}
     if ratio == "nonlinear":
         extra["nonlinear"] = np.ones(bad.shape + (1,), np.float32)
-    return _linear.finish(c, bad, **extra)
+    return linear.finish(c, bad, **extra)
 
 
 def to_enlighten(coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -119,7 +119,7 @@ def nonlinear_irradiance(l0: np.ndarray, l1: np.ndarray, normals: np.ndarray) ->
 
 
 def _eval(params, n):
-    c = _linear.expand(params["coefficients"], n, 2)
+    c = linear.expand(params["coefficients"], n, 2)
     if "nonlinear" in params:
         l0, l1 = to_enlighten(c)
         return nonlinear_irradiance(l0, l1, n)
@@ -129,7 +129,7 @@ def _eval(params, n):
 
 def evaluate(params, normals, *, albedo=None):
     """Normalized irradiance (..., 3) float32 at tangent-space unit normals (..., 3)."""
-    return _linear.with_self_bounce(_eval, params, normals, albedo)
+    return linear.with_self_bounce(_eval, params, normals, albedo)
 
 
 def layout(ratio="linear"):
@@ -137,16 +137,16 @@ def layout(ratio="linear"):
     if ratio == "8bit":
         return [
             TextureLayout(
-                _linear.coefficient_role(i),
+                linear.coefficient_role(i),
                 "unorm8",
                 "raw",
                 tuple(f"{k}.{c}" for k in ("L0", "L1x", "L1y", "L1z")),
                 ("l0_8bit", "l1_8bit", "l1_8bit", "l1_8bit"),
                 ("l0Scale", None, None, None),
             )
-            for i, c in enumerate(_linear.CHANNELS)
+            for i, c in enumerate(linear.CHANNELS)
         ]
-    return _linear.coefficients_layout(BASIS)
+    return linear.coefficients_layout(BASIS)
 
 
 def representable(params, *, ratio="linear"):
@@ -169,7 +169,7 @@ def encode(params, *, ratio="linear"):
     (L0, L1x, L1y, L1z) codes, + l0Scale."""
     check_choice(NAME, "ratio", ratio, RATIOS)
     if ratio != "8bit":
-        return _linear.encode_coefficients(params)
+        return linear.encode_coefficients(params)
     l0, l1 = to_enlighten(params["coefficients"])
     l0 = np.maximum(l0, 0.0)
     m = float(l0.max()) if l0.size else 0.0
@@ -181,7 +181,7 @@ def encode(params, *, ratio="linear"):
     ratio_v = np.where(l0[..., None] > 0, l1 / np.where(l0 > 0, l0, 1.0)[..., None], 0.0)
     u1 = np.rint(U8_CENTER + 127.0 * np.clip(ratio_v, -1.0, 1.0))
     codes = np.concatenate([u0[..., None], u1], axis=-1).astype(np.uint8)  # (..., 3, 4)
-    out = {_linear.coefficient_role(i): codes[..., i, :] for i in range(3)}
+    out = {linear.coefficient_role(i): codes[..., i, :] for i in range(3)}
     return out, {"l0Scale": scale}
 
 
@@ -190,13 +190,13 @@ def decode(channels, *, ratio="linear", factors=None):
     check_choice(NAME, "ratio", ratio, RATIOS)
     factors = factors or {}
     if ratio != "8bit":
-        c = _linear.decode_coefficients(channels, factors, 4)
+        c = linear.decode_coefficients(channels, factors, 4)
     else:
-        u = _linear.gather_coefficients(channels, 3, 4).astype(np.float64)  # (..., RGB, 4)
+        u = linear.gather_coefficients(channels, 3, 4).astype(np.float64)  # (..., RGB, 4)
         l0 = factors.get("l0Scale", 1.0) * (u[..., 0] / 255.0) ** 2
         l1 = (u[..., 1:] - U8_CENTER) * (l0[..., None] / 127.0)
-        c = np.clip(from_enlighten(l0, l1), -_linear.F32_MAX, _linear.F32_MAX).astype(np.float32)
-    out = {"coefficients": c, "invalid": _linear.valid_flag(c.shape[:-2])}
+        c = np.clip(from_enlighten(l0, l1), -linear.F32_MAX, linear.F32_MAX).astype(np.float32)
+    out = {"coefficients": c, "invalid": linear.valid_flag(c.shape[:-2])}
     if ratio == "nonlinear":
         out["nonlinear"] = np.ones(c.shape[:-2] + (1,), np.float32)
     return out

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from usdahd.models import _linear
+from usdahd.models import linear
 from usdahd.models.base import check_choice
 from usdahd.numerics import sh as shm
 
@@ -56,8 +56,8 @@ def fit(sh, *, ratio="none", solver=DEFAULT_SOLVER, **options):
     """sh : (..., 3, 9) tangent-space radiance SH -> {coefficients (..., 9, 3), invalid}."""
     check_choice(NAME, "ratio", ratio, RATIOS)
     check_choice(NAME, "solver", solver, SOLVERS)
-    x, bad = _linear.prepare(sh)
-    return _linear.finish(np.swapaxes(x, -1, -2), bad)
+    x, bad = linear.prepare(sh)
+    return linear.finish(np.swapaxes(x, -1, -2), bad)
 
 
 def enlighten_coefficients(coefficients: np.ndarray) -> np.ndarray:
@@ -106,4 +106,4 @@ def _weights(n):
     return shm.basis(n) * shm.COSINE_FACTORS
 
 
-evaluate, layout, encode, decode = _linear.coefficient_model(NAME, BASIS, RATIOS, _weights)
+evaluate, layout, encode, decode = linear.coefficient_model(NAME, BASIS, RATIOS, _weights)

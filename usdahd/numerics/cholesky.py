@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+__all__ = ["factor", "nested_dissection"]
+
 #: Leaves of the dissection at most this many unknowns are ordered as they come.
 LEAF = 64
 

@@ -24,6 +24,18 @@ import numpy as np
 
 from usdahd.errors import InputError
 
+__all__ = [
+    "DZ_MIN",
+    "decode_direction_u8",
+    "decode_half",
+    "dequantize_snorm8_biased",
+    "dequantize_unorm8",
+    "encode_direction_u8",
+    "encode_half",
+    "quantize_snorm8_biased",
+    "quantize_unorm8",
+]
+
 #: Largest finite float16.
 HALF_MAX = 65504.0
 #: Largest SNORM8 magnitude used for direction codes: keeps decoded d_z >= 1/127 (see above).

@@ -34,6 +34,8 @@ import numpy as np
 
 from usdahd.numerics import sh as _sh
 
+__all__ = ["HEMISPHERE_GRAM", "self_bounce"]
+
 _PI = np.pi
 _SQRT_PI = np.sqrt(np.pi)
 _S3PI = np.sqrt(3.0 * np.pi)

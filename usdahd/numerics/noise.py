@@ -19,6 +19,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+__all__ = ["second_differences", "tile_stats"]
+
 #: The 4 directions (dx, dy) of the second differences: row, column, both diagonals.
 DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
 _DIR = np.array(DIRECTIONS, dtype=np.int64)

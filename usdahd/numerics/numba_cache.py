@@ -20,6 +20,8 @@ import hashlib
 import inspect
 from types import ModuleType
 
+__all__ = ["track"]
+
 
 def source_digest(*modules: ModuleType) -> str:
     """sha256 hex digest of the source files of ``modules`` (in the given order)."""

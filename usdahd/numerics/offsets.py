@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["FLT_EPS", "OFFSET_ULPS", "triangle_offset_scale"]
+
 #: Ray-origin offset along the geometric normal, in float32 ulps (machine epsilons) of the
 #: largest coordinate of the triangle the point lies on (and of the point). Embree intersects
 #: in float32 relative to the ray origin, so a ray leaving a triangle re-hits it only within a

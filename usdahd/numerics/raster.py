@@ -25,6 +25,15 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = [
+    "UV_OVERLAP_LIMIT",
+    "coverage",
+    "fan_triangulate",
+    "rasterize_uv",
+    "signed_area2",
+    "uv_to_pixel",
+]
+
 # Tolerances (pixel units = texels), one place, each with its reason.
 #: A texel square must overlap a triangle by more than this to count as covered, so texels that
 #: only touch a triangle along a texel boundary (charts aligned with the grid) are not covered.

@@ -14,6 +14,23 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = [
+    "SPHERICAL_RECT_MAX_SR",
+    "SPHERICAL_RECT_MIN_SR",
+    "concentric_disk",
+    "cone_local",
+    "cosine_hemisphere",
+    "orthonormal_basis",
+    "r2_sequence",
+    "sample_discrete",
+    "spherical_rectangle",
+    "texel_hemisphere",
+    "texel_hemisphere_pdf",
+    "to_local",
+    "to_world",
+    "uniform_hemisphere",
+]
+
 TWO_PI = 2.0 * np.pi
 #: Plastic number: the R2 sequence's generator (x^3 = x + 1).
 _PLASTIC = 1.324717957244746025960908854

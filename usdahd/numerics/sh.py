@@ -21,6 +21,23 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = [
+    "C0",
+    "C1",
+    "C2",
+    "C20",
+    "C22",
+    "COSINE_FACTORS",
+    "HEMISPHERICAL_GRAM",
+    "IZ_FROM_L10",
+    "LUMINANCE",
+    "SQRT_PI",
+    "basis",
+    "fibonacci_sphere",
+    "irradiance",
+    "iz",
+]
+
 SQRT_PI = np.sqrt(np.pi)
 C0 = 1.0 / (2.0 * SQRT_PI)  # Y00
 C1 = np.sqrt(3.0 / (4.0 * np.pi))  # band-1 scale

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.numerics.triangles import edge_cross
+
 __all__ = ["cc_limit", "catmull_clark", "loop", "refine", "vertex_normals", "quads_to_triangles"]
 
 
@@ -246,8 +248,7 @@ def vertex_normals(points, tris):
     (smooth everywhere, as a subdivision surface is)."""
     p = np.asarray(points, np.float64)
     t = np.asarray(tris, np.int64)
-    a, b, c = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
-    fn = np.cross(b - a, c - a)
+    fn = edge_cross(p[t])
     ln = np.linalg.norm(fn, axis=1, keepdims=True)
     fn = np.divide(fn, ln, out=np.zeros_like(fn), where=ln > 0)
     out = np.zeros_like(p)

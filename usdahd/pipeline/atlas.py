@@ -32,6 +32,17 @@ from usdahd.pipeline.outputs import texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 
+__all__ = [
+    "group_key",
+    "item_from_job",
+    "item_from_record",
+    "max_size",
+    "padding",
+    "plan_pages",
+    "summary",
+    "write_pages",
+]
+
 #: Settings that decide which records can share a page (one encode per page).
 GROUP_KEYS = ("model", "ratio", "solver", "container")
 
@@ -202,9 +213,9 @@ def summary(entry: dict, opts: BakeOptions) -> None:
 def _write_page(index: int, size, on_page, out: Path, pad: int) -> dict:
     """Fit, encode (once), scatter, dilate and write one page; set every record's results."""
     from usdahd import images
-    from usdahd._version import __version__
     from usdahd.bake import post
     from usdahd.usd import schema
+    from usdahd.version import __version__
 
     s0 = on_page[0][0].settings
     model, ratio, solver = s0["model"], s0["ratio"], s0["solver"]

@@ -23,6 +23,8 @@ import time
 
 from usdahd.errors import UsageError
 
+__all__ = ["require", "trace_jobs"]
+
 #: Extra attempts of a failing tile (Dask ``retries``).
 RETRIES = 2
 #: Seconds to wait for ``--scheduler`` to answer.

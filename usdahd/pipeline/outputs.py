@@ -20,6 +20,22 @@ from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.usd.author import layer_assets, referenced_assets
 
+__all__ = [
+    "FAULT_POINTS",
+    "LIGHTMAPS_DIR",
+    "author_layer",
+    "cleanup_outputs",
+    "commit_textures",
+    "fault_point",
+    "inside_lightmaps",
+    "layer_prefix",
+    "output_lock",
+    "remove_legacy",
+    "sanitize",
+    "texture_path",
+    "write_role_texture",
+]
+
 #: Folder beside the output layer that holds its textures.
 LIGHTMAPS_DIR = "lightmaps"
 #: Hex digits of the content hash in a texture's file name.
@@ -37,7 +53,7 @@ def sanitize(prim_path: str) -> str:
     return f"{stem}-{digest}"
 
 
-def _inside_lightmaps(path: Path, out: Path) -> bool:
+def inside_lightmaps(path: Path, out: Path) -> bool:
     """``path`` is a regular file (no symlink) directly inside ``out``'s lightmaps folder."""
     folder = (out.parent / LIGHTMAPS_DIR).resolve()
     try:
@@ -65,7 +81,7 @@ def layer_prefix(out: Path) -> str:
 def texture_path(out: Path, prim_path: str, role: str, ext: str) -> Path:
     """Where a new texture of ``prim_path`` is first written (a hidden staging name).
 
-    The one place that names output files: :func:`_commit_textures` renames the staged file
+    The one place that names output files: :func:`commit_textures` renames the staged file
     to ``<layer prefix>.<prim stem>.<role>.<content hash><ext>`` (:func:`output_name`), so a
     new bake never overwrites a file the current layer references.
     """
@@ -80,7 +96,7 @@ def output_name(out: Path, staged: Path, digest: str) -> str:
 
 
 def _owned_pattern(out: Path) -> re.Pattern:
-    """Final texture names this layer owns (written by :func:`_commit_textures`)."""
+    """Final texture names this layer owns (written by :func:`commit_textures`)."""
     return re.compile(
         re.escape(layer_prefix(out))
         + r"\.[A-Za-z0-9_]+-[0-9a-f]{8}\.[A-Za-z0-9_]+\.[0-9a-f]{"
@@ -97,7 +113,7 @@ def _fsync(path: Path, directory: bool = False) -> None:
         os.close(fd)
 
 
-def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
+def commit_textures(jobs: list[PrimJob], out: Path) -> None:
     """Rename each job's staged textures to content-addressed names, check they read back
     whole, and fsync them (before the layer that references them is committed).
 
@@ -165,7 +181,7 @@ def _commit_textures(jobs: list[PrimJob], out: Path) -> None:
                 raise _write_error(final, exc, f"cannot commit the new {role} texture") from None
             job.results.textures[role] = str(final)
             done[staged] = final
-            _fault("first_texture_committed")
+            fault_point("first_texture_committed")
     if jobs:
         _fsync(folder, directory=True)
 
@@ -231,7 +247,7 @@ def _layer_refs(out: Path) -> set[Path] | None:
     return referenced_assets(out)
 
 
-def _remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
+def remove_legacy(out: Path, old_refs: set[Path]) -> list[str]:
     """Textures of an older usdahd (named ``<prim stem>.<role>.<ext>``, shared by every layer of
     a folder) that the previous version of ``out`` referenced and no layer in the folder
     references now: removed after the commit. returns the names removed."""
@@ -417,7 +433,7 @@ FAULT_POINTS = (
 )
 
 
-def _fault(point: str) -> None:
+def fault_point(point: str) -> None:
     """``USDAHD_FAULT=<point>`` sends this process ``USDAHD_FAULT_SIGNAL`` (default KILL) at
     ``point``: how the fault tests stop a bake at exact places. No effect otherwise."""
     if os.environ.get("USDAHD_FAULT") == point:
@@ -437,7 +453,7 @@ def _warn(opts: BakeOptions, msg: str) -> None:
         print(f"warning: {msg}", file=sys.stderr)
 
 
-def _author_layer(
+def author_layer(
     src: Path, out: Path, source_stage, jobs: list[PrimJob], scenario: str | None = None
 ) -> bool:
     """Write the override layer; its atomic replace is the bake's single commit point.
@@ -464,7 +480,7 @@ def _author_layer(
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         _fsync(tmp)
-        _fault("layer_exported")
+        fault_point("layer_exported")
         new = tmp.read_bytes()
         refs = layer_assets(layer, out.parent)
         if out.is_file() and out.read_bytes() == new:

@@ -24,7 +24,7 @@ from usdahd.pipeline.settings import (
     UV_DEGENERATE_LIMIT,
     UV_OUTSIDE_LIMIT,
     BakeOptions,
-    _authored_inputs,
+    authored_inputs,
     record_time,
     resolve_settings,
 )
@@ -34,6 +34,17 @@ if TYPE_CHECKING:
     from usdahd.bake.types import Texels
     from usdahd.scene.types import ComputedNormals, MeshData
     from usdahd.usd.schema import BakeResults
+
+__all__ = [
+    "PrimJob",
+    "REFIT_SETTINGS",
+    "auto_texel_density",
+    "mesh_extent",
+    "plan_job",
+    "refit_source",
+    "settings_as_stored",
+    "settings_resolution_given",
+]
 
 
 @dataclass
@@ -490,7 +501,7 @@ def _instance_uv_problem(mesh, uv_name: str, problem: str | None) -> None:
     )
 
 
-def _plan(
+def plan_job(
     scene,
     index: int,
     mesh,
@@ -511,7 +522,7 @@ def _plan(
 
     try:
         ref = getattr(mesh, "instance", None)  # an instance copy: its prototype's inputs
-        authored = _authored_inputs(prim_at(stage, ref.source if ref else mesh.path))
+        authored = authored_inputs(prim_at(stage, ref.source if ref else mesh.path))
     except SchemaError as exc:
         raise InputError(str(exc)) from None
     settings = resolve_settings(opts, authored, scene.meters_per_unit, auto_density)
@@ -607,10 +618,9 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
     another chart mix two surfaces in a bilinear lookup (TOUCHING_LIMIT; TOUCHING_TARGET when
     its narrowest charts are under CHART_MIN_TEXELS across: all border). The map is doubled
     (up to ``prop_side``) until few texels touch another chart (TOUCHING_TARGET), keeping the
-    asset's UVs
-    (with a note); if even that is not enough the mesh is unwrapped instead, except an instance
-    copy (it cannot be, and keeps the largest map). Returns (texels, res, None) to bake the UV
-    set at ``res``, or (None, res, why) to unwrap."""
+    asset's UVs (with a note); if even that is not enough the mesh is unwrapped instead, except
+    an instance copy (it cannot be, and keeps the largest map). Returns (texels, res, None) to
+    bake the UV set at ``res``, or (None, res, why) to unwrap."""
     from usdahd.bake.texels import rasterize
 
     share = touching_share(mesh, texels)
@@ -658,18 +668,18 @@ def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dic
 REFIT_SETTINGS = ("model", "ratio", "solver", "padding", "container")
 
 
-def _norm(settings: dict) -> dict:
+def settings_as_stored(settings: dict) -> dict:
     """Settings as the layer stores them (JSON round trip: tuples become lists)."""
     return json.loads(json.dumps(settings, sort_keys=True, default=str))
 
 
-def _refit_source(job: PrimJob, old, changed: list[str]) -> str | None:
+def refit_source(job: PrimJob, old, changed: list[str]) -> str | None:
     """The previous bake's SH sidecar when ``job`` differs from it only in REFIT_SETTINGS (same
     geometry, UVs, lights, materials, baker, resolution), and the sidecar is the file that bake
     wrote (digest); else None (trace again)."""
     if not changed or set(changed) != {"settings"}:
         return None
-    a, b = _norm(old.settings), _norm(job.settings)
+    a, b = settings_as_stored(old.settings), settings_as_stored(job.settings)
     if {k for k in set(a) | set(b) if a.get(k) != b.get(k)} - set(REFIT_SETTINGS):
         return None
     side = old.textures.get("sh")

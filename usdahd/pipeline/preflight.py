@@ -1,7 +1,8 @@
 """Checks a bake runs before it reads a scene or traces a ray: the source is a readable stage
 file, the output path and its folders are usable and writable, the options' dependencies are
 installed (:func:`preflight`), the opened stage is not one of our output layers and every
-``--prim`` exists (:func:`_check_stage`), and authored values are valid (:func:`_check_values`).
+``--prim`` exists (:func:`check_stage_inputs`), and authored values are valid
+(:func:`check_stage_values`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from pathlib import Path
 from usdahd.errors import InputError, StageError, UsageError
 from usdahd.pipeline.outputs import LIGHTMAPS_DIR
 from usdahd.pipeline.settings import BakeOptions
+
+__all__ = ["check_stage_inputs", "check_stage_values", "default_output", "files_exist", "preflight"]
 
 
 def default_output(stage_path: Path, scenario: str | None = None) -> Path:
@@ -114,7 +117,7 @@ def preflight(stage_path, opts: BakeOptions) -> tuple[Path, Path]:
     return src, out
 
 
-def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
+def check_stage_inputs(src: Path, stage, opts: BakeOptions) -> None:
     """Checks on the opened stage before any scene is read: not an output layer of ours
     (``usdahd bake x.lightmaps.usda`` by mistake), every ``--prim`` exists."""
     from usdahd.usd import author
@@ -136,7 +139,7 @@ def _check_stage(src: Path, stage, opts: BakeOptions) -> None:
             )
 
 
-def _check_values(src: Path, stage, uv_name: str):
+def check_stage_values(src: Path, stage, uv_name: str):
     """Authored light/material/primvar values (:mod:`usdahd.usd.checks`); a stage-level error
     raises StageError (the first one, with how many more)."""
     from usdahd.usd import checks
@@ -148,5 +151,5 @@ def _check_values(src: Path, stage, uv_name: str):
     return found
 
 
-def _files_exist(res) -> bool:
+def files_exist(res) -> bool:
     return bool(res.textures) and all(Path(p).is_file() for p in res.textures.values())

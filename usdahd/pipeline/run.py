@@ -14,28 +14,28 @@ from pathlib import Path
 from usdahd.errors import BakeError, InputError, StageError, UsageError
 from usdahd.pipeline.outputs import (
     LIGHTMAPS_DIR,
-    _author_layer,
-    _commit_textures,
-    _fault,
-    _inside_lightmaps,
-    _remove_legacy,
+    author_layer,
     cleanup_outputs,
+    commit_textures,
+    fault_point,
+    inside_lightmaps,
     output_lock,
+    remove_legacy,
 )
 from usdahd.pipeline.plan import (
     REFIT_SETTINGS,
     PrimJob,
-    _norm,
-    _plan,
-    _refit_source,
     auto_texel_density,
     mesh_extent,
+    plan_job,
+    refit_source,
+    settings_as_stored,
     settings_resolution_given,
 )
 from usdahd.pipeline.preflight import (
-    _check_stage,
-    _check_values,
-    _files_exist,
+    check_stage_inputs,
+    check_stage_values,
+    files_exist,
     preflight,
 )
 from usdahd.pipeline.settings import (
@@ -45,14 +45,16 @@ from usdahd.pipeline.settings import (
     MIN_RESOLUTION,
     TINY_RESOLUTION,
     BakeOptions,
-    _authored_inputs,
-    _check_options,
+    authored_inputs,
+    check_options,
 )
 from usdahd.pipeline.stages import bake_jobs
 from usdahd.scene.hashing import changed_parts, content_hash, is_dark, scene_hash_parts
 from usdahd.usd import author
 from usdahd.usd.checks import no_mesh_message
 from usdahd.usd.stage import meters_per_unit_authored, open_stage, prim_at, utf8_problem
+
+__all__ = ["MAX_BAKE_BYTES", "bake"]
 
 
 def _previous_results(out: Path) -> tuple[dict, list[str]]:
@@ -74,7 +76,7 @@ def _previous_results(out: Path) -> tuple[dict, list[str]]:
     prev, warnings = {}, []
     # Mesh records and instance entries (an invalid old record is simply re-baked).
     for path, res in schema.stage_records(stage, errors=[]).items():
-        outside = [p for p in res.textures.values() if not _inside_lightmaps(Path(p), out)]
+        outside = [p for p in res.textures.values() if not inside_lightmaps(Path(p), out)]
         if outside:
             shown = res.asset_paths.get(next(iter(res.asset_paths), ""), outside[0])
             warnings.append(
@@ -109,7 +111,7 @@ def _density_pool(scene, stage, api_prims: dict, opts: BakeOptions, checked) -> 
             if api_prims and not (api and schema.read_inputs(api, validate=False).bake):
                 continue
         try:
-            authored = _authored_inputs(prim) if m.path in api_prims else {}
+            authored = authored_inputs(prim) if m.path in api_prims else {}
         except SchemaError:
             continue  # reported by the plan of that prim
         if "resolution" in authored or "texel_density" in authored:
@@ -175,7 +177,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
 
     plugin.register()
     opts = opts or BakeOptions()
-    _check_options(opts)
+    check_options(opts)
     t_start = time.perf_counter()
     src, out = preflight(stage_path, opts)
     try:
@@ -186,7 +188,7 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
             chosen = scenarios.resolve(stage, opts.scenario)
             scenarios.select(stage, chosen)
             opts = dataclasses.replace(opts, scenario=chosen.spec())
-        _check_stage(src, stage, opts)
+        check_stage_inputs(src, stage, opts)
         if opts.dry_run:
             return _bake_locked(src, out, stage, opts, t_start)
         with CompileNotice(quiet=bool(opts.quiet)), output_lock(out, opts):
@@ -205,7 +207,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     # Meshes carrying the API select themselves (bake on); else every visible mesh.
     api_prims = schema.api_prims(stage)
     uv_default = opts.uv or DEFAULTS["uv"]
-    checked = _check_values(src, stage, uv_default)
+    checked = check_stage_values(src, stage, uv_default)
     scene = load_scene(stage, uv_name=uv_default, prims=opts.prims, time=opts.time)
     for m in scene.meshes:
         if m.path in checked.prim_errors:
@@ -263,7 +265,7 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = _plan(
+            job = plan_job(
                 scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density, prop_side
             )
         except (InputError, UsageError, BakeError) as exc:
@@ -301,12 +303,12 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         )
         old = prev.get(job.path)
         unchanged = old is not None and old.content_hash == job.content_hash
-        if unchanged and not opts.force and _files_exist(old):
+        if unchanged and not opts.force and files_exist(old):
             job.report["status"] = "skipped"
             job.previous = old
             continue
         job.report["status"] = "planned"
-        if old is not None and _files_exist(old):
+        if old is not None and files_exist(old):
             job.fallback = old  # a prim that fails now (e.g. disk full) keeps its old record
         if opts.force:
             reason = "forced"
@@ -315,13 +317,14 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         else:
             what = changed_parts(old.part_hashes, job.parts)
             reason = "changed: " + ", ".join(what) if what else "texture files missing"
-            refit = _refit_source(job, old, what)
+            refit = refit_source(job, old, what)
             if refit is not None:
                 job.refit_from = refit
                 changed = sorted(
                     k
                     for k in REFIT_SETTINGS
-                    if _norm(old.settings).get(k) != _norm(job.settings).get(k)
+                    if settings_as_stored(old.settings).get(k)
+                    != settings_as_stored(job.settings).get(k)
                 )
                 reason = (
                     f"refit: only {', '.join(changed)} changed; fitted from the SH sidecar, "
@@ -372,22 +375,22 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     for j in todo:
         if j.report["status"] == "failed":
             failed += 1
-    _fault("textures_staged")
+    fault_point("textures_staged")
     old_refs = author.referenced_assets(out) or set()
     if any(j.results is not None or j.previous is not None or j.fallback for j in jobs):
         written = [j for j in todo + rebuild if j.results is not None]
-        _commit_textures(written, out)
+        commit_textures(written, out)
         if "atlas" in report:
             from usdahd.pipeline import atlas
 
             _committed_page_files(report["atlas"], written)
             atlas.summary(report["atlas"], opts)
         cleanup_outputs(out, staged_only=True)  # failed prims' partial files: free the space
-        _fault("textures_committed")
-        report["written"] = _author_layer(src, out, stage, jobs, opts.scenario)
-        _fault("layer_replaced")
+        fault_point("textures_committed")
+        report["written"] = author_layer(src, out, stage, jobs, opts.scenario)
+        fault_point("layer_replaced")
         if report["written"]:
-            _remove_legacy(out, old_refs)
+            remove_legacy(out, old_refs)
     for j in todo:
         if j.report["status"] == "failed" and j.fallback is not None:
             j.report["previous_kept"] = True

@@ -10,6 +10,25 @@ from dataclasses import dataclass
 from usdahd import models
 from usdahd.errors import UsageError
 
+__all__ = [
+    "BakeOptions",
+    "DEFAULTS",
+    "DEFAULT_TEXEL_BUDGET",
+    "DENSITY_AUTO_MAX",
+    "DENSITY_LADDER",
+    "DENSITY_MAX_RESOLUTION",
+    "MAX_RESOLUTION",
+    "MIN_RESOLUTION",
+    "RESOLUTION_MULTIPLE",
+    "TINY_RESOLUTION",
+    "UV_DEGENERATE_LIMIT",
+    "UV_OUTSIDE_LIMIT",
+    "authored_inputs",
+    "check_options",
+    "record_time",
+    "resolve_settings",
+]
+
 #: Built-in defaults; CLI flags override them, per-prim schema inputs override both.
 DEFAULTS = {
     "model": "hhd",
@@ -114,7 +133,7 @@ class BakeOptions:
     atlas_padding: int | None = None
 
 
-def _authored_inputs(prim) -> dict:
+def authored_inputs(prim) -> dict:
     """Bake inputs authored on ``prim`` (per-prim overrides), as BakeOptions field names."""
     from usdahd.usd import schema
 
@@ -186,7 +205,7 @@ def record_time(settings: dict, scene) -> None:
     settings["time_auto"] = bool(scene.time_auto)
 
 
-def _check_options(opts: BakeOptions) -> None:
+def check_options(opts: BakeOptions) -> None:
     """Flag combinations that are wrong for every prim: usage errors (exit 2) up front."""
     model = opts.model or DEFAULTS["model"]
     mod = models.get(model)

@@ -15,12 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from usdahd import models
-from usdahd._version import __version__
 from usdahd.errors import BakeError, UsdAhdError
-from usdahd.pipeline.outputs import LIGHTMAPS_DIR, _fault, texture_path, write_role_texture
+from usdahd.pipeline.outputs import LIGHTMAPS_DIR, fault_point, texture_path, write_role_texture
 from usdahd.pipeline.plan import PrimJob
 from usdahd.pipeline.settings import BakeOptions
 from usdahd.scene.hashing import is_dark
+from usdahd.version import __version__
+
+__all__ = ["bake_jobs"]
 
 
 def _status(opts: BakeOptions, msg: str) -> None:
@@ -31,7 +33,7 @@ def _status(opts: BakeOptions, msg: str) -> None:
 def _refit_sh(job: PrimJob) -> None:
     """job.sh from the previous bake's sidecar at job's texels (the SH after fill, denoise and
     stitching, exactly what was fitted); BakeError if the sidecar does not cover them."""
-    from usdahd import images
+    from usdahd import sidecar
     from usdahd.bake import post
     from usdahd.bake.texels import rasterize
     from usdahd.usd import schema
@@ -41,16 +43,14 @@ def _refit_sh(job: PrimJob) -> None:
     if job.fallback is not None and job.fallback.textures.get(schema.SIDECAR_ROLE) == str(
         job.refit_from
     ):  # the record's region of the sidecar (its page's, in an atlas)
-        px = schema.read_record_pixels(
-            job.fallback, schema.SIDECAR_ROLE, schema.SH_SIDECAR_CHANNELS
-        )
+        px = sidecar.read_record(job.fallback)
     else:
-        px = images.read(job.refit_from, channels=schema.SH_SIDECAR_CHANNELS).pixels
+        px = sidecar.read(job.refit_from)
     w, h = job.texels.resolution
     if px.shape[:2] != (h, w):
         raise BakeError(f"{job.path}: SH sidecar {job.refit_from} is not {w}x{h}")
     vals = post.from_image(job.texels, px).astype(np.float32)
-    if not (vals[:, 27] > 0.5).all():
+    if not (vals[:, sidecar.COVERAGE] > 0.5).all():
         raise BakeError(f"{job.path}: SH sidecar {job.refit_from} does not cover every texel")
     job.sh = np.ascontiguousarray(vals[:, :27].reshape(-1, 3, 9))
     job.stats = {"rays": 0, "invalid": np.zeros(len(job.texels), bool)}
@@ -192,7 +192,7 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
     jobs = [j for j in jobs if j not in refits]
     if jobs:  # no BVH when every job refits
         _trace_jobs(scene, jobs, opts)
-    _fault("traced")
+    fault_point("traced")
     ok = [j for j in jobs if j.report.get("status") != "failed"]
     from usdahd.bake.texels import chart_ids
 
@@ -288,7 +288,7 @@ def _write_ktx2(job: PrimJob, lay, img, mask, path: Path, factors: dict, bc: boo
 
 def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
     """Fit the model, quantize, dilate, write textures + SH sidecar; set job.results."""
-    from usdahd import images
+    from usdahd import sidecar
     from usdahd.bake import post
     from usdahd.usd import schema
 
@@ -325,18 +325,9 @@ def _encode_and_write(job: PrimJob, out: Path, opts: BakeOptions) -> None:
             bc = s["container"] == "ktx2-bc"
             _write_ktx2(job, lay, img, mask, path.with_suffix(".ktx2"), factors, bc)
     # The SH sidecar (float32, with coverage) the validator checks I_z against.
-    side = np.concatenate(
-        [
-            job.sh.reshape(len(job.texels), 27).astype(np.float32),
-            np.ones((len(job.texels), 1), np.float32),
-        ],
-        axis=1,
-    )
-    side_img = post.to_image(job.texels, side)
+    side_img = post.to_image(job.texels, sidecar.pack(job.sh.reshape(len(job.texels), 3, 9)))
     side_path = texture_path(out, job.path, schema.SIDECAR_ROLE, ".exr")
-    images.write(
-        side_path, side_img, format="float", color_space="raw", channels=schema.SH_SIDECAR_CHANNELS
-    )
+    sidecar.write(side_path, side_img)
     textures[schema.SIDECAR_ROLE] = str(side_path)
     digests[schema.SIDECAR_ROLE] = schema.file_digest(side_path)
     job.results = schema.BakeResults(

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["contact_sheet"]
+
 #: Tile pixels aimed at (the larger texture side is magnified by an integer to at most this).
 TILE = 192
 #: Black pixels between tiles and around the sheet.

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+__all__ = ["auto_camera", "usd_camera", "view_projection"]
+
 #: Vertical field of view of the automatic framing (degrees).
 AUTO_FOV = 40.0
 #: Tangent of the automatic framing's elevation above the horizon (0.5: ~27 degrees).

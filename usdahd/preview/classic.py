@@ -20,6 +20,8 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = ["MODEL", "check", "evaluate", "filtered", "item"]
+
 #: Baked models the option applies to -> the shader variant (``usdahd.shaders.FILTERED``):
 #: the ones shaded as C_a + max(0, n.d) C_d (AHD; HHD with its (1 + n_z)/2 ambient).
 VARIANTS = {"ahd": "filtered", "ahd_classic": "filtered", "hhd": "filtered_hhd"}  # sorted

@@ -41,6 +41,9 @@ import math
 import numpy as np
 
 from usdahd.errors import UsageError
+from usdahd.numerics.triangles import edge_cross, texel_frame
+
+__all__ = ["error_stats", "heat_map", "reference", "side_by_side"]
 
 #: Batches K of the reference (per-pixel noise estimate with K - 1 degrees of freedom).
 BATCHES = 8
@@ -113,7 +116,7 @@ def visible_points(meshes, viewproj: np.ndarray, size, scene):
             continue
         t_idx = local[sel]
         pts = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles)[t_idx]]
-        geom[sel] = np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0])
+        geom[sel] = edge_cross(pts)
         nrm = np.asarray(mesh.normals, np.float64)[t_idx]
         nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-30)
         shade[sel] = np.einsum("nc,nci->ni", lam[sel], nrm)
@@ -121,15 +124,13 @@ def visible_points(meshes, viewproj: np.ndarray, size, scene):
         sgn[sel] = np.asarray(sign, np.float64)[t_idx]
     geom = _unit(geom, np.array([0.0, 0.0, 1.0]))
     shade = _unit(shade, geom)
-    tan = tan - shade * np.einsum("ni,ni->n", shade, tan)[:, None]
-    tan = _unit(tan, _perpendicular(shade))
-    bit = sgn[:, None] * np.cross(shade, tan)
+    frame = texel_frame(shade, tan, sgn)
     texels = Texels(
         resolution=tuple(size),
         xy=np.stack([pix % size[0], pix // size[0]], axis=1).astype(np.int32),
         position=pos.astype(np.float32),
         geom_normal=geom.astype(np.float32),
-        frame=np.stack([tan, bit, shade], axis=1).astype(np.float32),
+        frame=frame.astype(np.float32),
         triangle=local.astype(np.int32),
         center_inside=np.ones(m, bool),
     )
@@ -140,14 +141,6 @@ def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     ok = n > 1e-12
     return np.where(ok, v / np.where(ok, n, 1.0), np.broadcast_to(fallback, v.shape))
-
-
-def _perpendicular(n: np.ndarray) -> np.ndarray:
-    """A unit vector perpendicular to each unit n (m, 3) (Duff et al. 2017)."""
-    s = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (s + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    return np.stack([1.0 + s * n[:, 0] ** 2 * a, s * b, -s * n[:, 0]], axis=-1)
 
 
 def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces, progress=None):

@@ -18,6 +18,8 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
+__all__ = ["device", "render", "request_adapter"]
+
 INSTALL_HINT = (
     "usdahd preview renders through wgpu (installed with usdahd) on a Vulkan device; for the "
     "CPU: apt-get install mesa-vulkan-drivers libvulkan1"

@@ -6,6 +6,8 @@ import numpy as np
 
 from usdahd.errors import StageError, UsageError
 
+__all__ = ["baked_meshes", "draw_items", "preview_scene", "render_view", "vertex_data"]
+
 
 def preview_scene(stage, uv: str):
     """The stage's Scene as the bake traced it: subdivision meshes (catmullClark / loop)

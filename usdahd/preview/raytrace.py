@@ -19,6 +19,8 @@ import copy
 
 import numpy as np
 
+__all__ = ["front_hits", "primary_rays", "render", "subset_scene"]
+
 
 def primary_rays(viewproj: np.ndarray, size) -> tuple[np.ndarray, np.ndarray]:
     """Origins and unit directions (H*W, 3) float64 of the rays through the pixel centres."""

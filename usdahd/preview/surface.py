@@ -31,6 +31,8 @@ import numpy as np
 from usdahd.errors import StageError
 from usdahd.scene.types import Texture
 
+__all__ = ["Surface", "apply_normal_map", "sample", "surfaces", "tangent_frame", "to_tangent"]
+
 #: The normal-map texel of the unperturbed normal (m = (0, 0, 1)).
 FLAT_TEXEL = (0.5, 0.5, 1.0)
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["stats", "tonemap", "tonemap_with"]
+
 #: Rec. 709 luminance.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 

@@ -22,6 +22,8 @@ import numpy as np
 from usdahd.numerics import subdivision as SD
 from usdahd.scene.types import MeshData
 
+__all__ = ["SUBDIV_VERSION", "cage_from_topology", "refine_scene", "restore_scene"]
+
 #: Refinement levels by default (each level multiplies the faces by 4; Catmull-Clark's first
 #: level turns an n-gon into n quads).
 DEFAULT_LEVELS = 2

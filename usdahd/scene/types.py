@@ -21,6 +21,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = [
+    "ComputedNormals",
+    "InstanceRef",
+    "MAX_RADIANCE",
+    "Material",
+    "MeshData",
+    "Scene",
+    "Texture",
+]
+
 #: Largest emitted radiance (or point-light intensity) accepted from a light or an emissive
 #: material. The integrator accumulates radiance x sample weights and squares it for variance
 #: estimates in float32 (max 3.4e38): 1e15^2 x 1e6 samples still fits. The sun's radiance is

@@ -19,6 +19,8 @@ from pathlib import Path
 
 from usdahd.errors import UsageError
 
+__all__ = ["COMMON", "FILTERED", "MODEL_FILES", "calls", "path", "source"]
+
 #: Directory holding ``<language>/<name>.<language>``.
 ROOT = Path(__file__).resolve().parent
 LANGUAGES = ("glsl", "hlsl", "wgsl")

@@ -12,6 +12,15 @@ from usdahd.errors import SchemaError
 if TYPE_CHECKING:
     from usdahd.usd.schema import BakeResults
 
+__all__ = [
+    "NO_ATLAS",
+    "crop_record",
+    "page_size",
+    "read_record_pixels",
+    "record_rect",
+    "rect_problem",
+]
+
 
 #: ``atlas:scaleOffset`` of a record that is not in an atlas (its textures are its own).
 NO_ATLAS = (1.0, 1.0, 0.0, 0.0)

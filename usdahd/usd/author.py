@@ -17,9 +17,20 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from usdahd._version import __version__
 from usdahd.errors import OutputError
 from usdahd.usd import normals, schema
+from usdahd.version import __version__
+
+__all__ = [
+    "authored_default",
+    "build_layer",
+    "export_layer",
+    "generator_id",
+    "is_output_layer",
+    "layer_assets",
+    "previous_layer",
+    "referenced_assets",
+]
 
 #: How the documentation of every override layer ``usdahd bake`` writes begins.
 DOC_PREFIX = "Directional lightmaps baked by usdahd"

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 from pxr import Usd, UsdGeom, UsdLux, UsdShade
 
+__all__ = ["asset_problem", "check_stage", "no_mesh_message"]
+
 #: Light inputs and the value type UsdLux declares for them.
 LIGHT_INPUTS = {
     "inputs:intensity": "float",

@@ -24,12 +24,13 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
+from usdahd.numerics.triangles import triangle_areas
 from usdahd.scene.subdiv import cage_from_topology
 from usdahd.scene.types import ComputedNormals, MeshData
 from usdahd.usd import normals as N
 from usdahd.usd.materials import SubsetError
 
-__all__ = ["GeometryReader", "MeshFailure", "Topology", "tessellate"]
+__all__ = ["GeometryReader", "MeshFailure", "Topology", "tessellate", "SINGULAR_DET_REL"]
 
 #: A mesh is unusable when its bounding-box diagonal spans fewer than this many float32 ulps
 #: of its largest world coordinate: the tracer stores float32 positions, so its vertices
@@ -556,8 +557,7 @@ def check_precision(wp, path) -> None:
 def drop_degenerate(wp, topo, corners, path, warn):
     """Drop zero-area triangles (DEGENERATE_AREA_REL); returns (corners, keep mask)."""
     tri = topo.idx[corners]
-    a, b, c = wp[tri[:, 0]], wp[tri[:, 1]], wp[tri[:, 2]]
-    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    area2 = 2.0 * triangle_areas(wp[tri])
     diag = float(np.linalg.norm(wp.max(axis=0) - wp.min(axis=0)))
     keep = area2 > DEGENERATE_AREA_REL * diag * diag
     n_bad = int((~keep).sum())
@@ -651,6 +651,5 @@ def _revolve_profile(r, z, ax, n_phi=24):
             d = (i + 1) * n_phi + (j + 1) % n_phi
             tris += [(a, b, d), (a, d, c)]
     t = np.array(tris, np.int64)
-    pa, pb, pc = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
-    good = np.linalg.norm(np.cross(pb - pa, pc - pa), axis=1) > 1e-12
+    good = 2.0 * triangle_areas(p[t]) > 1e-12
     return _axis(p, ax), t[good]

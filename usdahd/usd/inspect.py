@@ -17,6 +17,20 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 from usdahd.numerics.raster import fan_triangulate
 from usdahd.usd import assets, schema
 
+__all__ = [
+    "ATLAS_PAGE",
+    "ATLAS_SCALE_OFFSET",
+    "api_definition",
+    "atlas_properties",
+    "corner_uvs",
+    "layers_stamp",
+    "local_to_world",
+    "mesh_topology",
+    "normals_inputs",
+    "primvar_type",
+    "udim_tiles",
+]
+
 
 def corner_uvs(prim, name: str) -> np.ndarray | None:
     """Per-triangle-corner values of the primvar ``name`` at the default time: (t, 3, 2)

@@ -25,8 +25,8 @@ from usdahd.usd.schema import (
     FILE_ROLES,
     SIDECAR_ROLE,
     BakeResults,
-    _json,
-    _layer_dir,
+    edit_layer_dir,
+    json_text,
     layout_packing,
     prims_with_api,
     read_results,
@@ -45,6 +45,7 @@ __all__ = [
     "read_instance_records",
     "stage_records",
     "write_instance_records",
+    "point_instancer_time",
 ]
 
 #: Schema identifier of the API that holds instance records.
@@ -131,7 +132,7 @@ def write_instance_records(
     entry of ``carrier`` or for invalid results (nothing is authored then)."""
     from pxr import Vt
 
-    layer_dir = Path(layer_dir) if layer_dir is not None else _layer_dir(carrier)
+    layer_dir = Path(layer_dir) if layer_dir is not None else edit_layer_dir(carrier)
     count, cols, is_pi, path = _array_layout(carrier)
     m = len(cols)
     where = {}
@@ -188,8 +189,8 @@ def write_instance_records(
             ("baked:tangentFrame", res.tangent_frame),
             ("baked:normals", res.normals),
             ("baked:contentHash", res.content_hash),
-            ("baked:partHashes", _json(res.part_hashes, "part hashes")),
-            ("baked:settings", _json(res.settings, "bake settings")),
+            ("baked:partHashes", json_text(res.part_hashes, "part hashes")),
+            ("baked:settings", json_text(res.settings, "bake settings")),
             ("baked:generator", res.generator),
         ):
             strings[k][e] = str(v)

@@ -308,14 +308,14 @@ class MaterialReader:
             )
             return out
         tc_names = []
-        out.albedo, out.albedo_tex = self._input(
+        out.albedo, out.albedo_tex = self.surface_input(
             shader, "diffuseColor", DEFAULT_ALBEDO, name, tc_names
         )
         metal = self._metallic_texture(shader, out, tc_names)
-        out.emission, out.emission_tex = self._input(
+        out.emission, out.emission_tex = self.surface_input(
             shader, "emissiveColor", (0, 0, 0), name, tc_names
         )
-        op, out.opacity_tex = self._input(shader, "opacity", 1.0, name, tc_names)
+        op, out.opacity_tex = self.surface_input(shader, "opacity", 1.0, name, tc_names)
         out.opacity = float(np.ravel(op)[0])
         out.opacity_threshold = float(self._uniform(shader, "opacityThreshold", 0.0))
         self._check_material(out)
@@ -345,7 +345,7 @@ class MaterialReader:
             return None, None
         name = out.name
         tcs: list[str] = []
-        m, tex = self._input(shader, "metallic", 0.0, name, tcs)
+        m, tex = self.surface_input(shader, "metallic", 0.0, name, tcs)
         fallback = float(np.ravel(m)[0])
         if tex is None:
             return None, fallback
@@ -505,7 +505,7 @@ class MaterialReader:
                 self.warn(f"{name}: {key} {v:g} outside [0, 1]; clamped")
                 setattr(out, key, min(max(v, 0.0), 1.0))
 
-    def _input(self, shader, inp_name, fallback, mat_name, tc_names):
+    def surface_input(self, shader, inp_name, fallback, mat_name, tc_names):
         """(constant, Texture or None) of a UsdPreviewSurface input: its value, a
         UsdUVTexture, or any other node (a primvar reader, MaterialX nodes: evaluated by
         usdahd.usd.materialx.Graph), followed through NodeGraph outputs."""
@@ -526,7 +526,7 @@ class MaterialReader:
             if sig is None:
                 return fb, None
             if sig.tex is None:
-                return materialx._fit(sig.const, fb.size), None
+                return materialx.fit_components(sig.const, fb.size), None
             tc_names.append(sig.tc)
             return fb, sig.tex
         tex_shader = src.shader
@@ -547,7 +547,7 @@ class MaterialReader:
                 g = materialx.Graph(self, self._prim, mat_name)
                 g.surface = (usd_node, inp_name)
                 value, what = g.substitute(fb)
-                value = materialx._fit(value, fb.size)
+                value = materialx.fit_components(value, fb.size)
             self.report_unreadable(
                 self._prim,
                 mat_name,

@@ -59,6 +59,8 @@ __all__ = [
     "load_document",
     "nodedef_default",
     "surface_terms",
+    "fit_components",
+    "mtlx_surface",
 ]
 
 #: MaterialX surface node definitions the bake reads -> their kind.
@@ -242,7 +244,7 @@ class Sig:
         return fmt_values(self.const) if self.tex is None else f"the texture {self.tex.path}"
 
 
-def _fit(c: np.ndarray, n: int) -> np.ndarray:
+def fit_components(c: np.ndarray, n: int) -> np.ndarray:
     """A constant as n components (a scalar replicated; extra components dropped)."""
     c = np.asarray(c, np.float32).ravel()
     if c.size == n:
@@ -273,15 +275,17 @@ def affine(s: Sig, k, c) -> Sig:
     c = np.asarray(c, np.float32).ravel()
     n = max(s.width, k.size, c.size)
     if s.tex is None:
-        return Sig(const=_fit(s.const, n) * _fit(k, n) + _fit(c, n), tc=s.tc)
+        return Sig(
+            const=fit_components(s.const, n) * fit_components(k, n) + fit_components(c, n), tc=s.tc
+        )
     t = s.tex
     if len(t.channels) != n or len(set(t.channels)) != n:
         t = _materialize(t, n)
     else:
         t = Texture(t.path, t.data, t.scale.copy(), t.bias.copy(), tuple(t.channels), t.wrap)
     for i, q in enumerate(t.channels):
-        t.scale[q] *= _fit(k, n)[i]
-        t.bias[q] = t.bias[q] * _fit(k, n)[i] + _fit(c, n)[i]
+        t.scale[q] *= fit_components(k, n)[i]
+        t.bias[q] = t.bias[q] * fit_components(k, n)[i] + fit_components(c, n)[i]
     return Sig(tex=t, tc=s.tc)
 
 
@@ -291,7 +295,7 @@ def multiply(a: Sig, b: Sig, warn) -> Sig:
     grid (:func:`texture_product`); on different texcoords the second is dropped (warned)."""
     if a.tex is None and b.tex is None:
         n = max(a.width, b.width)
-        return Sig(const=_fit(a.const, n) * _fit(b.const, n))
+        return Sig(const=fit_components(a.const, n) * fit_components(b.const, n))
     if a.tex is None:
         a, b = b, a
     if b.tex is None:
@@ -408,7 +412,7 @@ class Graph:
             dflt = self.input(node, "fallback" if cat == "UsdPrimvarReader" else "default")
             v = self.mats.primvar_value(self.prim, str(var), None, self.name)
             if v is None:
-                v = _fit(dflt.const, _WIDTH.get(typ, dflt.width))
+                v = fit_components(dflt.const, _WIDTH.get(typ, dflt.width))
                 who = self.prim.GetPath() if self.prim is not None else "a prim"
                 self.mats.warn(
                     f"{who}: {node.path} reads primvars:{var}, which the prim does not have; "
@@ -423,7 +427,7 @@ class Graph:
             s = self.input(node, "in")
             n = _WIDTH.get(typ, s.width)
             if s.tex is None:
-                return Sig(const=_fit(s.const, n))
+                return Sig(const=fit_components(s.const, n))
             return s if s.width == n else affine(s, np.ones(n), np.zeros(n))
         if cat == "extract":
             s = self.input(node, "in")
@@ -463,7 +467,7 @@ class Graph:
         if cat == "tiledimage":
             tc = self._tiled(node, tc)
         if not path:
-            return Sig(const=_fit(dflt.const, n))
+            return Sig(const=fit_components(dflt.const, n))
         wrap = tuple(
             _WRAP.get(str(self.value(node, a, "periodic")), "repeat")
             for a in ("uaddressmode", "vaddressmode")
@@ -477,12 +481,15 @@ class Graph:
         if tex is None:
             authored = node.port("default")
             if authored is not None and authored.src is None and authored.value is not None:
-                v, what = _fit(dflt.const, n), f"the authored inputs:default of {node.path}"
+                v, what = (
+                    fit_components(dflt.const, n),
+                    f"the authored inputs:default of {node.path}",
+                )
             else:
-                v, what = self.substitute(_fit(dflt.const, n))
+                v, what = self.substitute(fit_components(dflt.const, n))
             inp = self.surface[1] if self.surface is not None else ""
             self.mats.report_unreadable(self.prim, self.name, node.path, path, reason, v, what, inp)
-            return Sig(const=_fit(v, n))
+            return Sig(const=fit_components(v, n))
         ch = tuple(range(n)) if n > 1 else (0,)
         t = Texture(tex.path, tex.data, np.ones(4, np.float32), np.zeros(4, np.float32), ch, wrap)
         self.tcs.append(tc)
@@ -601,9 +608,9 @@ def surface_terms(g: Graph, node) -> dict:
         albedo = base
     albedo, emission, op = (_constant_if_flat(x) for x in (albedo, emission, op))
     if albedo.tex is None:
-        albedo = Sig(const=_fit(albedo.const, 3))
+        albedo = Sig(const=fit_components(albedo.const, 3))
     if emission.tex is None:
-        emission = Sig(const=_fit(emission.const, 3))
+        emission = Sig(const=fit_components(emission.const, 3))
     if op.tex is None:
         op = Sig(const=np.array([float(np.mean(op.const))], np.float32))
     elif op.width > 1:
@@ -615,7 +622,7 @@ def surface_terms(g: Graph, node) -> dict:
         if s.tex is not None:
             ignored.append((name, "a texture"))
         elif d is not None and not isinstance(d, str):
-            if not np.allclose(_fit(s.const, len(d)), d):
+            if not np.allclose(fit_components(s.const, len(d)), d):
                 ignored.append((name, fmt_values(s.const)))
     return {
         "albedo": albedo,

@@ -264,4 +264,5 @@ __all__ = [
     "polygon_frames",
     "rule_for_scheme",
     "to_world",
+    "SMOOTH_SCHEMES",
 ]

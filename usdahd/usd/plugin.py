@@ -21,6 +21,8 @@ from pathlib import Path
 
 from usdahd.errors import SchemaError
 
+__all__ = ["API_NAME", "SCHEMA_TYPE_NAME", "plugin_path", "register"]
+
 #: Plug plugin name of the codeless schema (plugins/usdAhd/resources/plugInfo.json).
 PLUGIN_NAME = "usdAhd"
 #: Directory name of the validator plugin (issue 6), registered too when present.

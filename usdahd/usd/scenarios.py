@@ -25,6 +25,8 @@ from pxr import Sdf, Usd
 
 from usdahd.errors import UsageError
 
+__all__ = ["author", "default_output", "name_of", "resolve", "select"]
+
 #: customLayerData key of an override layer baked for a scenario: {prim, variantSet, variant}.
 LAYER_KEY = "ahdLightmapScenario"
 

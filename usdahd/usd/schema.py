@@ -28,6 +28,7 @@ from pathlib import Path
 from usdahd.errors import SchemaError
 from usdahd.models import REGISTRY
 from usdahd.models.base import ROLES
+from usdahd.sidecar import CHANNELS
 from usdahd.usd.plugin import API_NAME, SCHEMA_TYPE_NAME, register
 
 register()  # idempotent; the schema must be known before any prim definition is queried
@@ -77,7 +78,6 @@ __all__ = [
     "file_digest",
     "layout_packing",
     "OLD_FORMAT_VERSIONS",
-    # instance records (usdahd.usd.instance_records)
     "INSTANCE_API_NAME",
     "INSTANCE_NAMESPACE",
     "instance_carrier",
@@ -94,6 +94,14 @@ __all__ = [
     "read_record_pixels",
     "crop_record",
     "rect_problem",
+    "INPUT_KEYS",
+    "SETTING_KEYS",
+    "SchemaError",
+    "api_prims",
+    "authored_input_fields",
+    "edit_layer_dir",
+    "json_text",
+    "relative_asset_path",
 ]
 
 #: Property namespace of every schema property.
@@ -140,10 +148,9 @@ FACTORS = {
     "coefficientsScale": 1.0,
     "l0Scale": 1.0,
 }
-#: Channel names of the SH sidecar EXR (float32): radiance SH of R, G, B (coefficient order of
-#: usdahd.sh, so reshape (..., 3, 9)), then coverage A (1 = texel baked, 0 = empty). Look
-#: channels up by name: EXR files store them sorted.
-SH_SIDECAR_CHANNELS = tuple(f"{c}{k}" for c in "RGB" for k in range(9)) + ("A",)
+#: Channel names of the SH sidecar EXR (float32): :data:`usdahd.sidecar.CHANNELS`, whose module
+#: reads and writes the file.
+SH_SIDECAR_CHANNELS = CHANNELS
 
 
 def property_name(key: str) -> str:
@@ -539,7 +546,7 @@ def result_problems(results: BakeResults) -> list[str]:
     return out
 
 
-def _layer_dir(prim) -> Path:
+def edit_layer_dir(prim) -> Path:
     layer = prim.GetStage().GetEditTarget().GetLayer()
     if layer.anonymous or not layer.realPath:
         raise SchemaError(
@@ -559,7 +566,7 @@ def relative_asset_path(path: str | os.PathLike, layer_dir: str | os.PathLike) -
     return rel if rel.startswith("../") else f"./{rel}"
 
 
-def _json(value, what: str) -> str:
+def json_text(value, what: str) -> str:
     try:
         return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
     except (TypeError, ValueError) as exc:
@@ -580,9 +587,9 @@ def write_results(
     problems = result_problems(results)
     if problems:
         raise SchemaError(f"{_prim_label(prim)}: invalid bake results: " + "; ".join(problems))
-    layer_dir = Path(layer_dir) if layer_dir is not None else _layer_dir(prim)
-    settings = _json(results.settings, "bake settings")
-    part_hashes = _json(results.part_hashes, "part hashes")
+    layer_dir = Path(layer_dir) if layer_dir is not None else edit_layer_dir(prim)
+    settings = json_text(results.settings, "bake settings")
+    part_hashes = json_text(results.part_hashes, "part hashes")
     try:
         packing = layout_packing(results.model, results.ratio)
     except Exception:  # an unimplemented model: result_problems accepted its name

@@ -27,6 +27,9 @@ __all__ = [
     "open_stage",
     "prim_at",
     "up_axis",
+    "fmt_values",
+    "one_line",
+    "utf8_problem",
 ]
 
 

@@ -8,6 +8,8 @@ import numpy as np
 
 from usdahd.errors import StageError
 
+__all__ = ["corner_primvar", "normal_input"]
+
 
 def corner_primvar(prim, name: str, mesh, time) -> np.ndarray | None:
     """(t, 3, 2) float32 values of a float2 primvar at the mesh's triangle corners, or None."""
@@ -48,7 +50,7 @@ def normal_input(reader, stage, material: str):
     if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
         return None, None, None
     names: list[str] = []
-    const, tex = reader._input(shader, "normal", (0.0, 0.0, 1.0), material, names)
+    const, tex = reader.surface_input(shader, "normal", (0.0, 0.0, 1.0), material, names)
     if tex is not None and len(tex.channels) != 3:
         raise StageError(
             f"{material}: UsdPreviewSurface inputs:normal is connected to a one-channel output "

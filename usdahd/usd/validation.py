@@ -19,6 +19,19 @@ from pxr import Sdf, Usd, UsdValidation
 
 from usdahd.errors import StageError, UsageError
 
+__all__ = [
+    "captured_stderr_fd",
+    "context",
+    "error_record",
+    "is_usd_diagnostic",
+    "prim_task",
+    "register_validator",
+    "run_context",
+    "stage_task",
+    "to_error",
+    "validator_doc",
+]
+
 _TYPES = {
     "error": UsdValidation.ValidationErrorType.Error,
     "warning": UsdValidation.ValidationErrorType.Warn,

@@ -51,32 +51,25 @@ from usdahd.validate.composition import check_composition  # noqa: F401
 from usdahd.validate.findings import (  # noqa: F401
     FINDING_DATA,
     Finding,
-    _jsonable,
-    _Rule,
-    _Skip,
+    RuleFindings,
+    SkipRule,
     dumps,
     finding_from_usd,
     findings_json,
+    jsonable,
 )
 from usdahd.validate.irradiance import (  # noqa: F401
     TOLERANCE_SLACK,
-    _at_z,
-    _relative_rmse,
-    _step,
     check_encoding_error,
     check_iz,
+    code_step,
+    decoded_iz,
     quantization_tolerance,
 )
 from usdahd.validate.loading import (  # noqa: F401
-    _BAKE_CACHE,
-    _IMAGE_CACHE,
-    _IMAGE_CACHE_SIZE,
-    _LOCK,
+    LOCK,
     Bake,
     Image,
-    _bake_key,
-    _load_bake,
-    _read_local,
     clear_caches,
     decode_factors,
     load_bake,
@@ -97,8 +90,6 @@ from usdahd.validate.options import (  # noqa: F401
 )
 from usdahd.validate.plugin import (  # noqa: F401
     CHECKS,
-    _stage_task,
-    _task,
     check_lightmapped,
     register,
     run_rule,
@@ -117,24 +108,35 @@ from usdahd.validate.registry import (  # noqa: F401
 )
 from usdahd.validate.schema_values import check_schema_values  # noqa: F401
 from usdahd.validate.staleness import (  # noqa: F401
-    _SCENES,
-    _normals_drift,
-    _SceneCache,
     check_staleness,
     settings_drift,
 )
 from usdahd.validate.texel_values import (  # noqa: F401
-    _texel,
     check_texel_values,
 )
 from usdahd.validate.textures import (  # noqa: F401
-    _uv_tiles,
     check_textures,
 )
 from usdahd.validate.uvset import (  # noqa: F401
     check_uv_set,
     overlap_statistic,
 )
+
+__all__ = [
+    "BUILTIN_VALIDATORS",
+    "FINDING_DATA",
+    "Finding",
+    "KEYWORD",
+    "LOCK",
+    "OPTIONS",
+    "PLUGIN_NAME",
+    "RULES",
+    "RULE_NAMES",
+    "STAGE_RULES",
+    "SkipRule",
+    "jsonable",
+    "load_bake",
+]
 
 # Plug imports this package to load the plugin: register the implementations now.
 register()

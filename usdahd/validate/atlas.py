@@ -18,8 +18,10 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 from usdahd.usd import inspect, schema
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, image_info
+
+__all__ = ["check_atlas"]
 
 #: Rectangle offsets are multiples of this (block-compressed formats code 4 x 4 blocks).
 ALIGN = 4
@@ -183,7 +185,7 @@ def _show(rect) -> str:
 
 def check_atlas(prim) -> list[Finding]:
     """Rule Atlas (see RULES)."""
-    r = _Rule("Atlas", prim)
+    r = RuleFindings("Atlas", prim)
     results = baked_record(prim)
     if results is None:
         return r.out

@@ -26,6 +26,8 @@ from usdahd.usd import composition, schema
 from usdahd.validate.findings import Finding
 from usdahd.validate.registry import COMPOSITION_RULE
 
+__all__ = ["check_composition"]
+
 
 def check_composition(stage) -> list[Finding]:
     """The Composition findings of ``stage`` (see the module doc), sorted by prim."""

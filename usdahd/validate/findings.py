@@ -13,6 +13,17 @@ import numpy as np
 from usdahd.usd import validation as usd_validation
 from usdahd.validate.registry import PLUGIN_NAME
 
+__all__ = [
+    "FINDING_DATA",
+    "Finding",
+    "RuleFindings",
+    "SkipRule",
+    "dumps",
+    "finding_from_usd",
+    "findings_json",
+    "jsonable",
+]
+
 # --------------------------------------------------------------------------------- findings
 
 
@@ -37,7 +48,7 @@ class Finding:
         return usd_validation.to_error(self, stage)
 
 
-class _Rule:
+class RuleFindings:
     """Collects findings of one rule on one prim."""
 
     def __init__(self, rule: str, prim):
@@ -45,7 +56,7 @@ class _Rule:
 
     def add(self, severity: str, code: str, message: str, fix: str = "", **data):
         text = message.rstrip(".") + "." + (f" Fix: {fix.rstrip('.')}." if fix else "")
-        self.out.append(Finding(self.rule, severity, self.prim, code, text, _jsonable(data)))
+        self.out.append(Finding(self.rule, severity, self.prim, code, text, jsonable(data)))
 
     def error(self, code, message, fix="", **data):
         self.add("error", code, message, fix, **data)
@@ -61,7 +72,7 @@ class _Rule:
         self.info("Skipped", f"{self.rule} did not run: {why}")
 
 
-def _jsonable(d: dict) -> dict:
+def jsonable(d: dict) -> dict:
     out = {}
     for k, v in d.items():
         if isinstance(v, np.generic):
@@ -74,7 +85,7 @@ def _jsonable(d: dict) -> dict:
     return out
 
 
-class _Skip(Exception):
+class SkipRule(Exception):
     """Prerequisite data missing; another rule reports why (becomes an info finding)."""
 
 

@@ -10,10 +10,21 @@ import numpy as np
 
 from usdahd import models
 from usdahd.numerics import sh as shm
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.numerics.stats import pooled_rmse_over_mean_abs, rmse_over_mean_abs
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import Bake, load_for
 from usdahd.validate.options import IRRADZ, MODEL_RMSE_NOTE, OPTIONS
-from usdahd.validate.texel_values import _texel
+from usdahd.validate.texel_values import texel_xy
+
+__all__ = [
+    "TOLERANCE_SLACK",
+    "check_encoding_error",
+    "check_iz",
+    "code_step",
+    "decoded_iz",
+    "fit_chunked",
+    "quantization_tolerance",
+]
 
 # ---------------------------------------------------------------------------- rule 4: IzCheck
 
@@ -23,7 +34,7 @@ from usdahd.validate.texel_values import _texel
 TOLERANCE_SLACK = 0.02
 
 
-def _step(codes: np.ndarray, up: bool) -> np.ndarray:
+def code_step(codes: np.ndarray, up: bool) -> np.ndarray:
     """Each stored code moved by one code step: the next float16, or the 8-bit code +-1."""
     if np.issubdtype(codes.dtype, np.floating):
         toward = codes.dtype.type(np.inf if up else -np.inf)
@@ -76,7 +87,7 @@ def refit(bake: Bake, sel=slice(None)):
     ``sel`` (a slice or an index array) of it."""
     fitted = bake.__dict__.get("_refit")
     if fitted is None:
-        fitted = bake.__dict__["_refit"] = _fit_chunked(bake.results, bake.sh)
+        fitted = bake.__dict__["_refit"] = fit_chunked(bake.results, bake.sh)
     if isinstance(sel, slice) and sel == slice(None):
         return fitted
     return models.Fit(
@@ -87,7 +98,7 @@ def refit(bake: Bake, sel=slice(None)):
     )
 
 
-def _fit_chunked(res, sh: np.ndarray):
+def fit_chunked(res, sh: np.ndarray):
     """models.fit of the float32 SH ``sh`` (n, 3, 9) with the record's model, ratio and solver,
     CHUNK texels at a time (the fit is per texel, so the result is the same; memory stays
     O(chunk): the fit widens its input to float64)."""
@@ -114,7 +125,7 @@ def _fit_chunked(res, sh: np.ndarray):
 
 
 def _code_check(bake: Bake) -> tuple[dict, bool]:
-    from usdahd._version import __version__
+    from usdahd.version import __version__
 
     res = bake.results
     if res.generator and res.generator.split(";")[0].strip() != f"usdahd {__version__}":
@@ -126,7 +137,7 @@ def _code_check(bake: Bake) -> tuple[dict, bool]:
 
     def encode(sh):
         # the float32 SH, what the baker fits (and stores in the sidecar)
-        fitted = _fit_chunked(res, sh)
+        fitted = fit_chunked(res, sh)
         with np.errstate(all="ignore"):
             channels = encode_params(fitted.params)
         if channels is None:
@@ -200,7 +211,7 @@ def _at(bake: Bake, channels: dict, normals: np.ndarray, sl=slice(None)) -> np.n
     )
 
 
-def _at_z(bake: Bake, channels: dict) -> np.ndarray:
+def decoded_iz(bake: Bake, channels: dict) -> np.ndarray:
     """Decoded I(n = z) (n, 3) float64 of stored channels (as an engine computes it)."""
     return _at(bake, channels, np.array([[0.0, 0.0, 1.0]]))[:, 0]
 
@@ -217,7 +228,7 @@ def channel_steps(bake: Bake, sl=slice(None)):
             moved = []
             for up in (True, False):
                 c = codes.copy()
-                c[:, j] = _step(codes[:, j], up)
+                c[:, j] = code_step(codes[:, j], up)
                 moved.append({**chans, role: c})
             yield role, j, moved[0], moved[1]
 
@@ -308,7 +319,7 @@ def _show(code) -> str:
 
 def check_iz(prim) -> list[Finding]:
     """Rule IzCheck (see RULES)."""
-    r = _Rule("IzCheck", prim)
+    r = RuleFindings("IzCheck", prim)
     bake = load_for(r, prim, sidecar=" (see SchemaValues)")
     if bake is None:
         return r.out
@@ -365,7 +376,7 @@ def check_iz(prim) -> list[Finding]:
         code_texels |= mask.any(axis=1)
     lit = finite & (bright > 1e-6 * bright[finite].max())  # texels bright enough for a ratio
     worst = int(np.argmax(np.where(fail, ratio_t, -1.0))) if fail.any() else int(np.argmax(rel_t))
-    x, y = _texel(bake, worst)
+    x, y = texel_xy(bake, worst)
     stats = dict(
         texels=int(finite.sum()),
         failing=int(fail.sum()),
@@ -408,7 +419,7 @@ def check_iz(prim) -> list[Finding]:
 
     if not fail.any() and code_texels.any():
         i = int(np.argmax(code_texels))
-        cx, cy = _texel(bake, i)
+        cx, cy = texel_xy(bake, i)
         role, name, code = code_at(i)
         stats.update(suspect_role=role, suspect_channel=name, first_code_texel=(cx, cy))
         r.error(
@@ -461,13 +472,6 @@ def check_iz(prim) -> list[Finding]:
 # ---------------------------------------------------------------------- rule 5: EncodingError
 
 
-def _relative_rmse(got: np.ndarray, ref: np.ndarray, scale: np.ndarray):
-    """(per texel (n,), whole prim) RMSE of got - ref (n, d, 3) relative to ``scale`` (n,)."""
-    sq = ((got - ref) ** 2).mean(axis=(1, 2))
-    per_texel = np.sqrt(sq) / np.where(scale > 0, scale, np.inf)
-    return per_texel, float(np.sqrt(sq.mean()) / max(float(scale.mean()), 1e-30))
-
-
 def hemisphere_irradiance(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """``shm.irradiance(sh[:, None], dirs[None])`` (n, d, 3) float64 as one matrix product
     (the SH basis at the d normals, once): 6x faster than the einsum at 64 normals, equal to
@@ -492,13 +496,15 @@ def check_encoding_error(prim) -> list[Finding]:
     """Rule EncodingError (see RULES and docs/validate.md).
 
     Three hemispherical RMSEs over OPTIONS.rmse_normals upper-hemisphere normals (spherical
-    Fibonacci), each relative to the mean |SH irradiance| over those normals and texels:
+    Fibonacci), each relative to the mean |SH irradiance| over those normals and texels
+    (:func:`usdahd.numerics.stats.pooled_rmse_over_mean_abs`; per texel
+    :func:`~usdahd.numerics.stats.rmse_over_mean_abs`):
     ``relative_rmse`` decoded textures vs the SH irradiance (what a renderer gets), ``model_rmse``
     the unquantized refit vs the SH irradiance (the model's own approximation error, a note:
     a model choice, not a defect), ``quantization_rmse`` decoded vs the unquantized refit (what
     the textures add). Warns when the quantization part exceeds OPTIONS.rmse_warning.
     """
-    r = _Rule("EncodingError", prim)
+    r = RuleFindings("EncodingError", prim)
     bake = load_for(r, prim, sidecar="")
     if bake is None:
         return r.out
@@ -533,9 +539,11 @@ def check_encoding_error(prim) -> list[Finding]:
         exact = bake.mod.evaluate(models.representable(refit(bake, idx), bake.mod), normals)
         exact = exact.astype(np.float64)
     scale = np.abs(target).mean(axis=(1, 2))
-    per_texel, total = _relative_rmse(got, target, scale)
-    _, model_total = _relative_rmse(exact, target, scale)
-    q_texel, q_total = _relative_rmse(got, exact, scale)
+    per_texel = rmse_over_mean_abs(got, target, scale)
+    total = pooled_rmse_over_mean_abs(got, target, scale)
+    model_total = pooled_rmse_over_mean_abs(exact, target, scale)
+    q_texel = rmse_over_mean_abs(got, exact, scale)
+    q_total = pooled_rmse_over_mean_abs(got, exact, scale)
     worst = int(np.argmax(per_texel))
     x, y = int(bake.xy[idx[worst], 0]), int(bake.xy[idx[worst], 1])
     qw = int(np.argmax(np.where(np.isfinite(q_texel), q_texel, 0.0)))
@@ -640,7 +648,7 @@ def _closer_models(sh, target, scale, model: str, model_rmse: float) -> str:
             with np.errstate(all="ignore"):
                 fitted = models.fit(sub, name)
                 got = mod.evaluate(models.representable(fitted, mod), normals)
-            found[name] = _relative_rmse(got.astype(np.float64), tgt, sc)[1]
+            found[name] = pooled_rmse_over_mean_abs(got.astype(np.float64), tgt, sc)
         except Exception:  # a model that cannot be fitted here is not advised
             continue
     own = found.get(model, model_rmse)

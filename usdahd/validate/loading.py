@@ -11,10 +11,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usdahd import models
+from usdahd import models, sidecar
 from usdahd.usd import schema
-from usdahd.validate.findings import _Rule, _Skip
+from usdahd.validate.findings import RuleFindings, SkipRule
 from usdahd.validate.options import DZ_FLOOR, FORMAT_DTYPES
+
+__all__ = [
+    "Bake",
+    "Image",
+    "LOCK",
+    "baked_record",
+    "clear_caches",
+    "decode_factors",
+    "file_digest",
+    "image_info",
+    "load_bake",
+    "load_for",
+    "read_image",
+    "record_encoder",
+    "record_image",
+]
 
 # ------------------------------------------------------------------------------ image reading
 
@@ -52,7 +68,7 @@ _IMAGE_CACHE_SIZE = 16
 #: The cache also keeps at most this many bytes of pixels (the rules of one prim read its
 #: textures several times; a 1024^2 SH sidecar alone is 117 MB, so 16 of them were 1.9 GB).
 _IMAGE_CACHE_BYTES = 192 << 20
-_LOCK = threading.Lock()
+LOCK = threading.Lock()
 
 
 def read_image(path: str, cache: bool = True) -> Image:
@@ -67,12 +83,12 @@ def read_image(path: str, cache: bool = True) -> Image:
     if key is None:
         if not assets.exists(path):
             raise FileNotFoundError(f"{path} does not exist")
-    with _LOCK:
+    with LOCK:
         if key is not None and key in _IMAGE_CACHE:
             _IMAGE_CACHE.move_to_end(key)
             return _IMAGE_CACHE[key]
     with _single_flight(("image", key)):  # UsdValidation runs rules in parallel threads
-        with _LOCK:
+        with LOCK:
             if key is not None and key in _IMAGE_CACHE:
                 return _IMAGE_CACHE[key]
         with assets.local_file(path) as local:  # a file, or an asset in a package (Ar)
@@ -84,7 +100,7 @@ def read_image(path: str, cache: bool = True) -> Image:
 
 def _cache_image(key, img) -> None:
     if key is not None:
-        with _LOCK:
+        with LOCK:
             _IMAGE_CACHE[key] = img
             while len(_IMAGE_CACHE) > 1 and (
                 len(_IMAGE_CACHE) > _IMAGE_CACHE_SIZE
@@ -104,14 +120,14 @@ def _single_flight(key):
     if key is None or (isinstance(key, tuple) and key[-1] is None):
         yield
         return
-    with _LOCK:
+    with LOCK:
         entry = _FLIGHTS.setdefault(key, [threading.Lock(), 0])
         entry[1] += 1
     try:
         with entry[0]:
             yield
     finally:
-        with _LOCK:
+        with LOCK:
             entry[1] -= 1
             if entry[1] == 0:
                 _FLIGHTS.pop(key, None)
@@ -191,39 +207,39 @@ def baked_record(prim):
 
 
 def load_bake(prim) -> Bake:
-    """Read and decode a prim's textures; raises _Skip when another rule reports the cause."""
+    """Read and decode a prim's textures; raises SkipRule when another rule reports the cause."""
     try:
         results = schema.read_results(prim, validate=False)
     except Exception as exc:
-        raise _Skip(f"bake record unreadable ({exc}); see SchemaValues") from None
+        raise SkipRule(f"bake record unreadable ({exc}); see SchemaValues") from None
     if results is None:
-        raise _Skip("the prim is not baked; see SchemaValues")
+        raise SkipRule("the prim is not baked; see SchemaValues")
     if schema.result_problems(results):
-        raise _Skip("invalid bake record; see SchemaValues")
+        raise SkipRule("invalid bake record; see SchemaValues")
     key = _bake_key(prim, results)
-    with _LOCK:
+    with LOCK:
         if key in _BAKE_CACHE:
             _BAKE_CACHE.move_to_end(key)
             return _BAKE_CACHE[key]
     with _single_flight(("bake", key)):
-        with _LOCK:
+        with LOCK:
             if key in _BAKE_CACHE:
                 return _BAKE_CACHE[key]
         bake = _load_bake(results)
-        with _LOCK:
+        with LOCK:
             _BAKE_CACHE[key] = bake
             while len(_BAKE_CACHE) > _BAKE_CACHE_SIZE:
                 _BAKE_CACHE.popitem(last=False)
     return bake
 
 
-def load_for(r: _Rule, prim, *, sidecar: str | None = None) -> Bake | None:
+def load_for(r: RuleFindings, prim, *, sidecar: str | None = None) -> Bake | None:
     """The prim's bake for rule ``r``, or None after the finding "<rule> did not run: why"
-    (:func:`load_bake` raised _Skip; with ``sidecar``, also when the SH sidecar is unreadable,
+    (:func:`load_bake` raised SkipRule; with ``sidecar``, also when the SH sidecar is unreadable,
     ``sidecar`` completing "no readable SH sidecar")."""
     try:
         bake = load_bake(prim)
-    except _Skip as why:
+    except SkipRule as why:
         r.skipped(why)
         return None
     if sidecar is not None and bake.sh is None:
@@ -275,30 +291,30 @@ _SIDECAR_BYTES = 256 << 20
 
 def read_sidecar(path: str) -> Sidecar:
     """The SH sidecar at ``path``, sparse (cached by path, size and mtime; read once per
-    file). Raises OSError (unreadable), ValueError (a channel of SH_SIDECAR_CHANNELS missing)."""
+    file). Raises OSError (unreadable), ValueError (a channel of sidecar.CHANNELS missing)."""
     from usdahd.usd import assets
 
     key = assets.stamp(path)
-    with _LOCK:
+    with LOCK:
         if key is not None and key in _SIDECARS:
             _SIDECARS.move_to_end(key)
             return _SIDECARS[key]
     with _single_flight(("sidecar", key)):
-        with _LOCK:
+        with LOCK:
             if key is not None and key in _SIDECARS:
                 return _SIDECARS[key]
         img = read_image(path)  # cached: Textures (image_info) reads the same file
-        names = schema.SH_SIDECAR_CHANNELS
+        names = sidecar.CHANNELS
         idx = [img.channel_names.index(n) for n in names]  # ValueError: Textures reports it
-        ys, xs = np.nonzero(img.data[..., idx[27]] > 0.5)
+        ys, xs = np.nonzero(img.data[..., idx[sidecar.COVERAGE]] > 0.5)
         rows = np.full((img.height, img.width), -1, np.int32)
         rows[ys, xs] = np.arange(len(ys), dtype=np.int32)
-        sh = _gather(img.data, ys, xs, idx[:27]).astype(np.float32, copy=False)
+        sh = _gather(img.data, ys, xs, idx[: sidecar.COVERAGE]).astype(np.float32, copy=False)
         side = Sidecar(rows, sh.reshape(-1, 3, 9))
         info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
         del img
         if key is not None:
-            with _LOCK:
+            with LOCK:
                 # Textures needs only the file's metadata now, and the pixels are in ``side``:
                 # the whole image (117 MB for a 1024^2 page) leaves the image cache
                 _INFOS[key] = info
@@ -333,13 +349,13 @@ def image_info(path: str) -> ImageInfo:
     from usdahd.usd import assets
 
     key = assets.stamp(path)
-    with _LOCK:
+    with LOCK:
         if key is not None and key in _INFOS:
             return _INFOS[key]
     img = read_image(path)
     info = ImageInfo(img.width, img.height, img.channel_names, img.format, img.color_space)
     if key is not None:
-        with _LOCK:
+        with LOCK:
             _INFOS[key] = info
             while len(_INFOS) > 4096:
                 _INFOS.popitem(last=False)
@@ -355,12 +371,12 @@ def file_digest(path: str) -> str:
     from usdahd.usd import assets
 
     key = assets.stamp(path)
-    with _LOCK:
+    with LOCK:
         if key is not None and key in _DIGESTS:
             return _DIGESTS[key]
     digest = schema.file_digest(path)
     if key is not None:
-        with _LOCK:
+        with LOCK:
             _DIGESTS[key] = digest
             while len(_DIGESTS) > 4096:
                 _DIGESTS.popitem(last=False)
@@ -370,7 +386,7 @@ def file_digest(path: str) -> str:
 def clear_caches() -> None:
     """Forget every cached read (images, sparse sidecars, image metadata, digests, decoded
     bakes): for callers that rewrite files in place within a file system's mtime resolution."""
-    with _LOCK:
+    with LOCK:
         for cache in (_IMAGE_CACHE, _SIDECARS, _INFOS, _DIGESTS, _BAKE_CACHE):
             cache.clear()
 
@@ -388,20 +404,20 @@ def _load_bake(results) -> Bake:
         mod = models.get(results.model)
         layout = {t.role: t for t in mod.layout(results.ratio)}
     except Exception as exc:
-        raise _Skip(f"model settings unusable ({exc}); see SchemaValues") from None
+        raise SkipRule(f"model settings unusable ({exc}); see SchemaValues") from None
     w, h = results.resolution
     images, origin = {}, {}
     for role, lay in layout.items():
         path = results.textures.get(role)
         if path is None or "<UDIM>" in results.asset_paths.get(role, ""):
-            raise _Skip(f"texture {role!r} missing or a UDIM set; see Textures")
+            raise SkipRule(f"texture {role!r} missing or a UDIM set; see Textures")
         try:
             img = read_image(path)
         except OSError:
-            raise _Skip(f"texture {role!r} unreadable; see Textures") from None
+            raise SkipRule(f"texture {role!r} unreadable; see Textures") from None
         region = record_region(results, (img.width, img.height))
         if region is None or set(img.channel_names) != set(lay.channels):
-            raise _Skip(f"texture {role!r} has the wrong shape or channels; see Textures")
+            raise SkipRule(f"texture {role!r} has the wrong shape or channels; see Textures")
         images[role], origin[role] = img, region[:2]
     sh = None
     sc = results.textures.get(schema.SIDECAR_ROLE)
@@ -443,7 +459,7 @@ def _load_bake(results) -> Bake:
         with np.errstate(all="ignore"):
             params = mod.decode(channels, ratio=results.ratio, factors=factors)
     except Exception as exc:
-        raise _Skip(f"the textures do not decode ({exc}); see Textures") from None
+        raise SkipRule(f"the textures do not decode ({exc}); see Textures") from None
     params = {k: np.asarray(v) for k, v in params.items()}
     valid = np.ones(len(xy), bool)
     for k, v in params.items():
@@ -471,20 +487,20 @@ def _page_anchors(results: schema.BakeResults, mod) -> dict | None:
     if side is None:
         return None
     key = (side, assets.stamp(side), results.model, results.ratio, results.solver)
-    with _LOCK:
+    with LOCK:
         if key in _ANCHORS:
             return _ANCHORS[key]
     with _single_flight(("anchors", key)):
-        with _LOCK:
+        with LOCK:
             if key in _ANCHORS:
                 return _ANCHORS[key]
         try:
             sh = read_sidecar(side).sh  # the page's covered texels, float32, read once
         except (OSError, KeyError, ValueError):
             return None
-        from usdahd.validate.irradiance import _fit_chunked
+        from usdahd.validate.irradiance import fit_chunked
 
-        fitted = _fit_chunked(results, sh)  # per texel, chunked: no float64 copy of the page
+        fitted = fit_chunked(results, sh)  # per texel, chunked: no float64 copy of the page
         rows = set()
         for v in fitted.params.values():
             a = np.abs(np.asarray(v, np.float64).reshape(len(sh), -1))
@@ -492,7 +508,7 @@ def _page_anchors(results: schema.BakeResults, mod) -> dict | None:
                 rows.add(int(np.argmax(np.where(np.isfinite(a), a, -1.0).max(axis=1))))
         rows = sorted(rows)
         anchors = {k: np.asarray(v)[rows] for k, v in fitted.params.items()}
-        with _LOCK:
+        with LOCK:
             _ANCHORS[key] = anchors
             while len(_ANCHORS) > 4:
                 _ANCHORS.popitem(last=False)

@@ -11,6 +11,20 @@ import numpy as np
 from usdahd.numerics import encoding
 from usdahd.numerics.raster import UV_OVERLAP_LIMIT
 
+__all__ = [
+    "DZ_FLOOR",
+    "FORMAT_DTYPES",
+    "FORMAT_RELATIVE_TOLERANCE",
+    "HALF_ABSOLUTE_TOLERANCE",
+    "IRRADZ",
+    "MODEL_RMSE_NOTE",
+    "NONNEGATIVE_COLOURS",
+    "OIIO_FORMATS",
+    "OPTIONS",
+    "Options",
+    "UNIT_TOLERANCE",
+]
+
 # ------------------------------------------------------------------------------- tolerances
 
 

@@ -11,13 +11,15 @@ from usdahd.validate.atlas import check_atlas
 from usdahd.validate.composition import check_composition
 from usdahd.validate.findings import FINDING_DATA, Finding
 from usdahd.validate.irradiance import check_encoding_error, check_iz
-from usdahd.validate.loading import _LOCK
+from usdahd.validate.loading import LOCK
 from usdahd.validate.registry import COMPOSITION_RULE, RULE_NAMES, STAGE_RULE, validator_name
 from usdahd.validate.schema_values import check_schema_values
 from usdahd.validate.staleness import check_staleness
 from usdahd.validate.texel_values import check_texel_values
 from usdahd.validate.textures import check_textures
 from usdahd.validate.uvset import check_uv_set
+
+__all__ = ["CHECKS", "check_lightmapped", "register", "run_rule"]
 
 # ------------------------------------------------------------------------------ registration
 
@@ -63,7 +65,7 @@ def _recorded(rule: str):
 
     def check(prim):
         found = run_rule(rule, prim)
-        with _LOCK:
+        with LOCK:
             for f in found:
                 FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
             while len(FINDING_DATA) > 10000:
@@ -127,7 +129,7 @@ def _recorded_stage(check):
 
     def run(stage):
         found = check(stage)
-        with _LOCK:
+        with LOCK:
             for f in found:
                 FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
         return found

@@ -4,6 +4,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = [
+    "BUILTIN_VALIDATORS",
+    "COMPOSITION_RULE",
+    "KEYWORD",
+    "PLUGIN_NAME",
+    "RULES",
+    "RULE_NAMES",
+    "Rule",
+    "STAGE_RULE",
+    "STAGE_RULES",
+    "validator_name",
+]
+
 # ------------------------------------------------------------------------------------ rules
 
 #: Plug plugin name (= this module, see the module doc) and validator keyword.

@@ -36,6 +36,16 @@ from pathlib import Path
 
 from usdahd.validate.findings import Finding, findings_json
 
+__all__ = [
+    "Summary",
+    "format_finding",
+    "json_report",
+    "render",
+    "summary_line",
+    "text",
+    "write_atomic",
+]
+
 FORMATS = ("text", "json", "junit", "sarif")
 #: The file extension docs/ci.md uses for each format (a hint only; any name works).
 EXTENSIONS = {"text": ".txt", "json": ".json", "junit": ".xml", "sarif": ".sarif"}

@@ -25,6 +25,12 @@ quantization is IzCheck's job, not this rule's), else the decoded textures at n 
 Statistics (per RGB channel c, over the n usable texels; docs/validate.md has the derivation,
 the measured margin, the power curve and the cost):
 
+- Replay (:mod:`usdahd.validate.replay`): the bake's own random stream re-run at a random
+  subset of the prim's estimated texels gives the raw pre-denoise I_z bit for bit, so the
+  bake's noise cancels; ``sum b / sum p`` is tested against the margin plus q standard errors
+  of the texel choice (alpha / 4), with as many texels as a 1 % rescale needs for 99 % power (the
+  stated 95 % with headroom).
+  Skipped (with the reason in the finding) where the replay would not be exact.
 - The retrace runs in K independent batches of s samples (``K * s`` = the retrace samples;
   s is at most the bake's sample count when possible), giving per texel a mean ``r_i`` and a
   sample variance ``v_i`` (K - 1 degrees of freedom). A prim with fewer candidate texels than
@@ -36,7 +42,8 @@ the measured margin, the power curve and the cost):
   raw noise, but the prim's mean keeps it, since the denoiser restores each chart's sum). A
   finding when ``|R - 1| > margin + q SE``, margin the measured bound on the denoiser's
   residual bias (:data:`DENOISE_BIAS_BOUND`), q the Student-t quantile with n - 1 degrees of
-  freedom at two-sided level ``alpha`` (0.01) Bonferroni-split over channels.
+  freedom at two-sided level ``alpha / 2`` (``alpha / 4`` when the replay ran; alpha 0.01)
+  Bonferroni-split over channels.
 - Per-texel test (texels whose 5 x 5 neighbourhood is covered by the same chart, so seam
   stitching and gutter dilation did not touch them): a *warning* when
   ``|b_i - r_i| > margin max(r_i, 0.1 mean r) + q_t sqrt(v_i / K + v_b,i)``, q_t the t
@@ -54,7 +61,6 @@ baker are imported when a prim is checked.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import math
 import threading
@@ -65,6 +71,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from usdahd.errors import UsageError
+from usdahd.validate.student_t import betainc, t_isf, t_sf  # noqa: F401 (re-exported)
+
+__all__ = ["DESCRIPTION", "KEYWORD", "MIN_TEXELS", "OPTIONS", "RULE", "RetraceOptions"]
+__all__ += ["register", "validator_name", "DARK_CHANNEL", "DENOISE_BIAS_BOUND", "compare"]
+__all__ += ["backface_threshold", "baked_iz", "pick_texels", "prim_candidates", "retrace_seed"]
+__all__ += ["betainc", "t_isf", "t_sf"]
 
 #: Rule name, UsdValidation keyword (opt-in) and the one-sentence doc (the plugInfo ``doc``).
 RULE = "Retrace"
@@ -133,81 +145,6 @@ class RetraceOptions:
 OPTIONS = RetraceOptions()
 
 
-# ---------------------------------------------------------------------- Student-t (numpy only)
-
-
-def _betacf(a: float, b: float, x: float) -> float:
-    """Continued fraction of the regularized incomplete beta (modified Lentz)."""
-    tiny = 1e-300
-    qab, qap, qam = a + b, a + 1.0, a - 1.0
-    c, d = 1.0, 1.0 - qab * x / qap
-    d = 1.0 / (d if abs(d) > tiny else tiny)
-    h = d
-    for m in range(1, 10000):
-        m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-15:
-            break
-    return h
-
-
-def betainc(a: float, b: float, x: float) -> float:
-    """Regularized incomplete beta I_x(a, b) for a, b > 0, x in [0, 1] (float)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    ln = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x)
-    ln += b * math.log1p(-x)
-    front = math.exp(ln)
-    if x < (a + 1.0) / (a + b + 2.0):
-        return front * _betacf(a, b, x) / a
-    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
-
-
-def t_sf(t: float, dof: float) -> float:
-    """P(T > t) for Student's t with ``dof`` degrees of freedom (float)."""
-    if dof <= 0:
-        raise UsageError(f"the t distribution needs dof > 0, got {dof}")
-    if math.isinf(dof):
-        return 0.5 * math.erfc(t / math.sqrt(2.0))
-    tail = 0.5 * betainc(0.5 * dof, 0.5, dof / (dof + t * t))
-    return tail if t >= 0 else 1.0 - tail
-
-
-@functools.lru_cache(maxsize=256)
-def t_isf(p: float, dof: float) -> float:
-    """The t with P(T > t) = p, for p in (0, 0.5] (bisection to 1e-12 relative; cached)."""
-    if not 0.0 < p <= 0.5:
-        raise UsageError(f"t_isf needs 0 < p <= 0.5, got {p}")
-    lo, hi = 0.0, 1.0
-    while t_sf(hi, dof) > p:
-        lo, hi = hi, 2.0 * hi
-        if hi > 1e300:
-            return math.inf
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if t_sf(mid, dof) > p:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= 1e-12 * hi:
-            break
-    return 0.5 * (lo + hi)
-
-
 # ------------------------------------------------------------------------------- statistics
 
 
@@ -244,6 +181,7 @@ def compare(
     texel_mask: np.ndarray | None = None,
     adaptive_tol: float | None = None,
     denoised: bool = False,
+    mean_alpha: float | None = None,
 ) -> dict:
     """The Retrace statistics of one prim.
 
@@ -253,7 +191,8 @@ def compare(
         (None: all; an all-False mask disables it); adaptive_tol : the bake's adaptive
         tolerance when it was adaptive (its texels may stop at that relative standard error);
         denoised : the bake was denoised (the per-texel bound scales the bake's variance by
-        :data:`DENOISE_TEXEL_FACTOR`).
+        :data:`DENOISE_TEXEL_FACTOR`); mean_alpha : the mean test's share of alpha (None:
+        alpha / 2; the per-texel test has alpha / 2).
     returns : dict with ``ratio``, ``se``, ``se_empirical``, ``se_model``, ``bound`` (3,) float
         (|R - 1| allowed), ``tested`` (3,) bool channels ratio-tested, ``mean_fail`` (3,) bool,
         ``q_mean``, ``q_texel`` floats, ``texel_fail`` (n, 3) bool, ``texel_excess`` (n, 3)
@@ -289,7 +228,8 @@ def compare(
     # each chart's sum (docs/texels.md), so the prim's mean carries the raw noise. The
     # variance model bounds that raw noise (plain Monte Carlo at the bake's sample count).
     se = np.maximum(se_emp, se_mod)
-    q_mean = t_isf(0.5 * alpha / (2.0 * n_tested), max(n - 1, 1))
+    share = 0.5 * alpha if mean_alpha is None else float(mean_alpha)
+    q_mean = t_isf(0.5 * share / n_tested, max(n - 1, 1))
     bound = margin + q_mean * se
     mean_fail = tested & (np.abs(ratio - 1.0) > bound)
     # per texel
@@ -449,13 +389,13 @@ _RETRACE_LOCK = threading.Lock()
 
 
 def _finding(prim, severity, code, message, fix="", **data):
-    from usdahd.validate import Finding, _jsonable
+    from usdahd.validate import Finding, jsonable
 
     text = message.rstrip(".") + "." + (f" Fix: {fix.rstrip('.')}." if fix else "")
-    return Finding(RULE, severity, str(prim.GetPath()), code, text, _jsonable(data))
+    return Finding(RULE, severity, str(prim.GetPath()), code, text, jsonable(data))
 
 
-def _baked_iz(bake, rows: np.ndarray) -> np.ndarray:
+def baked_iz(bake, rows: np.ndarray) -> np.ndarray:
     """(m, 3) float64 baked I_z of bake rows: sidecar SH when present, else decoded at z."""
     from usdahd.numerics import sh as shm
 
@@ -474,11 +414,12 @@ def check_retrace(prim, options: RetraceOptions | None = None) -> list:
         return _check(prim, options or OPTIONS)
 
 
-def _candidates(prim):
-    """The prim's retrace candidates: (bake, scene, tracer, mesh, texels, rows, candidates),
-    texels the bake's rasterised texels, rows their bake rows (-1 uncovered), candidates the
-    indices of covered, validly decoded texel centres the bake estimated; or a str saying why
-    the rule cannot run."""
+def prim_candidates(prim):
+    """The prim's retrace candidates: (bake, scene, tracer, mesh, texels, rows, candidates,
+    estimated), texels the bake's rasterised texels (in the bake's order), rows their bake
+    rows (-1 uncovered), candidates the indices of covered, validly decoded texel centres the
+    bake estimated, estimated all such texels (centres or not: the replay's population); or a
+    str saying why the rule cannot run."""
     from usdahd import validate as V
     from usdahd.bake.texels import push_off_contacts, rasterize
     from usdahd.errors import UsdAhdError
@@ -486,7 +427,7 @@ def _candidates(prim):
     path = str(prim.GetPath())
     try:
         bake = V.load_bake(prim)
-    except V._Skip as why:
+    except V.SkipRule as why:
         return str(why)
     res = bake.results
     uv_name = str(res.uv_primvar or res.settings.get("uv") or "st")
@@ -524,27 +465,28 @@ def _candidates(prim):
     candidates = np.nonzero(ok & texels.center_inside)[0]
     if len(candidates) < MIN_TEXELS:
         return f"only {len(candidates)} covered texel centre(s) decode validly"
-    return bake, scene, tracer, mesh, texels, rows, candidates
+    return bake, scene, tracer, mesh, texels, rows, candidates, np.nonzero(ok)[0]
 
 
 def candidate_rows(prim) -> np.ndarray | None:
     """Bake rows of the prim's retrace candidates (None when the rule would skip it)."""
-    got = _candidates(prim)
+    got = prim_candidates(prim)
     return None if isinstance(got, str) else got[5][got[6]]
 
 
 def _check(prim, opt: RetraceOptions) -> list:
     from usdahd.bake import integrate
     from usdahd.bake.texels import chart_ids
+    from usdahd.validate import replay
 
     def skipped(why):
         return [_finding(prim, "info", "Skipped", f"Retrace did not run: {why}")]
 
     path = str(prim.GetPath())
-    got = _candidates(prim)
+    got = prim_candidates(prim)
     if isinstance(got, str):
         return skipped(got)
-    bake, scene, tracer, mesh, texels, rows, candidates = got
+    bake, scene, tracer, mesh, texels, rows, candidates, _ = got
     res = bake.results
     w, h = res.resolution
     seed = retrace_seed(opt.seed, path)
@@ -552,7 +494,7 @@ def _check(prim, opt: RetraceOptions) -> list:
     charts = chart_ids(mesh)[texels.triangle]
     interior = interior_mask(texels.xy, charts, (w, h))[pick]
     sub = texels.take(pick)
-    baked = _baked_iz(bake, rows[pick])
+    baked = baked_iz(bake, rows[pick])
     settings = res.settings or {}
     bake_samples = int(settings.get("samples") or 256)
     k, s = batch_plan(texel_samples(len(pick), opt), bake_samples, opt)
@@ -560,6 +502,9 @@ def _check(prim, opt: RetraceOptions) -> list:
     if opt.progress:
         opt.progress(f"retrace {path}: {len(pick)} texels x {k * s} samples ({k} batches)")
     dark = tracer is None
+    # the bake's own random stream replayed (exact: the bake's noise cancels; usdahd.validate.
+    # replay), then the independent retrace (the physics, whatever the bake's settings were)
+    rp = "nothing emits light" if dark else replay.run(path, got, opt)
     if dark:  # nothing emits: the exact answer is 0
         batches = np.zeros((k, len(pick), 3))
         backface = np.zeros(len(pick))
@@ -581,7 +526,7 @@ def _check(prim, opt: RetraceOptions) -> list:
         inside = np.zeros(len(pick), bool)
     else:  # the baker's rule (it filled these from neighbours)
         offsets = tracer.texel_offsets(sub, mesh)
-        inside = integrate.inside_geometry(tracer, sub, offsets, backface, _backface_threshold())
+        inside = integrate.inside_geometry(tracer, sub, offsets, backface, backface_threshold())
     finite = np.isfinite(baked).all(axis=1) & np.isfinite(batches).all(axis=(0, 2))
     use = ~inside & finite
     n = int(use.sum())
@@ -610,12 +555,15 @@ def _check(prim, opt: RetraceOptions) -> list:
         texel_mask=interior[use],
         adaptive_tol=adaptive,
         denoised=denoised,
+        mean_alpha=None if isinstance(rp, str) else replay.REPLAY_ALPHA * float(opt.alpha),
     )
     xy = sub.xy[use]
+    base.update(replay.data(rp))
+    st["replay"] = rp
     return _report(prim, st, xy, baked[use], base, settings, opt, denoised, dark)
 
 
-def _backface_threshold() -> float:
+def backface_threshold() -> float:
     """The baker's inside-geometry threshold (bake_texels' default, which the pipeline uses)."""
     from usdahd.bake import integrate
 
@@ -623,6 +571,8 @@ def _backface_threshold() -> float:
 
 
 def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
+    from usdahd.validate import replay
+
     if dark:  # nothing emits light: the exact answer is 0 (the baker traces nothing either)
         top = float(np.abs(baked).max())
         if top > 0:
@@ -699,6 +649,18 @@ def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
                 **data,
             )
         )
+    rp = st.get("replay")
+    if isinstance(rp, dict) and rp["fail"].any():
+        out.append(
+            _finding(
+                prim,
+                "error",
+                "RetraceMismatch",
+                replay.message(rp, CHANNELS, opt.margin, replay.REPLAY_ALPHA * opt.alpha),
+                "check Staleness, re-bake the prim",
+                **data,
+            )
+        )
     fail = st["texel_fail"]
     if fail.any():
         exc = st["texel_excess"]
@@ -731,6 +693,16 @@ def _report(prim, st, xy, baked, base, settings, opt, denoised, dark) -> list:
         note = "" if not denoised else "; denoised bake (per-texel bound widened)"
         if len(chans) < 3:
             note += f"; channels tested: {', '.join(chans) or 'none'}"
+        if isinstance(rp, dict):
+            note += "; its own random stream replayed at {} of {} texels: {}".format(
+                rp["texels"],
+                rp["population"],
+                ", ".join(
+                    f"{c} {rp['ratio'][j]:.4f}" for j, c in enumerate(CHANNELS) if rp["tested"][j]
+                ),
+            )
+        elif rp:
+            note += f"; not replayed: {rp}"
         out.append(_finding(prim, "info", "RetraceOk", head + note, **data))
     return out
 
@@ -765,7 +737,7 @@ def _recorded(prim) -> list:
                 "report this as a usdahd bug (with the stage) and check the prim by hand",
             )
         ]
-    with V._LOCK:
+    with V.LOCK:
         for f in found:
             V.FINDING_DATA[(f.rule, f.prim, f.code, f.message)] = f.data
     return found

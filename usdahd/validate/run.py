@@ -26,6 +26,8 @@ from usdahd.validate.registry import (
     validator_name,
 )
 
+__all__ = ["validate_file"]
+
 #: The built-in validator that walks every layer a stage depends on, unselected variants
 #: included, and raises (pxr's Tf.ErrorException: no findings at all) on one that does not
 #: parse; validate_stage then runs without it (the Composition rule names that layer).

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from usdahd import models
 from usdahd.usd import inspect, schema
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
+
+__all__ = ["check_schema_values"]
 
 # ----------------------------------------------------------------------- rule 1: SchemaValues
 
 
 def check_schema_values(prim) -> list[Finding]:
     """Rule SchemaValues (see RULES)."""
-    r = _Rule("SchemaValues", prim)
+    r = RuleFindings("SchemaValues", prim)
     defn = inspect.api_definition()
     ns = schema.NAMESPACE + ":"
     version_attr = prim.GetAttribute(schema.property_name("baked:formatVersion"))

@@ -9,8 +9,10 @@ import numpy as np
 
 from usdahd import models
 from usdahd.usd import inspect, schema
-from usdahd.validate.findings import Finding, _Rule
-from usdahd.validate.loading import _LOCK, baked_record
+from usdahd.validate.findings import Finding, RuleFindings
+from usdahd.validate.loading import LOCK, baked_record
+
+__all__ = ["check_staleness", "settings_drift"]
 
 # -------------------------------------------------------------------------- rule 6: Staleness
 
@@ -39,7 +41,7 @@ class _SceneCache:
 
         key = self.key(stage, uv_name, time)
         if key is not None:
-            with _LOCK:
+            with LOCK:
                 if key in self._data:
                     self._data.move_to_end(key)
                     return self._data[key]
@@ -47,7 +49,7 @@ class _SceneCache:
 
         parts = scene_hash_parts(load_scene(stage, uv_name=uv_name, time=time))
         if key is not None:
-            with _LOCK:
+            with LOCK:
                 self._data[key] = parts
                 while len(self._data) > 8:
                     self._data.popitem(last=False)
@@ -59,18 +61,18 @@ class _SceneCache:
 
         key = self.key(stage, "", "auto-time")
         if key is not None:
-            with _LOCK:
+            with LOCK:
                 if key in self._data:
                     return self._data[key]
         t, _ = resolve_time(stage, None)
         now = "default" if t.IsDefault() else float(t.GetValue())
         if key is not None:
-            with _LOCK:
+            with LOCK:
                 self._data[key] = now
         return now
 
     def clear(self):
-        with _LOCK:
+        with LOCK:
             self._data.clear()
 
 
@@ -119,7 +121,7 @@ def settings_drift(prim, settings: dict) -> list[str]:
 
 def check_staleness(prim) -> list[Finding]:
     """Rule Staleness (see RULES)."""
-    r = _Rule("Staleness", prim)
+    r = RuleFindings("Staleness", prim)
     results = baked_record(prim)
     if results is None:
         return r.out

@@ -5,20 +5,22 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.usd import schema
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import Bake, load_for, read_image, record_image
 from usdahd.validate.options import DZ_FLOOR, IRRADZ, NONNEGATIVE_COLOURS, UNIT_TOLERANCE
+
+__all__ = ["check_texel_values", "texel_xy"]
 
 # ------------------------------------------------------------------------ rule 3: TexelValues
 
 
-def _texel(bake: Bake, i: int) -> tuple[int, int]:
+def texel_xy(bake: Bake, i: int) -> tuple[int, int]:
     return int(bake.xy[i, 0]), int(bake.xy[i, 1])
 
 
 def check_texel_values(prim) -> list[Finding]:
     """Rule TexelValues (see RULES)."""
-    r = _Rule("TexelValues", prim)
+    r = RuleFindings("TexelValues", prim)
     bake = load_for(r, prim)
     if bake is None:
         return r.out
@@ -43,7 +45,7 @@ def check_texel_values(prim) -> list[Finding]:
     def report(code, mask, what, fix="re-bake the prim", **data):
         if mask.any():
             i = int(np.argmax(mask))
-            x, y = _texel(bake, i)
+            x, y = texel_xy(bake, i)
             r.error(
                 code,
                 f"{int(mask.sum())} texel(s) {what}, first at texel ({x}, {y})",

@@ -7,11 +7,13 @@ import os
 
 import numpy as np
 
-from usdahd import models
+from usdahd import models, sidecar
 from usdahd.usd import inspect, schema
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record, file_digest, image_info
 from usdahd.validate.options import OIIO_FORMATS
+
+__all__ = ["check_textures"]
 
 # --------------------------------------------------------------------------- rule 2: Textures
 
@@ -29,7 +31,7 @@ def check_textures(prim) -> list[Finding]:
     """Rule Textures (see RULES)."""
     from usdahd.usd import assets
 
-    r = _Rule("Textures", prim)
+    r = RuleFindings("Textures", prim)
     results = baked_record(prim)  # None: SchemaValues reports it
     if results is None or results.format_version not in schema.KNOWN_FORMAT_VERSIONS:
         return r.out  # SchemaValues reports the version (RebakeNeeded / UnknownVersion)
@@ -122,7 +124,7 @@ def check_textures(prim) -> list[Finding]:
                     property=prop,
                 )
             if role == schema.SIDECAR_ROLE:
-                missing_ch = [c for c in schema.SH_SIDECAR_CHANNELS if c not in img.channel_names]
+                missing_ch = [c for c in sidecar.CHANNELS if c not in img.channel_names]
                 if missing_ch:
                     r.error(
                         "Channels",

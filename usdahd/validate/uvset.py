@@ -7,10 +7,13 @@ import math
 import numpy as np
 
 from usdahd.numerics.raster import coverage, fan_triangulate
+from usdahd.numerics.triangles import triangle_areas
 from usdahd.usd import inspect
-from usdahd.validate.findings import Finding, _Rule
+from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record
 from usdahd.validate.options import OPTIONS
+
+__all__ = ["check_uv_set", "overlap_statistic"]
 
 # ------------------------------------------------------------------------------ rule 7: UVSet
 
@@ -31,7 +34,7 @@ def overlap_statistic(uv: np.ndarray, resolution) -> tuple[int, int, np.ndarray]
 
 def check_uv_set(prim) -> list[Finding]:
     """Rule UVSet (see RULES)."""
-    r = _Rule("UVSet", prim)
+    r = RuleFindings("UVSet", prim)
     results = baked_record(prim)
     if results is None or not results.uv_primvar:
         return r.out
@@ -91,7 +94,7 @@ def check_uv_set(prim) -> list[Finding]:
         m = inspect.local_to_world(prim)
         wp = pts @ m[:3, :3].T + m[:3, 3]
         tri = wp[fvi[fan_triangulate(counts)[1]]]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        area = triangle_areas(tri)
         w, h = results.resolution
         e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
         uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h

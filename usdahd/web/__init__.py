@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+__all__ = ["main"]
+
 #: The directory holding the importer.
 ROOT = Path(__file__).resolve().parent
 #: The importer (an ES module).

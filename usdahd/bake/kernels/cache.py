@@ -13,6 +13,8 @@ import os
 
 from numba.core import caching as _caching
 
+__all__ = ["helper"]
+
 #: Modules whose numba functions are compiled into one another (the bake kernel: numba links
 #: every callee's code into its caller's library, where LLVM inlines the small ones).
 #: numba's on-disk cache only checks the source file of the cached function itself, so an

@@ -27,6 +27,20 @@ import os
 
 import numpy as np
 
+__all__ = [
+    "NativeScene",
+    "available",
+    "hit_normal",
+    "intersect1",
+    "intersect_batch",
+    "intersect_rays",
+    "new_packet",
+    "new_scratch",
+    "occluded1",
+    "occluded_batch",
+    "occluded_rays",
+]
+
 #: Floats of the per-thread RTCRayHit scratch record (96 bytes used; 128 for alignment room).
 RAYHIT_FLOATS = 32
 #: Rays per packet query (``rtcIntersect16`` / ``rtcOccluded16``; measured faster than 8-wide

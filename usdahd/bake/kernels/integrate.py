@@ -1,5 +1,5 @@
 """The numba integrator: the estimator of :class:`usdahd.bake.reference.ReferenceCtx` per texel,
-tracing through libembree4 from numba (backend "native", driven by ``integrate._NativeCtx``).
+tracing through libembree4 from numba (backend "native", driven by ``integrate.NativeCtx``).
 
 Entry points: :func:`native_pass` (one pass of samples for a set of texels, on one thread),
 :func:`native_result` (the per-texel SH solve, twin of ``reference.Accum.result``) and
@@ -60,6 +60,8 @@ from usdahd.bake.kernels.shading import (
 from usdahd.bake.kernels.trace import nb_offset, nb_random, nb_trace_rays
 from usdahd.bake.reference import ALL_LIGHTS_MAX, G_HEMI, LIGHT_SHIFT
 from usdahd.numerics import sh as shmod
+
+__all__ = ["native_pass", "native_result", "native_work"]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

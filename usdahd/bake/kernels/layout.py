@@ -33,6 +33,35 @@ import numpy as np
 
 from usdahd.scene import lights as _scene_lights
 
+__all__ = [
+    "AccumArrays",
+    "CFG_LEN",
+    "CONFIG",
+    "EmbreeHit",
+    "GRAM_SUMS",
+    "LIGHT_KINDS",
+    "LIGHT_PARAMS",
+    "LightArrays",
+    "LightLists",
+    "LightSample",
+    "MAT_ALBEDO",
+    "MAT_EMISSION",
+    "MAT_OPACITY",
+    "MAT_THRESHOLD",
+    "MODE_BSDF",
+    "MODE_MIS",
+    "MODE_NEE",
+    "N_PAR",
+    "NativeTables",
+    "NativeWork",
+    "PassPoints",
+    "TEX_ALBEDO",
+    "TEX_EMISSION",
+    "TEX_OPACITY",
+    "TexelArrays",
+    "TraceHit",
+]
+
 
 # ----------------------------------------------------------------------------- declarations
 @dataclass(frozen=True)
@@ -406,4 +435,12 @@ NativeWork = array_record(
         ("yl", ("s",), np.float64, "light-sample luminance Iz per sample"),
     ],
     "Per-thread scratch arrays of the native pass.",
+)
+
+
+# The slot constants generated above (KIND_*, PAR_*, CFG_*, PATH_*, RAY_*, HIT_*, SVAL_*, GRAM_*).
+__all__ += sorted(
+    {"KIND_" + cls.KIND.upper() for cls in LIGHT_KINDS}.union(
+        *(row.constants() for row in (LIGHT_PARAMS, CONFIG, PATH, RAY, HIT, SVAL, GRAM))
+    )
 )

@@ -60,6 +60,16 @@ from usdahd.bake.kernels.layout import (
 from usdahd.numerics.sampling import SPHERICAL_RECT_MAX_SR, SPHERICAL_RECT_MIN_SR
 from usdahd.scene.lights import FALLOFF_CONSTANT, FALLOFF_FRONT
 
+__all__ = [
+    "light_importance",
+    "light_intersect",
+    "light_pdf",
+    "light_sample",
+    "nb_basis_apply",
+    "pack_lights",
+    "search_right",
+]
+
 # ----------------------------------------------------------------------------- native tables
 # The same lights as flat arrays for the numba integrator (usdahd.bake.integrate), one scalar
 # routine per operation below mirroring the numpy methods of usdahd.scene.lights line by line.

@@ -71,6 +71,8 @@ from usdahd.bake.kernels.trace import (
 )
 from usdahd.bake.reference import RR_DEPTH
 
+__all__ = ["trace_paths"]
+
 
 @helper
 def trace_paths(scene, tb, lt, lists, cfg, n, work):

@@ -39,6 +39,21 @@ from usdahd.bake.kernels.trace import (
 )
 from usdahd.bake.reference import LIGHT_SELECTION_FLOOR, LINK_MAX_CROSSINGS, SHADOW_SHORTEN
 
+__all__ = [
+    "link_occluded",
+    "lit",
+    "nee_pick",
+    "nee_sample",
+    "put3",
+    "put_ray",
+    "ray_sel",
+    "shadow1",
+    "shadow_rays",
+    "visibility",
+    "w_bsdf",
+    "w_light",
+]
+
 
 @helper
 def nee_sample(kind, p, img, pmf, cdf, tb, x, y, z, u0, u1):

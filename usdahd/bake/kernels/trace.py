@@ -36,6 +36,20 @@ from usdahd.bake.kernels.layout import (
 from usdahd.bake.trace import MAX_TRANSMIT
 from usdahd.numerics.offsets import FLT_EPS, OFFSET_ULPS
 
+__all__ = [
+    "OFFSET_PER_UNIT",
+    "nb_albedo",
+    "nb_emission",
+    "nb_hit_point",
+    "nb_offset",
+    "nb_random",
+    "nb_shading_normal",
+    "nb_trace",
+    "nb_trace_rays",
+    "nb_transmittance",
+    "nb_transmittance_rays",
+]
+
 # ----------------------------------------------------------------------------- numba side
 # Scalar per-ray versions of the methods above for the fused integrator kernel; ``tb`` is the
 # NativeTables returned by ``Tracer.native_tables()``, ``st`` a (1,) uint64 random state.

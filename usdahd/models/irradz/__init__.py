@@ -47,12 +47,12 @@ from __future__ import annotations
 
 from usdahd.models.irradz.codec import HLSH_RATIO_SCALE_MAX, decode, encode, layout
 from usdahd.models.irradz.kernel import (  # noqa: F401  (tests reach the kernels here)
-    _BLK_ROWS,
-    _BLOCK,
-    _dir_error,
-    _line_coeffs,
-    _line_error,
+    BLK_ROWS,
+    BLOCK,
+    dir_error,
     fit,
+    line_coeffs,
+    line_error,
 )
 from usdahd.models.irradz.reference import (  # noqa: F401  (public constants and formulas)
     AMB_AHD,
@@ -69,14 +69,12 @@ from usdahd.models.irradz.reference import (  # noqa: F401  (public constants an
     KINDS,
     SOLVERS,
     WA_ONE,
-    _expand,
-    _self_bounce,
-    _sparse_gram,
     ambient_sh,
     c_bounded,
     colors,
     directional_sh,
     evaluate,
+    expand,
     gram_hemi,
     hhd_direct_linear,
     hlsh_direct,
@@ -85,9 +83,12 @@ from usdahd.models.irradz.reference import (  # noqa: F401  (public constants an
     nullspace_bounds,
     nullspace_colors,
     sh_error,
+    sparse_gram,
     wa_bounded,
     wa_literal,
 )
+
+__all__ = ["RATIO_RANGE", "SOLVERS", "colors", "expand", "fit"]
 
 #: The ambient ratio range w_a of each model: [0, 1], except HLSH whose stored w_a is
 #: clamped to +-HLSH_RATIO_SCALE_MAX (usdahd.validate's RatioRange).

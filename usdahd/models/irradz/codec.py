@@ -12,6 +12,8 @@ from usdahd.errors import InputError
 from usdahd.models.base import RESERVED_CODE, TextureLayout, rgb_layout
 from usdahd.numerics import encoding
 
+__all__ = ["HLSH_RATIO_SCALE_MAX", "decode", "encode", "layout"]
+
 
 def layout(kind: str, ratio: str) -> list[TextureLayout]:
     """Textures of an IrradZ model (format version 2).

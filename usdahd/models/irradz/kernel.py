@@ -28,12 +28,14 @@ from usdahd.models.irradz.reference import (
     SOLVERS,
     SQRT_PI,
     WA_ONE,
-    _sparse_gram,
     ambient_sh,
     gram_hemi,
+    sparse_gram,
 )
 from usdahd.numerics import encoding, numba_cache
 from usdahd.numerics import sh as shm
+
+__all__ = ["BLK_ROWS", "BLOCK", "dir_error", "fit", "line_coeffs", "line_error"]
 
 # ---------------------------------------------------------------------------------------------
 # numba kernels. The directional light of colour C_d in direction d has irradiance SH
@@ -52,7 +54,7 @@ _PK22 = np.pi * 0.25 * shm.C22
 
 
 @njit(cache=True, fastmath=False)
-def _dir_error(dx, dy, dz, gt, e0, iz, nc, amb, gd, go, constrain, u, cd):
+def dir_error(dx, dy, dz, gt, e0, iz, nc, amb, gd, go, constrain, u, cd):
     """Error of the best colours for direction d; writes C_d per channel into cd."""
     u[0] = _PK0 - dz * amb[0]
     u[1] = -_PK1 * dy - dz * amb[1]
@@ -86,14 +88,14 @@ def _dir_error(dx, dy, dz, gt, e0, iz, nc, amb, gd, go, constrain, u, cd):
 
 
 @njit(cache=True, fastmath=False)
-def _line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, j, blk):
+def line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, j, blk):
     """Store texel j's error along the azimuth (cos, sin) = (cph, sph) into the block ``blk``.
 
     With d = (s cph, s sph, z), s = sqrt(1 - z^2), and an ambient term nonzero only in
     coefficients 0 and 2 (AMB_AHD, AMB_HHD), every u_k is a combination of 1, z, z^2, s, s z,
     so  p_c(z) = R[c] . (1, z, z^2, s, s z)  and, with s^2 = 1 - z^2 and the sparse Gram,
     q(z) = u^T G u = sum_k Q[k] z^k (degree 4, no s term). blk rows: R (15: c * 5 + k),
-    Q (5), e0 (3), I_z (3); see _BLK_*. Checked against :func:`_dir_error` in the tests.
+    Q (5), e0 (3), I_z (3); see _BLK_*. Checked against :func:`dir_error` in the tests.
     """
     a0 = amb[0]
     b = _PK1 - amb[2]
@@ -126,9 +128,9 @@ def _line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, j, blk):
 
 
 @njit(cache=True, fastmath=False)
-def _line_error(z, j, blk, nc, cdb, write):
-    """:func:`_dir_error` (constrained) of block texel j at d_z = z along its azimuth, from the
-    coefficients of :func:`_line_coeffs`; writes C_d into cdb[:, j] if ``write``."""
+def line_error(z, j, blk, nc, cdb, write):
+    """:func:`dir_error` (constrained) of block texel j at d_z = z along its azimuth, from the
+    coefficients of :func:`line_coeffs`; writes C_d into cdb[:, j] if ``write``."""
     s = np.sqrt(max(0.0, 1.0 - z * z))
     q = _BLK_Q
     qz = blk[q, j] + z * (
@@ -169,7 +171,7 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
     for k in range(n_scan):
         z = lo + step * k
         for j in range(m):
-            e = _line_error(z, j, blk, nc, cdb, False)
+            e = line_error(z, j, blk, nc, cdb, False)
             fs[k, j] = e
             better = e < wk[_WK_E, j]
             wk[_WK_E, j] = e if better else wk[_WK_E, j]
@@ -188,8 +190,8 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
         wk[_WK_FB, j] = fs[jc, j]
         wk[_WK_X1, j] = b - g * (b - a)
         wk[_WK_X2, j] = a + g * (b - a)
-        wk[_WK_F1, j] = _line_error(wk[_WK_X1, j], j, blk, nc, cdb, False)
-        wk[_WK_F2, j] = _line_error(wk[_WK_X2, j], j, blk, nc, cdb, False)
+        wk[_WK_F1, j] = line_error(wk[_WK_X1, j], j, blk, nc, cdb, False)
+        wk[_WK_F2, j] = line_error(wk[_WK_X2, j], j, blk, nc, cdb, False)
     for _ in range(GOLDEN_ITERS):
         for j in range(m):
             a = wk[_WK_A, j]
@@ -202,7 +204,7 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
             na = a if left else x1
             nb = x2 if left else b
             xn = nb - g * (nb - na) if left else na + g * (nb - na)
-            fn = _line_error(xn, j, blk, nc, cdb, False)
+            fn = line_error(xn, j, blk, nc, cdb, False)
             wk[_WK_FA, j] = wk[_WK_FA, j] if left else f1
             wk[_WK_FB, j] = f2 if left else wk[_WK_FB, j]
             wk[_WK_A, j] = na
@@ -228,7 +230,7 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
         den = g2 - g1
         u = xm - 0.5 * (d1 * g2 - d2 * g1) / den if den != 0.0 else xm
         u = u if (u > xl and u < xr) else xm  # also rejects NaN
-        fu = _line_error(u, j, blk, nc, cdb, False)
+        fu = line_error(u, j, blk, nc, cdb, False)
         best = fu < fm
         zb = u if best else xm
         eb = fu if best else fm
@@ -236,14 +238,14 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
         wk[_WK_Z, j] = wk[_WK_Z, j] if scan else zb
         wk[_WK_E, j] = wk[_WK_E, j] if scan else eb
     for j in range(m):
-        _line_error(wk[_WK_Z, j], j, blk, nc, cdb, True)
+        line_error(wk[_WK_Z, j], j, blk, nc, cdb, True)
 
 
 @njit(cache=True, fastmath=False)
 def _search_dz(cph, sph, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cd_best):
     """The block search for one texel (slot 0) along (cph, sph): returns (d_z, error), C_d in
     cd_best. Same code path as the block, so golden_phi starts from golden's exact result."""
-    _line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, 0, blk)
+    line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, 0, blk)
     _search_block(1, DZ_FLOOR, blk, nc, wk, fs, cdb)
     for c in range(nc):
         cd_best[c] = cdb[c, 0]
@@ -264,12 +266,12 @@ _LUM_R, _LUM_G, _LUM_B = (float(v) for v in shm.LUMINANCE)
 #: Texels per parallel chunk (each chunk allocates its work arrays once).
 _CHUNK = 512
 #: Texels per lockstep d_z search block (its work arrays stay in L1).
-_BLOCK = 64
+BLOCK = 64
 #: Rows of the block coefficient array: R (3 x 5), Q (5), e0 (3), I_z (3).
 _BLK_Q = 15
 _BLK_E0 = 20
 _BLK_IZ = 23
-_BLK_ROWS = 26
+BLK_ROWS = 26
 #: Rows of the block search work array.
 _WK_Z, _WK_E, _WK_J, _WK_A, _WK_B, _WK_FA, _WK_FB, _WK_X1, _WK_X2, _WK_F1, _WK_F2 = range(11)
 _WK_ROWS = 11
@@ -466,19 +468,19 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
         wa = np.empty(3)
         lr = np.empty(9)
         d = np.empty(3)
-        blk = np.empty((_BLK_ROWS, _BLOCK))
-        wk = np.empty((_WK_ROWS, _BLOCK))
-        fs = np.empty((GOLDEN_SCAN, _BLOCK))
-        cdbk = np.empty((3, _BLOCK))
-        bidx = np.empty(_BLOCK, np.int64)
-        bdir = np.empty((2, _BLOCK))
-        bsiz = np.empty((3, _BLOCK))
+        blk = np.empty((BLK_ROWS, BLOCK))
+        wk = np.empty((_WK_ROWS, BLOCK))
+        fs = np.empty((GOLDEN_SCAN, BLOCK))
+        cdbk = np.empty((3, BLOCK))
+        bidx = np.empty(BLOCK, np.int64)
+        bdir = np.empty((2, BLOCK))
+        bsiz = np.empty((3, BLOCK))
         nb = 0
         i1 = min(n, (ch + 1) * _CHUNK)
         for i in range(ch * _CHUNK, i1 + 1):
             # -- a full block of deferred golden searches (or the chunk's rest): search them in
             # lockstep. One call site, so the search is compiled (inlined) once.
-            if nb == _BLOCK or (i == i1 and nb > 0):
+            if nb == BLOCK or (i == i1 and nb > 0):
                 _flush_block(
                     nb,
                     kind,
@@ -597,7 +599,7 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                     if solver == _GOLDEN:  # deferred to the lockstep block search
                         nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
                         cph, sph = (d[0] / nxy, d[1] / nxy) if nxy > 0.0 else (1.0, 0.0)
-                        _line_coeffs(cph, sph, gt, e0, siz, nc, amb, gd, go, nb, blk)
+                        line_coeffs(cph, sph, gt, e0, siz, nc, amb, gd, go, nb, blk)
                         bidx[nb] = i
                         bdir[0, nb] = cph
                         bdir[1, nb] = sph
@@ -616,7 +618,7 @@ def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa
                         d[2] = bz
                         _floor_dir(d)
                     else:
-                        _dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
+                        dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
                     if not deferred:
                         _finish(i, kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
                 else:
@@ -674,7 +676,7 @@ def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **op
     out_wa = np.empty((n, nc), np.float32)
     out_bad = np.empty(n, np.float32)
     gram = np.eye(9) if solver == "2018_sphere" else gram_hemi()
-    gd, go = _sparse_gram(gram)
+    gd, go = sparse_gram(gram)
     code = {"golden": _GOLDEN, "golden_phi": _GOLDEN_PHI, "direct": _DIRECT}.get(solver, _FIXED)
     if n:
         _fit_kernel(

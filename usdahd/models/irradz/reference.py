@@ -11,6 +11,48 @@ import numpy as np
 
 from usdahd.numerics import encoding
 from usdahd.numerics import sh as shm
+from usdahd.numerics.hemi import self_bounce
+
+__all__ = [
+    "AMB_AHD",
+    "AMB_HHD",
+    "B_Z",
+    "DZ_FLOOR",
+    "GOLDEN_ITERS",
+    "GOLDEN_SCAN",
+    "GRAM_I",
+    "GRAM_J",
+    "GRAM_PAIRS",
+    "G_BY",
+    "G_B_SCALE",
+    "IZ_FROM_L10",
+    "IZ_MAX",
+    "IZ_TINY",
+    "KINDS",
+    "PHI_HALF_WIDTH",
+    "PHI_ITERS",
+    "PHI_SCAN",
+    "SOLVERS",
+    "SQRT_PI",
+    "WA_ONE",
+    "ambient_sh",
+    "c_bounded",
+    "colors",
+    "directional_sh",
+    "evaluate",
+    "expand",
+    "gram_hemi",
+    "hhd_direct_linear",
+    "hlsh_direct",
+    "linear_sh",
+    "model_sh",
+    "nullspace_bounds",
+    "nullspace_colors",
+    "sh_error",
+    "sparse_gram",
+    "wa_bounded",
+    "wa_literal",
+]
 
 # ---------------------------------------------------------------------------------------------
 # Tolerances, in one place, with the reason for each.
@@ -87,7 +129,7 @@ def gram_hemi() -> np.ndarray:
     return shm.HEMISPHERICAL_GRAM
 
 
-def _sparse_gram(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sparse_gram(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(diag (9,), off (4,)) for the GRAM_PAIRS structure; identity -> (ones, zeros)."""
     return np.ascontiguousarray(np.diag(g)), np.array([g[i, j] for i, j in GRAM_PAIRS])
 
@@ -230,7 +272,7 @@ def hlsh_direct(t, iz):
 # Evaluate, layout, encode, decode.
 
 
-def _expand(p, ndim):
+def expand(p, ndim):
     """Append axes before the last one so the parameter's leading shape is a *prefix* of the
     normals' leading shape (one texel, many normals), then numpy-broadcast."""
     while p.ndim < ndim:
@@ -248,7 +290,7 @@ def evaluate(kind: str, params: dict, normals, *, albedo=None) -> np.ndarray:
     n = np.asarray(normals, dtype=np.float64)
     ca, cd, d = colors(params)
     nd = max(n.ndim, ca.ndim)
-    ca, cd, d = (_expand(x, nd) for x in (ca, cd, d))
+    ca, cd, d = (expand(x, nd) for x in (ca, cd, d))
     # n . d summed term by term in the order np.sum uses for 3 terms (bit-identical), without
     # the (..., 3) product array: 35-40 % faster for validate's 64 normals per texel.
     ndotd = n[..., 0:1] * d[..., 0:1] + n[..., 1:2] * d[..., 1:2] + n[..., 2:3] * d[..., 2:3]
@@ -259,16 +301,5 @@ def evaluate(kind: str, params: dict, normals, *, albedo=None) -> np.ndarray:
     else:
         out = ca + np.maximum(ndotd, 0.0) * cd
     if albedo is not None:
-        out = out + _self_bounce(_expand(np.asarray(params["iz"]), nd), n, albedo)
+        out = out + self_bounce(expand(np.asarray(params["iz"]), nd), n, albedo)
     return out.astype(np.float32)
-
-
-def _self_bounce(iz, normals, albedo):
-    try:
-        from usdahd.numerics.hemi import self_bounce
-    except ImportError:
-        raise NotImplementedError(
-            "self-bounce (2024 App. A) needs usdahd.numerics.hemi.self_bounce, which is not "
-            "available yet; evaluate without albedo"
-        ) from None
-    return self_bounce(iz, normals, albedo)

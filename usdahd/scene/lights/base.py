@@ -14,6 +14,21 @@ from usdahd.numerics.sampling import (
 )
 from usdahd.numerics.sh import LUMINANCE
 
+__all__ = [
+    "Bound",
+    "FALLOFF_CONSTANT",
+    "FALLOFF_FRONT",
+    "FALLOFF_ISOTROPIC",
+    "Light",
+    "LightHits",
+    "LightSamples",
+    "TWO_PI",
+    "cone_dirs",
+    "lum",
+    "norm",
+    "selection_pmf",
+]
+
 TWO_PI = 2.0 * np.pi
 
 

@@ -18,6 +18,8 @@ from usdahd.scene.lights.base import (
     norm,
 )
 
+__all__ = ["CylinderLight"]
+
 
 @dataclass
 class CylinderLight(Light):

@@ -17,6 +17,8 @@ from usdahd.scene.lights.base import (
     lum,
 )
 
+__all__ = ["DistantLight"]
+
 
 @dataclass
 class DistantLight(Light):

@@ -19,6 +19,8 @@ from usdahd.scene.lights.base import (
     norm,
 )
 
+__all__ = ["DomeLight"]
+
 
 @dataclass
 class DomeLight(Light):

@@ -8,7 +8,10 @@ import numpy as np
 
 from usdahd.numerics.sampling import sample_discrete
 from usdahd.numerics.sh import LUMINANCE
+from usdahd.numerics.triangles import edge_cross
 from usdahd.scene.lights.base import FALLOFF_ISOTROPIC, Bound, Light, LightHits, LightSamples, norm
+
+__all__ = ["EmissiveTriangles"]
 
 
 @dataclass
@@ -61,7 +64,7 @@ class EmissiveTriangles(Light):
         if len(tri) == 0:
             return None
         v = tracer.verts[tri].astype(np.float64)
-        cr = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        cr = edge_cross(v)
         area = 0.5 * norm(cr)
         keep = area > 0
         tri, v, cr, area = tri[keep], v[keep], cr[keep], area[keep]

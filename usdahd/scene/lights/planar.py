@@ -14,6 +14,8 @@ from usdahd.numerics.sampling import (
 )
 from usdahd.scene.lights.base import FALLOFF_FRONT, Bound, Light, LightHits, LightSamples, lum, norm
 
+__all__ = ["DiskLight", "PlanarLight", "RectLight"]
+
 
 @dataclass
 class PlanarLight(Light):

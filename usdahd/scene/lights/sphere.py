@@ -18,6 +18,8 @@ from usdahd.scene.lights.base import (
     norm,
 )
 
+__all__ = ["PointLight", "SphereLight"]
+
 
 @dataclass
 class SphereLight(Light):

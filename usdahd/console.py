@@ -6,6 +6,8 @@ OpenImageIO are being imported is a KeyboardInterrupt inside :func:`main`'s ``tr
 traceback (issue 40). Once running, :func:`usdahd.cli.main` reports interrupts itself.
 """
 
+__all__ = ["main"]
+
 
 def main() -> int:
     try:

@@ -25,6 +25,25 @@ from usdahd.models.base import MAX_COEFFICIENT_TEXTURES, TextureLayout, rgb_layo
 from usdahd.numerics import encoding, hemi
 from usdahd.numerics import sh as shm
 
+__all__ = [
+    "CHANNELS",
+    "F32_MAX",
+    "apply_fit_matrix",
+    "coefficient_model",
+    "coefficient_role",
+    "coefficients_layout",
+    "decode_coefficients",
+    "encode_coefficients",
+    "expand",
+    "finish",
+    "gather_coefficients",
+    "hemisphere_fit_matrix",
+    "irradiance_sh",
+    "prepare",
+    "valid_flag",
+    "with_self_bounce",
+]
+
 #: Largest float32: fitted values are clipped to it (inputs near 1e200 would overflow).
 F32_MAX = float(np.finfo(np.float32).max)
 CHANNELS = ("R", "G", "B")

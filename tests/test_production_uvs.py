@@ -151,8 +151,9 @@ def test_narrow_chart_width_is_a_strips_width():
     assert narrow_chart_width(disc) == pytest.approx(0.3, rel=1e-3)
 
 
-def test_prop_cap_keeps_every_raised_map_within_the_budget():
-    assert prop_cap(1 << 20, 49) == PROP_MAX_RESOLUTION
+def test_prop_cap_keeps_every_raised_map_within_the_budget_left():
+    assert prop_cap((1 << 20) - 50_176, 49) == PROP_MAX_RESOLUTION  # the chess set
+    assert prop_cap(-3000, 79) == 0  # a plan already over the budget: no raise
     assert prop_cap(1 << 20, 1000) == 32  # sqrt(1048.576) = 32.4 -> 32
     for budget, prims in ((1 << 20, 1000), (300_000, 77), (4096, 3)):
         side = prop_cap(budget, prims)

@@ -190,11 +190,12 @@ CHART_MIN_TEXELS = 4
 PROP_MAX_RESOLUTION = 128
 
 
-def prop_cap(budget: int, prims: int) -> int:
+def prop_cap(headroom: int, prims: int) -> int:
     """The largest side (a multiple of RESOLUTION_MULTIPLE, at most PROP_MAX_RESOLUTION) a map
     on the automatic density may be raised to for its charts: even if every one of the
-    ``prims`` on it were raised that far, they would total at most ``budget`` texels."""
-    side = int(np.sqrt(max(int(budget), 0) / max(int(prims), 1)))
+    ``prims`` on it got a whole extra map that large, they would add at most ``headroom``
+    texels (the texel budget less the planned texels; 0 when the plan fills the budget)."""
+    side = int(np.sqrt(max(int(headroom), 0) / max(int(prims), 1)))
     side -= side % RESOLUTION_MULTIPLE
     return max(min(side, PROP_MAX_RESOLUTION), 0)
 

@@ -258,7 +258,8 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
     if auto_density is not None:
         from usdahd.pipeline.plan import prop_cap
 
-        prop_side = prop_cap(report["texel_density"]["budget"], report["texel_density"]["prims"])
+        td = report["texel_density"]  # raises share what the plan leaves of the budget
+        prop_side = prop_cap(td["budget"] - td["estimated_texels"], td["prims"])
     for i, mesh in enumerate(scene.meshes):
         if not mesh.bake:
             continue

@@ -166,6 +166,90 @@ def _uv_problem(texels) -> str | None:
     return None
 
 
+#: An authored UV set on the automatic density is unwrapped instead when more than this share
+#: of its covered texels lie next to a texel of another UV chart at the planned size: a texture
+#: UV layout packs charts edge to edge with no gutter, so a bilinear lookup there mixes two
+#: unrelated surfaces (a lit top and a dark underside) and charts a few texels wide are all
+#: border (docs/texels.md, "Texture UVs as lightmap UVs"). The samples' lightmap layouts, whose
+#: box faces are about a texel apart at their planned size, reach 16 % (validated against
+#: Cycles as they are); a chart 8 texels wide touching neighbours on both sides, 25 %.
+TOUCHING_LIMIT = 0.25
+#: A map raised for touching texels (TOUCHING_LIMIT) is doubled until at most this share of
+#: its texels touch another chart (or the prop cap is reached): the chess set's board and rooks
+#: still had 17 % at 64x64.
+TOUCHING_TARGET = 0.05
+#: Share of an authored UV set's area whose charts' width decides whether the set is too fine
+#: for its lightmap (:func:`narrow_chart_width`): the narrowest charts holding 10 % of it.
+NARROW_SHARE = 0.1
+#: Texels across (:func:`narrow_chart_width`) the narrow charts of an unwrapped map on the
+#: automatic density get at least: a chart narrower than this is mostly border texels, whose
+#: bilinear footprint reaches the gutter.
+CHART_MIN_TEXELS = 4
+#: Largest side the two rules above raise a map to (props: a chess piece, a teapot); the
+#: stage's texel budget lowers it (:func:`prop_cap`).
+PROP_MAX_RESOLUTION = 128
+
+
+def prop_cap(headroom: int, prims: int) -> int:
+    """The largest side (a multiple of RESOLUTION_MULTIPLE, at most PROP_MAX_RESOLUTION) a map
+    on the automatic density may be raised to for its charts: even if every one of the
+    ``prims`` on it got a whole extra map that large, they would add at most ``headroom``
+    texels (the texel budget less the planned texels; 0 when the plan fills the budget)."""
+    side = int(np.sqrt(max(int(headroom), 0) / max(int(prims), 1)))
+    side -= side % RESOLUTION_MULTIPLE
+    return max(min(side, PROP_MAX_RESOLUTION), 0)
+
+
+def narrow_chart_width(uv: np.ndarray, share: float = NARROW_SHARE) -> float:
+    """The width in UV units (2 x area / perimeter: a strip's width, a disc's radius) below which
+    the UV charts (texels.uv_charts) holding ``share`` of the UV set's area lie: the width of
+    its narrow charts, a lightmap of side N giving them N times this many texels across."""
+    from usdahd.bake.texels import uv_charts
+
+    uv = np.asarray(uv, np.float64)
+    if len(uv) == 0:
+        return 0.0
+    ch = uv_charts(uv).astype(np.int64)
+    k = int(ch.max()) + 1
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = np.bincount(ch, 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), k)
+    ends = np.stack([uv, uv[:, [1, 2, 0]]], axis=2).reshape(-1, 4)  # (3t, 2 endpoints x 2)
+    swap = (ends[:, 0] > ends[:, 2]) | ((ends[:, 0] == ends[:, 2]) & (ends[:, 1] > ends[:, 3]))
+    key = np.where(swap[:, None], ends[:, [2, 3, 0, 1]], ends)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    border = count[inv.ravel()] == 1  # an edge no other triangle of its chart shares
+    length = np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
+    perimeter = np.bincount(np.repeat(ch, 3)[border], length[border], k)
+    width = 2.0 * area / np.maximum(perimeter, 1e-300)
+    order = np.argsort(width, kind="stable")
+    cum = np.cumsum(area[order])
+    if cum[-1] <= 0:
+        return 0.0
+    return float(width[order][min(np.searchsorted(cum, share * cum[-1]), k - 1)])
+
+
+def touching_share(mesh, texels) -> float:
+    """The share of ``texels`` (rasterised through ``mesh.uv``) whose 3 x 3 neighbourhood, the
+    footprint of a bilinear lookup, holds a texel of another UV chart (texels.chart_ids)."""
+    from usdahd.bake.texels import chart_ids
+
+    n = len(texels)
+    if n == 0:
+        return 0.0
+    w, h = (int(r) for r in texels.resolution)
+    grid = np.full((h + 2, w + 2), -1, np.int64)
+    xy = np.asarray(texels.xy, np.int64)
+    ch = chart_ids(mesh)[np.asarray(texels.triangle, np.int64)].astype(np.int64)
+    grid[xy[:, 1] + 1, xy[:, 0] + 1] = ch
+    touch = np.zeros(n, bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx or dy:
+                other = grid[xy[:, 1] + 1 + dy, xy[:, 0] + 1 + dx]
+                touch |= (other >= 0) & (other != ch)
+    return float(touch.mean())
+
+
 def settings_resolution_given(job: PrimJob) -> bool:
     """Whether the resolution came from a flag or schema input rather than a texel density."""
     return job.settings.get("texel_density") is None
@@ -232,7 +316,7 @@ def _sized(n: int, settings: dict, job: PrimJob) -> int | None:
     )
 
 
-def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
+def _unwrap(job: PrimJob, mesh, settings, scene, prop_side: int = 0) -> None:
     from usdahd.bake.unwrap import CHART_PADDING, unwrap
 
     info: dict = {}
@@ -283,6 +367,8 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
                 mesh, resolution=DENSITY_MAX_RESOLUTION, padding=CHART_PADDING, info=info
             )
         uv, res = _pad_to_multiple(uv, res, int(settings.get("resolution_multiple") or 1))
+        if low > 1:
+            uv, res = _widen_charts(job, mesh, uv, res, prop_side, info)
     if info.get("split_polygons"):
         job.report.setdefault("notes", []).append(
             f"the unwrap's charts cut {info['split_polygons']} polygon(s); each is kept whole "
@@ -293,6 +379,33 @@ def _unwrap(job: PrimJob, mesh, settings, scene) -> None:
     job.unwrapped = True
     job.uv_primvar_values = uv
     job.resolution = tuple(int(r) for r in res)
+
+
+def _widen_charts(job: PrimJob, mesh, uv, res, prop_side: int, info: dict):
+    """An unwrap on the automatic density whose narrow charts (:func:`narrow_chart_width`) are
+    less than CHART_MIN_TEXELS texels across, unwrapped again into the square map (at most
+    ``prop_side``) where they are, with a note; else ``(uv, res)`` unchanged."""
+    from usdahd.bake.unwrap import CHART_PADDING, unwrap
+
+    scale = np.asarray(res, np.float64)
+    width = narrow_chart_width(np.asarray(uv, np.float64) * scale)
+    side = max(int(r) for r in res)
+    if width >= CHART_MIN_TEXELS or side >= prop_side:
+        return uv, res
+    want = int(np.ceil(side * CHART_MIN_TEXELS / max(width, 1e-9)))
+    want = min(_round_up(want, RESOLUTION_MULTIPLE), int(prop_side))
+    try:
+        new_uv, new_res = unwrap(mesh, resolution=want, padding=CHART_PADDING, info=info)
+    except BakeError:
+        return uv, res
+    got = narrow_chart_width(np.asarray(new_uv, np.float64) * np.asarray(new_res, np.float64))
+    job.report.setdefault("notes", []).append(
+        f"the unwrap's narrowest charts (those holding {100 * NARROW_SHARE:.0f}% of its area) "
+        f"were {width:.1f} texels across at {res[0]}x{res[1]}; unwrapped into "
+        f"{new_res[0]}x{new_res[1]} instead ({got:.1f} texels; at least {CHART_MIN_TEXELS} "
+        f"wanted, maps raised to at most {prop_side}x{prop_side} within the texel budget)"
+    )
+    return new_uv, tuple(int(r) for r in new_res)
 
 
 class _Small(Exception):
@@ -399,9 +512,11 @@ def plan_job(
     prev=None,
     old_layer=None,
     auto_density: float | None = None,
+    prop_side: int = 0,
 ) -> PrimJob:
     """Resolve a mesh's settings, UVs (unwrapping if needed) and lightmap resolution
-    (``auto_density``: the stage's automatic texel density, :func:`auto_texel_density`)."""
+    (``auto_density``: the stage's automatic texel density, :func:`auto_texel_density`;
+    ``prop_side``: the side a map on it may be raised to for its charts, :func:`prop_cap`)."""
     from usdahd.bake.texels import rasterize
     from usdahd.errors import SchemaError
     from usdahd.usd.stage import prim_at
@@ -441,7 +556,10 @@ def plan_job(
             if problem is None:
                 texels = rasterize(mesh, res)
                 problem = _uv_problem(texels)
-        if problem is None:
+        layout = None  # a usable UV set that is a poor lightmap layout (texture UVs)
+        if problem is None and _auto_density(settings) and opts.unwrap:
+            texels, res, layout = _texture_layout(mesh, uv_name, texels, res, prop_side, report)
+        if problem is None and layout is None:
             job.texels, job.resolution = texels, res
         else:
             _instance_uv_problem(mesh, uv_name, problem)
@@ -451,9 +569,10 @@ def plan_job(
                     f"{mesh.path}: UV set {uv_name!r} {problem}, so it cannot hold a lightmap; "
                     f"author a lightmap UV set (--uv) or drop --no-unwrap to unwrap into {new!r}"
                 )
-            report["warnings"].append(
-                f"UV set {uv_name!r} {problem}: unwrapped with xatlas into a new primvar "
-                f"{new!r} (authored in the output layer; {uv_name!r} is left as it is)"
+            kind = "warnings" if layout is None else "notes"
+            report.setdefault(kind, []).append(
+                f"UV set {uv_name!r} {problem or layout}: unwrapped with xatlas into a new "
+                f"primvar {new!r} (authored in the output layer; {uv_name!r} is left as it is)"
             )
             mesh.uv, mesh.uv_name = None, new
             settings["uv"] = new
@@ -489,9 +608,60 @@ def plan_job(
             )
         else:
             mesh.uv = None
-            _unwrap(job, mesh, settings, scene)
+            _unwrap(job, mesh, settings, scene, prop_side)
     settings["resolution"] = list(job.resolution)
     return job
+
+
+def _texture_layout(mesh, uv_name: str, texels, res, prop_side: int, report: dict):
+    """Whether a valid authored UV set (on the automatic density) is a usable lightmap layout:
+    a texture UV layout packs its charts edge to edge, so at the planned size texels next to
+    another chart mix two surfaces in a bilinear lookup (TOUCHING_LIMIT; TOUCHING_TARGET when
+    its narrowest charts are under CHART_MIN_TEXELS across: all border). The map is doubled
+    (up to ``prop_side``) until few texels touch another chart (TOUCHING_TARGET), keeping the
+    asset's UVs (with a note); if even that is not enough the mesh is unwrapped instead, except
+    an instance copy (it cannot be, and keeps the largest map). Returns (texels, res, None) to
+    bake the UV set at ``res``, or (None, res, why) to unwrap."""
+    from usdahd.bake.texels import rasterize
+
+    share = touching_share(mesh, texels)
+    if share <= TOUCHING_TARGET:
+        return texels, res, None
+    side = int(res[0])
+    narrow = narrow_chart_width(np.asarray(mesh.uv, np.float64)) * side
+    if share <= TOUCHING_LIMIT and narrow >= CHART_MIN_TEXELS:
+        return texels, res, None
+    first, first_share = tuple(res), share
+    why = (
+        f"packs its charts with no lightmap gutter (at {first[0]}x{first[1]}, "
+        f"{100 * first_share:.0f}% of its texels lie next to another chart's"
+        + (
+            f", its narrowest charts {narrow:.1f} texels across"
+            if narrow < CHART_MIN_TEXELS
+            else ""
+        )
+        + ", so a bilinear lookup there mixes unrelated surfaces)"
+    )
+    while share > TOUCHING_TARGET and side < prop_side:
+        side = min(_round_up(2 * side, RESOLUTION_MULTIPLE), int(prop_side))
+        res = (side, side)
+        texels = rasterize(mesh, res)
+        share = touching_share(mesh, texels)
+    instance = getattr(mesh, "instance", None) is not None
+    if share > TOUCHING_LIMIT and not instance:
+        return None, first, f"{why}, also at {res[0]}x{res[1]} ({100 * share:.0f}%)"
+    if res != first or share > TOUCHING_LIMIT:
+        fix = (
+            "an instance copy cannot be unwrapped, so its map is raised to"
+            if share > TOUCHING_LIMIT
+            else "its map is raised to"
+        )
+        report.setdefault("notes", []).append(
+            f"UV set {uv_name!r} {why}; {fix} {res[0]}x{res[1]} ({100 * share:.0f}% of its "
+            "texels next to another chart's; author a lightmap UV set with gutters to keep the "
+            "stage's density)"
+        )
+    return texels, res, None
 
 
 #: Settings that only change the fit and encoding of the baked SH, never the SH: a change of

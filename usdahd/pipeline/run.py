@@ -254,13 +254,21 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         report["prims"].append({"path": path, "status": "failed", "error": msg, "warnings": []})
         failed += 1
     auto_density = _auto_density(scene, stage, api_prims, opts, checked, report)
+    prop_side = 0  # the side a map on the automatic density may be raised to (plan.prop_cap)
+    if auto_density is not None:
+        from usdahd.pipeline.plan import prop_cap
+
+        td = report["texel_density"]  # raises share what the plan leaves of the budget
+        prop_side = prop_cap(td["budget"] - td["estimated_texels"], td["prims"])
     for i, mesh in enumerate(scene.meshes):
         if not mesh.bake:
             continue
         entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
         report["prims"].append(entry)
         try:
-            job = plan_job(scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density)
+            job = plan_job(
+                scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density, prop_side
+            )
         except (InputError, UsageError, BakeError) as exc:
             entry.update(status="failed", error=str(exc))
             failed += 1

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLES
+from tests.scenes import SAMPLES
 
 from usdahd import cli
 from usdahd.pipeline.plan import (
@@ -25,7 +25,7 @@ from usdahd.pipeline.plan import (
     prop_cap,
 )
 
-DATA = Path(__file__).parent / "data" / "production"
+DATA = Path(__file__).parents[1] / "data" / "production"
 STAGE = DATA / "texture_uvs.usda"
 
 

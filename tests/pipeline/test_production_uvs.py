@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.scenes import SAMPLES
 
+from tests.scenes import SAMPLES
 from usdahd import cli
 from usdahd.pipeline.plan import (
     CHART_MIN_TEXELS,

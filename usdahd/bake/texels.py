@@ -49,6 +49,7 @@ __all__ = [
     "rasterize",
     "resolution_for_density",
     "tangent_frames",
+    "uv_charts",
     "walled_in",
 ]
 

@@ -41,6 +41,7 @@ __all__ = [
     "auto_texel_density",
     "mesh_extent",
     "plan_job",
+    "prop_cap",
     "refit_source",
     "settings_as_stored",
     "settings_resolution_given",

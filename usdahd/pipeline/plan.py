@@ -14,6 +14,7 @@ import numpy as np
 
 from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.raster import UV_OVERLAP_LIMIT
+from usdahd.numerics.triangles import triangle_areas
 from usdahd.pipeline.settings import (
     DENSITY_AUTO_MAX,
     DENSITY_LADDER,
@@ -105,7 +106,7 @@ def mesh_extent(mesh, meters_per_unit: float) -> float:
     from usdahd.bake.unwrap import PACK_EFFICIENCY
 
     p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
-    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    world = triangle_areas(p).sum()
     uv_area = PACK_EFFICIENCY
     if mesh.uv is not None:
         uv = np.asarray(mesh.uv, np.float64)
@@ -262,7 +263,7 @@ def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     texel_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * res[0] * res[1]
     p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
-    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    world = triangle_areas(p)
     total = world.sum()
     if total <= 0:
         return None

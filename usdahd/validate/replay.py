@@ -132,7 +132,7 @@ def compare_replay(baked, replayed, population: int, *, margin: float, alpha: fl
     ``q`` float, ``n`` int, ``fpc`` float (the finite-population factor of the variance).
     """
     from usdahd.validate.retrace import DARK_CHANNEL
-    from usdahd.validate.student_t import t_isf
+    from usdahd.numerics.stats import t_isf
 
     b = np.asarray(baked, np.float64)
     p = np.asarray(replayed, np.float64)

@@ -71,7 +71,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from usdahd.errors import UsageError
-from usdahd.validate.student_t import betainc, t_isf, t_sf  # noqa: F401 (re-exported)
+from usdahd.numerics.stats import betainc, t_isf, t_sf  # noqa: F401 (re-exported)
 
 __all__ = ["DESCRIPTION", "KEYWORD", "MIN_TEXELS", "OPTIONS", "RULE", "RetraceOptions"]
 __all__ += ["register", "validator_name", "DARK_CHANNEL", "DENOISE_BIAS_BOUND", "compare"]

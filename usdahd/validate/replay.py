@@ -131,8 +131,8 @@ def compare_replay(baked, replayed, population: int, *, margin: float, alpha: fl
     returns dict: ``ratio``, ``se``, ``bound`` (3,) float, ``tested``, ``fail`` (3,) bool,
     ``q`` float, ``n`` int, ``fpc`` float (the finite-population factor of the variance).
     """
-    from usdahd.validate.retrace import DARK_CHANNEL
     from usdahd.numerics.stats import t_isf
+    from usdahd.validate.retrace import DARK_CHANNEL
 
     b = np.asarray(baked, np.float64)
     p = np.asarray(replayed, np.float64)

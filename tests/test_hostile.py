@@ -486,3 +486,32 @@ def test_fit_output_on_a_full_disk_names_the_file(tmp_path, capsys):
         assert sorted(f.name for f in disk.iterdir()) == ["filler"]
     finally:
         mounts.unmount(disk)
+
+
+def test_an_error_caused_by_ctrl_c_exits_130_not_internal_error(monkeypatch, capsys):
+    """A Ctrl-C inside a C extension's import comes out as another exception (numpy raises
+    ImportError "IMPORTANT: PLEASE READ THIS" with the interrupt in its context; seen once in
+    test_ctrl_c_while_importing_exits_130_with_one_line[numpy]): it is the interrupt, exit 130,
+    not "internal error" exit 2."""
+    from usdahd import console
+
+    def import_interrupted(args, command):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise ImportError("IMPORTANT: PLEASE READ THIS FOR ADVICE") from None
+
+    def other_error(args, command):
+        raise RuntimeError("a C extension failed while the interrupt was pending")
+
+    monkeypatch.setattr(cli, "_run_captured", import_interrupted)
+    assert cli.main(["validate", "missing.usda"]) == 130
+    assert capsys.readouterr().err.strip() == "usdahd validate: interrupted"
+    # the console script's SIGINT handler records the Ctrl-C even when nothing chains it
+    monkeypatch.setattr(cli, "_run_captured", other_error)
+    assert cli.main(["validate", "missing.usda", "--json"]) == 2  # no Ctrl-C: an internal error
+    capsys.readouterr()
+    monkeypatch.setattr(console, "_INTERRUPTS", [1])
+    assert cli.main(["validate", "missing.usda", "--json"]) == 130
+    out = capsys.readouterr()
+    assert json.loads(out.out)["exit_code"] == 130 and "interrupted" in out.err

@@ -167,6 +167,16 @@ def _run_captured(args, command: str) -> int:
             )
 
 
+def _interrupted(command: str, as_json: bool) -> int:
+    from usdahd import progress
+
+    progress.clear_line()
+    print(f"usdahd {command}: interrupted", file=sys.stderr)
+    if as_json:
+        print(json.dumps({"command": command, "exit_code": 130, "error": "interrupted"}))
+    return 130
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
@@ -184,16 +194,14 @@ def main(argv: list[str] | None = None) -> int:
         as_json = bool(getattr(args, "json", False))
         return _run_captured(args, command)
     except KeyboardInterrupt:
-        from usdahd import progress
-
-        progress.clear_line()
-        print(f"usdahd {command}: interrupted", file=sys.stderr)
-        if as_json:
-            print(json.dumps({"command": command, "exit_code": 130, "error": "interrupted"}))
-        return 130
+        return _interrupted(command, as_json)
     except SystemExit:
         raise
     except Exception as exc:
+        from usdahd.console import was_interrupted
+
+        if was_interrupted(exc):  # a Ctrl-C inside an import comes out as ImportError (numpy)
+            return _interrupted(command, as_json)
         if os.environ.get("USDAHD_DEBUG") and not isinstance(exc, UsdAhdError):
             raise
         message, code = describe_error(exc)

@@ -19,6 +19,7 @@ __all__ = [
     "texel_frame",
     "triangle_areas",
     "unit_normals",
+    "uv_areas",
 ]
 
 #: Squared length below which a vector is treated as zero (tangent/normal fallbacks).
@@ -33,6 +34,12 @@ def edge_cross(p: np.ndarray) -> np.ndarray:
 def triangle_areas(p: np.ndarray) -> np.ndarray:
     """(n,) areas of triangles ``p`` (n, 3, 3)."""
     return 0.5 * np.linalg.norm(edge_cross(p), axis=1)
+
+
+def uv_areas(uv: np.ndarray) -> np.ndarray:
+    """(n,) unsigned areas of 2-D (UV) triangles ``uv`` (n, 3, 2), in UV units squared."""
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
 
 
 def normalize(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

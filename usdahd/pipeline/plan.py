@@ -14,7 +14,7 @@ import numpy as np
 
 from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.raster import UV_OVERLAP_LIMIT
-from usdahd.numerics.triangles import triangle_areas
+from usdahd.numerics.triangles import triangle_areas, uv_areas
 from usdahd.pipeline.settings import (
     DENSITY_AUTO_MAX,
     DENSITY_LADDER,
@@ -111,8 +111,7 @@ def mesh_extent(mesh, meters_per_unit: float) -> float:
     if mesh.uv is not None:
         uv = np.asarray(mesh.uv, np.float64)
         if np.isfinite(uv).all():
-            e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-            a = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+            a = uv_areas(uv).sum()
             if 1e-12 < a <= 1.0:
                 uv_area = a
     mpu = float(meters_per_unit or 1.0)
@@ -213,8 +212,7 @@ def narrow_chart_width(uv: np.ndarray, share: float = NARROW_SHARE) -> float:
         return 0.0
     ch = uv_charts(uv).astype(np.int64)
     k = int(ch.max()) + 1
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    area = np.bincount(ch, 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), k)
+    area = np.bincount(ch, uv_areas(uv), k)
     ends = np.stack([uv, uv[:, [1, 2, 0]]], axis=2).reshape(-1, 4)  # (3t, 2 endpoints x 2)
     swap = (ends[:, 0] > ends[:, 2]) | ((ends[:, 0] == ends[:, 2]) & (ends[:, 1] > ends[:, 3]))
     key = np.where(swap[:, None], ends[:, [2, 3, 0, 1]], ends)
@@ -260,8 +258,7 @@ def settings_resolution_given(job: PrimJob) -> bool:
 def _degenerate_uv_share(mesh, uv: np.ndarray, res) -> str | None:
     """A problem string when zero-area UV triangles cover more than UV_DEGENERATE_LIMIT of the
     mesh's surface (those triangles would get no lightmap texel at all)."""
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    texel_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * res[0] * res[1]
+    texel_area = uv_areas(uv) * res[0] * res[1]
     p = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)]
     world = triangle_areas(p)
     total = world.sum()
@@ -542,8 +539,7 @@ def plan_job(
     job = PrimJob(path=mesh.path, mesh=mesh, settings=settings, report=report)
     if mesh.uv is not None:
         uv = np.asarray(mesh.uv, np.float64)
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+        uv_area = uv_areas(uv).sum()
         texels, problem = None, None
         if not np.isfinite(uv).all():
             problem = "contains NaN or infinite UVs"

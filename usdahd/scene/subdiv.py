@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from usdahd.numerics import subdivision as SD
+from usdahd.numerics.triangles import uv_areas
 from usdahd.scene.types import MeshData
 
 __all__ = ["SUBDIV_VERSION", "cage_from_topology", "refine_scene", "restore_scene"]
@@ -95,8 +96,7 @@ def choose_levels(mesh: MeshData, cage: Cage, resolution=None, budget=None) -> i
     levels = DEFAULT_LEVELS
     if resolution is not None and mesh.uv is not None and len(cage.counts):
         uv = np.asarray(mesh.uv, np.float64)
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+        area = uv_areas(uv).sum()
         per_face = area * float(resolution[0]) * float(resolution[1]) / len(cage.counts)
         if per_face >= TEXELS_FOR_MAX_LEVEL:
             levels = MAX_LEVELS

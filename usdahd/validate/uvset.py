@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from usdahd.numerics.raster import coverage, fan_triangulate
-from usdahd.numerics.triangles import triangle_areas
+from usdahd.numerics.triangles import triangle_areas, uv_areas
 from usdahd.usd import inspect
 from usdahd.validate.findings import Finding, RuleFindings
 from usdahd.validate.loading import baked_record
@@ -96,8 +96,7 @@ def check_uv_set(prim) -> list[Finding]:
         tri = wp[fvi[fan_triangulate(counts)[1]]]
         area = triangle_areas(tri)
         w, h = results.resolution
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h
+        uv_area = uv_areas(uv) * w * h
         total = float(area.sum())
         if total > 0:
             zero = (uv_area <= 1e-12) & (area > 0)

@@ -126,7 +126,8 @@ def test_bc6h_matches_the_float16_source_within_its_expected_error(tmp_path):
     m = np.ones((h, w), bool)
     m[:, 30:] = False  # a gutter
     ch = np.zeros((h, w), int)
-    ktx2.write(tmp_path / "hdr.ktx2", src, m, ch, "half", compression="bc")
+    # forced to BC6H (no error bound): what its blocks do to such data
+    ktx2.write(tmp_path / "hdr.ktx2", src, m, ch, "half", compression="bc", max_rel_rmse=math.inf)
     f = KR.read(tmp_path / "hdr.ktx2")
     assert f["vk_format"] == KR.VK_BC6H_UFLOAT_BLOCK and f["levels"] == 6
     got = f["images"][0][..., :3].astype(np.float64)
@@ -141,7 +142,7 @@ def test_bc6h_matches_the_float16_source_within_its_expected_error(tmp_path):
     assert rel1.max() < 0.10, rel1.max()
     # texture2ddecoder (a second, independent BC6H decoder) agrees where it can: [0, 1]
     low = (src / 64).astype(np.float16)  # <= 0.8
-    ktx2.write(tmp_path / "low.ktx2", low, m, ch, "half", compression="bc")
+    ktx2.write(tmp_path / "low.ktx2", low, m, ch, "half", compression="bc", max_rel_rmse=1.0)
     fl = KR.read(tmp_path / "low.ktx2")
     t2d = KR.bc6h_u8(fl["raw"][0], w, h)[..., :3].astype(int)
     mesa = np.rint(np.clip(fl["images"][0][..., :3], 0, 1) * 255).astype(int)
@@ -157,18 +158,12 @@ def test_bc6h_matches_the_float16_source_within_its_expected_error(tmp_path):
     assert not (tmp_path / "x.ktx2").exists()
 
 
-def _has_negative(layer: Path, lay) -> bool:
-    """Whether the page files of ``lay.role`` hold a negative value."""
-    from pxr import Usd
-
-    stage = Usd.Stage.Open(str(layer))
-    files = {schema.read_results(p).textures[lay.role] for p in schema.prims_with_api(stage)}
-    return all((images.read(f, channels=lay.channels).pixels < 0).any() for f in files)
-
-
-def _errors(layer: Path) -> tuple[float, float, float, float, set]:
+def _errors(layer: Path, roles: dict | None = None) -> tuple[float, float, float, float, set]:
     """(rel. RMSE of irradiance KTX2 vs EXR/PNG, B/texel level 0, B/texel chain, BC7 code RMSE,
-    the VkFormats seen) over every prim of a lightmap layer."""
+    the VkFormats seen) over every prim of a lightmap layer. Every BC6H texture is within
+    ktx2.BC6H_MAX_REL_RMSE of its EXR (Mesa's decoder), every direction texture RGBA8.
+    ``roles``: a dict that receives each texture's own irradiance error (the others exact),
+    the worst over the prims."""
     from pxr import Usd
 
     stage = Usd.Stage.Open(str(layer))
@@ -197,6 +192,11 @@ def _errors(layer: Path) -> tuple[float, float, float, float, set]:
                 assert np.array_equal(packed[lay.role], files[lay.role]), lay.role
             elif k["vk_format"] == KR.VK_BC7_UNORM_BLOCK:  # lossy, close to the 8-bit codes
                 code_rmse = max(code_rmse, float(np.sqrt((diff**2).mean())))
+            else:  # BC6H: within the writer's bound, decoded here by Mesa
+                rel = np.sqrt((diff**2).mean()) / np.abs(files[lay.role]).mean()
+                assert rel <= ktx2.BC6H_MAX_REL_RMSE * (1 + 1e-6), (lay.role, rel)
+            if lay.packing.startswith(ktx2.LOSSLESS_PACKINGS):
+                assert k["vk_format"] == KR.VK_R8G8B8A8_UNORM, lay.role
             level0 += k["level_index"][0][1]
             chain += sum(n for _, n, _ in k["level_index"])
         texels += int(cov.size)
@@ -206,6 +206,11 @@ def _errors(layer: Path) -> tuple[float, float, float, float, set]:
         sq += float(((got.astype(np.float64) - want) ** 2).sum())
         absum += float(np.abs(want).sum())
         count += want.size
+        for role in packed if roles is not None else ():
+            one = mod.decode({**files, role: packed[role]}, ratio=res.ratio, factors=res.factors)
+            d = mod.evaluate(one, n).astype(np.float64) - want
+            rel = math.sqrt(float((d**2).mean())) / float(np.abs(want).mean())
+            roles[role] = max(roles.get(role, 0.0), rel)
     err = math.sqrt(sq / count) / (absum / count)
     return err, level0 / texels, chain / texels, code_rmse, formats
 
@@ -241,6 +246,61 @@ def test_bc6h_reads_a_negative_zero_as_zero(tmp_path):
         assert img[..., :3].max() <= 0.5 + 1e-3
 
 
+def _mesa_rel_rmse(path: Path, src: np.ndarray, m: np.ndarray) -> float:
+    """RMSE / mean |value| of a KTX2's level 0 (Mesa's BC6H decoder) over the covered texels."""
+    got = KR.read(path)["images"][0][..., : src.shape[-1]].astype(np.float64)
+    ref = src.astype(np.float64)
+    return float(np.sqrt(((got - ref)[m] ** 2).mean()) / np.abs(ref[m]).mean())
+
+
+def test_bc_holds_its_error_bound_or_writes_lossless(tmp_path):
+    """issue 39: `ktx2-bc` textures that hold up. A BC6H texture whose level-0 error (RMSE /
+    mean over the covered texels, decoded by bcdec in the writer) exceeds
+    ktx2.BC6H_MAX_REL_RMSE is written RGBA16F, exact; the error the writer reports is the one
+    Mesa's decoder gives; hemi-octahedral direction codes stay RGBA8 (BC7 moves them where
+    1 / d_z magnifies every code), other 8-bit textures go BC7."""
+    rng = np.random.default_rng(7)
+    h, w = 16, 20
+    m = np.ones((h, w), bool)
+    m[:, 17:] = False
+    ch = np.zeros((h, w), int)
+    y, x = np.mgrid[0:h, 0:w]
+    smooth = 0.5 + 0.3 * (x / w)[..., None] * np.array([1.0, 0.8, 0.6]) + 0.1 * (y / h)[..., None]
+    smooth = smooth.astype(np.float16)
+    info = ktx2.write(tmp_path / "smooth.ktx2", smooth, m, ch, "half", compression="bc")
+    assert info["vk_format"] == KR.VK_BC6H_UFLOAT_BLOCK and "lossless_reason" not in info
+    mesa = _mesa_rel_rmse(tmp_path / "smooth.ktx2", smooth, m)
+    assert 0 < mesa <= ktx2.BC6H_MAX_REL_RMSE
+    assert info["bc_rel_rmse"] == pytest.approx(mesa, rel=1e-6)  # bcdec and Mesa agree
+    # a dim floor with a lamp's hotspot (floor_lamp: 0.12 .. 2.84 inside one 4x4 block)
+    hot = np.full((h, w, 3), 0.05) * rng.uniform(0.9, 1.1, (h, w, 1))
+    hot[5:7, 5:7] = 2.84
+    hot[4:8, 4] = hot[4, 4:8] = 0.12
+    hot = hot.astype(np.float16)
+    forced = ktx2.write(
+        tmp_path / "forced.ktx2", hot, m, ch, "half", compression="bc", max_rel_rmse=math.inf
+    )
+    assert forced["vk_format"] == KR.VK_BC6H_UFLOAT_BLOCK
+    mesa = _mesa_rel_rmse(tmp_path / "forced.ktx2", hot, m)
+    assert mesa > ktx2.BC6H_MAX_REL_RMSE and forced["bc_rel_rmse"] == pytest.approx(mesa, 1e-6)
+    info = ktx2.write(tmp_path / "hot.ktx2", hot, m, ch, "half", compression="bc")
+    assert info["vk_format"] == KR.VK_R16G16B16A16_SFLOAT and info["bytes_per_texel"] == 8
+    assert info["bc_rel_rmse"] == forced["bc_rel_rmse"]
+    assert info["lossless_reason"].startswith(f"BC6H error {mesa:.3g} > 0.015")
+    f = KR.read(tmp_path / "hot.ktx2")
+    assert np.array_equal(f["images"][0][..., :3][m], hot[m])  # the gutter: dilated
+    # 8-bit: direction codes RGBA8 (exact), anything else BC7
+    codes = rng.integers(2, 254, (h, w, 3)).astype(np.uint8)
+    kv = {"usdahd:packing": "R=u:snorm8b G=v:snorm8b B=w_a:unorm8"}
+    info = ktx2.write(tmp_path / "d.ktx2", codes, m, ch, "unorm8", compression="bc", attributes=kv)
+    assert info["vk_format"] == KR.VK_R8G8B8A8_UNORM and info["bytes_per_texel"] == 4
+    assert "direction codes" in info["lossless_reason"]
+    assert np.array_equal(KR.read(tmp_path / "d.ktx2")["images"][0][..., :3][m], codes[m])
+    kv = {"usdahd:packing": "R=w_a.R:unorm8 G=w_a.G:unorm8 B=w_a.B:unorm8"}
+    info = ktx2.write(tmp_path / "r.ktx2", codes, m, ch, "unorm8", compression="bc", attributes=kv)
+    assert info["vk_format"] == KR.VK_BC7_UNORM_BLOCK and info["bytes_per_texel"] == 1
+
+
 def test_every_model_through_ktx2_and_an_independent_decoder(baked, capsys):
     stage = baked / "cornell_box.usda"
     layer = baked / "cornell_box.lightmaps.usda"
@@ -260,39 +320,55 @@ def test_every_model_through_ktx2_and_an_independent_decoder(baked, capsys):
                 assert formats <= LOSSLESS and err == 0.0, (model, ratio, formats)
                 assert b0 == sum(8 if t.format == "half" else 4 for t in lay)
             else:
-                # every 8-bit texture is BC7, every non-negative HDR one BC6H: lossy, measured
-                # per model in docs/benchmarks.md (a converged bake), not bounded here
+                # 8-bit textures BC7 except the direction codes (RGBA8), non-negative HDR ones
+                # BC6H within ktx2.BC6H_MAX_REL_RMSE (both checked in _errors) or RGBA16F;
+                # the error of the rest is measured per model in docs/benchmarks.md
                 if not formats - LOSSLESS:
-                    # an atlas page with a negative value anywhere stays RGBA16F (no signed
-                    # BC6H encoder): then every texture of the page is half and signed
-                    assert all(t.format == "half" for t in lay), (model, ratio, formats)
-                    assert all(_has_negative(layer, t) for t in lay), (model, ratio)
+                    # lossless throughout: every HDR texture signed (no signed BC6H encoder)
+                    # or over the BC6H bound, every 8-bit one direction codes
                     assert err == 0.0, (model, ratio)
                 else:
                     assert math.isfinite(err) and err > 0, (model, ratio)
+                if model in ("hhd", "ahd", "hlsh") and ratio == "luminance":
+                    # I_z (BC6H within its bound or RGBA16F) + exact directions: issue 39's 2 %
+                    assert err <= 0.02, (model, ratio, err)
                 assert code_rmse < 24, (model, ratio, code_rmse)
-                assert b0 <= sum(8 if t.format == "half" else 1 for t in lay)
+                bound = sum(
+                    8 if t.format == "half" else 4 if t.role == "direction" else 1 for t in lay
+                )
+                assert b0 <= bound, (model, ratio, b0)
     print("\nmodel | ratio | container | KTX2 rel. RMSE | B/texel level 0 | chain | BC7 code RMSE")
     for r in rows:
         print(" | ".join([*r[:3], *(f"{v:.3g}" for v in r[3:])]))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["cornell_box.usda", "pillar_room.usda"])
+@pytest.mark.parametrize("name", ["cornell_box.usda", "pillar_room.usda", "exterior_sun_sky.usda"])
 def test_the_default_encoding_holds_within_two_percent(tmp_path, capsys, name):
-    """issue 39: the default encoding's irradiance from KTX2 (`--container ktx2`) within 2 %
-    relRMSE of the same bake's EXR/PNG decode; read by the independent reader."""
+    """issue 39: the default encoding's irradiance from KTX2 (`--container ktx2` and
+    `ktx2-bc`) within 2 % relRMSE of the same bake's EXR/PNG decode, read by the independent
+    reader (BC6H: Mesa); per texture: I_z BC6H within its bound (or RGBA16F), the direction
+    codes exact."""
     shutil.copy(ROOT / "samples" / name, tmp_path / name)
     argv = ["bake", str(tmp_path / name), "--resolution", "16", "--samples", "32", "--quiet"]
+    layer = tmp_path / name.replace(".usda", ".lightmaps.usda")
     assert cli.main([*argv, "--container", "ktx2"]) == 0
-    err, b0, _, _, formats = _errors(tmp_path / name.replace(".usda", ".lightmaps.usda"))
+    err, b0, _, _, formats = _errors(layer)
     assert formats == LOSSLESS and err <= 0.02, (err, formats)
     assert b0 == 12  # hhd/luminance: I_z RGBA16F (8) + direction RGBA8 (4)
+    roles = {}
+    assert cli.main([*argv, "--container", "ktx2-bc"]) == 0
+    err, b0, _, _, formats = _errors(layer, roles)
+    assert err <= 0.02 and roles["direction"] == 0.0 and roles["iz"] <= 0.02, (err, roles)
+    assert formats <= {KR.VK_BC6H_UFLOAT_BLOCK, *LOSSLESS}
+    # I_z BC6H (1 B/texel) or RGBA16F (8, over the bound) + direction RGBA8 (4)
+    assert b0 == (5 if KR.VK_BC6H_UFLOAT_BLOCK in formats else 12), (b0, formats)
 
 
 def test_block_compressed_container_as_a_subprocess(tmp_path):
-    """`usdahd bake --container ktx2-bc` in a subprocess: BC6H I_z, BC7 directions, 1 B/texel
-    each, reported per prim in --json; a bad --container value is a usage error (exit 2)."""
+    """`usdahd bake --container ktx2-bc` in a subprocess: BC6H I_z (1 B/texel, its measured
+    error in --json), direction codes RGBA8 (4 B/texel, the reason in --json); a bad
+    --container value is a usage error (exit 2)."""
     import os
     import subprocess
 
@@ -308,10 +384,12 @@ def test_block_compressed_container_as_a_subprocess(tmp_path):
     assert proc.returncode == 0, proc.stderr
     prims = json.loads(proc.stdout)["prims"]
     assert prims and all(p["ktx2"]["iz"]["vk_format"] == 131 for p in prims)
-    assert all(p["ktx2"]["direction"]["vk_format"] == 145 for p in prims)
+    assert all(p["ktx2"]["iz"]["bc_rel_rmse"] <= ktx2.BC6H_MAX_REL_RMSE for p in prims)
     for p in prims:
-        f = KR.read(p["ktx2"]["direction"]["path"])
-        assert f["vk_format"] == 145 and p["ktx2"]["direction"]["bytes_per_texel"] == 1
+        d = p["ktx2"]["direction"]
+        f = KR.read(d["path"])
+        assert f["vk_format"] == d["vk_format"] == 37 and d["bytes_per_texel"] == 4
+        assert "direction codes" in d["lossless_reason"]
     proc = subprocess.run(
         [*base, *fast, "--container", "ktx3"], capture_output=True, text=True, env=env
     )

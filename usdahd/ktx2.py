@@ -64,6 +64,14 @@ COMPRESSIONS = ("none", "bc")
 #: ISPCTextureCompressor profiles (speed/quality measured in the module docstring)
 BC6H_PROFILE = "slow"
 BC7_PROFILE = "slow"
+#: the largest BC6H error a "bc" texture may keep: RMSE of level 0 (decoded by bcdec through
+#: imagecodecs) over the covered texels, divided by their mean |value|; above it the texture is
+#: written RGBA16F (lossless). 1.5 % keeps the default hhd/luminance within issue 39's 2 % of
+#: irradiance (its irradiance is linear in I_z; docs/benchmarks.md)
+BC6H_MAX_REL_RMSE = 0.015
+#: 8-bit packings that stay RGBA8 under "bc": the hemi-octahedral direction codes (u, v) of the
+#: IrradZ models and ahd_classic, whose BC7 error the decode multiplies by 1 / d_z
+LOSSLESS_PACKINGS = ("R=u:snorm8b",)
 #: Basic DFD colour models and channel ids (Khronos Data Format Specification 1.3).
 KHR_DF_MODEL_RGBSDA = 1
 KHR_DF_MODEL_BC6H = 133
@@ -223,6 +231,35 @@ def _encoder():
     return ispc_texcomp
 
 
+def _bc6h_decode(blocks: bytes, h: int, w: int) -> np.ndarray:
+    """BC6H_UF16 blocks -> (h, w, 3) float64 (bcdec through imagecodecs)."""
+    try:
+        import imagecodecs
+    except ImportError:
+        raise ImageError(
+            "KTX2 block compression (--container ktx2-bc) needs imagecodecs (it checks each "
+            "BC6H texture's error): pip install 'usdahd[ktx2]'"
+        ) from None
+    hp, wp = h + (-h % 4), w + (-w % 4)
+    out = imagecodecs.bcn_decode(blocks, imagecodecs.BCN.FORMAT.BC6HU, shape=(hp, wp, 3))
+    return np.asarray(out, np.float64)[:h, :w]
+
+
+def bc6h_rel_rmse(blocks: bytes, px: np.ndarray, mask: np.ndarray, channels: int = 3) -> float:
+    """Error of BC6H blocks against their (h, w, 4) float16 source: RMSE over the covered texels
+    and the first ``channels`` channels (4: an alpha that BC6H decodes as 1) / their mean |value|
+    (0 when exact, inf for a zero source that does not decode to zero)."""
+    h, w = px.shape[:2]
+    dec = np.concatenate([_bc6h_decode(blocks, h, w), np.ones((h, w, 1))], axis=-1)
+    m = np.asarray(mask, bool) if np.asarray(mask).any() else np.ones((h, w), bool)
+    src = px.astype(np.float64)[m][:, :channels]
+    rmse = math.sqrt(float(((dec[m][:, :channels] - src) ** 2).mean()))
+    mean = float(np.abs(src).mean())
+    if rmse == 0.0:
+        return 0.0
+    return rmse / mean if mean > 0 else math.inf
+
+
 def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
     """(h, w, 4) uint8 -> BC7 blocks (ISPCTextureCompressor, all channels weigh the same; the
     ``alpha_`` profile when A holds data, as the opaque ones write A = 255)."""
@@ -251,26 +288,51 @@ def _rgba(img: np.ndarray, dtype, one) -> np.ndarray:
     return px
 
 
-def encode_levels(levels, fmt: str, compression: str = "none") -> tuple[int, list[bytes]]:
+def encode_levels(
+    levels,
+    fmt: str,
+    compression: str = "none",
+    *,
+    lossless: bool = False,
+    max_rel_rmse: float = BC6H_MAX_REL_RMSE,
+    stats=None,
+) -> tuple[int, list[bytes]]:
     """Mip levels [(image (h, w, c) float64, mask)] -> (VkFormat, level payloads).
 
     fmt "half": RGBA16F (A = 1), or with compression "bc" BC6H_UFLOAT when no value is negative
-    (RGBA16F otherwise); fmt "unorm8": RGBA8 of the rounded codes (A = 255 for RGB), or BC7
-    with compression "bc"."""
+    and level 0's error (:func:`bc6h_rel_rmse` over its covered texels) is at most
+    ``max_rel_rmse`` (:data:`BC6H_MAX_REL_RMSE`; RGBA16F otherwise); fmt "unorm8": RGBA8 of the
+    rounded codes (A = 255 for RGB), or BC7 with compression "bc" unless ``lossless`` (the
+    direction codes of :data:`LOSSLESS_PACKINGS`). ``stats``: a dict that receives
+    ``bc_rel_rmse`` (the BC6H error measured) and ``lossless_reason`` when a "bc" texture is
+    written lossless."""
     if compression not in COMPRESSIONS:
         raise ImageError(f"KTX2 compression must be one of {COMPRESSIONS}, got {compression!r}")
     bc = compression == "bc"
+    stats = {} if stats is None else stats
     if fmt == "half":
         pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
-        if bc and all(not (p < 0).any() for p in pxs):
+        if bc and any((p < 0).any() for p in pxs):
+            stats["lossless_reason"] = "negative values (no signed BC6H encoder)"
+        elif bc:
             # -0.0 (sign bit set, e.g. an SH coefficient that cancels) passes "not < 0" but
             # an unsigned BC6H encoder reads its bits 0x8000 as the largest value: 65504
             pxs = [np.where(p == 0, np.float16(0), p) for p in pxs]
-            return VK_FORMAT_BC6H_UFLOAT_BLOCK, [_bc6h(p) for p in pxs]
+            first = _bc6h(pxs[0])
+            err = bc6h_rel_rmse(first, pxs[0], levels[0][1], levels[0][0].shape[-1])
+            stats["bc_rel_rmse"] = err if math.isfinite(err) else None
+            if err <= max_rel_rmse:
+                return VK_FORMAT_BC6H_UFLOAT_BLOCK, [first] + [_bc6h(p) for p in pxs[1:]]
+            stats["lossless_reason"] = (
+                f"BC6H error {err:.3g} > {max_rel_rmse:g} (RMSE / mean of level 0)"
+            )
+            pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
         return VK_FORMAT_R16G16B16A16_SFLOAT, [p.tobytes() for p in pxs]
     if fmt == "unorm8":
         pxs = [_rgba(img, np.uint8, 255) for img, _ in levels]
-        if bc:
+        if bc and lossless:
+            stats["lossless_reason"] = "direction codes (BC7 error multiplied by 1 / d_z)"
+        elif bc:
             alpha = levels[0][0].shape[-1] == 4
             return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]
         return VK_FORMAT_R8G8B8A8_UNORM, [p.tobytes() for p in pxs]
@@ -286,20 +348,29 @@ def write(
     *,
     compression: str = "none",
     attributes: dict[str, str] | None = None,
+    max_rel_rmse: float = BC6H_MAX_REL_RMSE,
 ) -> dict:
     """Write one lightmap texture as KTX2 with its chart-aware mip chain (atomically).
 
     image : (h, w, 3|4) stored values (float16 or uint8); mask, charts : (h, w) coverage and
     chart ids. fmt : the layout format ("half" or "unorm8"). compression : "none" (lossless
     RGBA16F / RGBA8) or "bc" (BC6H / BC7, see the module docstring). attributes : extra key/value
-    pairs (e.g. ``usdahd:packing``). returns {"vk_format", "levels", "bytes", "bytes_per_texel"}.
+    pairs (e.g. ``usdahd:packing``; a packing of :data:`LOSSLESS_PACKINGS` stays RGBA8 under
+    "bc"). max_rel_rmse : the BC6H error bound of :func:`encode_levels`. returns {"vk_format",
+    "levels", "bytes", "bytes_per_texel"} plus, under "bc", ``bc_rel_rmse`` (the BC6H error
+    measured) and ``lossless_reason`` (a texture written lossless).
     """
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[-1] not in (3, 4):
         raise ImageError(f"{path}: KTX2 textures have 3 or 4 channels, got {image.shape}")
     h, w = image.shape[:2]
     levels = mip_chain(image.astype(np.float64), mask, charts)
-    vk, payloads = encode_levels(levels, fmt, compression)
+    packing = (attributes or {}).get("usdahd:packing", "")
+    lossless = any(packing.startswith(p) for p in LOSSLESS_PACKINGS)
+    stats: dict = {}
+    vk, payloads = encode_levels(
+        levels, fmt, compression, lossless=lossless, max_rel_rmse=max_rel_rmse, stats=stats
+    )
     dfd = _dfd(vk)
     kv = {"KTXwriter": f"usdahd {__version__}", "KTXorientation": "rd"}
     kv.update(attributes or {})
@@ -334,4 +405,5 @@ def write(
         "levels": n,
         "bytes": len(data),
         "bytes_per_texel": len(payloads[0]) / (w * h),
+        **stats,
     }

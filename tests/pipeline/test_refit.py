@@ -126,6 +126,16 @@ def test_bad_container_and_missing_encoder_are_usage_errors_up_front(tmp_path, m
         pipeline.bake(stage, pipeline.BakeOptions(container="ktx2-bc"))
     assert not (tmp_path / "cornell_box.lightmaps.usda").exists()  # checked before any work
 
+    def no_decoder(name, *a, **k):  # the writer decodes each BC6H texture to check its error
+        if name == "imagecodecs":
+            raise ImportError("no imagecodecs")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_decoder)
+    with pytest.raises(UsageError, match=r"needs imagecodecs .*pip install 'usdahd\[ktx2\]'"):
+        pipeline.bake(stage, pipeline.BakeOptions(container="ktx2-bc"))
+    assert not (tmp_path / "cornell_box.lightmaps.usda").exists()
+
 
 def test_container_change_alone_refits(tmp_path, capsys):
     # --container ktx2 (lossless) needs no encoder

@@ -259,3 +259,10 @@ def check_options(opts: BakeOptions) -> None:
                 "--container ktx2-bc needs ispc-texcomp (the BC6H/BC7 encoder): "
                 "pip install 'usdahd[ktx2]'"
             ) from None
+        try:
+            import imagecodecs  # noqa: F401
+        except ImportError:
+            raise UsageError(
+                "--container ktx2-bc needs imagecodecs (it checks each BC6H texture's error): "
+                "pip install 'usdahd[ktx2]'"
+            ) from None

@@ -18,6 +18,7 @@ import numpy as np
 KTX2_IDENTIFIER = bytes([0xAB, 0x4B, 0x54, 0x58, 0x20, 0x32, 0x30, 0xBB, 0x0D, 0x0A, 0x1A, 0x0A])
 VK_R8G8B8A8_UNORM = 37
 VK_R16G16B16A16_SFLOAT = 97
+VK_E5B9G9R9_UFLOAT_PACK32 = 123
 VK_BC6H_UFLOAT_BLOCK = 131
 VK_BC7_UNORM_BLOCK = 145
 
@@ -44,17 +45,27 @@ def _device():
 
 def bc6h_float(blocks: bytes, w: int, h: int) -> np.ndarray:
     """BC6H_UFLOAT blocks -> (h, w, 4) float32 through the Vulkan driver's decoder."""
+    return _driver_decode(blocks, w, h, "bc6h-rgb-ufloat")
+
+
+def rgb9e5_float(texels: bytes, w: int, h: int) -> np.ndarray:
+    """E5B9G9R9_UFLOAT texels -> (h, w, 4) float32 through the Vulkan driver's decoder."""
+    return _driver_decode(texels, w, h, "rgb9e5ufloat")
+
+
+def _driver_decode(raw: bytes, w: int, h: int, fmt: str) -> np.ndarray:
     import wgpu
 
     dev = _device()
-    bw, bh = math.ceil(w / 4), math.ceil(h / 4)
+    blocky = fmt.startswith("bc")
+    bw, bh = (math.ceil(w / 4), math.ceil(h / 4)) if blocky else (w, h)
     usage = wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST
-    size = (4 * bw, 4 * bh, 1)
-    tex = dev.create_texture(size=size, format="bc6h-rgb-ufloat", usage=usage)
-    layout = {"bytes_per_row": bw * 16, "rows_per_image": bh}
-    dev.queue.write_texture({"texture": tex}, blocks, layout, size)
+    size = (4 * bw, 4 * bh, 1) if blocky else (w, h, 1)
+    tex = dev.create_texture(size=size, format=fmt, usage=usage)
+    layout = {"bytes_per_row": bw * (16 if blocky else 4), "rows_per_image": bh}
+    dev.queue.write_texture({"texture": tex}, raw, layout, size)
     out = dev.create_buffer(
-        size=16 * 16 * bw * bh, usage=wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC
+        size=16 * size[0] * size[1], usage=wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC
     )
     module = dev.create_shader_module(code=_LOAD)
     pipe = dev.create_compute_pipeline(
@@ -71,10 +82,10 @@ def bc6h_float(blocks: bytes, w: int, h: int) -> np.ndarray:
     cp = enc.begin_compute_pass()
     cp.set_pipeline(pipe)
     cp.set_bind_group(0, group)
-    cp.dispatch_workgroups(4 * bw, 4 * bh)
+    cp.dispatch_workgroups(size[0], size[1])
     cp.end()
     dev.queue.submit([enc.finish()])
-    px = np.frombuffer(dev.queue.read_buffer(out), np.float32).reshape(4 * bh, 4 * bw, 4)
+    px = np.frombuffer(dev.queue.read_buffer(out), np.float32).reshape(size[1], size[0], 4)
     return px[:h, :w]
 
 
@@ -89,7 +100,8 @@ def bc6h_u8(blocks: bytes, w: int, h: int) -> np.ndarray:
 
 def read(path: str | Path) -> dict:
     """Parse a KTX2 file: header fields, DFD basic block, key/values and every mip level decoded
-    to (h, w, 4): float16 (RGBA16F), float32 (BC6H, Mesa's decoder) or uint8 (RGBA8, BC7)."""
+    to (h, w, 4): float16 (RGBA16F), float32 (BC6H and E5B9G9R9, Mesa's decoders) or uint8
+    (RGBA8, BC7)."""
     import texture2ddecoder
 
     data = Path(path).read_bytes()
@@ -132,6 +144,9 @@ def read(path: str | Path) -> dict:
         elif vk == VK_BC6H_UFLOAT_BLOCK:
             assert length == math.ceil(lw / 4) * math.ceil(lh / 4) * 16
             images.append(bc6h_float(raw, lw, lh))
+        elif vk == VK_E5B9G9R9_UFLOAT_PACK32:
+            assert length == lw * lh * 4 == ulength
+            images.append(rgb9e5_float(raw, lw, lh))
         elif vk == VK_BC7_UNORM_BLOCK:
             bw, bh = math.ceil(lw / 4), math.ceil(lh / 4)
             assert length == bw * bh * 16

@@ -6,21 +6,27 @@ one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-b
 - ``"none"`` (``ktx2``, the default): the stored values as they are, so an engine decodes
   exactly what the EXR/PNG hold: float16 textures ``VK_FORMAT_R16G16B16A16_SFLOAT`` (A = 1,
   8 bytes per texel), 8-bit textures ``VK_FORMAT_R8G8B8A8_UNORM`` (A = 255 for RGB, 4 bytes per
-  texel). Measured (docs/benchmarks.md): block compression of the IrradZ ``direction``
-  texture moves (u, v) codes near the horizon, where ``C_d = I_z (1 - w_a) / d_z`` magnifies
-  every step (a few outlier texels: the default hhd/luminance on atlas pages at 32x32, 256
-  samples, 61 % relRMSE of irradiance on pillar_room, 45 % on floor_lamp; no BC7 encoding
-  tried came within 10x of 2 %), so lossless is the default.
-- ``"bc"`` (``ktx2-bc``): block-compressed, 1 byte per texel. Non-negative float16 textures
-  (I_z, ambient, C_d, hemisphere, ...) ``VK_FORMAT_BC6H_UFLOAT_BLOCK`` (-0.0 written as 0:
-  the unsigned encoder reads the bits of -0.0 as 65504); float16 textures with a
-  negative value (the signed SH / HL2 / ambient-cube coefficients) stay RGBA16F, as no signed
-  BC6H encoder is on the package index; 8-bit textures ``VK_FORMAT_BC7_UNORM_BLOCK``. The
-  encoder is ispc-texcomp (Python bindings of Intel's ISPCTextureCompressor, MIT; manylinux,
-  macOS and Windows abi3 wheels): the only BC6H encoder on the package index, and its BC7
-  ("slow" profile) halves etcpak's error on the IrradZ directions (hhd/rgb on pillar_room:
-  0.53 vs 7.49 relRMSE). BC6H uses the "slow" profile (2.2 s per 512 x 512 here; "veryslow"
-  4.7 s for the same result on the ramps and noise tried).
+  texel).
+- ``"bc"`` (``ktx2-bc``): block-compressed where the result holds up (issue 39: the default
+  hhd/luminance within 2 % relRMSE of the EXR/PNG irradiance on every sample). Non-negative RGB
+  float16 textures (I_z, ambient, C_d, hemisphere, ...) ``VK_FORMAT_BC6H_UFLOAT_BLOCK`` (1 byte
+  per texel; -0.0 written as 0: the unsigned encoder reads the bits of -0.0 as 65504) when level
+  0 decoded again (bcdec through imagecodecs) is within :data:`BC6H_MAX_REL_RMSE` (RMSE over the
+  covered texels / their mean), else ``VK_FORMAT_E5B9G9R9_UFLOAT_PACK32`` (shared exponent,
+  4 bytes per texel, within 2^-9 of each texel's largest channel): BC6H interpolates a 4 x 4
+  block in its half-float bit domain with 8 or 16 levels, so a block that spans a hotspot
+  (floor_lamp's floor: 0.12 to 2.84) is off by up to 13 % per texel, and no ispc-texcomp profile
+  (veryfast to veryslow) changes that much. Float16 textures with a negative value (the signed
+  SH / HL2 / ambient-cube coefficients, no signed BC6H encoder on the package index) or an alpha
+  stay RGBA16F. 8-bit textures ``VK_FORMAT_BC7_UNORM_BLOCK``, except the hemi-octahedral
+  direction codes (:data:`LOSSLESS_PACKINGS`), which stay RGBA8: BC7 moves (u, v) codes by
+  several steps where the direction varies texel to texel inside a block, and ``C_d = I_z
+  (1 - w_a) / d_z`` magnifies a move towards the horizon (hhd/luminance through BC7: 61 %
+  relRMSE of irradiance on pillar_room; no BC7 profile, gutter fill or layout tried came within
+  10x of 2 %, docs/benchmarks.md). The encoder is ispc-texcomp (Python bindings of Intel's
+  ISPCTextureCompressor, MIT; manylinux, macOS and Windows abi3 wheels): the only BC6H encoder
+  on the package index, and its BC7 ("slow" profile) halves etcpak's error. BC6H uses the
+  "slow" profile (2.2 s per 512 x 512 here; "veryslow" 4.7 s for the same result).
 
 The codes keep their meaning (the biases of docs/schema.md apply to the decoded bytes).
 
@@ -35,9 +41,10 @@ square root like sRGB mips do.
 
 The container follows the KTX 2.0 specification (Khronos): identifier, header, index, level
 index (level 0 first, data stored smallest level first, each level aligned to
-lcm(texel block size, 4)), a Basic Data Format Descriptor, key/value data (``KTXwriter``,
-``KTXorientation = rd``: row 0 is the top, like the PNG/EXR) and no supercompression. numpy
-(and ispc-texcomp for ``"bc"``) only; every write is atomic.
+lcm(texel block size, 4)), a Basic Data Format Descriptor (E5B9G9R9: the six samples libktx
+writes), key/value data (``KTXwriter``, ``KTXorientation = rd``: row 0 is the top, like the
+PNG/EXR) and no supercompression. numpy (and ispc-texcomp + imagecodecs for ``"bc"``) only;
+every write is atomic.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ __all__ = ["write"]
 IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
 VK_FORMAT_R8G8B8A8_UNORM = 37
 VK_FORMAT_R16G16B16A16_SFLOAT = 97
+VK_FORMAT_E5B9G9R9_UFLOAT_PACK32 = 123
 VK_FORMAT_BC6H_UFLOAT_BLOCK = 131
 VK_FORMAT_BC7_UNORM_BLOCK = 145
 #: the compressions of write(): "none" (lossless, ``--container ktx2``), "bc" (``ktx2-bc``)
@@ -66,8 +74,8 @@ BC6H_PROFILE = "slow"
 BC7_PROFILE = "slow"
 #: the largest BC6H error a "bc" texture may keep: RMSE of level 0 (decoded by bcdec through
 #: imagecodecs) over the covered texels, divided by their mean |value|; above it the texture is
-#: written RGBA16F (lossless). 1.5 % keeps the default hhd/luminance within issue 39's 2 % of
-#: irradiance (its irradiance is linear in I_z; docs/benchmarks.md)
+#: written E5B9G9R9 (shared exponent, 4 B/texel; RGBA16F with an alpha). 1.5 % keeps the
+#: default hhd/luminance within issue 39's 2 % of irradiance (linear in I_z; docs/benchmarks.md)
 BC6H_MAX_REL_RMSE = 0.015
 #: 8-bit packings that stay RGBA8 under "bc": the hemi-octahedral direction codes (u, v) of the
 #: IrradZ models and ahd_classic, whose BC7 error the decode multiplies by 1 / d_z
@@ -80,16 +88,22 @@ KHR_DF_PRIMARIES_BT709 = 1
 KHR_DF_TRANSFER_LINEAR = 1
 KHR_DF_SAMPLE_DATATYPE_FLOAT = 0x80
 KHR_DF_SAMPLE_DATATYPE_SIGNED = 0x40
+KHR_DF_SAMPLE_DATATYPE_EXPONENT = 0x20
+#: E5B9G9R9 (EXT_texture_shared_exponent): 9-bit mantissas, a 5-bit exponent, bias 15
+E5_MANTISSA_BITS = 9
+E5_BIAS = 15
+E5_MAX = (2**9 - 1) / 2**9 * 2.0 ** (31 - 15)  # 65408
 #: bytes per texel (RGBA8, RGBA16F) / per 4 x 4 block (BC6H, BC7)
 BLOCK_BYTES = {
     VK_FORMAT_R8G8B8A8_UNORM: 4,
     VK_FORMAT_R16G16B16A16_SFLOAT: 8,
+    VK_FORMAT_E5B9G9R9_UFLOAT_PACK32: 4,
     VK_FORMAT_BC6H_UFLOAT_BLOCK: 16,
     VK_FORMAT_BC7_UNORM_BLOCK: 16,
 }
 BLOCK_FORMATS = (VK_FORMAT_BC6H_UFLOAT_BLOCK, VK_FORMAT_BC7_UNORM_BLOCK)
 #: typeSize of the KTX2 header: 1 for bytes and blocks, 2 for float16
-TYPE_SIZE = {VK_FORMAT_R16G16B16A16_SFLOAT: 2}
+TYPE_SIZE = {VK_FORMAT_R16G16B16A16_SFLOAT: 2, VK_FORMAT_E5B9G9R9_UFLOAT_PACK32: 4}
 
 
 def mip_chain(
@@ -173,6 +187,15 @@ def _dfd(vk_format: int) -> bytes:
             struct.pack("<HBB4BII", 8 * i, 7, cid, 0, 0, 0, 0, 0, 255)
             for i, cid in enumerate((0, 1, 2, 15))
         ]
+    elif vk_format == VK_FORMAT_E5B9G9R9_UFLOAT_PACK32:
+        # per channel a mantissa sample (bits 0, 9, 18; 1.0 = 8448 as libktx writes it) and the
+        # shared exponent (bits 27..31, qualifier EXPONENT, bias 15, max 31)
+        model, dims, plane0 = KHR_DF_MODEL_RGBSDA, (0, 0, 0, 0), 4
+        exp = KHR_DF_SAMPLE_DATATYPE_EXPONENT
+        samples = []
+        for cid in (0, 1, 2):
+            samples.append(struct.pack("<HBB4BII", 9 * cid, 8, cid, 0, 0, 0, 0, 0, 8448))
+            samples.append(struct.pack("<HBB4BII", 27, 4, cid | exp, 0, 0, 0, 0, 15, 31))
     elif vk_format == VK_FORMAT_R16G16B16A16_SFLOAT:
         model, dims, plane0 = KHR_DF_MODEL_RGBSDA, (0, 0, 0, 0), 8
         qual = KHR_DF_SAMPLE_DATATYPE_FLOAT | KHR_DF_SAMPLE_DATATYPE_SIGNED
@@ -278,6 +301,21 @@ def _bc6h(rgba: np.ndarray) -> bytes:
     return t.compress_blocks_bc6h(surf, t.BC6HEncSettings.from_profile(BC6H_PROFILE))
 
 
+def e5b9g9r9(rgb: np.ndarray) -> np.ndarray:
+    """(h, w, 3) float >= 0 -> (h, w) uint32 E5B9G9R9 (EXT_texture_shared_exponent's encoder:
+    the exponent of the largest channel, mantissas rounded to nearest)."""
+    c = np.clip(np.nan_to_num(np.asarray(rgb, np.float64)), 0.0, E5_MAX)
+    mx = c.max(axis=-1)
+    _, e = np.frexp(mx)  # mx = f 2^e, f in [0.5, 1): floor(log2 mx) = e - 1 (mx > 0)
+    exp_p = np.where(mx > 0, np.maximum(-E5_BIAS - 1, e - 1), -E5_BIAS - 1) + 1 + E5_BIAS
+    n = E5_MANTISSA_BITS
+    maxm = np.floor(mx / np.exp2(exp_p - E5_BIAS - n) + 0.5)
+    exp = np.where(maxm >= 2**n, exp_p + 1, exp_p)
+    m = np.floor(c / np.exp2(exp - E5_BIAS - n)[..., None] + 0.5).astype(np.uint32)
+    m = np.minimum(m, 2**n - 1)
+    return m[..., 0] | (m[..., 1] << 9) | (m[..., 2] << 18) | (exp.astype(np.uint32) << 27)
+
+
 def _rgba(img: np.ndarray, dtype, one) -> np.ndarray:
     h, w, c = img.shape
     px = np.full((h, w, 4), one, dtype)
@@ -301,11 +339,11 @@ def encode_levels(
 
     fmt "half": RGBA16F (A = 1), or with compression "bc" BC6H_UFLOAT when no value is negative
     and level 0's error (:func:`bc6h_rel_rmse` over its covered texels) is at most
-    ``max_rel_rmse`` (:data:`BC6H_MAX_REL_RMSE`; RGBA16F otherwise); fmt "unorm8": RGBA8 of the
-    rounded codes (A = 255 for RGB), or BC7 with compression "bc" unless ``lossless`` (the
-    direction codes of :data:`LOSSLESS_PACKINGS`). ``stats``: a dict that receives
-    ``bc_rel_rmse`` (the BC6H error measured) and ``lossless_reason`` when a "bc" texture is
-    written lossless."""
+    ``max_rel_rmse`` (:data:`BC6H_MAX_REL_RMSE`), else E5B9G9R9 (RGB) or RGBA16F (RGBA, or a
+    negative value); fmt "unorm8": RGBA8 of the rounded codes (A = 255 for RGB), or BC7 with
+    compression "bc" unless ``lossless`` (the direction codes of :data:`LOSSLESS_PACKINGS`).
+    ``stats``: a dict that receives ``bc_rel_rmse`` (the BC6H error measured) and, when a "bc"
+    texture is not block-compressed, ``bc_fallback`` (why, and the format written)."""
     if compression not in COMPRESSIONS:
         raise ImageError(f"KTX2 compression must be one of {COMPRESSIONS}, got {compression!r}")
     bc = compression == "bc"
@@ -313,7 +351,7 @@ def encode_levels(
     if fmt == "half":
         pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
         if bc and any((p < 0).any() for p in pxs):
-            stats["lossless_reason"] = "negative values (no signed BC6H encoder)"
+            stats["bc_fallback"] = "negative values (no signed BC6H encoder): RGBA16F"
         elif bc:
             # -0.0 (sign bit set, e.g. an SH coefficient that cancels) passes "not < 0" but
             # an unsigned BC6H encoder reads its bits 0x8000 as the largest value: 65504
@@ -323,15 +361,18 @@ def encode_levels(
             stats["bc_rel_rmse"] = err if math.isfinite(err) else None
             if err <= max_rel_rmse:
                 return VK_FORMAT_BC6H_UFLOAT_BLOCK, [first] + [_bc6h(p) for p in pxs[1:]]
-            stats["lossless_reason"] = (
-                f"BC6H error {err:.3g} > {max_rel_rmse:g} (RMSE / mean of level 0)"
-            )
+            why = f"BC6H error {err:.3g} > {max_rel_rmse:g} (RMSE / mean of level 0)"
+            if levels[0][0].shape[-1] == 3:  # no alpha: the shared-exponent format, 4 B/texel
+                stats["bc_fallback"] = why + ": E5B9G9R9"
+                rgb = [p[..., :3].astype(np.float64) for p in pxs]
+                return VK_FORMAT_E5B9G9R9_UFLOAT_PACK32, [e5b9g9r9(p).tobytes() for p in rgb]
+            stats["bc_fallback"] = why + ": RGBA16F"
             pxs = [_rgba(img, np.float16, 1.0) for img, _ in levels]
         return VK_FORMAT_R16G16B16A16_SFLOAT, [p.tobytes() for p in pxs]
     if fmt == "unorm8":
         pxs = [_rgba(img, np.uint8, 255) for img, _ in levels]
         if bc and lossless:
-            stats["lossless_reason"] = "direction codes (BC7 error multiplied by 1 / d_z)"
+            stats["bc_fallback"] = "direction codes (BC7 error multiplied by 1 / d_z): RGBA8"
         elif bc:
             alpha = levels[0][0].shape[-1] == 4
             return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]
@@ -358,7 +399,7 @@ def write(
     pairs (e.g. ``usdahd:packing``; a packing of :data:`LOSSLESS_PACKINGS` stays RGBA8 under
     "bc"). max_rel_rmse : the BC6H error bound of :func:`encode_levels`. returns {"vk_format",
     "levels", "bytes", "bytes_per_texel"} plus, under "bc", ``bc_rel_rmse`` (the BC6H error
-    measured) and ``lossless_reason`` (a texture written lossless).
+    measured) and ``bc_fallback`` (why a texture is not block-compressed, and its format).
     """
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[-1] not in (3, 4):

@@ -87,9 +87,10 @@ def add_parser(sub):
         "--container",
         choices=["files", "ktx2", "ktx2-bc"],
         help="files: EXR/PNG textures (default); ktx2: also a KTX2 per texture with a "
-        "chart-aware mip chain, lossless (RGBA8 / RGBA16F); ktx2-bc: the same block-compressed, "
-        "BC7 for 8-bit data, BC6H for HDR (needs ispc-texcomp; error per model in "
-        "docs/benchmarks.md)",
+        "chart-aware mip chain, lossless (RGBA8 / RGBA16F); ktx2-bc: the same compressed where it "
+        "holds: BC6H for HDR within 1.5 %% of the values (else E5B9G9R9), BC7 for 8-bit data "
+        "except direction codes (RGBA8) (needs usdahd[ktx2]; docs/schema.md, error per model "
+        "in docs/benchmarks.md)",
     )
     a(
         "--atlas",

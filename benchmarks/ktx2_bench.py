@@ -222,8 +222,8 @@ def section(result: dict) -> str:
         "0.0223, pillar_room 0.0565 -> 0.0576, floor_lamp 0.225 unchanged; cornell_box's 10 "
         "worst of 404 blocks carry 43 % of the squared error). So the writer decodes its BC6H "
         "again (bcdec, through imagecodecs) and keeps it only within 1.5 % RMSE / mean over the "
-        "covered texels (`usdahd.ktx2.BC6H_MAX_REL_RMSE`; hhd's irradiance is linear in I_z, "
-        "and measured above 1.0 to 1.1x the I_z error); otherwise the texture is E5B9G9R9 "
+        "covered texels (`usdahd.ktx2.BC6H_MAX_REL_RMSE`: hhd's irradiance is linear in I_z, "
+        "and the BC6H rows above stay under 1.4 %); otherwise the texture is E5B9G9R9 "
         "(shared exponent, 4 B/texel, within 2^-9 of each texel's largest channel).",
         "- **BC7 of the other 8-bit textures** (hhd/ahd/hlsh `ratio`, `sh_l1` 8bit) is not "
         "checked: those variants' rows above show where it misses 2 %.",

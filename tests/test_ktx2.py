@@ -294,13 +294,15 @@ def test_bc_holds_its_error_bound_or_writes_lossless(tmp_path):
         info["bc_fallback"] == f"BC6H error {mesa:.3g} > 0.015 (RMSE / mean of level 0): E5B9G9R9"
     )
     f = KR.read(tmp_path / "hot.ktx2")
-    assert f["type_size"] == 4 and [s[:4] for s in f["dfd"]["samples"]] == [
-        (0, 9, 0, 0),  # R mantissa: bits 0..8
-        (27, 5, 0, 0x20),  # the shared exponent, qualifier EXPONENT
-        (9, 9, 1, 0),
-        (27, 5, 1, 0x20),
-        (18, 9, 2, 0),
-        (27, 5, 2, 0x20),
+    # the DFD libktx expects for VK_FORMAT_E5B9G9R9_UFLOAT_PACK32 (its e5b9g9r9 comparator)
+    assert f["type_size"] == 4 and f["dfd"]["bytes_plane"][0] == 4
+    assert f["dfd"]["samples"] == [
+        (0, 9, 0, 0, 0, 8448),  # R mantissa: bits 0..8, sampleLower 0, sampleUpper 8448
+        (27, 5, 0, 0x20, 15, 31),  # the shared exponent: qualifier EXPONENT, bias 15, max 31
+        (9, 9, 1, 0, 0, 8448),
+        (27, 5, 1, 0x20, 15, 31),
+        (18, 9, 2, 0, 0, 8448),
+        (27, 5, 2, 0x20, 15, 31),
     ]
     got, ref = f["images"][0][..., :3][m], hot[m].astype(np.float64)  # the gutter: dilated
     assert (np.abs(got - ref) <= 2.0**-9 * ref.max(axis=-1, keepdims=True)).all()

@@ -19,7 +19,7 @@ one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-b
   (veryfast to veryslow) changes that much. Float16 textures with a negative value (the signed
   SH / HL2 / ambient-cube coefficients, no signed BC6H encoder on the package index) or an alpha
   stay RGBA16F. 8-bit textures ``VK_FORMAT_BC7_UNORM_BLOCK``, except the hemi-octahedral
-  direction codes (:data:`LOSSLESS_PACKINGS`), which stay RGBA8: BC7 moves (u, v) codes by
+  direction and ratio codes (:data:`LOSSLESS_PACKINGS`), which stay RGBA8: BC7 moves (u, v) codes by
   several steps where the direction varies texel to texel inside a block, and ``C_d = I_z
   (1 - w_a) / d_z`` magnifies a move towards the horizon (hhd/luminance through BC7: 61 %
   relRMSE of irradiance on pillar_room; no BC7 profile, gutter fill or layout tried came within
@@ -78,8 +78,9 @@ BC7_PROFILE = "slow"
 #: default hhd/luminance within issue 39's 2 % of irradiance (linear in I_z; docs/benchmarks.md)
 BC6H_MAX_REL_RMSE = 0.015
 #: 8-bit packings that stay RGBA8 under "bc": the hemi-octahedral direction codes (u, v) of the
-#: IrradZ models and ahd_classic, whose BC7 error the decode multiplies by 1 / d_z
-LOSSLESS_PACKINGS = ("R=u:snorm8b",)
+#: IrradZ models and ahd_classic and the IrradZ per-channel ambient ratios w_a (``ratio``), whose
+#: BC7 error the decode multiplies by 1 / d_z (C_d = I_z (1 - w_a) / d_z)
+LOSSLESS_PACKINGS = ("R=u:snorm8b", "R=w_a.R:")
 #: Basic DFD colour models and channel ids (Khronos Data Format Specification 1.3).
 KHR_DF_MODEL_RGBSDA = 1
 KHR_DF_MODEL_BC6H = 133
@@ -341,7 +342,7 @@ def encode_levels(
     and level 0's error (:func:`bc6h_rel_rmse` over its covered texels) is at most
     ``max_rel_rmse`` (:data:`BC6H_MAX_REL_RMSE`), else E5B9G9R9 (RGB) or RGBA16F (RGBA, or a
     negative value); fmt "unorm8": RGBA8 of the rounded codes (A = 255 for RGB), or BC7 with
-    compression "bc" unless ``lossless`` (the direction codes of :data:`LOSSLESS_PACKINGS`).
+    compression "bc" unless ``lossless`` (the codes of :data:`LOSSLESS_PACKINGS`).
     ``stats``: a dict that receives ``bc_rel_rmse`` (the BC6H error measured) and, when a "bc"
     texture is not block-compressed, ``bc_fallback`` (why, and the format written)."""
     if compression not in COMPRESSIONS:
@@ -372,7 +373,7 @@ def encode_levels(
     if fmt == "unorm8":
         pxs = [_rgba(img, np.uint8, 255) for img, _ in levels]
         if bc and lossless:
-            stats["bc_fallback"] = "direction codes (BC7 error multiplied by 1 / d_z): RGBA8"
+            stats["bc_fallback"] = "direction / ratio codes (BC7 error times 1 / d_z): RGBA8"
         elif bc:
             alpha = levels[0][0].shape[-1] == 4
             return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]

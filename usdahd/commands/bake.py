@@ -89,8 +89,8 @@ def add_parser(sub):
         help="files: EXR/PNG textures (default); ktx2: also a KTX2 per texture with a "
         "chart-aware mip chain, lossless (RGBA8 / RGBA16F); ktx2-bc: the same compressed where it "
         "holds: BC6H for HDR within 1.5 %% of the values (else E5B9G9R9), BC7 for 8-bit data "
-        "except direction codes (RGBA8) (needs usdahd[ktx2]; docs/schema.md, error per model "
-        "in docs/benchmarks.md)",
+        "except direction / ratio codes (RGBA8) (needs usdahd[ktx2]; docs/schema.md, error per "
+        "model in docs/benchmarks.md)",
     )
     a(
         "--atlas",

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("ispc_texcomp")
+pytest.importorskip("imagecodecs")
 pytest.importorskip("texture2ddecoder")
 
 from usdahd import cli, images, ktx2, models  # noqa: E402

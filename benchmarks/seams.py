@@ -14,6 +14,11 @@ are sampled on different texel grids, as an unwrapper's charts are.
 Carlo-like SH input (noisy, seeded): ``post.find_seams`` over the first ``--prims`` meshes,
 then ``post.stitch``.
 
+The seams' share of a whole bake comes from the bake itself (its stderr status lines
+``denoised in``, ``seams: stitched in``; ``--json`` holds the total ``seconds``) and
+``/usr/bin/time -v`` for its CPU, e.g. ``usdahd bake tori.usdc --resolution 256 --samples 16
+--json``; ``time`` over all prims gives the seam step's CPU alone (docs/texels.md, "Seams").
+
 ``step`` measures what a viewer sees across the seams of a baked stage: for every seam sample
 (``post.find_seams`` on the baked meshes at their baked resolution), the absolute difference of
 the decoded irradiance I_z (Rec. 709 luminance, the model's own decoder on the written

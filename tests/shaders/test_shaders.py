@@ -25,6 +25,7 @@ import pytest
 import usdahd
 from usdahd import cli, images, models, shaders
 from usdahd.errors import UsageError
+from usdahd.preview.gpu import upload_texture
 from usdahd.usd.schema import NO_ATLAS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -309,32 +310,6 @@ def bakes(tmp_path_factory):
 # Running a kernel.
 
 
-def _texture(device, pixels: np.ndarray):
-    """Upload stored pixels (h, w, 3|4) float16 or uint8 as rgba16float / rgba8unorm."""
-    import wgpu
-
-    h, w, c = pixels.shape
-    if pixels.dtype == np.float16:
-        fmt, one = wgpu.TextureFormat.rgba16float, np.float16(1.0)
-    else:
-        assert pixels.dtype == np.uint8, pixels.dtype
-        fmt, one = wgpu.TextureFormat.rgba8unorm, np.uint8(255)
-    rgba = np.full((h, w, 4), one, pixels.dtype)
-    rgba[..., :c] = pixels
-    tex = device.create_texture(
-        size=(w, h, 1),
-        format=fmt,
-        usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST,
-    )
-    device.queue.write_texture(
-        {"texture": tex},
-        np.ascontiguousarray(rgba).tobytes(),
-        {"bytes_per_row": w * 4 * rgba.itemsize, "rows_per_image": h},
-        (w, h, 1),
-    )
-    return tex
-
-
 def run_kernel(
     device, module, textures, inputs: np.ndarray, factors: dict, k: int, scale_offset=NO_ATLAS
 ) -> np.ndarray:
@@ -516,7 +491,7 @@ def test_shader_decode_and_evaluate_match_python(device, bakes, model, ratio, la
         pages = with_edge_texels({r: p[y0:] for r, p in rec.pages.items()}, rng)
         pages = {r: np.concatenate([rec.pages[r][:y0], p]) for r, p in pages.items()}
         channels = {r: p[y0 : y0 + h, x0 : x0 + w] for r, p in pages.items()}
-        textures = [_texture(device, pages[r]) for r in roles]
+        textures = [upload_texture(device, pages[r]) for r in roles]
         inp, xy = _inputs(rng, res)
         so = rec.results.scale_offset
         # the bake's factors, then all doubled (exercises every scale's plumbing)
@@ -811,7 +786,7 @@ def _figure2(device, language, tmp_path, model, ratio, pixels):
     inp[: len(FIG2_T), 0, 0] = 0.25 + 0.5 * FIG2_T
     inp[:, 0, 1] = 0.5
     inp[:, 1, 2] = 1.0  # the normal; albedo 0 (no self-bounce)
-    got = run_kernel(device, module, [_texture(device, p) for p in pixels], inp, {}, k)
+    got = run_kernel(device, module, [upload_texture(device, p) for p in pixels], inp, {}, k)
     got = got[: len(FIG2_T)].astype(np.float64)
     return got[:, : k - 2], got[:, k - 2]
 

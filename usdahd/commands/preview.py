@@ -245,7 +245,12 @@ def run(args) -> int:
         from usdahd.preview.surface import surfaces as read_surfaces
 
         surfaces = read_surfaces(stage, meshes)
-    items = draw_items(meshes, surfaces, ahd_classic=args.ahd_classic)
+    cuts = None
+    if gpu:  # the rasteriser needs the opacity the tracer reads (Embree honours it itself)
+        from usdahd.preview.cutout import cutouts
+
+        cuts = cutouts(stage, meshes)
+    items = draw_items(meshes, surfaces, ahd_classic=args.ahd_classic, cutouts=cuts)
     image = render_view(
         stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None, surfaces=surfaces,
         ahd_classic=args.ahd_classic,

@@ -18,7 +18,7 @@ import numpy as np
 
 from usdahd.errors import UsageError
 
-__all__ = ["device", "render", "request_adapter"]
+__all__ = ["device", "render", "request_adapter", "upload_texture"]
 
 INSTALL_HINT = (
     "usdahd preview renders through wgpu (installed with usdahd) on a Vulkan device; for the "
@@ -99,23 +99,23 @@ _SHADER = """
 struct U {{
     viewproj: mat4x4<f32>,
     f0: vec4<f32>,
-    f1: vec4<f32>,{mv_uniform}
+    f1: vec4<f32>,{mv_uniform}{cut_uniform}
 }}
 @group(0) @binding(0) var<uniform> u: U;
 @group(0) @binding(1) var samp: sampler;
 {textures}
-{library}
+{library}{cut_library}
 struct VOut {{
     @builtin(position) pos: vec4<f32>,
     @location(0) st: vec2<f32>,
     @location(1) normal: vec3<f32>,
-    @location(2) tangent: vec4<f32>,{mv_vout}
+    @location(2) tangent: vec4<f32>,{mv_vout}{cut_vout}
 }}
 
 @vertex
 fn vs(@location(0) p: vec3<f32>, @location(1) st: vec2<f32>, @location(2) n: vec3<f32>,
-      @location(3) t: vec4<f32>{mv_vs_in}) -> VOut {{
-    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t{mv_vs_out});
+      @location(3) t: vec4<f32>{mv_vs_in}{cut_vs_in}) -> VOut {{
+    return VOut(u.viewproj * vec4<f32>(p, 1.0), st, n, t{mv_vs_out}{cut_vs_out});
 }}
 
 @fragment
@@ -130,7 +130,7 @@ fn fs(v: VOut) -> @location(0) vec4<f32> {{
 {shading}
     let uv = usdahd_lightmap_texcoord(v.st);
 {samples}
-    let p = {decode};
+    let p = {decode};{cut_test}
     return vec4<f32>({result}, 1.0);
 }}
 """
@@ -149,6 +149,37 @@ _MODEL_VIEW = {
     let N = usdahd_apply_normal_map(textureSample(normal_tex, normal_samp, mtc).rgb, mframe);
     let n = usdahd_to_tangent(frame, N);""",
 }
+#: Cut-out additions to _SHADER (:mod:`usdahd.preview.cutout`): the material's texcoord per
+#: vertex, the opacity (constant or texture channel) and threshold, and the tracer's rule:
+#: discard below a threshold > 0, else with probability 1 - opacity (a per-pixel hash).
+_CUTOUT = {
+    "cut_uniform": "\n    cut: vec4<f32>, // opacity, threshold, textured, 0",
+    "cut_vout": "\n    @location(5) cst: vec2<f32>,",
+    "cut_vs_in": ",\n      @location(6) cst: vec2<f32>",
+    "cut_vs_out": ", cst",
+    "cut_library": """
+fn usdahd_preview_noise(p: vec2<f32>) -> f32 {
+    var h = u32(p.x) * 1973u + u32(p.y) * 9277u + 26699u;
+    h = (h ^ 61u) ^ (h >> 16u);
+    h = h * 9u;
+    h = h ^ (h >> 4u);
+    h = h * 0x27d4eb2du;
+    h = h ^ (h >> 15u);
+    return f32(h >> 8u) / 16777216.0;
+}
+""",
+    "cut_test": """
+    let op_tex = textureSample(cut_tex, cut_samp, usdahd_lightmap_texcoord(v.cst)).r;
+    let op = select(u.cut.x, op_tex, u.cut.z > 0.5);
+    let threshold = u.cut.y;
+    let below = (op < threshold);
+    let fractional = (op < 1.0) && (usdahd_preview_noise(v.pos.xy) >= op);
+    let cut = (threshold > 0.0);
+    if (select(fractional, below, cut)) {
+        discard;
+    }""",
+}
+_NO_CUTOUT = {k: "" for k in _CUTOUT}
 _FLAT_SHADING = {
     "mv_uniform": "",
     "mv_vout": "",
@@ -158,23 +189,32 @@ _FLAT_SHADING = {
 }
 
 
-def shader_source(model: str, ratio: str, n_textures: int, model_view: bool = False) -> str:
+def shader_source(
+    model: str, ratio: str, n_textures: int, model_view: bool = False, cutout: bool = False
+) -> str:
     """WGSL vertex + fragment shader of one model variant (the shipped decoders); with
     ``model_view`` times the albedo, at the normal-mapped normal (bindings 2 + n_textures..:
-    albedo texture, normal texture, their sampler)."""
+    albedo texture, normal texture, their sampler); with ``cutout`` the opacity test of
+    :mod:`usdahd.preview.cutout` (the next two bindings: opacity texture, its sampler)."""
     from usdahd import shaders
 
     _, call, _, evaluate = shaders.calls(model, ratio)
     textures = [
         f"@group(0) @binding({2 + j}) var tex{j}: texture_2d<f32>;" for j in range(n_textures)
     ]
+    b = 2 + n_textures
     if model_view:
-        b = 2 + n_textures
         textures += [
             f"@group(0) @binding({b}) var albedo_tex: texture_2d<f32>;",
             f"@group(0) @binding({b + 1}) var normal_tex: texture_2d<f32>;",
             f"@group(0) @binding({b + 2}) var albedo_samp: sampler;",
             f"@group(0) @binding({b + 3}) var normal_samp: sampler;",
+        ]
+        b += 4
+    if cutout:
+        textures += [
+            f"@group(0) @binding({b}) var cut_tex: texture_2d<f32>;",
+            f"@group(0) @binding({b + 1}) var cut_samp: sampler;",
         ]
     return _SHADER.format(
         textures="\n".join(textures),
@@ -185,10 +225,14 @@ def shader_source(model: str, ratio: str, n_textures: int, model_view: bool = Fa
         decode=call,
         result=f"albedo * {evaluate}(p, n)" if model_view else f"{evaluate}(p, n)",
         **(_MODEL_VIEW if model_view else _FLAT_SHADING),
+        **(_CUTOUT if cutout else _NO_CUTOUT),
     )
 
 
-def _texture(dev, pixels: np.ndarray):
+def upload_texture(dev, pixels: np.ndarray):
+    """A sampled wgpu texture of ``pixels`` (h, w, c <= 4): float32 as rgba32float (rgba16float
+    when the device cannot filter float32), float16 as rgba16float, uint8 as rgba8unorm; missing
+    channels are 1 (alpha opaque). Row 0 is the top of the image."""
     import wgpu
 
     h, w, c = pixels.shape
@@ -227,7 +271,10 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
 
     ``--model-view`` items carry a 6th element, a :class:`usdahd.preview.surface.Surface`, and
     vertices (3t, 18) (:func:`usdahd.preview.meshes.vertex_data` with the material's texcoord
-    and tangent): the image is then albedo x irradiance at the normal-mapped normal."""
+    and tangent): the image is then albedo x irradiance at the normal-mapped normal.
+    Items of a transmissive material carry a 7th, a :class:`usdahd.preview.cutout.Cutout`
+    (the 6th None without --model-view), and 2 more floats per vertex (its texcoord): their
+    fragments are discarded by the tracer's opacity rule (alpha cut-outs)."""
     import wgpu
 
     w, h = size
@@ -259,9 +306,18 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
     draws = []
     for verts, model, ratio, textures, factors, *rest in items:
         surf = rest[0] if rest else None
-        key = (model, ratio, len(textures), surf is not None)
+        cut = rest[1] if len(rest) > 1 else None
+        key = (model, ratio, len(textures), surf is not None, cut is not None)
         if key not in pipelines:
-            module = dev.create_shader_module(code=shader_source(*key))  # key[3]: model_view
+            stride = 72 if surf is not None else 48
+            vattrs = mv_attrs if surf is not None else attrs
+            if cut is not None:
+                vattrs = vattrs + [
+                    {"format": wgpu.VertexFormat.float32x2, "offset": stride, "shader_location": 6}
+                ]
+                stride += 8
+            # key[3], key[4]: model_view, cutout
+            module = dev.create_shader_module(code=shader_source(*key))
             pipelines[key] = dev.create_render_pipeline(
                 layout="auto",
                 vertex={
@@ -269,9 +325,9 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
                     "entry_point": "vs",
                     "buffers": [
                         {
-                            "array_stride": 72 if surf is not None else 48,
+                            "array_stride": stride,
                             "step_mode": "vertex",
-                            "attributes": mv_attrs if surf is not None else attrs,
+                            "attributes": vattrs,
                         }
                     ],
                 },
@@ -288,11 +344,14 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
                 },
             )
         pipe = pipelines[key]
-        uni = np.zeros(28 if surf is not None else 24, np.float32)
+        n_uni = 24 + (4 if surf is not None else 0)
+        uni = np.zeros(n_uni + (4 if cut is not None else 0), np.float32)
         uni[:16] = viewproj.T.reshape(-1)  # WGSL matrices are column-major
         uni[16:22] = [factors.get(f, 1.0) for f in FACTORS]
         if surf is not None:
             uni[24:27] = surf.albedo
+        if cut is not None:
+            uni[n_uni : n_uni + 4] = cut.uniform()
         ubuf = dev.create_buffer_with_data(data=uni.tobytes(), usage=wgpu.BufferUsage.UNIFORM)
         vbuf = dev.create_buffer_with_data(
             data=np.ascontiguousarray(verts).tobytes(), usage=wgpu.BufferUsage.VERTEX
@@ -302,7 +361,7 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
             {"binding": 1, "resource": sampler},
         ]
         entries += [
-            {"binding": 2 + j, "resource": _texture(dev, t).create_view()}
+            {"binding": 2 + j, "resource": upload_texture(dev, t).create_view()}
             for j, t in enumerate(textures)
         ]
         if surf is not None:
@@ -321,11 +380,20 @@ def render(dev, items, viewproj: np.ndarray, size) -> np.ndarray:
             ]
             b = 2 + len(textures)
             entries += [
-                {"binding": b, "resource": _texture(dev, albedo).create_view()},
-                {"binding": b + 1, "resource": _texture(dev, normal).create_view()},
+                {"binding": b, "resource": upload_texture(dev, albedo).create_view()},
+                {"binding": b + 1, "resource": upload_texture(dev, normal).create_view()},
                 {"binding": b + 2, "resource": samplers[0]},
                 {"binding": b + 3, "resource": samplers[1]},
             ]
+        if cut is not None:
+            b = 2 + len(textures) + (4 if surf is not None else 0)
+            opacity = np.ones((1, 1, 1), np.float32) if cut.texture is None else cut.texture
+            entries += [
+                {"binding": b, "resource": upload_texture(dev, opacity).create_view()},
+                {"binding": b + 1, "resource": dev.create_sampler(
+                    mag_filter="linear", min_filter="linear", address_mode_u=ADDRESS[cut.wrap[0]],
+                    address_mode_v=ADDRESS[cut.wrap[1]])},
+            ]  # fmt: skip
         group = dev.create_bind_group(layout=pipe.get_bind_group_layout(0), entries=entries)
         draws.append((pipe, group, vbuf, len(verts)))
     enc = dev.create_command_encoder()

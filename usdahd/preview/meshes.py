@@ -49,14 +49,22 @@ def baked_meshes(layer: str):
     return stage, out, up
 
 
-def vertex_data(mesh, tangent, sign, surface=None) -> np.ndarray:
+def vertex_data(mesh, tangent, sign, surface=None, cutout=None, tris=None) -> np.ndarray:
     """Per-corner vertices (3t, 12) float32: position, lightmap st, normal, tangent + sign;
     with a :class:`usdahd.preview.surface.Surface` (--model-view) the group's triangles only,
-    (3k, 18): then also the material's texcoord and tangent + sign."""
-    tris = np.arange(len(mesh.triangles)) if surface is None else surface.tris
+    (3k, 18): then also the material's texcoord and tangent + sign. With a
+    :class:`usdahd.preview.cutout.Cutout` its triangles only, and 2 more floats: the cut-out's
+    texcoord. ``tris``: only these triangles (without a surface or cut-out)."""
+    if cutout is not None:  # a Surface of the same material holds the same triangles
+        tris = cutout.tris
+    elif surface is not None:
+        tris = surface.tris
+    elif tris is None:
+        tris = np.arange(len(mesh.triangles))
     t = len(tris)
+    base = 12 if surface is None else 18
     pos = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles)[tris]]
-    v = np.zeros((t, 3, 12 if surface is None else 18), np.float32)
+    v = np.zeros((t, 3, base + (2 if cutout is not None else 0)), np.float32)
     v[..., 0:3] = pos
     v[..., 3:5] = np.asarray(mesh.uv)[tris]
     v[..., 5:8] = np.asarray(mesh.normals)[tris]
@@ -66,6 +74,8 @@ def vertex_data(mesh, tangent, sign, surface=None) -> np.ndarray:
         v[..., 12:14] = surface.st
         v[..., 14:17] = surface.tangent
         v[..., 17] = surface.sign[:, None]
+    if cutout is not None:
+        v[..., base : base + 2] = cutout.st
     return v.reshape(-1, v.shape[-1])
 
 
@@ -86,21 +96,37 @@ def _textures(mesh, res, ahd_classic: bool = False) -> tuple:
     return classic.item(res.model, res.ratio, textures, res.factors)
 
 
-def draw_items(meshes, surfaces=None, ahd_classic: bool = False) -> list:
+def draw_items(meshes, surfaces=None, ahd_classic: bool = False, cutouts=None) -> list:
     """[(vertices (3t, 12), model, ratio, textures [(h, w, c) stored pixels], factors)] of
     ``meshes`` (:func:`baked_meshes`), textures in the model's layout order: what
     :func:`usdahd.preview.gpu.render` draws. With ``surfaces``
     (:func:`usdahd.preview.surface.surfaces`, --model-view): one item per mesh and material,
     the Surface appended. ``ahd_classic``: the classic AHD textures instead
-    (:mod:`usdahd.preview.classic`)."""
+    (:mod:`usdahd.preview.classic`). With ``cutouts`` (:func:`usdahd.preview.cutout.cutouts`)
+    a mesh's transmissive materials are drawn as items of their own, the Cutout appended after
+    the Surface (None without --model-view), which the fragment shader discards by the
+    tracer's opacity rule."""
+    from usdahd.preview.cutout import opaque_triangles
+
     items = []
     for k, (mesh, res, tangent, sign) in enumerate(meshes):
         drawn = _textures(mesh, res, ahd_classic)
+        cuts = cutouts[k] if cutouts is not None else []
         if surfaces is None:
-            items.append((vertex_data(mesh, tangent, sign), *drawn))
+            if not cuts:
+                items.append((vertex_data(mesh, tangent, sign), *drawn))
+                continue
+            rest = opaque_triangles(len(mesh.triangles), cuts)
+            if len(rest):
+                items.append((vertex_data(mesh, tangent, sign, tris=rest), *drawn))
+            for cut in cuts:
+                items.append((vertex_data(mesh, tangent, sign, cutout=cut), *drawn, None, cut))
             continue
+        by_material = {c.material: c for c in cuts}
         for surf in surfaces[k]:
-            items.append((vertex_data(mesh, tangent, sign, surf), *drawn, surf))
+            cut = by_material.get(surf.material)
+            verts = vertex_data(mesh, tangent, sign, surf, cutout=cut)
+            items.append((verts, *drawn, surf) if cut is None else (verts, *drawn, surf, cut))
     return items
 
 
@@ -118,11 +144,13 @@ def render_view(
     from usdahd.preview import raytrace
 
     scene = preview_scene(stage, meshes[0][1].uv_primvar)  # the materials
-    if surfaces is None:
-        traced = [(mesh,) + it[1:] for (mesh, *_), it in zip(meshes, items)]
+    if surfaces is None and len(items) == len(meshes):  # one item per mesh: reuse its textures
+        traced = [(mesh,) + it[1:5] for (mesh, *_), it in zip(meshes, items)]
         return raytrace.render(scene, traced, viewproj, size)
     traced = []
     for mesh, res, *_ in meshes:  # one entry per mesh: the tracer holds each once
         traced.append((mesh, *_textures(mesh, res, ahd_classic)))
+    if surfaces is None:
+        return raytrace.render(scene, traced, viewproj, size)
     frames = [(tangent, sign) for _, _, tangent, sign in meshes]
     return raytrace.render(scene, traced, viewproj, size, surfaces=surfaces, frames=frames)

@@ -558,6 +558,42 @@ def test_mosaic_matches_chart_by_chart_up_to_oidns_context():
     assert rel.max() < 0.05  # its mosaic with other records' charts: the same bound
 
 
+def test_chart_threads_change_nothing(monkeypatch):
+    """The charts' noise estimates and blends on CHART_THREADS threads (issue 43: they were a
+    third of the denoiser's CPU time, on one core): bit for bit the single-threaded result,
+    on records of several charts each (windows of 2 charts, an odd chart count included),
+    in place too."""
+    recs = []
+    for k, (make, level) in enumerate([(two_chart_plane, 1.0), (quad_and_sliver, 100.0),
+                                      (full_quad, 0.01)]):  # fmt: skip
+        mesh, t = make()
+        _, noisy = noisy_field(t, 0.05, seed=20 + k)
+        var = np.full(noisy.shape, 1e-3 * level**2, np.float32)
+        recs.append(dict(sh=noisy * level, texels=t, charts=charts_of(mesh, t), variance=var))
+    kw = dict(variance_bound=True, variance_pool=denoise.VARIANCE_POOL)
+    assert denoise.CHART_THREADS == 2
+    threaded = denoise.denoise_records(recs, **kw)
+    monkeypatch.setattr(denoise, "MOSAIC_PIXELS", 1)  # a batch per chart: many _finish calls
+    per_chart = denoise.denoise_records(recs, **kw)
+    monkeypatch.undo()
+    monkeypatch.setattr(denoise, "CHART_THREADS", 1)
+    assert denoise._chart_pool() is None
+    single = denoise.denoise_records(recs, **kw)
+    for a, b in zip(threaded, single, strict=True):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.undo()
+    monkeypatch.setattr(denoise, "MOSAIC_PIXELS", 1)
+    monkeypatch.setattr(denoise, "CHART_THREADS", 1)
+    for a, b in zip(per_chart, denoise.denoise_records(recs, **kw), strict=True):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.undo()
+    copies = [dict(r, sh=np.array(r["sh"], np.float32)) for r in recs]
+    inplace = denoise.denoise_records(copies, inplace=True, **kw)
+    for a, b, c in zip(inplace, single, copies, strict=True):
+        assert a is c["sh"]
+        np.testing.assert_array_equal(a, b)
+
+
 def test_denoise_records_checks_every_record_first():
     mesh, t = full_quad(8)
     good = dict(sh=np.zeros((len(t), 3, 9), np.float32), texels=t)

@@ -322,3 +322,29 @@ def test_regeneration_keeps_hand_run_sections():
         "<!-- BEGIN kept: b -->\nB\n<!-- END kept -->",
     ]
     assert bench_run.kept_blocks("# nothing kept\n") == []
+
+
+def test_denoise_cost_table_gives_the_plain_cpu_to_the_defaults_error():
+    """benchmarks/denoise_cost.py: --no-denoise's error falls as 1/sqrt(samples) from its
+    largest count and its CPU is linear between its two largest counts, so the CPU it needs
+    to reach the default's error follows; the error ratio is default / plain."""
+    import denoise_cost as dc
+
+    def row(variant, spp, err, cpu):
+        return {"stage": "s", "resolution": 32, "spp": spp, "variant": variant,
+                "net_rel": err, "cpu": cpu}  # fmt: skip
+
+    rows = [row("plain", 64, 0.04, 0.2), row("plain", 256, 0.02, 0.5)]
+    rows += [row("default", 64, 0.02, 1.0), row("default", 256, 0.01, 1.3)]
+    lines = dc.table(rows).splitlines()
+    # at 64 spp the default's 2 % is plain's own at 256 spp: 0.5 s; at 256 spp its 1 % needs
+    # 4x the samples (1024), 0.5 + 768 * 0.3 / 192 = 1.7 s
+    assert lines[2] == "| s | 32² | 64 | 4.00 % / 0.20 | 2.00 % / 1.00 | 0.50 | 0.50 (256 spp) |"
+    assert lines[3] == "| s | 32² | 256 | 2.00 % / 0.50 | 1.00 % / 1.30 | 0.50 | 1.70 (1024 spp) |"
+    # the truth's noise is taken out in quadrature: 5 % against a truth of 3 % noise is 4 %
+    t = np.linspace(1.0, 2.0, 16).reshape(4, 4)
+    m = np.ones((4, 4), bool)
+    d = np.where(np.arange(16).reshape(4, 4) % 2, 1, -1) * 0.06 * t.mean()  # rms/2 = 3 %
+    e = np.where(np.arange(16).reshape(4, 4) % 2, 1, -1) * 0.05 * t.mean()
+    got = dc.net_error({"/p": (t + e, m)}, {"/p": (t, m, d)})
+    assert got == pytest.approx(0.04)

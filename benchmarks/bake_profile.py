@@ -7,7 +7,8 @@ The bake runs in this process after one untimed 4-spp bake of the same stage (nu
 and caches loaded, as ``benchmarks/reference/warm.py`` times usdahd), under cProfile with the
 process CPU time as its clock (every thread's CPU: the tracer's and OIDN's threads count),
 so the shares hold on a loaded machine, where wall times do not. Prints the bake's CPU and
-wall seconds, the report's ``seconds``, texels, rays and the 1-minute load, then the
+wall seconds, the report's ``seconds``, texels, rays, the pixels of each OIDN run (mosaic
+images: chart canvases with their context) per covered texel and the 1-minute load, then the
 cumulative CPU seconds and share of each phase (the functions of PHASES); ``--top N`` adds
 cProfile's N largest cumulative entries. The stage's folder is copied to a temporary one
 (the output goes there too).
@@ -49,8 +50,16 @@ PHASES = (
 
 
 def profile(stage: Path, resolution: int, samples: int, flags: list[str]):
-    """(cpu, wall, report, pstats.Stats) of one warm bake of ``stage``."""
+    """(cpu, wall, report, pstats.Stats, OIDN pixels per run) of one warm bake of ``stage``."""
+    from usdahd.bake import denoise
     from usdahd.cli import main
+
+    pixels = []
+    run = denoise._Denoiser.run
+
+    def counted(self, color, **kw):
+        pixels.append(color.shape[0] * color.shape[1])
+        return run(self, color, **kw)
 
     tmp = Path(tempfile.mkdtemp(prefix="usdahd-profile-"))
     try:
@@ -59,6 +68,8 @@ def profile(stage: Path, resolution: int, samples: int, flags: list[str]):
         common = ["--resolution", str(resolution), "-q", *flags]
         with contextlib.redirect_stdout(io.StringIO()):
             main(["bake", str(st), "--samples", "4", "-o", str(tmp / "w" / "w.usda"), *common])
+        pixels.clear()
+        denoise._Denoiser.run = counted
         prof = cProfile.Profile(time.process_time)
         buf = io.StringIO()
         c0, w0 = time.process_time(), time.perf_counter()
@@ -67,8 +78,10 @@ def profile(stage: Path, resolution: int, samples: int, flags: list[str]):
         with contextlib.redirect_stdout(buf):
             prof.runcall(main, argv)
         cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        return cpu, wall, json.loads(buf.getvalue()), pstats.Stats(prof)
+        per_run = sum(pixels) / len(pixels) if pixels else 0
+        return cpu, wall, json.loads(buf.getvalue()), pstats.Stats(prof), per_run
     finally:
+        denoise._Denoiser.run = run
         shutil.rmtree(tmp, ignore_errors=True)
 
 
@@ -93,12 +106,15 @@ def main(argv=None) -> int:
     if not a.stage.is_file():
         print(f"error: {a.stage}: no such stage", file=sys.stderr)
         return 2
-    cpu, wall, rep, stats = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
+    cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
     rays = sum(p.get("rays", 0) for p in rep.get("prims", []))
+    covered = sum(p.get("texels", 0) for p in rep.get("prims", []))
     print(
         f"# {a.stage.stem} {a.resolution}^2 {a.samples} spp {a.flags}: bake CPU {cpu:.2f} s, "
         f"wall {wall:.2f} s, report seconds {rep['seconds']:.2f}, texels "
-        f"{rep.get('texels_total')}, rays {rays:,}, load {os.getloadavg()[0]:.1f}"
+        f"{rep.get('texels_total')} ({covered:,} covered), rays {rays:,}, OIDN pixels per run "
+        f"{px:,.0f} ({px / max(covered, 1):.2f} per covered texel), load "
+        f"{os.getloadavg()[0]:.1f}"
     )
     got = phase_seconds(stats)
     for label, _, _ in PHASES:

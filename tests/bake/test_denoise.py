@@ -532,6 +532,24 @@ def test_layout_tiles_do_not_overlap():
     assert tiles / (H * W) > 0.6  # shelf packing of tiles sorted by height wastes little
 
 
+def test_layout_packs_canvases_of_different_heights_tightly():
+    """The chart canvases of samples/exterior_sun_sky.usda at 128^2 (16 charts): shelves
+    alone left 17 % of the mosaic empty (101,376 pixels for 86,528), and OIDN's time follows
+    the mosaic's pixels; the skyline stacks the low tiles into the shelves' gaps (91,392)."""
+    sides = [(144, 144)] + [(64, 64)] * 5 + [(96, 48), (96, 48), (48, 48), (96, 48), (96, 48)]
+    sides += [(64, 32), (64, 32), (32, 128), (64, 128), (64, 128)]
+    crops = [(0, h, 0, w) for h, w in sides]
+    (H, W), pos = mosaic.layout(crops, 0)
+    tiles = sum(h * w for h, w in sides)
+    assert tiles == 86_528 and H * W <= 91_392, (H, W)
+    used = np.zeros((H, W), int)
+    for (h, w), (y, x) in zip(sides, pos, strict=True):
+        used[y : y + h, x : x + w] += 1
+    assert used.max() == 1
+    top, _ = mosaic._shelves(sides, sorted(range(16), key=lambda i: -sides[i][0]), W)
+    assert -(-top // 16) * 16 * W > H * W  # the shelves alone: more pixels at this width
+
+
 def test_mosaic_matches_chart_by_chart_up_to_oidns_context():
     """One OIDN run per coefficient for every chart of several records (a mosaic of the
     charts' crops, each with its own exposure) against each chart's canvas run alone: the

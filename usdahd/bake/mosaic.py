@@ -1,8 +1,8 @@
 """Mosaics for the denoiser (:mod:`usdahd.bake.denoise`): the chart canvases of many records
 laid out as tiles of one image per coefficient, so OIDN runs once per mosaic instead of once per
-chart. ``crop`` (the part of a canvas given to OIDN), ``layout`` (shelf packing of the tiles),
-``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run over a batch).
-numpy only; the OIDN device comes from the caller (``den.run``).
+chart. ``crop`` (the part of a canvas given to OIDN), ``layout`` (shelf or skyline packing of
+the tiles), ``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run
+over a batch). numpy only; the OIDN device comes from the caller (``den.run``).
 """
 
 from __future__ import annotations

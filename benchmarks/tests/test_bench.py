@@ -222,22 +222,89 @@ def test_bench_command_runs_what_run_py_runs(capsys):
 def test_reference_summary_names_the_largest_ratio_and_stages_not_reached():
     import run as bench_run
 
-    ttq = [
+    ttq128 = [
         {"stage": "a", "renderer": "usdahd", "ratio": 0.05},
         {"stage": "b", "renderer": "usdahd", "ratio": 0.17},
         {"stage": "c", "renderer": "usdahd", "ratio": 0.08},
         {"stage": "a", "renderer": "usdahd (warm)", "ratio": 0.04},
         {"stage": "b", "renderer": "usdahd (warm)", "ratio": None},
     ]
-    lines = bench_run.reference_summary(ttq)
+    lines = bench_run.reference_summary({128: ttq128})
     assert lines[0] == (
-        "- usdahd vs Cycles (as a command): usdahd reaches Cycles' 1024-spp error in at most "
-        "0.17x Cycles' time on every one of 3 stages (largest: b; median 0.08x)."
+        "- usdahd vs Cycles (as a command), usdahd's time to Cycles' 1024-spp error over "
+        "Cycles' time: at 128² at most 0.17x on 3 stages (largest: b; median 0.08x, target "
+        "<= 0.1x: **missed**)."
     )
     assert lines[1] == (
-        "- usdahd vs Cycles (as a call in a running process): usdahd does not reach Cycles' "
-        "1024-spp error on b."
+        "- usdahd vs Cycles (as a call in a running process), usdahd's time to Cycles' "
+        "1024-spp error over Cycles' time: at 128² not reached on b, target <= 0.1x."
     )
+
+
+def test_reference_summary_states_the_worst_ratio_at_each_size():
+    """Issue 43: one run, both sizes; the summary line of each usdahd timing gives the worst
+    ratio at 128² and at 32² against that size's target (0.1 and 0.3); a size without a target
+    (the quick plan's) has no verdict."""
+    import run as bench_run
+
+    def ttq(ratios, ren="usdahd"):
+        return [{"stage": s, "renderer": ren, "ratio": r} for s, r in ratios.items()]
+
+    by_size = {
+        128: ttq({"a": 0.08, "b": 0.03}) + ttq({"a": 0.05, "b": 0.02}, "usdahd (warm)"),
+        32: ttq({"a": 0.12, "b": 0.31}) + ttq({"a": 0.10, "b": 0.25}, "usdahd (warm)"),
+        16: ttq({"a": 0.5}),
+    }
+    cmd, warm = bench_run.reference_summary(by_size)
+    assert (
+        "at 128² at most 0.08x on 2 stages (largest: a; median 0.06x, target <= 0.1x: met)" in cmd
+    )
+    assert "at 32² at most 0.31x on 2 stages (largest: b; median 0.21x, target <= 0.3x: " in cmd
+    assert cmd.endswith("at 16² at most 0.50x on 1 stages (largest: a; median 0.50x).")
+    assert "0.31x" in cmd and "**missed**" in cmd.split("at 32²")[1]
+    assert warm.startswith("- usdahd vs Cycles (as a call in a running process)")
+    assert "at 128² at most 0.05x" in warm and "at 32² at most 0.25x" in warm
+    assert "missed" not in warm and "16²" not in warm
+
+
+def test_reference_section_runs_both_sizes_in_one_run(tmp_path, monkeypatch):
+    """The reference section's plans hold 128² and 32² (full) or two small sizes (quick), and
+    run_section runs every size of the plan in the one call: each size's rows, args and plot
+    come back, and the report has a subsection per size, the summary a ratio per size. Run
+    on fake stage results (no Cycles needed): bench_stage is replaced by rows that record the
+    resolution each call was made at."""
+    import reference_bench as rb
+    import run as bench_run
+
+    assert [c["resolution"] for c in rb.SECTION_PLANS["full"]] == [128, 32]
+    assert all(1024 in c["cycles_samples"] for c in rb.SECTION_PLANS["full"])
+    assert len(rb.SECTION_PLANS["quick"]) == 2
+    calls = []
+
+    def fake_stage(path, resolution, samples, truth_spp, bpy, **kw):
+        calls.append((path.stem, resolution))
+        t = 1.0 if resolution == 16 else 2.0
+        return [
+            {"stage": path.stem, "renderer": "cycles", "spp": 1024, "seconds": 10.0,
+             "seconds_runs": [10.0], "rel_rmse": 0.02},
+            {"stage": path.stem, "renderer": "usdahd", "spp": 16, "seconds": t,
+             "seconds_runs": [t], "rel_rmse": 0.01},
+        ]  # fmt: skip
+
+    monkeypatch.setattr(rb.runner, "find_bpy", lambda _=None: "bpy")
+    monkeypatch.setattr(rb, "bench_stage", fake_stage)
+    got = rb.run_section("quick", tmp_path, stages=["cornell_box", "floor_lamp"])
+    sizes = [c["resolution"] for c in rb.SECTION_PLANS["quick"]]
+    assert calls == [(s, r) for r in sizes for s in ("cornell_box", "floor_lamp")]
+    assert [one["args"]["resolution"] for one in got["sizes"]] == sizes
+    assert all(r["resolution"] == one["args"]["resolution"] for one in got["sizes"]
+               for r in one["rows"])  # fmt: skip
+    md = rb.section(got)
+    for s in sizes:
+        assert f"## usdahd vs Cycles at {s}² per mesh" in md
+    summary = bench_run.section_summary({"reference": got})
+    assert f"at {sizes[0]}² at most 0.10x on 2 stages" in summary
+    assert f"at {sizes[1]}² at most 0.20x on 2 stages" in summary
 
 
 def test_regeneration_keeps_hand_run_sections():
@@ -255,3 +322,29 @@ def test_regeneration_keeps_hand_run_sections():
         "<!-- BEGIN kept: b -->\nB\n<!-- END kept -->",
     ]
     assert bench_run.kept_blocks("# nothing kept\n") == []
+
+
+def test_denoise_cost_table_gives_the_plain_cpu_to_the_defaults_error():
+    """benchmarks/denoise_cost.py: --no-denoise's error falls as 1/sqrt(samples) from its
+    largest count and its CPU is linear between its two largest counts, so the CPU it needs
+    to reach the default's error follows; the error ratio is default / plain."""
+    import denoise_cost as dc
+
+    def row(variant, spp, err, cpu):
+        return {"stage": "s", "resolution": 32, "spp": spp, "variant": variant,
+                "net_rel": err, "cpu": cpu}  # fmt: skip
+
+    rows = [row("plain", 64, 0.04, 0.2), row("plain", 256, 0.02, 0.5)]
+    rows += [row("default", 64, 0.02, 1.0), row("default", 256, 0.01, 1.3)]
+    lines = dc.table(rows).splitlines()
+    # at 64 spp the default's 2 % is plain's own at 256 spp: 0.5 s; at 256 spp its 1 % needs
+    # 4x the samples (1024), 0.5 + 768 * 0.3 / 192 = 1.7 s
+    assert lines[2] == "| s | 32² | 64 | 4.00 % / 0.20 | 2.00 % / 1.00 | 0.50 | 0.50 (256 spp) |"
+    assert lines[3] == "| s | 32² | 256 | 2.00 % / 0.50 | 1.00 % / 1.30 | 0.50 | 1.70 (1024 spp) |"
+    # the truth's noise is taken out in quadrature: 5 % against a truth of 3 % noise is 4 %
+    t = np.linspace(1.0, 2.0, 16).reshape(4, 4)
+    m = np.ones((4, 4), bool)
+    d = np.where(np.arange(16).reshape(4, 4) % 2, 1, -1) * 0.06 * t.mean()  # rms/2 = 3 %
+    e = np.where(np.arange(16).reshape(4, 4) % 2, 1, -1) * 0.05 * t.mean()
+    got = dc.net_error({"/p": (t + e, m)}, {"/p": (t, m, d)})
+    assert got == pytest.approx(0.04)

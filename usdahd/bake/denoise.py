@@ -136,6 +136,11 @@ MOSAIC_PIXELS = 1 << 18
 #: ~7 % more CPU at 1024^2 (+410 MB, 3.06 s vs +590 MB, 2.87 s); 256 would cost 2x.
 OIDN_LARGE_MEMORY_MB = 512
 
+#: Threads for the charts' noise estimates and blends (numpy's array operations and the
+#: noise kernel release the GIL): on 2 cores these ran on one while OIDN used both, and were
+#: about a third of the denoiser's CPU time (docs/time-to-quality.md, issue 43). Each chart's
+#: result does not depend on the threads (tests/bake/test_denoise.py).
+CHART_THREADS = 2
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 #: Texels blended at once (_blend's temporaries are ~10 (m, 3, 9) float64 arrays).
@@ -540,29 +545,54 @@ def denoise_records(
     den = None
     batch: list[_Chart] = []
     pixels = 0
+    pool = _chart_pool()
     try:
         for i, (sh, texels, charts, albedo, normal, variance) in enumerate(checked):
-            for c in np.unique(charts):
-                sel = np.nonzero(charts == c)[0]
-                chart = _prepare_chart(
+
+            def prepare(sel, i=i, sh=sh, texels=texels, albedo=albedo, normal=normal,
+                        variance=variance):  # fmt: skip
+                return _prepare_chart(
                     i, sel, sh, texels, albedo, normal, variance, filter, blend,
                     variance_bound, variance_pool,
                 )  # fmt: skip
-                if chart is None:
-                    continue  # noise free (or too small to tell): nothing to remove
-                batch.append(chart)
-                pixels += chart.cv.shape[0] * chart.cv.shape[1]
-                if pixels >= MOSAIC_PIXELS:
-                    den = den or _Denoiser(quality)
-                    _finish(den, batch, outs, filter, blend, variance_bound, mosaic)
-                    batch, pixels = [], 0
+
+            sels = [np.nonzero(charts == c)[0] for c in np.unique(charts)]
+            # CHART_THREADS charts at a time (numpy and the noise kernel release the GIL),
+            # in order; a window, not every chart at once, so memory stays one batch's
+            for a in range(0, len(sels), CHART_THREADS):
+                window = sels[a : a + CHART_THREADS]
+                done = (
+                    pool.map(prepare, window) if pool and len(window) > 1 else map(prepare, window)
+                )
+                for chart in done:
+                    if chart is None:
+                        continue  # noise free (or too small to tell): nothing to remove
+                    batch.append(chart)
+                    pixels += chart.cv.shape[0] * chart.cv.shape[1]
+                    if pixels >= MOSAIC_PIXELS:
+                        den = den or _Denoiser(quality)
+                        _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
+                        batch, pixels = [], 0
         if batch:
             den = den or _Denoiser(quality)
-            _finish(den, batch, outs, filter, blend, variance_bound, mosaic)
+            _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
     finally:
         if den is not None:
             den.close()
+        if pool is not None:
+            pool.shutdown()
     return outs
+
+
+def _chart_pool():
+    """Threads for the charts' noise estimates and blends (None for one thread): each chart's
+    work is its own (disjoint texels, deterministic), so the results are the same in any
+    order; OIDN's runs stay on the calling thread (OIDN uses every core itself)."""
+    if CHART_THREADS <= 1:
+        return None
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(CHART_THREADS, thread_name_prefix="usdahd-denoise")
 
 
 def _check_record(r: dict):
@@ -637,9 +667,11 @@ def _pass_kind(k: int, filter: str) -> dict:
     return dict(filter_type=filter, hdr=False)
 
 
-def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosaic) -> None:
+def _finish(
+    den, batch: list[_Chart], outs, filter, blend, variance_bound, mosaic, pool=None
+) -> None:
     """OIDN on every chart of ``batch`` (one mosaic per coefficient, or chart by chart), then
-    each chart's blend, written into ``outs``."""
+    each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
     for k in (*_HDR_COEFFS, *_RATIO_COEFFS):
         kind = _pass_kind(k, filter)
@@ -653,7 +685,8 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
         for store, r, ch in zip(den_out, res, batch, strict=True):
             store[k] = r
             ch.images[k] = None  # its input canvas is done with (holds the peak at ~1 copy)
-    for ch, store in zip(batch, den_out, strict=True):
+
+    def finish_chart(ch, store):
         d = _chart_output(ch, store, filter)
         store.clear()  # the canvases are done with: free them chart by chart (peak memory)
         ch.images = ch.guides = None
@@ -681,7 +714,15 @@ def _finish(den, batch: list[_Chart], outs, filter, blend, variance_bound, mosai
             del weights
             if variance_bound:
                 d = _keep_chart_energy(x, d)
-        outs[ch.record][ch.sel] = d.astype(np.float32)
+        outs[ch.record][ch.sel] = d.astype(np.float32)  # charts are disjoint: no race
+
+    if pool is None or len(batch) < 2:
+        for ch, store in zip(batch, den_out, strict=True):
+            finish_chart(ch, store)
+        return
+    # in windows of CHART_THREADS, so at most that many charts' blend temporaries at once
+    for a in range(0, len(batch), CHART_THREADS):
+        list(pool.map(finish_chart, batch[a : a + CHART_THREADS], den_out[a : a + CHART_THREADS]))
 
 
 def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Mosaics for the denoiser (:mod:`usdahd.bake.denoise`): the chart canvases of many records
 laid out as tiles of one image per coefficient, so OIDN runs once per mosaic instead of once per
-chart. ``crop`` (the part of a canvas given to OIDN), ``layout`` (shelf packing of the tiles),
-``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run over a batch).
-numpy only; the OIDN device comes from the caller (``den.run``).
+chart. ``crop`` (the part of a canvas given to OIDN), ``layout`` (shelf or skyline packing of
+the tiles), ``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run
+over a batch). numpy only; the OIDN device comes from the caller (``den.run``).
 """
 
 from __future__ import annotations
@@ -51,11 +51,13 @@ def crop(cv, gap: int) -> tuple[int, int, int, int]:
 
 
 def layout(crops: list[tuple[int, int, int, int]], gap: int):
-    """Shelf packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
-    ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height into rows of
-    the mosaic's width, rounded to OIDN_BLOCK; of the widths from the widest tile to twice
-    the square's side (at most ~32 of them), the one with the fewest mosaic pixels (OIDN's
-    time follows them)."""
+    """Packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
+    ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height, either into
+    shelves (rows) of the mosaic's width or onto a skyline (each tile at the lowest place its
+    width fits, on a grid of OIDN_BLOCK columns: tiles of different heights stack into the
+    gaps a shelf leaves); of the widths from the widest tile to twice the square's side (at
+    most ~32 of them, in OIDN_BLOCK steps) and the two packings, the one with the fewest
+    mosaic pixels (OIDN's time follows them; the height is rounded to OIDN_BLOCK)."""
     tiles = [(y1 - y0 + 2 * gap, x1 - x0 + 2 * gap) for y0, y1, x0, x1 in crops]
     order = sorted(range(len(tiles)), key=lambda i: (-tiles[i][0], -tiles[i][1]))
     area = sum(h * w for h, w in tiles)
@@ -65,18 +67,42 @@ def layout(crops: list[tuple[int, int, int, int]], gap: int):
     first = -(-lo // OIDN_BLOCK) * OIDN_BLOCK
     step = OIDN_BLOCK * max(1, (hi - first) // (32 * OIDN_BLOCK))  # <= ~32 widths tried
     for width in range(first, hi + step, step):
-        pos = [None] * len(tiles)
-        x = y = row = 0
-        for i in order:
-            h, w = tiles[i]
-            if x + w > width:
-                y, x, row = y + row, 0, 0
-            pos[i] = (y + gap, x + gap)
-            x, row = x + w, max(row, h)
-        height = -(-(y + row) // OIDN_BLOCK) * OIDN_BLOCK
-        if best is None or height * width < best[0][0] * best[0][1]:
-            best = ((height, width), pos)
+        for pack in (_shelves, _skyline):
+            top, pos = pack(tiles, order, width)
+            height = -(-top // OIDN_BLOCK) * OIDN_BLOCK
+            if best is None or height * width < best[0][0] * best[0][1]:
+                best = ((height, width), [(y + gap, x + gap) for y, x in pos])
     return best
+
+
+def _shelves(tiles, order, width):
+    """(used height, [(y, x) of each tile]): rows of tiles in ``order``, left to right."""
+    pos = [None] * len(tiles)
+    x = y = row = 0
+    for i in order:
+        h, w = tiles[i]
+        if x + w > width:
+            y, x, row = y + row, 0, 0
+        pos[i] = (y, x)
+        x, row = x + w, max(row, h)
+    return y + row, pos
+
+
+def _skyline(tiles, order, width):
+    """(used height, [(y, x) of each tile]): each tile in ``order`` at the lowest (then
+    leftmost) place on the skyline of the tiles before it, on OIDN_BLOCK-wide columns."""
+    cols = width // OIDN_BLOCK
+    sky = np.zeros(cols, np.int64)
+    pos = [None] * len(tiles)
+    for i in order:
+        h, w = tiles[i]
+        c = -(-w // OIDN_BLOCK)
+        tops = np.array([sky[x : x + c].max() for x in range(cols - c + 1)])
+        x = int(np.argmin(tops))  # the first of the lowest
+        y = int(tops[x])
+        sky[x : x + c] = y + h
+        pos[i] = (y, x * OIDN_BLOCK)
+    return int(sky.max()), pos
 
 
 def autoexposure(img: np.ndarray) -> float:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdahd.bake import denoise, mosaic
+from usdahd.bake import blend, denoise, mosaic
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh
@@ -207,7 +207,7 @@ def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
         m.setattr(denoise, "BLEND_GAIN", denoise.VARIANCE_BOUND_GAIN)
         est = denoise.denoise_sh(noisy, t, charts=charts)
     loose = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
-    kept = denoise._keep_chart_energy(noisy.astype(np.float64), est.astype(np.float64))
+    kept = blend.keep_chart_energy(noisy.astype(np.float64), est.astype(np.float64))
     np.testing.assert_allclose(loose, kept, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(loose[:, :, 2].sum(axis=0), noisy[:, :, 2].sum(axis=0), rtol=1e-5)
     none = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0, variance_bound=True)
@@ -392,20 +392,20 @@ def test_blend_weights():
     x = np.zeros((8, 8, 1))
     var = np.full((8, 8, 1), 0.01)
     # the denoiser changed texels by about the noise: fully trusted
-    assert np.allclose(denoise.blend_weights(x, x + 0.1, var, mask), 1.0)
+    assert np.allclose(blend.blend_weights(x, x + 0.1, var, mask), 1.0)
     # by much more than the noise: weight var * gain / change^2
-    w = denoise.blend_weights(x, x + 1.0, var, mask)
-    np.testing.assert_allclose(w, denoise.BLEND_GAIN * 0.01, rtol=1e-12)
+    w = blend.blend_weights(x, x + 1.0, var, mask)
+    np.testing.assert_allclose(w, blend.BLEND_GAIN * 0.01, rtol=1e-12)
     # pointwise channels: one texel moved by far more than the noise is held back even when
     # its neighbourhood's mean change is small
     spike = x.repeat(2, axis=2)
     spike[4, 4] = 1.0
-    w = denoise.blend_weights(x.repeat(2, axis=2), spike, var.repeat(2, axis=2), mask,
+    w = blend.blend_weights(x.repeat(2, axis=2), spike, var.repeat(2, axis=2), mask,
                               pointwise=[False, True])  # fmt: skip
     assert w[4, 4, 0] == 1.0  # 1 / 25 mean change < 4 var: trusted
-    np.testing.assert_allclose(w[4, 4, 1], denoise.BLEND_GAIN * 0.01, rtol=1e-12)
+    np.testing.assert_allclose(w[4, 4, 1], blend.BLEND_GAIN * 0.01, rtol=1e-12)
     # no noise: never trusted
-    assert (denoise.blend_weights(x, x + 1.0, 0 * var, mask) == 0).all()
+    assert (blend.blend_weights(x, x + 1.0, 0 * var, mask) == 0).all()
 
 
 def test_blend_judges_edges_texel_by_texel():
@@ -422,14 +422,14 @@ def test_blend_judges_edges_texel_by_texel():
     d[:, n // 2 - 1] += 0.05  # the denoiser blurred it by 0.05 on both sides (5 sigma)
     d[:, n // 2] -= 0.05
     d[2:-2, 3] += 0.005  # and moved a flat column by half a sigma
-    plain = denoise.blend_weights(x, d, var, mask, gain=1.5)
-    edge = denoise.blend_weights(x, d, var, mask, gain=1.5, edges=True)
+    plain = blend.blend_weights(x, d, var, mask, gain=1.5)
+    edge = blend.blend_weights(x, d, var, mask, gain=1.5, edges=True)
     # plain rule: the 5 x 5 mean of (d - x)^2 is 2/5 x 0.05^2 = 1e-3 > 1.5 var: partly trusted
     np.testing.assert_allclose(plain[8, n // 2], 1.5e-4 / 1e-3, rtol=1e-9)
     np.testing.assert_allclose(edge[8, n // 2 - 1 : n // 2 + 1], 1e-4 / 0.05**2, rtol=1e-9)
     np.testing.assert_array_equal(edge[:, :5], plain[:, :5])  # flat: no edge, same weights
     assert (edge[:, :5] == 1.0).all()
-    edges = denoise._edge_texels(d, mask, var)[..., 0]
+    edges = blend.edge_texels(d, mask, var)[..., 0]
     assert edges[:, n // 2 - 1 : n // 2 + 1].all()  # the two texels either side of the step
     assert not edges[:, : n // 2 - 1].any() and not edges[:, n // 2 + 1 :].any()
 

@@ -47,6 +47,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.bake.blend import (
+    BAND_BOUND,
+    BLEND_GAIN,
+    RATIO_COEFFS,
+    blend_sh,
+    blend_weights,
+    box_mean,
+    keep_chart_energy,
+)
 from usdahd.bake.mosaic import OIDN_BLOCK, PAD
 from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
@@ -57,15 +66,8 @@ from usdahd.numerics.noise import second_differences, tile_stats
 __all__ = ["VARIANCE_POOL", "denoise_records", "integrator_iz_variance", "sh_variance"]
 
 FILTERS = ("RTLightmap", "RT")
-#: sqrt(2l + 1) per coefficient: |c_lm| <= sqrt(2l+1) c00 for non-negative functions.
-_BAND_BOUND = np.sqrt(2.0 * np.array([0, 1, 1, 1, 2, 2, 2, 2, 2]) + 1.0)
 #: Coefficients denoised as HDR lightmaps: c00 (mean radiance) and c10 (I_z, index 2).
 _HDR_COEFFS = (0, 2)
-#: Coefficients denoised as ratios to c00 (OIDN's directional mode).
-_RATIO_COEFFS = (1, 3, 4, 5, 6, 7, 8)
-#: (Their blend is also judged texel by texel: the directional network moved single texels
-#: by many noise deviations, since the ratios swing fast next to a small light, and the
-#: error is multiplied by c00 there.)
 
 # Tolerances and sizes (each with its reason)
 #: Smallest canvas side given to OIDN: below ~16 its output on constant images is off by
@@ -76,14 +78,6 @@ MIN_CROP = 32
 NOISE_TILE = 6
 #: Fewest second differences behind a noise estimate (else the chart's, else none: keep input).
 MIN_NOISE_SAMPLES = 8
-#: Chebyshev radius of the window averaging (denoised - input)^2 into the local change estimate.
-BIAS_RADIUS = 2
-#: The denoised value is fully trusted while the local mean squared change is below
-#: BLEND_GAIN x the noise variance (a change of 2 sigma): the variance estimate itself is
-#: noisy and (a mean, not robust) inflated by fireflies; at 1 the blend kept fireflies that
-#: OIDN removed (pillar_room at 16 spp: error 0.29 -> 0.38), at 4 it costs nothing measurable
-#: on the samples and still returns noise-free inputs unchanged.
-BLEND_GAIN = 4.0
 #: The gain with the integrator's variance (``variance_bound``: the per-texel minimum of its
 #: two upper bounds, s^2 / S and the two-halves estimate, pooled over ``VARIANCE_POOL``, and
 #: of the second-difference estimate). The weight minimising the blend's expected squared
@@ -97,15 +91,6 @@ VARIANCE_BOUND_GAIN = 1.5
 #: (``variance_pool``): the two-halves estimate has one degree of freedom per texel; 2 (a
 #: 5 x 5 window, the window of ``change``, BIAS_RADIUS) measured as well as 1 or 3.
 VARIANCE_POOL = 2
-#: With the integrator's variance, a texel where the denoised image has an edge (squared
-#: central-difference gradient above EDGE_CONTRAST x the noise variance: the signal changes
-#: by more than 4 noise deviations per texel) is also judged by its own move: its weight is
-#: at most var / (d - x)^2, the MSE-optimal weight for a texel the denoiser moved by d - x.
-#: The window mean alone dilutes a one-texel-wide sun-shadow edge among flat texels.
-#: Measured (denoise_gain, 2 seeds): exterior_sun_sky's ground 1.35 / 1.15 / 1.09 -> 0.76 /
-#: 0.90 / 1.06 at 16 / 64 / 256 spp; contrasts 1-16 measured alike, ungated (every texel)
-#: it kept noise (shared Cornell box at 16 spp 0.24 -> 0.35).
-EDGE_CONTRAST = 16.0
 #: With the integrator's variance, the second-difference estimate is taken again after OIDN
 #: without the texels where the *denoised* image curves (a squared second difference above
 #: CURVATURE_CONTRAST x 6 var in some direction and channel, i.e. a signal curvature of more
@@ -143,7 +128,7 @@ OIDN_LARGE_MEMORY_MB = 512
 CHART_THREADS = 2
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
-#: Texels blended at once (_blend's temporaries are ~10 (m, 3, 9) float64 arrays).
+#: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
 _BLEND_BLOCK = 65536
 
 
@@ -351,69 +336,6 @@ def _check_charts(charts, n: int) -> np.ndarray:
     return charts
 
 
-def _box_mean(img: np.ndarray, mask: np.ndarray, radius: int) -> np.ndarray:
-    """Mean of ``img (h, w, c)`` over the mask texels in each (2r+1)^2 window (0 if none)."""
-    h, w, _ = img.shape
-    r = radius
-    v = np.where(mask[..., None], img, 0.0)
-    s = np.pad(v, ((r + 1, r), (r + 1, r), (0, 0))).cumsum(0).cumsum(1)
-    m = np.pad(mask.astype(np.float64), ((r + 1, r), (r + 1, r))).cumsum(0).cumsum(1)
-    k = 2 * r + 1
-
-    def box(a):
-        return a[k:, k:] - a[:-k, k:] - a[k:, :-k] + a[:-k, :-k]
-
-    tot, cnt = box(s)[:h, :w], box(m)[:h, :w]
-    return tot / np.maximum(cnt, 1.0)[..., None]
-
-
-def blend_weights(
-    noisy: np.ndarray,
-    denoised: np.ndarray,
-    variance: np.ndarray,
-    mask: np.ndarray,
-    pointwise: np.ndarray | None = None,
-    gain: float = BLEND_GAIN,
-    edges: bool = False,
-) -> np.ndarray:
-    """Weight ``w (h, w, c)`` of the denoised image in ``noisy + w (denoised - noisy)``.
-
-    noisy, denoised, variance : (h, w, c) canvases (values outside ``mask`` ignored);
-    mask : (h, w) bool, the chart's texels; pointwise : (c,) bool, channels whose change is
-    also judged texel by texel.
-    ``w = min(1, g var / change)`` with ``g = gain`` and ``change`` the mean of
-    ``(d - x)^2`` over the chart texels within ``BIAS_RADIUS`` (for ``pointwise`` channels the
-    larger of that and the texel's own ``(d - x)^2``, so no single texel moves by more than
-    ``sqrt(g)`` noise deviations); 0 where var = 0 (a noise-free input is kept). With
-    ``edges``, texels where the denoised image has an edge (:data:`EDGE_CONTRAST`) also get
-    at most ``var / (d - x)^2``.
-    """
-    diff = np.nan_to_num(np.asarray(denoised, np.float64) - np.asarray(noisy, np.float64))
-    change = _box_mean(diff**2, mask, BIAS_RADIUS)
-    if pointwise is not None:
-        change = np.where(np.asarray(pointwise, bool), np.maximum(change, diff**2), change)
-    v = np.nan_to_num(np.asarray(variance, np.float64))
-    var = gain * v
-    w = np.where(var > 0, var / np.maximum(np.maximum(change, var), 1e-300), 0.0)
-    if edges:
-        own = np.where(v > 0, v / np.maximum(np.maximum(diff**2, v), 1e-300), 0.0)
-        w = np.where(_edge_texels(denoised, mask, v), np.minimum(w, own), w)
-    return w
-
-
-def _edge_texels(img: np.ndarray, mask: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """(h, w, c) bool: chart texels whose squared central-difference gradient of ``img``
-    (both neighbours in the chart; one axis alone otherwise) exceeds EDGE_CONTRAST x
-    ``variance``."""
-    d = np.nan_to_num(np.asarray(img, np.float64))
-    g2 = np.zeros_like(d)
-    both = mask[:, 2:] & mask[:, :-2]
-    g2[:, 1:-1] += np.where(both[..., None], 0.25 * (d[:, 2:] - d[:, :-2]) ** 2, 0.0)
-    both = mask[2:] & mask[:-2]
-    g2[1:-1] += np.where(both[..., None], 0.25 * (d[2:] - d[:-2]) ** 2, 0.0)
-    return mask[..., None] & (g2 > EDGE_CONTRAST * variance)
-
-
 # --------------------------------------------------------------------------------------------
 # public
 
@@ -486,7 +408,7 @@ def denoise_sh(
         inflates the estimate) nor the bound's slack lets the denoiser change signal, the
         blend's gain is
         ``VARIANCE_BOUND_GAIN`` and edges are judged texel by texel; each chart's summed c10
-        per channel is then kept equal to the input's (:func:`_keep_chart_energy`).
+        per channel is then kept equal to the input's (:func:`keep_chart_energy`).
     mosaic : the charts' canvases are denoised as tiles of a few mosaic images, one OIDN run
         per image and coefficient (:func:`usdahd.bake.mosaic.run`); False runs OIDN on each chart's
         canvas alone (the reference the mosaic is measured against).
@@ -651,8 +573,8 @@ def _prepare_chart(
         c00 = band if k == 0 else c00
         images[k] = band
     safe = np.where(c00 > 0, c00, 1.0)
-    for k in _RATIO_COEFFS:
-        ratio = np.where(c00 > 0, cv.image(x[:, :, k]) / (_BAND_BOUND[k] * safe), 0.0)
+    for k in RATIO_COEFFS:
+        ratio = np.where(c00 > 0, cv.image(x[:, :, k]) / (BAND_BOUND[k] * safe), 0.0)
         ratio = np.clip(ratio, -1.0, 1.0)
         images[k] = ratio if filter == "RTLightmap" else 0.5 * (ratio + 1.0)
     return _Chart(i, sel, cv, x, var, groups, images, guides)
@@ -673,7 +595,7 @@ def _finish(
     """OIDN on every chart of ``batch`` (one mosaic per coefficient, or chart by chart), then
     each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
-    for k in (*_HDR_COEFFS, *_RATIO_COEFFS):
+    for k in (*_HDR_COEFFS, *RATIO_COEFFS):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
@@ -702,7 +624,7 @@ def _finish(
                     cv.image(_channels(d, g), fill=False),
                     cv.image(_channels(var, g), fill=False),
                     cv.mask,
-                    pointwise=np.tile(np.isin(g, _RATIO_COEFFS), 3),
+                    pointwise=np.tile(np.isin(g, RATIO_COEFFS), 3),
                     gain=VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN,
                     edges=variance_bound,
                 )
@@ -710,10 +632,10 @@ def _finish(
             # texel by texel, so in blocks (bounded temporaries; d is this chart's own array)
             for a in range(0, len(x), _BLEND_BLOCK):
                 b = a + _BLEND_BLOCK
-                d[a:b] = _blend(x[a:b], d[a:b], weights[a:b])
+                d[a:b] = blend_sh(x[a:b], d[a:b], weights[a:b])
             del weights
             if variance_bound:
-                d = _keep_chart_energy(x, d)
+                d = keep_chart_energy(x, d)
         outs[ch.record][ch.sel] = d.astype(np.float32)  # charts are disjoint: no race
 
     if pool is None or len(batch) < 2:
@@ -731,9 +653,9 @@ def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:
     out = np.zeros((len(ch.sel), 3, 9))
     for k in _HDR_COEFFS:
         out[:, :, k] = np.maximum(cv.gather(res[k]), 0.0)
-    for k in _RATIO_COEFFS:
+    for k in RATIO_COEFFS:
         r = res[k] if filter == "RTLightmap" else res[k] * 2.0 - 1.0
-        out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * _BAND_BOUND[k] * out[:, :, 0]
+        out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * BAND_BOUND[k] * out[:, :, 0]
     return out
 
 
@@ -790,47 +712,5 @@ def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
     per = max(1, _WORK_ELEMENTS // (cv.shape[0] * cv.shape[1]))
     for a in range(0, flat.shape[1], per):
         img = np.nan_to_num(cv.image(flat[:, a : a + per], fill=False).astype(np.float64))
-        out[:, a : a + per] = cv.gather(_box_mean(img, cv.mask, radius))
+        out[:, a : a + per] = cv.gather(box_mean(img, cv.mask, radius))
     return out.reshape(v.shape)
-
-
-def _blend(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(m, 3, 9) ``x + w (d - x)`` per coefficient for the input SH ``x``, OIDN's ``d`` and
-    the blend weights ``w``, except that each directional coefficient (``_RATIO_COEFFS``) is
-    blended as its ratio to c00 and multiplied by the blended c00 (where both c00 are > 0):
-    its weight is often smaller than c00's (judged texel by texel), and blended alone a
-    texel whose c00 was denoised but whose direction was kept came out with |c_lm| >
-    sqrt(2l+1) c00, i.e. negative radiance (floor_lamp at 8^2, 16 spp: HLSH's fit error 0.29
-    on the wall, the validator's HighEncodingError). A convex mix of two valid ratios is valid.
-    c00 and c10 (I_z) are blended directly, then c00 raised to |c10| / sqrt(3) where it
-    fell below (the least change that keeps I_z and a non-negative radiance). Both ratios are
-    clipped to the band bound ``sqrt(2l + 1)`` first: a Monte Carlo input's ratio is beyond it
-    where its c00 is small by chance, and multiplied by a denoised c00 that spike became a
-    large error (floor_lamp 32^2, 16 spp: 54 of 5,184 texel channels beyond the bound made
-    the blended L2 coefficients 2-4x the raw input's error, e.g. c2-2 43 % vs 10 %; 6 % with
-    the clip)."""
-    out = x + w * (d - x)
-    out[:, :, 0] = np.maximum(out[:, :, 0], np.abs(out[:, :, 2]) / _BAND_BOUND[2])
-    r = list(_RATIO_COEFFS)
-    x00, d00 = x[:, :, :1], d[:, :, :1]
-    ok = (x00 > 0) & (d00 > 0)
-    bound = _BAND_BOUND[r]
-    rx = np.clip(x[:, :, r] / np.where(ok, x00, 1.0), -bound, bound)
-    rd = np.clip(d[:, :, r] / np.where(ok, d00, 1.0), -bound, bound)
-    out[:, :, r] = np.where(ok, (rx + w[:, :, r] * (rd - rx)) * out[:, :, :1], out[:, :, r])
-    return out
-
-
-def _keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``d (m, 3, 9)`` scaled per colour channel so the chart's summed c10 (the coefficient
-    proportional to I_z) equals the input's ``x (m, 3, 9)``: an unbiased input's chart sum is
-    an unbiased estimate of the true sum, and a partial blend need not keep it. OIDN moves
-    energy out of a light's hotspot into its surroundings; where the per-texel variance is
-    high (the hotspot) the blend keeps the move, where it is low (the surroundings) it keeps
-    less, so without this the chart lost energy (pillar_room, 256 spp: -1.02 % overall)."""
-    s_in = x[:, :, 2].sum(axis=0)
-    s_out = d[:, :, 2].sum(axis=0)
-    ok = (s_out > 0) & (s_in > 0)
-    scale = np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
-    d *= scale[None, :, None]  # in place: d is the caller's own blended array
-    return d

@@ -208,6 +208,11 @@ MAXRECTS_LIMIT = 256
 ORDERS = ("given", "wider")
 
 
+def _area(cells, got) -> int:
+    """Cell area of the cells placed (``got`` not None)."""
+    return sum(c[0] * c[1] for c, g in zip(cells, got) if g is not None)
+
+
 def _place(cells: list[tuple[int, int]], width: int, height: int, ok=None) -> list:
     """Offsets of ``cells`` in a ``width`` x ``height`` page by the first rule of
     :data:`PLACERS`, in the first order of :data:`ORDERS`, that places every cell (and passes
@@ -232,7 +237,7 @@ def _place(cells: list[tuple[int, int]], width: int, height: int, ok=None) -> li
                 got[i] = g
             if all(g is not None for g in got) and (ok is None or ok(got)):
                 return got
-            area = sum(c[0] * c[1] for c, g in zip(cells, got) if g is not None)
+            area = _area(cells, got)
             if best is None or area > best[0]:
                 best = (area, got)
     return best[1]
@@ -296,9 +301,11 @@ def _pack(sizes, keys, *, max_size: int, padding: int) -> Packing:
                 for x, y in [g or (0, 0)]
             )
 
-        got = _place(cells, max_size + padding, max_size + padding, inside)
-        if not inside(got):
-            got = _place(cells, max_size, max_size)
+        got = _place(cells, max_size, max_size)
+        if any(g is None for g in got):
+            edge = _place(cells, max_size + padding, max_size + padding, inside)
+            if inside(edge) and _area(cells, edge) > _area(cells, got):
+                got = edge
         groups.append(
             ([i for i, g in zip(todo, got) if g is not None], [g for g in got if g is not None])
         )

@@ -117,6 +117,12 @@ CHART_OPTIONS: tuple[dict, ...] = ({}, {"max_cost": 8.0, "normal_deviation_weigh
 #: texels must each bring FILL_WEIGHT covered texels or more (an atlas page's fill = covered
 #: texels / page texels; docs/scenes.md, "Atlas pages").
 FILL_WEIGHT = 0.7
+#: A candidate layout whose texel density spreads more than this (:func:`_spread`, the
+#: measure of ``usdahd validate``'s ``TexelDensity`` warning, which warns above 4) is not
+#: kept while one within it is (else the least spread): stretched slivers and merged charts
+#: must not make a map that validate warns about (Sponza's ``object27_lib_0`` and
+#: ``object28_lib_0`` reached 4.5 and 4.0 without this check).
+DENSITY_SPREAD_MAX = 3.5
 
 
 def _chart_pass(points, triangles, corner, face, path, chart_options=None):
@@ -283,6 +289,7 @@ def _pack(
         cut = split_rings(uv1, labels, face, solidity)
         if not any(np.array_equal(cut, c) for c in candidates):
             candidates.append(cut)
+    world = triangle_areas(np.asarray(points, np.float64)[np.asarray(triangles, np.int64)])
     if texels_per_unit is not None:
         best = None
         for k, options in enumerate(CHART_OPTIONS):
@@ -302,9 +309,15 @@ def _pack(
                     if width and not widened and width != min_width[0]:
                         continue  # the same charts as a smaller floor
                     w, h, uv, _ = _run_pack(*layout(uvw, lab), density, padding)
+                    spread = _spread(uv, world)
                     score = _covered(uv, w, h) - FILL_WEIGHT * w * h
-                    if best is None or (score, -w * h) > best[0]:
-                        best = ((score, -w * h), w, h, uv, lab, widened, labels, k, stats)
+                    key = (
+                        spread <= DENSITY_SPREAD_MAX,
+                        score if spread <= DENSITY_SPREAD_MAX else -spread,
+                        -w * h,
+                    )
+                    if best is None or key > best[0]:
+                        best = (key, w, h, uv, lab, widened, labels, k, stats)
         _, w, h, uv, lab, widened, labels, k, stats = best
         stats = dict(stats, options=k, rings_cut=_rings_cut(labels, lab), widened=widened)
         if max(w, h) > max_resolution:
@@ -339,7 +352,9 @@ def _pack(
                 )
                 if got is None:
                     continue
-                score = (_covered(got[2], *target), got[3])
+                spread = _spread(got[2], world)
+                even = spread <= DENSITY_SPREAD_MAX
+                score = (even, _covered(got[2], *target) if even else -spread, got[3])
                 if best is None or score > best[0]:
                     best = (score, got, dict(stats, options=k, rings_cut=_rings_cut(labels, lab)))
     if best is None:
@@ -350,6 +365,23 @@ def _pack(
     _, best, stats = best
     stats["widened"] = best[4]
     return (*best[:3], target, stats)
+
+
+def _spread(uv, world) -> float:
+    """Area-weighted 90th / 10th percentile of the texel density (sqrt(UV area / surface
+    area)) over the triangles: what ``usdahd validate``'s UVSet rule warns about
+    (``TexelDensity`` above 4)."""
+    from usdahd.numerics.triangles import uv_areas
+
+    ok = (world > 0) & (uv_areas(uv) > 1e-12)
+    if ok.sum() < 2:
+        return 1.0
+    dens = np.sqrt(uv_areas(uv)[ok] / world[ok])
+    order = np.argsort(dens)
+    cw = np.cumsum(world[ok][order]) / world[ok].sum()
+    p10 = dens[order][np.searchsorted(cw, 0.1)]
+    p90 = dens[order][min(np.searchsorted(cw, 0.9), len(cw) - 1)]
+    return float(p90 / p10) if p10 > 0 else float("inf")
 
 
 def _covered(uv, w, h) -> int:

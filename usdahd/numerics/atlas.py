@@ -18,7 +18,9 @@ page's size. The rules:
   by a skyline bottom-left rule (each goes where its top edge ends highest, then leftmost), or,
   where that leaves rectangles out that they place, by MaxRects with the best-area or the
   best-long-side fit (:data:`PLACERS`, tried in that order; the first that places the most
-  area wins, so the skyline's pages stay as they were wherever it already fitted).
+  area wins, so the skyline's pages stay as they were wherever it already fitted); then the
+  same rules wider first (:data:`ORDERS`). A rectangle on a page's right or bottom edge keeps
+  no gutter beyond it.
 
 numpy only (the packing itself is a small pure-Python loop over the skyline).
 """

@@ -9,8 +9,9 @@ and the records' rectangles are packed exactly as the bake packs them
 Prints one JSON line: pages, covered texels, map texels (the prims' own maps, the fill of
 ``--atlas off``), fill = covered texels / page texels and rect_fill (docs/scenes.md, "Atlas
 pages"); ``--records`` adds one row per record (prim, map size, covered texels, unwrapped,
-page, whether the plan raised the map above the density for its charts or its minimum). Seconds of a bake on the classroom instead of minutes; the bake's ``--json`` report
-gives the same ``covered_texels`` (a few texels fewer where contacts drop texels).
+page, whether the plan raised the map above the density for its charts or its minimum).
+Seconds of a bake on the classroom instead of minutes; the bake's ``--json`` report gives the
+same ``covered_texels`` (a few texels fewer where contacts drop texels).
 """
 
 from __future__ import annotations

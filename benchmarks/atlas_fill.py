@@ -4,12 +4,14 @@ prim (automatic density, unwraps included), then each planned record's texels ar
 and the records' rectangles are packed exactly as the bake packs them
 (``usdahd.numerics.atlas.pack`` with the bake's ``--atlas-size`` / ``--atlas-padding``).
 
-    python benchmarks/atlas_fill.py STAGE [usdahd bake flags ...]
+    python benchmarks/atlas_fill.py STAGE [usdahd bake flags ...] [--records]
 
 Prints one JSON line: pages, covered texels, map texels (the prims' own maps, the fill of
 ``--atlas off``), fill = covered texels / page texels and rect_fill (docs/scenes.md, "Atlas
-pages"). Seconds of a bake on the classroom instead of minutes; the bake's ``--json`` report
-gives the same ``covered_texels`` (a few texels fewer where contacts drop texels).
+pages"); ``--records`` adds one row per record (prim, map size, covered texels, unwrapped,
+page, whether the plan raised the map above the density for its charts or its minimum).
+Seconds of a bake on the classroom instead of minutes; the bake's ``--json`` report gives the
+same ``covered_texels`` (a few texels fewer where contacts drop texels).
 """
 
 from __future__ import annotations
@@ -29,13 +31,19 @@ def main(argv: list[str]) -> int:
     from usdahd.pipeline import atlas as pipeline_atlas
 
     got: dict = {}
+    records = "--records" in argv
+    argv = [a for a in argv if a != "--records"]
 
     def plan_pages(todo, rebuild, opts):
         rows = []
         for job in sorted(todo, key=lambda j: j.path):
             res = tuple(int(r) for r in job.resolution)
             texels = job.texels if job.texels is not None else rasterize(job.mesh, res)
-            rows.append((job.path, res, int(len(np.asarray(texels.xy)))))
+            notes = " ".join(job.report.get("notes", []))
+            raised = "unwrapped into" in notes
+            rows.append(
+                (job.path, res, int(len(np.asarray(texels.xy))), bool(job.unwrapped), raised)
+            )
         packing = packer.pack(
             [r[1] for r in rows],
             [r[0] for r in rows],
@@ -54,6 +62,11 @@ def main(argv: list[str]) -> int:
             fill=covered / area if area else 0.0,
             rect_fill=packing.fill(),
         )
+        if records:
+            got["records"] = [
+                [r[0], list(r[1]), r[2], r[3], p.page, r[4]]
+                for r, p in zip(rows, packing.placements)
+            ]
         return {"planned": True}
 
     pipeline_atlas.plan_pages = plan_pages

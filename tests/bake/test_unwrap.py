@@ -562,12 +562,65 @@ def test_ring_charts_are_cut_when_that_makes_the_map_smaller(monkeypatch):
         monkeypatch.setattr(unwrap_module, "RING_SOLIDITY", solidity)
         mesh = frames()
         info = {}
-        uv, res = unwrap(mesh, texels_per_unit=20.0, isolate=False, info=info)
+        # the ring cut alone: no width floor (it would widen the 2-texel sides)
+        uv, res = unwrap(mesh, texels_per_unit=20.0, isolate=False, info=info, min_chart_width=0.0)
         _check_representable(mesh, uv, res)
         assert tx.texel_density(mesh, res) == pytest.approx(20.0, rel=2e-2)
-        again, res2 = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+        again, res2 = unwrap(mesh, texels_per_unit=20.0, isolate=False, min_chart_width=0.0)
         assert res2 == res and np.array_equal(again, uv)
         got[solidity] = (res[0] * res[1], info["rings_cut"])
     cut, whole = got[default], got[()]
     assert cut[1] == 6 and whole[1] == 0
     assert cut[0] < 0.95 * whole[0]
+
+
+def test_widen_thin_stretches_slivers_across_and_leaves_wide_charts():
+    from usdahd.numerics.charts import convex_hull, min_area_rect, signed_area2, widen_thin
+
+    a = np.deg2rad(30.0)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    quad = np.array([[[0, 0], [20, 0], [20, 1]], [[0, 0], [20, 1], [0, 1]]], float)
+    sliver = (quad * [1.0, 0.25]) @ rot.T + [5.0, 5.0]  # 20 x 0.25 units, turned 30 degrees
+    square = quad * [0.5, 10.0] + [40.0, 0.0]  # 10 x 10 units
+    uv = np.concatenate([sliver, square])
+    labels = np.array([0, 0, 1, 1])
+    out, count = widen_thin(uv, labels, 2.0, 2.0)  # 2 texels per unit: the sliver is 0.5 across
+    assert count == 1
+    assert np.array_equal(out[2:], uv[2:])
+    _, lo, hi = min_area_rect(convex_hull(out[:2].reshape(-1, 2)))
+    assert sorted((hi - lo) * 2.0) == pytest.approx([2.0, 40.0])
+    assert (np.sign(signed_area2(out)) == np.sign(signed_area2(uv))).all()
+    assert np.array_equal(widen_thin(uv, labels, 2.0, 0.0)[0], uv)
+    assert widen_thin(uv, labels, 2.0, 0.5)[1] == 0  # 0.5 texels across is not below 0.5
+
+
+def thin_bars(count=8, side=0.06, length=2.0) -> MeshData:
+    """``count`` square bars ``side`` metres thick and ``length`` long, side by side (a
+    moulding's slivers: at 8 texels per metre each face is about half a texel wide)."""
+    m = trimesh.creation.box(extents=(side, length, side))
+    verts = np.concatenate([m.vertices + [0.5 * i, 0.0, 0.0] for i in range(count)])
+    tris = np.concatenate([m.faces + i * len(m.vertices) for i in range(count)])
+    return tx.mesh_from_arrays(verts, tris, path="/bars")
+
+
+def test_min_chart_width_stretches_slivers_and_covers_more_texels():
+    """At a texel density that makes each face of thin bars about half a texel wide, the
+    default CHART_MIN_WIDTH stretches those charts to 2 texels across: more covered texels
+    (each a sample of its own face), no overlap, the long side's density kept; 0 turns it
+    off; a negative width is a usage error."""
+    from usdahd.bake.unwrap import CHART_MIN_WIDTH
+
+    assert CHART_MIN_WIDTH == 2.0
+    got = {}
+    for width in (None, 0.0):
+        mesh = thin_bars()
+        info = {}
+        uv, res = unwrap(mesh, texels_per_unit=8.0, isolate=False, info=info, min_chart_width=width)
+        _check_representable(mesh, uv, res)
+        t = tx.rasterize(mesh, res)
+        got[width] = (len(t.xy), res, info["widened"])
+    covered, _, widened = got[None]
+    assert widened > 0 and got[0.0][2] == 0
+    assert covered > 1.3 * got[0.0][0]
+    with pytest.raises(UsageError, match="min_chart_width"):
+        unwrap(thin_bars(), texels_per_unit=8.0, isolate=False, min_chart_width=-1.0)

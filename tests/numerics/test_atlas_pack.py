@@ -137,7 +137,28 @@ def test_maxrects_puts_a_level_in_one_page_where_the_skyline_needs_two(monkeypat
     again = atlas.pack(SPONZA[::-1], [str(i) for i in range(len(SPONZA))][::-1], padding=4)
     assert again.pages == [(1024, 1024)]
     monkeypatch.setattr(atlas, "PLACERS", ("skyline",))
-    assert len(atlas.pack(SPONZA, max_size=2048, padding=4).pages) == 2
+    assert len(atlas.pack(SPONZA, max_size=2048, padding=4).pages) > 1
+
+
+#: Sponza's 37 records after branch i39-fill3's unwraps (width floors, merged charts): 960,704
+#: texels, 999,472 with padding 4 (95 % of a 1024² page).
+SPONZA_FILL3 = [(76, 76), (108, 128), (76, 76), (120, 132), (124, 124), (76, 76), (116, 116),
+                (76, 76), (328, 332), (76, 76), (76, 76), (364, 352), (76, 76), (96, 104),
+                (104, 104), (220, 248), (140, 148), (120, 128), (76, 76), (116, 120), (100, 180),
+                (128, 136), (112, 116), (96, 104), (408, 484), (188, 56), (76, 76), (72, 76),
+                (68, 80), (76, 80), (72, 64), (32, 32), (88, 92), (420, 416), (32, 32), (76, 76),
+                (96, 96)]  # fmt: skip
+
+
+def test_wider_first_order_and_edge_gutters_put_a_fuller_level_in_one_page(monkeypatch):
+    """Cells of 95 % of a 1024² page: taller first, no rule places them all; wider first
+    with MaxRects does, with rectangles on the page's right and bottom edges keeping no gutter
+    beyond it (Sponza's fill 57.0 % on 1024² + 256² -> 60.6 % on one 1024² page)."""
+    packing = atlas.pack(SPONZA_FILL3, max_size=2048, padding=4)
+    _check(packing, SPONZA_FILL3, 4, 2048)
+    assert packing.pages == [(1024, 1024)]
+    monkeypatch.setattr(atlas, "ORDERS", ("given",))
+    assert len(atlas.pack(SPONZA_FILL3, max_size=2048, padding=4).pages) > 1
 
 
 def test_maxrects_cells_are_disjoint_and_aligned():

@@ -33,11 +33,12 @@ from usdahd.numerics.charts import (
     split_polygons,
     split_rings,
     unfold_polygon,
+    widen_thin,
 )
 from usdahd.numerics.triangles import triangle_areas
 from usdahd.scene.types import MeshData
 
-__all__ = ["CHART_PADDING", "PACK_EFFICIENCY", "stop_worker", "unwrap"]
+__all__ = ["CHART_MIN_WIDTH", "CHART_PADDING", "PACK_EFFICIENCY", "stop_worker", "unwrap"]
 
 #: Attempts at shrinking texels_per_unit until the atlas fits a requested resolution.
 MAX_ATTEMPTS = 8
@@ -96,9 +97,35 @@ CHART_PADDING = 1
 #: not always smaller (the classroom's maps grew 7 % with every ring cut), and the fractions
 #: differ per mesh (Sponza's walls pack smallest at 0.5, its floors at 0.8).
 RING_SOLIDITY = (0.5, 0.8)
+#: xatlas ChartOptions pass 1 is run with (at a texel density), the smallest map wins.
+CHART_OPTIONS: tuple[dict, ...] = ({},)
+#: Texels across (the short side of its smallest bounding rectangle) that every chart of an
+#: unwrap at a texel density gets at least (:func:`usdahd.numerics.charts.widen_thin`):
+#: narrower charts are stretched across, so a sliver (a moulding's face under a texel wide at
+#: a level's 3-8 texels per metre) covers texels of its own instead of sharing one or two rows
+#: with its gutter ring. ``unwrap(min_chart_width=...)`` asks for one floor.
+CHART_MIN_WIDTH = 2.0
+#: The floors an unwrap at a texel density tries by default (:func:`_pack` keeps the best
+#: layout by :data:`FILL_WEIGHT`).
+CHART_MIN_WIDTHS = (CHART_MIN_WIDTH, 4.0)
+#: Pass 1 runs with each of these xatlas ChartOptions (at a texel density): the default, and
+#: one that grows charts further across creases (the slivers of Sponza's mouldings and vault
+#: ribs join their neighbours: ``object32_lib_0`` 160x180 -> 108x112 texels).
+CHART_OPTIONS: tuple[dict, ...] = ({}, {"max_cost": 8.0, "normal_deviation_weight": 1.0})
+#: At a texel density the layout kept (chart options x rings cut x width floors) is the one
+#: with the most covered texels less FILL_WEIGHT x its map texels: a layout's extra map
+#: texels must each bring FILL_WEIGHT covered texels or more (an atlas page's fill = covered
+#: texels / page texels; docs/scenes.md, "Atlas pages").
+FILL_WEIGHT = 0.7
+#: A candidate layout whose texel density spreads more than this (:func:`_spread`, the
+#: measure of ``usdahd validate``'s ``TexelDensity`` warning, which warns above 4) is not
+#: kept while one within it is (else the least spread): stretched slivers and merged charts
+#: must not make a map that validate warns about (Sponza's ``object27_lib_0`` and
+#: ``object28_lib_0`` reached 4.5 and 4.0 without this check).
+DENSITY_SPREAD_MAX = 3.5
 
 
-def _chart_pass(points, triangles, corner, face, path):
+def _chart_pass(points, triangles, corner, face, path, chart_options=None):
     """Pass 1: xatlas cuts the mesh into charts and parameterises them; every polygon that
     xatlas cut through (its triangles in two charts) is made whole again, in the chart that
     holds most of its area when it fits there without overlap, else as a chart of its own.
@@ -119,7 +146,10 @@ def _chart_pass(points, triangles, corner, face, path):
     pack.texels_per_unit = float(tpu)
     pack.resolution = 0
     pack.bruteForce = False
-    atlas.generate(xatlas.ChartOptions(), pack)
+    options = xatlas.ChartOptions()
+    for name, value in (chart_options or {}).items():
+        setattr(options, name, value)
+    atlas.generate(options, pack)
     if atlas.atlas_count != 1:
         raise BakeError(f"{path}: xatlas produced {atlas.atlas_count} atlases, expected 1")
     vmap, idx, uvs = atlas.get_mesh(0)
@@ -232,28 +262,64 @@ def _place_ignored(verts, idx, vchart, out) -> None:
         lost[targets] = False
 
 
-def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max_resolution, path):
+def _pack(
+    points,
+    triangles,
+    corner,
+    face,
+    texels_per_unit,
+    target,
+    padding,
+    max_resolution,
+    path,
+    min_width=(0.0,),
+):
     """The xatlas part of :func:`unwrap`: returns (w, h, uv (t, 3, 2) texels, target, stats).
 
     Pass 2 packs the charts as pass 1 made them and, for each fraction of
     :data:`RING_SOLIDITY` that changes them, with those rings cut into their sides
-    (:func:`split_rings`): with ``texels_per_unit`` the smallest map wins, with a ``target``
-    map the highest density (the first of equals: the uncut charts first)."""
+    (:func:`split_rings`); pass 1 runs with each of :data:`CHART_OPTIONS`, and each candidate
+    is packed with the charts narrower than each floor of ``min_width`` (texels) widened to it
+    (:func:`widen_thin`). With ``texels_per_unit`` the layout with the most covered texels
+    less :data:`FILL_WEIGHT` x map texels wins (then the smaller map); with a ``target`` map
+    the one covering most texels (then the highest density; the first of equals)."""
     uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
     candidates = [labels]
     for solidity in RING_SOLIDITY:
         cut = split_rings(uv1, labels, face, solidity)
         if not any(np.array_equal(cut, c) for c in candidates):
             candidates.append(cut)
+    world = triangle_areas(np.asarray(points, np.float64)[np.asarray(triangles, np.int64)])
     if texels_per_unit is not None:
-        density = texels_per_unit / scale * SHRINK
         best = None
-        for lab in candidates:
-            w, h, uv, _ = _run_pack(*layout(uv1, lab), density, padding)
-            if best is None or w * h < best[0] * best[1]:
-                best = (w, h, uv, lab)
-        w, h, uv, lab = best
-        stats["rings_cut"] = _rings_cut(labels, lab)
+        for k, options in enumerate(CHART_OPTIONS):
+            if k:
+                uv1, labels, scale, stats = _chart_pass(
+                    points, triangles, corner, face, path, options
+                )
+                candidates = [labels]
+                for solidity in RING_SOLIDITY:
+                    cut = split_rings(uv1, labels, face, solidity)
+                    if not any(np.array_equal(cut, c) for c in candidates):
+                        candidates.append(cut)
+            density = texels_per_unit / scale * SHRINK
+            for lab in candidates:
+                for width in min_width:
+                    uvw, widened = widen_thin(uv1, lab, density, width)
+                    if width and not widened and width != min_width[0]:
+                        continue  # the same charts as a smaller floor
+                    w, h, uv, _ = _run_pack(*layout(uvw, lab), density, padding)
+                    spread = _spread(uv, world)
+                    score = _covered(uv, w, h) - FILL_WEIGHT * w * h
+                    key = (
+                        spread <= DENSITY_SPREAD_MAX,
+                        score if spread <= DENSITY_SPREAD_MAX else -spread,
+                        -w * h,
+                    )
+                    if best is None or key > best[0]:
+                        best = (key, w, h, uv, lab, widened, labels, k, stats)
+        _, w, h, uv, lab, widened, labels, k, stats = best
+        stats = dict(stats, options=k, rings_cut=_rings_cut(labels, lab), widened=widened)
         if max(w, h) > max_resolution:
             raise UsageError(
                 f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
@@ -261,19 +327,72 @@ def _pack(points, triangles, corner, face, texels_per_unit, target, padding, max
             )
         return w, h, uv, (w, h), stats
     area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
-    tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
     best = None
-    for lab in candidates:
-        got = _fit(uv1, lab, scale, tpu, target, padding, path, strict=lab is labels)
-        if got is not None and (best is None or got[3] > best[3]):
-            best = got
-            stats["rings_cut"] = _rings_cut(labels, lab)
+    for k, options in enumerate(CHART_OPTIONS):
+        if k:
+            uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path, options)
+            candidates = [labels]
+            for solidity in RING_SOLIDITY:
+                cut = split_rings(uv1, labels, face, solidity)
+                if not any(np.array_equal(cut, c) for c in candidates):
+                    candidates.append(cut)
+        for lab in candidates:
+            for width in min_width:
+                tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
+                got = _fit(
+                    uv1,
+                    lab,
+                    scale,
+                    tpu,
+                    target,
+                    padding,
+                    path,
+                    strict=k == 0 and lab is labels,
+                    width=width,
+                )
+                if got is None:
+                    continue
+                spread = _spread(got[2], world)
+                even = spread <= DENSITY_SPREAD_MAX
+                score = (even, _covered(got[2], *target) if even else -spread, got[3])
+                if best is None or score > best[0]:
+                    best = (score, got, dict(stats, options=k, rings_cut=_rings_cut(labels, lab)))
     if best is None:
         raise BakeError(
             f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
             f"(padding {padding}); raise --resolution"
         )
+    _, best, stats = best
+    stats["widened"] = best[4]
     return (*best[:3], target, stats)
+
+
+def _spread(uv, world) -> float:
+    """Area-weighted 90th / 10th percentile of the texel density (sqrt(UV area / surface
+    area)) over the triangles: what ``usdahd validate``'s UVSet rule warns about
+    (``TexelDensity`` above 4)."""
+    from usdahd.numerics.triangles import uv_areas
+
+    ok = (world > 0) & (uv_areas(uv) > 1e-12)
+    if ok.sum() < 2:
+        return 1.0
+    dens = np.sqrt(uv_areas(uv)[ok] / world[ok])
+    order = np.argsort(dens)
+    cw = np.cumsum(world[ok][order]) / world[ok].sum()
+    p10 = dens[order][np.searchsorted(cw, 0.1)]
+    p90 = dens[order][min(np.searchsorted(cw, 0.9), len(cw) - 1)]
+    return float(p90 / p10) if p10 > 0 else float("inf")
+
+
+def _covered(uv, w, h) -> int:
+    """Texels the (t, 3, 2) pixel-space ``uv`` of a w x h map cover (conservatively, as the
+    bake rasterises them)."""
+    from usdahd.numerics.raster import rasterize_uv
+
+    flat = np.empty_like(uv)
+    flat[..., 0] = uv[..., 0] / w
+    flat[..., 1] = 1.0 - uv[..., 1] / h
+    return int(len(rasterize_uv(flat, (w, h)).ids))
 
 
 def _rings_cut(labels, lab) -> int:
@@ -281,14 +400,17 @@ def _rings_cut(labels, lab) -> int:
     return int(len(np.unique(labels[lab != labels])))
 
 
-def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict):
+def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0):
     """Pass 2 of the charts ``labels`` at the largest density (from ``tpu``, MAX_ATTEMPTS
     tries) whose atlas fits ``target``: (w, h, uv, density) or None. ``strict``: raise when
-    the charts are too many for the map at any density (else None)."""
+    the charts are too many for the map at any density (else None). ``width``: charts
+    narrower (texels, at each density tried) are widened to it (:func:`widen_thin`); the
+    result then ends with the number widened."""
     best = None
     for _ in range(MAX_ATTEMPTS):
         density = tpu / scale * SHRINK
-        w, h, uv, charts = _run_pack(*layout(uv1, labels), density, padding)
+        uvw, widened = widen_thin(uv1, labels, density, width)
+        w, h, uv, charts = _run_pack(*layout(uvw, labels), density, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
             if not strict:
                 return None
@@ -301,7 +423,7 @@ def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict):
             )
         fit = max(w / target[0], h / target[1])
         if fit <= 1.0:
-            best = (w, h, uv, density)
+            best = (w, h, uv, density, widened)
             if fit > 0.9:
                 break
             tpu *= min(1.0 / fit, 1.5) * 0.98
@@ -503,14 +625,18 @@ def unwrap(
     max_resolution: int = MAX_RESOLUTION,
     isolate: bool = True,
     info: dict | None = None,
+    min_chart_width: float | None = None,
 ) -> tuple[np.ndarray, tuple[int, int]]:
     """Unwrap ``mesh`` into one lightmap atlas.
 
     Give exactly one of ``texels_per_unit`` (world-space texel density; the atlas size is what
     xatlas needs) or ``resolution`` (n or (w, h): the atlas is packed as densely as fits, and
     placed in the top-left corner of a w x h lightmap, so the returned resolution is exactly the
-    requested one). ``padding`` is the gutter in texels between charts. ``isolate`` runs xatlas
-    in a child process (it can segfault on some meshes; that becomes a BakeError).
+    requested one). ``padding`` is the gutter in texels between charts. ``min_chart_width``
+    (texels): every chart narrower is stretched across to it
+    (:func:`usdahd.numerics.charts.widen_thin`); 0 for none; None (the default) tries each of
+    :data:`CHART_MIN_WIDTHS` and keeps the layout that fills best (:func:`_pack`). ``isolate``
+    runs xatlas in a child process (it can segfault on some meshes; that becomes a BakeError).
 
     Returns ``uv : (t, 3, 2) float32`` per-corner lightmap UVs in [0, 1] (same triangle order as
     ``mesh.triangles``; author them as a faceVarying primvar via ``mesh.corner``: the triangles
@@ -521,7 +647,9 @@ def unwrap(
     docs/texels.md specifies.
     ``info``, when given, receives pass 1's counts: ``charts_xatlas``, ``split_polygons``
     (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``, and pass 2's
-    ``rings_cut`` (ring charts packed cut into their sides, :func:`split_rings`).
+    ``rings_cut`` (ring charts packed cut into their sides, :func:`split_rings`),
+    ``widened`` (charts stretched to a width floor) and ``options`` (the index of the
+    :data:`CHART_OPTIONS` kept).
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """
@@ -538,6 +666,9 @@ def unwrap(
         raise InputError(f"{mesh.path}: mesh has zero surface area; cannot unwrap")
     if padding < 0:
         raise UsageError(f"unwrap padding must be >= 0, got {padding}")
+    min_width = CHART_MIN_WIDTHS if min_chart_width is None else (float(min_chart_width),)
+    if not all(np.isfinite(m) and m >= 0 for m in min_width):
+        raise UsageError(f"unwrap min_chart_width must be >= 0 texels, got {min_chart_width!r}")
 
     target = None
     if texels_per_unit is not None:
@@ -573,6 +704,7 @@ def unwrap(
         padding,
         max_resolution,
         mesh.path,
+        min_width,
     )
     if isolate:
         w, h, pix, target, stats = _pack_isolated(args, mesh.path)

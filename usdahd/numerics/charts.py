@@ -26,6 +26,7 @@ __all__ = [
     "split_rings",
     "unfold",
     "unfold_polygon",
+    "widen_thin",
 ]
 
 #: Penetration (pass-1 texels) below which two UV triangles of a chart only touch.
@@ -354,3 +355,36 @@ def layout(uv, labels):
     unique, inverse = np.unique(rows, axis=0, return_inverse=True)
     verts = np.ascontiguousarray(unique[:, 1:], dtype=np.float32)
     return verts, np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
+
+
+def widen_thin(uv, labels, scale, floor):
+    """Stretch every chart of ``uv`` (t, 3, 2) whose smallest bounding rectangle is less than
+    ``floor`` texels across (at ``scale`` texels per ``uv`` unit) along that rectangle's short
+    axis, about the chart's own origin, until it is ``floor`` texels across: a sliver (a
+    moulding's face under a texel wide) then covers ``floor`` + 1 texel rows instead of one or
+    two, each its own surface sample. A positive affine map of a chart: it stays free of
+    overlap and keeps its orientation. Returns (uv, number of charts stretched)."""
+    uv = np.array(uv, dtype=np.float64, copy=True)
+    if len(labels) == 0 or floor <= 0:
+        return uv, 0
+    order = np.argsort(labels, kind="stable")
+    cuts = np.flatnonzero(np.diff(labels[order])) + 1
+    count = 0
+    for tris in np.split(order, cuts):
+        if labels[tris[0]] < 0:
+            continue
+        pts = uv[tris].reshape(-1, 2)
+        hull = convex_hull(pts)
+        if len(hull) < 3:
+            continue
+        rot, lo, hi = min_area_rect(hull)
+        ext = hi - lo
+        k = int(np.argmin(ext))
+        width = float(ext[k]) * scale
+        if width >= floor or width <= 0:
+            continue
+        local = pts @ rot.T
+        local[:, k] = lo[k] + (local[:, k] - lo[k]) * (floor / width)
+        uv[tris] = (local @ rot).reshape(-1, 3, 2)
+        count += 1
+    return uv, count

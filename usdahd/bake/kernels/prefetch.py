@@ -165,7 +165,8 @@ class Prefetch:
                     disp = dispatcher(name)
                 except Exception:
                     continue
-                if not all(is_cached(disp, s) for s in sigs[name]):
+                missing = [s for s in sigs[name] if tuple(s) not in disp.overloads]
+                if not all(is_cached(disp, s) for s in missing):
                     self.names.append(name)
                     self._events[name] = threading.Event()
                     self._wrap(name, disp)

@@ -38,14 +38,14 @@ from pathlib import Path
 
 #: The kernels the second process compiles, by the part of the bake that needs them; in each
 #: group, in the order the bake reaches them. "trace": the path tracer (``trace_paths``, the
-#: bake kernel's largest callee, and the camera-ray tracer) and the kernel that solves the
+#: bake kernel's largest callee, ~7 of its ~18 CPU seconds) and the kernel that solves the
 #: traced texels' SH; the bake meanwhile compiles the rasteriser, the direct-light callees
-#: (``_texel_delta``) and, last, ``native_pass`` itself. "noise": the denoiser's statistics;
-#: "fit": the IrradZ models' fit (ahd, hhd, hlsh).
+#: (``_texel_delta``), the camera-ray tracer and, last, ``native_pass`` itself, and reaches
+#: ``trace_paths`` about when the second process (~2 s to start) has it ready. "noise": the
+#: denoiser's statistics; "fit": the IrradZ models' fit (ahd, hhd, hlsh).
 GROUPS = {
     "trace": (
         "usdahd.bake.kernels.paths.trace_paths",
-        "usdahd.bake.kernels.trace.nb_trace_rays",
         "usdahd.bake.kernels.integrate.native_result",
     ),
     "noise": ("usdahd.numerics.noise._tile_stats_numba",),

@@ -223,6 +223,10 @@ def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
         "bake_cpu_seconds": round(t_bake[1], 2),
         "second_process_seconds": None if t_child is None else round(t_child[0], 2),
         "second_process_cpu_seconds": None if t_child is None else round(t_child[1], 2),
+        # the second process's exit status (None: none started; nonzero: this one did its work)
+        "second_process_exit": None
+        if second is None or second.proc is None
+        else second.proc.returncode,
         "compiled": sorted(compiled),
         "loaded": sorted(ready - compiled),
         "fits": fits,

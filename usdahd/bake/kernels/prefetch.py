@@ -176,12 +176,13 @@ class Prefetch:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (_PKG_PARENT, env.get("PYTHONPATH")) if p)
         env["USDAHD_PREFETCH_PARENT"] = str(os.getpid())
         cmd = [sys.executable, "-m", "usdahd.bake.kernels.prefetch", *self.names, *self.extra]
+        log = os.environ.get("USDAHD_PREFETCH_LOG")  # the second process's stderr (debugging)
         try:
             self.proc = subprocess.Popen(
                 cmd,
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL,
+                stderr=open(log, "ab") if log else subprocess.DEVNULL,  # noqa: SIM115
                 env=env,
                 text=True,
             )

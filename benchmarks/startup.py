@@ -4,6 +4,9 @@ fresh numba cache, as on the first ``usdahd bake`` after ``pip install``.
     python -m benchmarks.startup                      # 3 cold runs of samples/cornell_box.usda
     python -m benchmarks.startup --runs 5 --stop      # stop each run at the first progress
     python -m benchmarks.startup --json out.json
+    python -m benchmarks.startup --runs 4 --stop --jobs 1 2   # alternate: without / with the
+                                                              # second compiling process
+    python -m benchmarks.startup --write-signatures    # rewrite the prefetch manifest
 
 Each run is a new process with its own empty ``NUMBA_CACHE_DIR`` and a fresh copy of the stage,
 baking with ``usdahd bake -q``. The child records (from numba's ``numba:compile`` events) the
@@ -16,6 +19,14 @@ child's launch (interpreter start and imports included). After the
 cold runs one more run reuses the last cache: it must compile nothing (``warm compiles``).
 Reports the median of each figure and the load average (``/proc/loadavg``) before and after:
 on this 2-core machine other work running alongside inflates every figure.
+
+``--jobs 1 2`` alternates the runs between ``USDAHD_COMPILE_JOBS=1`` (the bake compiles every
+kernel itself) and 2 (the default: a second process compiles the kernels of
+``usdahd.bake.kernels.prefetch.GROUPS`` meanwhile); ``cpu`` is then the bake process's CPU
+seconds and ``cpu2`` the second process's (from ``/proc``, at the moment the run ended), and
+``waited`` the seconds the bake waited for the second process's kernels.
+``--write-signatures`` bakes ``usdahd warmup``'s stage once in a new, empty cache with one
+process and writes the signatures of those kernels to ``usdahd/bake/kernels/signatures.json``.
 """
 
 from __future__ import annotations
@@ -35,7 +46,7 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_STAGE = REPO / "samples" / "cornell_box.usda"
 
 
-def _child(stage: str, out: str, stop: bool) -> None:
+def _child(stage: str, out: str, stop: bool, write: bool = False) -> None:
     """Bake ``stage`` in this process, record compile events and the first texel into ``out``."""
     import threading
 
@@ -77,6 +88,15 @@ def _child(stage: str, out: str, stop: bool) -> None:
     kernel = integrate.native_pass
 
     def dump(rc: int) -> None:
+        from usdahd.bake.kernels.prefetch import Prefetch, cpu_seconds
+
+        pf = Prefetch.last
+        second = None
+        if pf is not None:
+            cpu2 = cpu_seconds(pf.proc.pid) if pf.proc.poll() is None else None
+            if cpu2 is None and pf.report:
+                cpu2 = pf.report["cpu_seconds"]
+            second = {"cpu": cpu2, "waited": pf.waited, "kernels": pf.names, "done": pf.done}
         sigs = {}
         for mod in list(sys.modules.values()):
             if not getattr(mod, "__name__", "").startswith("usdahd"):
@@ -94,6 +114,7 @@ def _child(stage: str, out: str, stop: bool) -> None:
             "compiles": sum(r["compiles"] for r in comp.values()),
             "compile": comp,
             "signatures": sigs,
+            "second": second,
         }
         Path(out).write_text(json.dumps(res, indent=1))
 
@@ -118,6 +139,13 @@ def _child(stage: str, out: str, stop: bool) -> None:
     progress.Progress.update = shown
     from usdahd.cli import main
 
+    if write:
+        from usdahd.bake.kernels import prefetch
+
+        rc = main(["bake", "-q", stage, "--resolution", "8", "--samples", "8"])
+        print(prefetch.write_manifest(), file=sys.stderr)
+        dump(rc)
+        return
     dump(main(["bake", "-q", stage]))
 
 
@@ -128,18 +156,20 @@ def _loadavg() -> str:
         return "?"
 
 
-def _run(stage: Path, cache: Path, stop: bool) -> dict:
+def _run(stage: Path, cache: Path, stop: bool, jobs: int = 2, write: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="usdahd-startup-") as tmp:
         shutil.copy(stage, Path(tmp) / stage.name)
         out = Path(tmp) / "result.json"
         env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), STARTUP_LAUNCH=repr(time.time()))
+        env["USDAHD_COMPILE_JOBS"] = str(jobs)
         env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
         load0 = _loadavg()
         cmd = [sys.executable, "-m", "benchmarks.startup", "--child", str(Path(tmp) / stage.name)]
-        cmd += ["--out", str(out)] + (["--stop"] if stop else [])
+        cmd += ["--out", str(out)] + (["--stop"] if stop else []) + (["--write"] if write else [])
         subprocess.run(cmd, env=env, cwd=REPO, check=True)
         res = json.loads(out.read_text())
         res["load"] = (load0, _loadavg())
+        res["jobs"] = jobs
         return res
 
 
@@ -149,31 +179,68 @@ def main(argv=None) -> int:
     ap.add_argument("--stage", default=str(DEFAULT_STAGE))
     ap.add_argument("--stop", action="store_true", help="end each run at the first progress")
     ap.add_argument("--json", help="write all runs here")
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        nargs="+",
+        choices=(1, 2),
+        default=[2],
+        help="USDAHD_COMPILE_JOBS of the runs, in turn (1 2: alternate, 1 first)",
+    )
+    ap.add_argument(
+        "--write-signatures",
+        action="store_true",
+        help="rewrite usdahd/bake/kernels/signatures.json from one cold bake, then stop",
+    )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
+    ap.add_argument("--write", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
-        _child(a.child, a.out, a.stop)
+        _child(a.child, a.out, a.stop, a.write)
+        return 0
+    if a.write_signatures:
+        from usdahd.commands.warmup import STAGE
+
+        with tempfile.TemporaryDirectory(prefix="usdahd-startup-") as tmp:
+            stage = Path(tmp) / "warmup.usda"
+            stage.write_text(STAGE)
+            _run(stage, Path(tmp) / "cache", False, jobs=1, write=True)
         return 0
     stage = Path(a.stage).resolve()
     runs = []
     with tempfile.TemporaryDirectory(prefix="usdahd-startup-cache-") as caches:
         for i in range(a.runs):
             cache = Path(caches) / f"run{i}"
-            runs.append(_run(stage, cache, a.stop))
+            runs.append(_run(stage, cache, a.stop, jobs=a.jobs[i % len(a.jobs)]))
             r = runs[-1]
+            sec = r.get("second") or {}
+            cpu2 = sec.get("cpu")
             print(
-                f"run {i + 1}: first texel {r['first_texel']:.1f}s, first progress "
-                f"{r['first_progress']:.1f}s, compile "
+                f"run {i + 1} (jobs {r['jobs']}): first texel {r['first_texel']:.1f}s, first "
+                f"progress {r['first_progress']:.1f}s, compile "
                 f"{r['compile_total']:.1f}s ({r['compiles']} compiles), total {r['total']:.1f}s, "
-                f"cpu {r['cpu']:.1f}s, load {r['load'][0]} -> {r['load'][1]}",
+                f"cpu {r['cpu']:.1f}s"
+                + (f", cpu2 {cpu2:.1f}s, waited {sec['waited']:.1f}s" if cpu2 is not None else "")
+                + f", load {r['load'][0]} -> {r['load'][1]}",
                 file=sys.stderr,
                 flush=True,
             )
-        warm = _run(stage, cache, a.stop)
+        warm = _run(stage, cache, a.stop, jobs=a.jobs[-1])
     keys = ("first_texel", "first_progress", "compile_total")
     med = {k: statistics.median(r[k] for r in runs) for k in keys}
     med.update(total=statistics.median(r["total"] for r in runs))
+    for j in sorted(set(a.jobs)):
+        mine = [r for r in runs if r["jobs"] == j]
+        if mine and len(set(a.jobs)) > 1:
+            fp = statistics.median(r["first_progress"] for r in mine)
+            cpu = statistics.median(r["cpu"] for r in mine)
+            cpu2 = [r["second"]["cpu"] for r in mine if r.get("second") and r["second"]["cpu"]]
+            print(
+                f"  jobs {j}: first progress {fp:6.1f} s, cpu {cpu:.1f} s"
+                + (f" + {statistics.median(cpu2):.1f} s" if cpu2 else "")
+                + f" (median of {len(mine)})"
+            )
     top: dict = {}
     for r in runs:
         for name, c in r["compile"].items():

@@ -12,6 +12,7 @@ numba caches them (``NUMBA_CACHE_DIR``, else ``__pycache__`` next to the install
 
 from __future__ import annotations
 
+import contextlib
 import json
 import tempfile
 import time
@@ -71,8 +72,8 @@ def add_parser(sub):
         type=int,
         choices=(1, 2),
         default=2,
-        help="2 (default): fit every model in a second process while the first bakes the "
-        "warm-up stage; 1: one process",
+        help="2 (default): compile the fit and noise kernels and fit every model in a second "
+        "process while the first bakes the warm-up stage; 1: one process",
     )
     p.set_defaults(func=run)
     return p
@@ -156,41 +157,37 @@ def _noise_stats() -> None:
     noise.tile_stats(img, np.ones((12, 12), bool), 6)
 
 
-def _second_worker() -> tuple[list[str], list[str], list[str], tuple[float, float]]:
-    """The second process of ``--jobs 2``: the kernels a bake needs after tracing (every
-    model's fit, the noise statistics, the seam solver), compiled while the first process
-    compiles the tracing kernels; returns (fits, kernels compiled, kernels ready, (wall, CPU
-    seconds))."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    with _Compiled() as c:
-        fits = _fit_every_model()
-        _noise_stats()
-        _solve_seams()
-    times = (time.perf_counter() - t0, time.process_time() - c0)
-    return fits, sorted(c.names), sorted(_kernels()), times
+def _second_worker() -> tuple[list[str], list[str]]:
+    """The rest of ``--jobs 2``'s second process (after the fit and noise kernels): fit every
+    model; returns (fits, the kernels ready there). The first process compiles the seam
+    solver meanwhile, after its bake."""
+    fits = _fit_every_model()
+    _noise_stats()
+    return fits, sorted(_kernels())
 
 
 def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
     """Compile or load every bake kernel; returns the report (kernels compiled / loaded).
 
-    jobs : 2 compiles the kernels a bake runs after tracing (fit, noise statistics, seam
-        solver) in a second process while this one bakes the warm-up stage, whose tracing
-        kernels take most of the compile time; the bake then loads the others from numba's
-        cache (cache files are per kernel and written atomically; a kernel the bake reaches
-        first is compiled by both, harmlessly). 1 does everything here, one after the other.
+    jobs : 2 compiles the kernels a bake runs after tracing (fit, noise statistics) in a
+        second process (:class:`usdahd.bake.kernels.prefetch.Prefetch`), which then fits every
+        model and compiles the seam solver, while this one bakes the warm-up stage and compiles
+        the tracing kernels; the bake waits for the second process's kernels and loads them
+        from numba's cache instead of compiling them too. 1 does everything here, one after
+        the other.
     """
+    from usdahd.bake.kernels.prefetch import Prefetch
     from usdahd.pipeline.run import bake
     from usdahd.pipeline.settings import BakeOptions
 
     t0, c0 = time.perf_counter(), time.process_time()
-    pool = child = None
-    if jobs > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        child = pool.submit(_second_worker)
-    try:
+    child_compiled, child_ready, t_child, fits = set(), set(), None, None
+    # --jobs 2: the second process compiles the fit and noise kernels first (the bake here
+    # waits for them instead of compiling them too), then fits every model; this one bakes,
+    # then compiles the seam solver
+    then = "usdahd.commands.warmup:_second_worker"
+    second = Prefetch(["noise", "fit"], then=then) if jobs > 1 else None
+    with second or contextlib.nullcontext():
         with _Compiled() as c:
             with tempfile.TemporaryDirectory(prefix="usdahd-warmup-") as tmp:
                 stage = Path(tmp) / "warmup.usda"
@@ -202,17 +199,19 @@ def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
 
                     raise BakeError(f"warm-up bake failed: {json.dumps(result)[:400]}")
             t_bake = (time.perf_counter() - t0, time.process_time() - c0)
-            if child is None:
+            if second is not None:
+                if second.proc is not None:
+                    _solve_seams()  # while the second process fits the models
+                second.wait()
+                rep = second.report
+                if rep is not None and rep["result"] is not None:
+                    fits, child_ready = rep["result"]
+                    child_compiled, child_ready = set(rep["compiled"]), set(child_ready)
+                    t_child = (rep["seconds"], rep["cpu_seconds"])
+            if fits is None:  # --jobs 1, USDAHD_COMPILE_JOBS=1, or the second process failed
                 fits = _fit_every_model()
                 _noise_stats()
                 _solve_seams()
-                child_compiled, child_ready, t_child = set(), set(), None
-        if child is not None:
-            fits, cc, cr, t_child = child.result()
-            child_compiled, child_ready = set(cc), set(cr)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
     compiled = {k for k in c.names | child_compiled if k.startswith("usdahd")}
     ready = _kernels() | child_ready
     return {
@@ -224,6 +223,10 @@ def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
         "bake_cpu_seconds": round(t_bake[1], 2),
         "second_process_seconds": None if t_child is None else round(t_child[0], 2),
         "second_process_cpu_seconds": None if t_child is None else round(t_child[1], 2),
+        # the second process's exit status (None: none started; nonzero: this one did its work)
+        "second_process_exit": None
+        if second is None or second.proc is None
+        else second.proc.returncode,
         "compiled": sorted(compiled),
         "loaded": sorted(ready - compiled),
         "fits": fits,

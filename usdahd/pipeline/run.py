@@ -6,6 +6,7 @@ commits (:mod:`~usdahd.pipeline.outputs`: textures, then the override layer, the
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import time
@@ -172,7 +173,6 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     references are removed afterwards. A lock file serialises bakes of one output: a second
     bake of the same output waits (with a message) until the first has committed.
     """
-    from usdahd.progress import CompileNotice
     from usdahd.usd import plugin
 
     plugin.register()
@@ -180,6 +180,26 @@ def bake(stage_path, opts: BakeOptions | None = None) -> dict:
     check_options(opts)
     t_start = time.perf_counter()
     src, out = preflight(stage_path, opts)
+    # an empty numba cache: a second process compiles some kernels meanwhile (issue 43 item 6)
+    with _prefetch(opts):
+        return _bake_checked(src, out, opts, t_start)
+
+
+def _prefetch(opts: BakeOptions):
+    if opts.dry_run:
+        return contextlib.nullcontext()
+    from usdahd import models
+    from usdahd.bake.kernels.prefetch import Prefetch, groups_for
+
+    irradz = models.REGISTRY.get(opts.model or DEFAULTS["model"], "").startswith(
+        "usdahd.models.irradz"
+    )
+    return Prefetch(groups_for(fit=irradz, denoise=opts.denoise))
+
+
+def _bake_checked(src: Path, out: Path, opts: BakeOptions, t_start: float) -> dict:
+    from usdahd.progress import CompileNotice
+
     try:
         stage = open_stage(src)
         if opts.scenario:  # before any check or read: the variant decides what the stage holds

@@ -36,6 +36,18 @@ import threading
 import time
 from pathlib import Path
 
+__all__ = [
+    "GROUPS",
+    "MANIFEST",
+    "Prefetch",
+    "cpu_seconds",
+    "dispatcher",
+    "groups_for",
+    "is_cached",
+    "signatures",
+    "write_manifest",
+]
+
 #: The kernels the second process compiles, by the part of the bake that needs them; in each
 #: group, in the order the bake reaches them. "trace": the path tracer (``trace_paths``, the
 #: bake kernel's largest callee, ~7 of its ~18 CPU seconds) and the kernel that solves the

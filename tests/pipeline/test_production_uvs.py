@@ -43,8 +43,11 @@ def _prims(report):
 def _check_plan(report):
     prims = _prims(report)
     ground, box = prims["/World/Ground"], prims["/World/StripBox"]
-    # A one-chart layout is a lightmap layout: kept as authored, at the planned size.
-    assert ground["resolution"] == [32, 32]
+    # A one-chart layout is a lightmap layout: kept as authored, at the planned size (8 m at
+    # 16/m: the stage is 8 m across, so the floor by stage size leaves the density at 16/m).
+    assert report["texel_density"]["density"] == 16.0
+    assert report["texel_density"]["stage_extent"] == 8.0
+    assert ground["resolution"] == [128, 128]
     assert not any("gutter" in n for n in ground.get("notes", []) + ground["warnings"])
     # Six strips side by side, 1/500 apart: raised until few texels touch; st is kept.
     note = next(n for n in box.get("notes", []) if "no lightmap gutter" in n)

@@ -43,8 +43,11 @@ def _prims(report):
 def _check_plan(report):
     prims = _prims(report)
     ground, box = prims["/World/Ground"], prims["/World/StripBox"]
-    # A one-chart layout is a lightmap layout: kept as authored, at the planned size.
-    assert ground["resolution"] == [32, 32]
+    # A one-chart layout is a lightmap layout: kept as authored, at the planned size (8 m at
+    # 16/m: the stage is 8 m across, so the floor by stage size leaves the density at 16/m).
+    assert report["texel_density"]["density"] == 16.0
+    assert report["texel_density"]["stage_extent"] == 8.0
+    assert ground["resolution"] == [128, 128]
     assert not any("gutter" in n for n in ground.get("notes", []) + ground["warnings"])
     # Six strips side by side, 1/500 apart: raised until few texels touch; st is kept.
     note = next(n for n in box.get("notes", []) if "no lightmap gutter" in n)
@@ -116,13 +119,14 @@ def test_explicit_settings_keep_the_authored_texture_uvs(capsys, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "name,total", [("cornell_box.usda", 9712), ("exterior_sun_sky.usda", 19040),
-                   ("stretched_boxes.usda", 9056)],
+    "name,total", [("cornell_box.usda", 138128), ("exterior_sun_sky.usda", 39504),
+                   ("stretched_boxes.usda", 35664)],
 )  # fmt: skip
 def test_the_samples_lightmap_layouts_are_kept(name, total, capsys, tmp_path):
-    """The samples' UV sets (validated against Cycles) have gutters of about a texel at their
-    planned size (at most 16 % of the texels next to another chart's, on the Cornell box's short
-    box): they keep their plan, texel for texel (docs/texels.md's table)."""
+    """The samples' UV sets (validated against Cycles) have gutters of about a texel at 16/m
+    (at most 16 % of the texels next to another chart's, on the Cornell box's short box) and
+    more at the density floor of their 2-6 m stages (64, 22.63 and 32/m): no raise and no
+    unwrap, each map exactly its density's (docs/texels.md's table)."""
     report = _dry_run(capsys, SAMPLES / name, "-o", str(tmp_path / "o.usda"))
     assert report["texels_total"] == total
     for p in report["prims"]:

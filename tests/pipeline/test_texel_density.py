@@ -13,7 +13,12 @@ import pytest
 
 from tests.scenes import SAMPLES, sample_stages
 from usdahd import cli
-from usdahd.pipeline.plan import _pad_to_multiple, auto_texel_density
+from usdahd.pipeline.plan import (
+    STAGE_MIN_TEXELS,
+    _pad_to_multiple,
+    auto_texel_density,
+    density_ceiling,
+)
 from usdahd.pipeline.settings import (
     DEFAULT_TEXEL_BUDGET,
     DENSITY_AUTO_MAX,
@@ -90,10 +95,11 @@ def _resolutions(report):
 
 
 def _props(stage):
-    """Prop-scale meshes: a 10 cm card with UVs, a 20 cm box and a 5 cm box without UVs."""
+    """Prop-scale meshes: a 10 cm card with UVs, a 20 cm box and a 5 cm box without UVs, 8 m
+    apart end to end (so the floor by stage size leaves the density at its 16/m ceiling)."""
     _quad(stage, "/World/Card", (0, 0, 0), 0.1)
     _cube(stage, "/World/Box", (1, 0.1, 0), 0.2)
-    _cube(stage, "/World/Dice", (2, 0.025, 0), 0.05)
+    _cube(stage, "/World/Dice", (7.95, 0.025, 0), 0.05)
 
 
 def test_prop_scale_stage_gets_the_minimum_map_on_4_texel_blocks(tmp_path, capsys):
@@ -104,7 +110,10 @@ def test_prop_scale_stage_gets_the_minimum_map_on_4_texel_blocks(tmp_path, capsy
     for path, (w, h) in res.items():
         assert min(w, h) >= MIN_RESOLUTION, (path, w, h)
         assert w % RESOLUTION_MULTIPLE == 0 and h % RESOLUTION_MULTIPLE == 0, (path, w, h)
-    assert report["texel_density"]["density"] == DENSITY_AUTO_MAX  # far below the budget
+    # Far below the budget: the densest step; the stage is 8 m across (-5 cm to 7.975 m + ...).
+    td = report["texel_density"]
+    assert td["stage_extent"] >= STAGE_MIN_TEXELS / DENSITY_AUTO_MAX
+    assert td["density"] == td["ceiling"] == DENSITY_AUTO_MAX
     prims = {p["path"]: p for p in report["prims"]}
     for path in res:
         assert not any("gives only" in w for w in prims[path]["warnings"]), prims[path]
@@ -237,6 +246,71 @@ def test_auto_texel_density_steps_down_the_ladder_until_the_budget_fits():
     assert auto_texel_density([], 1000)[2]
 
 
+def test_the_density_ceiling_puts_the_floor_across_a_small_stage():
+    """A stage smaller than STAGE_MIN_TEXELS / 16 m starts the ladder higher: the first step
+    of the same ladder (16 * 2^(j/4)) that puts STAGE_MIN_TEXELS texels across it."""
+    assert density_ceiling(0.0) == DENSITY_AUTO_MAX
+    assert density_ceiling(STAGE_MIN_TEXELS / DENSITY_AUTO_MAX) == DENSITY_AUTO_MAX  # 8 m
+    assert density_ceiling(300.0) == DENSITY_AUTO_MAX
+    for extent in (0.056, 0.705, 1.0, 2.0, 3.0, 7.9):
+        d = density_ceiling(extent)
+        assert d * extent >= STAGE_MIN_TEXELS - 1e-9, extent
+        j = np.log(d / DENSITY_AUTO_MAX) / -np.log(DENSITY_LADDER)
+        assert j == pytest.approx(round(j), abs=0.01) and round(j) >= 1, (extent, d)  # a step
+        below = DENSITY_AUTO_MAX * DENSITY_LADDER ** (1 - round(j))  # the step below it
+        assert below * extent < STAGE_MIN_TEXELS, (extent, d)  # the first step that does
+    assert density_ceiling(1.0, texels=128) == 128.0
+    assert density_ceiling(2.0, texels=128) == 64.0
+    # The ladder from a raised ceiling: the same steps, so a budget brings it down to 16/m.
+    ext = [1.0, 0.1]
+    d, total, fits = auto_texel_density(ext, 1 << 20, ceiling=128.0)
+    assert (d, total, fits) == (128.0, 128**2 + 32**2, True)
+    d2, total2, fits2 = auto_texel_density(ext, 2 * 32**2, ceiling=128.0)
+    assert fits2 and total2 == 2 * 32**2 and d2 <= 32.0
+    assert d2 == auto_texel_density(ext, 2 * 32**2)[0] or d2 > DENSITY_AUTO_MAX
+
+
+TABLETOP = SAMPLES.parent / "tests" / "data" / "production" / "tabletop.usda"
+
+
+def _check_tabletop(report):
+    td = report["texel_density"]
+    assert td["stage_extent"] == pytest.approx(1.0)  # 100 cm at metersPerUnit 0.01
+    assert td["ceiling"] == density_ceiling(1.0) == td["density"] > DENSITY_AUTO_MAX
+    note = next(n for n in report["notes"] if n.startswith("texel density "))
+    assert (
+        f"the densest step up to {td['ceiling']:g}/m (raised from {DENSITY_AUTO_MAX:g}/m so "
+        f"that the stage's largest side, 1 m, gets at least {STAGE_MIN_TEXELS} texels)"
+    ) in note, note
+    table = next(p for p in report["prims"] if p["path"] == "/World/Table")
+    side = int(np.ceil(td["density"] * 1.0 / RESOLUTION_MULTIPLE - 1e-9)) * RESOLUTION_MULTIPLE
+    assert table["resolution"] == [side, side]
+    assert side >= STAGE_MIN_TEXELS  # at 16/m the 1 m table top was 16 -> the 32^2 minimum
+
+
+def test_a_tabletop_stage_gets_the_density_floor(capsys, tmp_path):
+    report = _dry_run(capsys, TABLETOP, "-o", str(tmp_path / "o.lightmaps.usda"))
+    _check_tabletop(report)
+    # The budget still wins: a small one brings the density back down the ladder.
+    small = _dry_run(capsys, TABLETOP, "-o", str(tmp_path / "o.usda"), "--texel-budget", "4000")
+    assert small["texel_density"]["density"] < report["texel_density"]["density"]
+    assert small["texel_density"]["estimated_texels"] <= 4000
+    assert "raised from" in next(n for n in small["notes"] if n.startswith("texel density "))
+    # --prim does not move the floor (the density is the whole stage's).
+    one = _dry_run(capsys, TABLETOP, "-o", str(tmp_path / "o.usda"), "--prim", "/World/Block")
+    assert one["texel_density"] == report["texel_density"]
+
+
+def test_a_tabletop_stage_gets_the_density_floor_subprocess(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(TABLETOP), "-o", str(tmp_path / "o.usda"),
+         "--dry-run", "--json", "--quiet"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    _check_tabletop(json.loads(proc.stdout))
+
+
 def test_padding_an_unwrap_to_4_texel_blocks_keeps_every_texel_in_place():
     rng = np.random.default_rng(3)
     w, h = 13, 6
@@ -277,14 +351,16 @@ def test_an_unchanged_rebake_on_the_automatic_density_is_skipped(tmp_path, capsy
     argv = ["bake", str(stage), "--samples", "4", "--bounces", "0", "--json", "--quiet"]
     assert cli.main(argv) == 0
     first = json.loads(capsys.readouterr().out)
-    assert first["prims"][0]["status"] == "baked" and first["prims"][0]["resolution"] == [68, 68]
+    top = density_ceiling(4.0)  # the 4 m plane: STAGE_MIN_TEXELS across
+    side = int(np.ceil(top * 4.0 / 0.96 / RESOLUTION_MULTIPLE)) * RESOLUTION_MULTIPLE
+    assert first["prims"][0]["status"] == "baked" and first["prims"][0]["resolution"] == [side] * 2
     from pxr import Usd
 
     from usdahd.usd import schema
 
     layer = Usd.Stage.Open(str(tmp_path / "open_plane.lightmaps.usda"))
     res = schema.read_results(layer.GetPrimAtPath("/World/Geometry/Plane"))
-    assert res.settings["texel_density"] == DENSITY_AUTO_MAX
+    assert res.settings["texel_density"] == top
     assert "texel_budget" not in res.settings  # only the density it gives is a setting
     assert res.settings["min_resolution"] == MIN_RESOLUTION
     assert res.settings["resolution_multiple"] == RESOLUTION_MULTIPLE
@@ -296,5 +372,5 @@ def test_an_unchanged_rebake_on_the_automatic_density_is_skipped(tmp_path, capsy
     assert json.loads(capsys.readouterr().out)["prims"][0]["status"] == "skipped"
     assert cli.main([*argv, "--texel-budget", "4000"]) == 0
     third = json.loads(capsys.readouterr().out)
-    assert third["texel_density"]["density"] < DENSITY_AUTO_MAX
+    assert third["texel_density"]["density"] < top
     assert third["prims"][0]["status"] == "baked" and third["texels_total"] <= 4000

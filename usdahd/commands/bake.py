@@ -49,7 +49,8 @@ def add_parser(sub):
         type=int,
         metavar="N",
         help="texels the automatic density spreads over the stage by surface area (default "
-        "1048576 = 1024^2; at most 16 texels/m, each map at least 32x32; docs/texels.md)",
+        "1048576 = 1024^2; at most 16 texels/m, or 128 texels across a stage under 8 m; each "
+        "map at least 32x32; docs/texels.md)",
     )
     a("--samples", type=int, metavar="N", help="hemisphere samples per texel (default 256)")
     a(

@@ -39,13 +39,16 @@ if TYPE_CHECKING:
 __all__ = [
     "PrimJob",
     "REFIT_SETTINGS",
+    "STAGE_MIN_TEXELS",
     "auto_texel_density",
+    "density_ceiling",
     "mesh_extent",
     "plan_job",
     "prop_cap",
     "refit_source",
     "settings_as_stored",
     "settings_resolution_given",
+    "stage_extent",
 ]
 
 
@@ -118,11 +121,52 @@ def mesh_extent(mesh, meters_per_unit: float) -> float:
     return float(np.sqrt(max(world, 0.0) / uv_area)) * mpu
 
 
+#: Texels the automatic density puts at least across the largest side of the stage (the
+#: bounds of the prims on it), within the texel budget: a tabletop stage (the chess set's
+#: 0.7 m, the shader ball's 1 m studio) would get only 11-16 texels across at the 16/m
+#: ceiling, fewer than its contact shadows need (docs/texels.md, "A floor by stage size";
+#: measured in docs/scenes.md). Stages of 8 m and more keep DENSITY_AUTO_MAX.
+STAGE_MIN_TEXELS = 128
+
+
+def stage_extent(meshes, meters_per_unit: float) -> float:
+    """The largest side in metres of the axis-aligned bounds of ``meshes``' points (world
+    space); 0 for no points."""
+    lo, hi = None, None
+    for m in meshes:
+        p = np.asarray(m.points, np.float64)
+        if p.size == 0 or not np.isfinite(p).all():
+            continue
+        a, b = p.min(axis=0), p.max(axis=0)
+        lo = a if lo is None else np.minimum(lo, a)
+        hi = b if hi is None else np.maximum(hi, b)
+    if lo is None:
+        return 0.0
+    return float((hi - lo).max()) * float(meters_per_unit or 1.0)
+
+
+def density_ceiling(extent: float, texels: int = STAGE_MIN_TEXELS) -> float:
+    """The densest step the automatic density starts from on a stage whose largest side is
+    ``extent`` metres (:func:`stage_extent`): DENSITY_AUTO_MAX, or the first step of the same
+    ladder above it (DENSITY_AUTO_MAX / DENSITY_LADDER^j) that puts ``texels`` across that
+    side, so a small stage is not held to 16/m."""
+    if not extent > 0 or DENSITY_AUTO_MAX * extent >= texels:
+        return DENSITY_AUTO_MAX
+    j = int(np.ceil(np.log(texels / (DENSITY_AUTO_MAX * extent)) / -np.log(DENSITY_LADDER)))
+    d = _snap(DENSITY_AUTO_MAX * DENSITY_LADDER ** (-j))
+    while d * extent < texels - 1e-9:  # the 4-digit snap can land just below
+        j += 1
+        d = _snap(DENSITY_AUTO_MAX * DENSITY_LADDER ** (-j))
+    return d
+
+
 def auto_texel_density(
-    extents, budget: int, *, minimum: int = MIN_RESOLUTION
+    extents, budget: int, *, minimum: int = MIN_RESOLUTION, ceiling: float = DENSITY_AUTO_MAX
 ) -> tuple[float, int, bool]:
-    """The stage's automatic texel density: the largest step DENSITY_AUTO_MAX *
-    DENSITY_LADDER^k (k = 0, 1, ...) at which the maps of meshes of these ``extents``
+    """The stage's automatic texel density: the largest step ``ceiling`` *
+    DENSITY_LADDER^k (k = 0, 1, ...; ``ceiling`` a step of the ladder, DENSITY_AUTO_MAX or
+    above it for a small stage, :func:`density_ceiling`) at which the maps of meshes of these
+    ``extents``
     (:func:`mesh_extent`), each ceil(density * extent) at least ``minimum``, rounded up to
     RESOLUTION_MULTIPLE and clamped to DENSITY_MAX_RESOLUTION, total at most ``budget``
     texels (steps are snapped to 4 significant digits, as recorded). Returns (density,
@@ -138,9 +182,10 @@ def auto_texel_density(
         n = np.minimum(-(-n // RESOLUTION_MULTIPLE) * RESOLUTION_MULTIPLE, DENSITY_MAX_RESOLUTION)
         return int((n.astype(np.int64) ** 2).sum())
 
+    up = max(int(round(np.log(float(ceiling) / DENSITY_AUTO_MAX) / -np.log(DENSITY_LADDER))), 0)
     d = DENSITY_AUTO_MAX
     for k in range(200):
-        d = _snap(DENSITY_AUTO_MAX * DENSITY_LADDER**k)
+        d = _snap(DENSITY_AUTO_MAX * DENSITY_LADDER ** (k - up))
         t = total(d)
         if t <= budget:
             return d, t, True

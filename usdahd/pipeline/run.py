@@ -25,13 +25,16 @@ from usdahd.pipeline.outputs import (
 )
 from usdahd.pipeline.plan import (
     REFIT_SETTINGS,
+    STAGE_MIN_TEXELS,
     PrimJob,
     auto_texel_density,
+    density_ceiling,
     mesh_extent,
     plan_job,
     refit_source,
     settings_as_stored,
     settings_resolution_given,
+    stage_extent,
 )
 from usdahd.pipeline.preflight import (
     check_stage_inputs,
@@ -129,16 +132,26 @@ def _auto_density(scene, stage, api_prims, opts, checked, report) -> float | Non
         return None
     budget = int(opts.texel_budget or DEFAULT_TEXEL_BUDGET)
     extents = [mesh_extent(m, scene.meters_per_unit) for m in pool]
-    density, planned, fits = auto_texel_density(extents, budget)
+    side = stage_extent(pool, scene.meters_per_unit)
+    ceiling = density_ceiling(side)
+    density, planned, fits = auto_texel_density(extents, budget, ceiling=ceiling)
     report["texel_density"] = {
         "density": density,
         "budget": budget,
         "prims": len(pool),
         "estimated_texels": planned,
+        "ceiling": ceiling,
+        "stage_extent": round(side, 6),
     }
+    why = ""
+    if ceiling > DENSITY_AUTO_MAX:
+        why = (
+            f" (raised from {DENSITY_AUTO_MAX:g}/m so that the stage's largest side, "
+            f"{side:.3g} m, gets at least {STAGE_MIN_TEXELS} texels)"
+        )
     report["notes"].append(
         f"texel density {density:g}/m for the {len(pool)} prim(s) without an explicit "
-        f"resolution or density: the densest step up to {DENSITY_AUTO_MAX:g}/m whose maps "
+        f"resolution or density: the densest step up to {ceiling:g}/m{why} whose maps "
         f"(each at least {MIN_RESOLUTION}x{MIN_RESOLUTION}) fit the texel budget of {budget} "
         f"(about {planned} texels; --texel-budget, --texel-density or --resolution to change)"
     )

@@ -74,7 +74,8 @@ TINY_RESOLUTION = 8
 DEFAULT_TEXEL_BUDGET = 1 << 20
 #: Density ceiling (texels per metre, 6.25 cm texels): the former fixed default, between
 #: Godot's import default (generate_lightmap_uv2_texel_size 0.2 m = 5 texels/m) and Unity's
-#: Lightmap Resolution (40 texels per unit); small stages (the samples) keep it.
+#: Lightmap Resolution (40 texels per unit); stages of 8 m and more keep it, smaller ones start
+#: higher (plan.STAGE_MIN_TEXELS: the floor by stage size).
 DENSITY_AUTO_MAX = 16.0
 #: Steps of the automatic density: DENSITY_AUTO_MAX * 2^(-k/4), so a small edit of one prim
 #: rarely moves the stage's density (which would re-bake every prim).

@@ -9,7 +9,9 @@ Usage::
 Deterministic (fixed float formatting, no dates). ``upAxis = "Y"``, ``metersPerUnit = 1``,
 default prim ``/World``. The meshes:
 
-- ``Ground``: a 2 m quad whose ``st`` is one chart over [0, 1]^2 (a good lightmap layout).
+- ``Ground``: an 8 m quad whose ``st`` is one chart over [0, 1]^2 (a good lightmap layout); it
+  makes the stage 8 m across, so the automatic density stays at its 16/m ceiling (the floor by
+  stage size, docs/texels.md, raises it only for smaller stages) and the props are at 32x32.
 - ``StripBox``: a 20 cm box whose six faces are six vertical strips of ``st`` side by side,
   1/500 apart (a texture layout: at 32x32 each strip is 5 texels wide and touches its
   neighbours).
@@ -152,7 +154,7 @@ def Xform "World"
     {{
         int[] faceVertexCounts = [4]
         int[] faceVertexIndices = [0, 1, 2, 3]
-        point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
+        point3f[] points = [(-4, 0, 4), (4, 0, 4), (4, 0, -4), (-4, 0, -4)]
         texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
             interpolation = "faceVarying"
         )

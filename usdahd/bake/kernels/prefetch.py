@@ -2,7 +2,7 @@
 
 With an empty numba cache (the first bake after ``pip install``) the bake compiles its kernels
 one after the other on one core: the tracing kernel ``native_pass`` and its callees (~20 CPU
-seconds), then the fit (~25) and the noise statistics (~3). :class:`Prefetch` starts one more
+seconds), then the fit (~10) and the noise statistics (~3). :class:`Prefetch` starts one more
 Python process (``python -m usdahd.bake.kernels.prefetch NAME ...``) that compiles the kernels
 of :data:`GROUPS` the bake will need (from the signatures in :data:`MANIFEST`) and writes them to
 numba's on-disk cache, while the bake compiles the rest itself, top-down as always. When the

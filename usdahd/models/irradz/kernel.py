@@ -245,8 +245,9 @@ def _search_block(m, lo, blk, nc, wk, fs, cdb):
 def _search_dz(cph, sph, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cd_best):
     """The block search for one texel (slot 0) along (cph, sph): returns (d_z, error), C_d in
     cd_best. Same code path as the block, so golden_phi starts from golden's exact result."""
-    line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, 0, blk)
-    _search_block(1, DZ_FLOOR, blk, nc, wk, fs, cdb)
+    slot = np.int64(0)  # np.int64: a literal argument would compile the callees once more
+    line_coeffs(cph, sph, gt, e0, iz, nc, amb, gd, go, slot, blk)
+    _search_block(slot + 1, DZ_FLOOR, blk, nc, wk, fs, cdb)
     for c in range(nc):
         cd_best[c] = cdb[c, 0]
     return wk[_WK_Z, 0], wk[_WK_E, 0]
@@ -338,7 +339,7 @@ def _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03):
     sum_c E_c(k) = sum_c e0_c - 2 k sum_c I_z,c p_c + k^2 q sum_c I_z,c^2 = S (e0' - 2 k p' + k^2 q)
     with S = sum_c I_z,c^2, p' = u^T gt' , gt' = sum_c I_z,c G r_c / S, e0' = sum_c e0_c / S:
     the single-channel problem with I_z' = 1 (so C_d' = k and w_a = 1 - k d_z)."""
-    _prep_gt(t, iz, 3, amb, gd, go, gt3, e03, r)
+    _prep_gt(t, iz, np.int64(3), amb, gd, go, gt3, e03, r)  # not a literal 3: see _search_dz
     s = iz[0] * iz[0] + iz[1] * iz[1] + iz[2] * iz[2]
     for k in range(9):
         gt[0, k] = (iz[0] * gt3[0, k] + iz[1] * gt3[1, k] + iz[2] * gt3[2, k]) / s
@@ -383,7 +384,8 @@ def _search_phi(phi0, gt, e0, iz, nc, amb, gd, go, blk, wk, fs, cdb, cdp, cd_bes
         )
         if ej < e:
             e, bz, bphi = ej, z, ph
-            cd_best[:] = cdp
+            for c in range(3):  # not cd_best[:] = cdp (its shape checks cost ~2 s compile)
+                cd_best[c] = cdp[c]
             if it > 0 and gi < 0:
                 bj = it - 1
         if gi >= 0:
@@ -442,192 +444,204 @@ def _flush_block(nb, kind, nc, blk, wk, fs, cdbk, bidx, bdir, bsiz, d, siz, cdb,
         _finish(bidx[j], kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
 
 
+@njit(cache=True, fastmath=False, nogil=True)
+def _fit_chunk(ch, x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa, out_bad):
+    """Chunk ``ch`` (texels ch * _CHUNK .. ) of :func:`_fit_kernel`: a serial kernel, compiled
+    once and called from the parallel loop with an int64 ``ch`` (the parfor lowering re-types its
+    index as uint64: a second compile of this whole body). Callees get no literal arguments
+    (np.int64(0), not 0): numba compiles a callee once more for each literal. Fit compile time
+    19.1 -> 9.7 CPU s, results bit-identical (docs/time-to-quality.md, "Cold start")."""
+    n = x.shape[0]
+    nc = 3 if rgb else 1
+    xn = np.empty((3, 9))
+    t = np.empty((3, 9))
+    iz = np.empty(3)
+    st = np.empty((3, 9))  # signal: luminance (1 row) or rgb (3 rows) target irradiance
+    siz = np.empty(3)
+    gt = np.empty((3, 9))
+    gt3 = np.empty((3, 9))
+    e03 = np.empty(3)
+    e0 = np.empty(3)
+    r = np.empty(9)
+    u = np.empty(9)
+    cdb = np.empty(3)
+    cdp = np.empty(3)
+    wa = np.empty(3)
+    lr = np.empty(9)
+    d = np.empty(3)
+    blk = np.empty((BLK_ROWS, BLOCK))
+    wk = np.empty((_WK_ROWS, BLOCK))
+    fs = np.empty((GOLDEN_SCAN, BLOCK))
+    cdbk = np.empty((3, BLOCK))
+    bidx = np.empty(BLOCK, np.int64)
+    bdir = np.empty((2, BLOCK))
+    bsiz = np.empty((3, BLOCK))
+    nb = np.int64(0)  # not a literal 0: see _search_dz
+    i1 = min(n, (ch + 1) * _CHUNK)
+    for i in range(ch * _CHUNK, i1 + 1):
+        # -- a full block of deferred golden searches (or the chunk's rest): search them in
+        # lockstep. One call site, so the search is compiled (inlined) once.
+        if nb == BLOCK or (i == i1 and nb > 0):
+            _flush_block(
+                nb,
+                kind,
+                nc,
+                blk,
+                wk,
+                fs,
+                cdbk,
+                bidx,
+                bdir,
+                bsiz,
+                d,
+                siz,
+                cdb,
+                wa,
+                out_d,
+                out_wa,
+            )
+            nb = 0
+        if i == i1:
+            break
+        deferred = False
+        done = False
+        # -- normalise, detect NaN/Inf
+        m = 0.0
+        finite = True
+        for c in range(3):
+            for k in range(9):
+                v = x[i, c, k]
+                if not np.isfinite(v):
+                    finite = False
+                elif abs(v) > m:
+                    m = abs(v)
+        if not finite or m == 0.0:
+            for c in range(3):
+                out_iz[i, c] = 0.0
+                out_d[i, c] = 0.0
+            for c in range(nc):
+                out_wa[i, c] = 1.0
+            out_d[i, 2] = 1.0
+            out_bad[i] = 0.0 if finite else 1.0
+            continue
+        out_bad[i] = 0.0
+        for c in range(3):
+            for k in range(9):
+                xn[c, k] = x[i, c, k] / m  # not * (1/m): 1/m overflows for subnormal m
+                t[c, k] = xn[c, k] * (1.0 if k == 0 else (_COS1 if k < 4 else _COS2))
+            iz[c] = max(_IZ_K * xn[c, 2], 0.0)  # I_z < 0 (ringing, leaks) -> 0
+        for k in range(9):
+            lr[k] = _LUM_R * xn[0, k] + _LUM_G * xn[1, k] + _LUM_B * xn[2, k]
+        liz = _LUM_R * iz[0] + _LUM_G * iz[1] + _LUM_B * iz[2]
+        if rgb:
+            for c in range(3):
+                siz[c] = iz[c]
+                for k in range(9):
+                    st[c, k] = t[c, k]
+        else:
+            siz[0] = liz
+            for k in range(9):
+                st[0, k] = _LUM_R * t[0, k] + _LUM_G * t[1, k] + _LUM_B * t[2, k]
+        for c in range(nc):
+            wa[c] = 1.0
+        if liz <= IZ_TINY:
+            d[0] = 0.0
+            d[1] = 0.0
+            d[2] = 1.0
+        elif kind == 2:  # HLSH direct (Eq 22), direction from luminance, w_a per channel
+            lt0 = _LUM_R * t[0, 0] + _LUM_G * t[1, 0] + _LUM_B * t[2, 0]
+            lt1 = _LUM_R * t[0, 1] + _LUM_G * t[1, 1] + _LUM_B * t[2, 1]
+            lt2 = _LUM_R * t[0, 2] + _LUM_G * t[1, 2] + _LUM_B * t[2, 2]
+            lt3 = _LUM_R * t[0, 3] + _LUM_G * t[1, 3] + _LUM_B * t[2, 3]
+            lt5 = _LUM_R * t[0, 5] + _LUM_G * t[1, 5] + _LUM_B * t[2, 5]
+            lt6 = _LUM_R * t[0, 6] + _LUM_G * t[1, 6] + _LUM_B * t[2, 6]
+            lt7 = _LUM_R * t[0, 7] + _LUM_G * t[1, 7] + _LUM_B * t[2, 7]
+            ca = (_GB0 * lt0 + _GB2 * lt2 + _GB6 * lt6 - liz * (np.pi / 3.0)) / _GBS
+            cx = (_GB1 * lt3 + _GB2X * lt7) / _GBS
+            cy = (_GB1 * lt1 + _GB2X * lt5) / _GBS
+            sz = liz - ca
+            if sz < 0.0:  # w_a > 1: C_d < 0 and the direction flips, d_z stays >= 0
+                _set_unit(d, -cx, -cy, -sz)
+            else:
+                _set_unit(d, cx, cy, sz)
+            _floor_dir(d)
+            for c in range(nc):
+                b0 = (
+                    _GB0 * st[c, 0] + _GB2 * st[c, 2] + _GB6 * st[c, 6] - siz[c] * (np.pi / 3.0)
+                ) / _GBS
+                b1 = (_GB1 * st[c, 3] + _GB2X * st[c, 7]) / _GBS
+                b2 = (_GB1 * st[c, 1] + _GB2X * st[c, 5]) / _GBS
+                s = d[2] * d[2] * (siz[c] - b0) + d[2] * (d[0] * b1 + d[1] * b2)
+                wa[c] = (siz[c] - s) / siz[c] if siz[c] > IZ_TINY else 1.0
+        else:
+            need_ratio = True
+            if solver == _DIRECT:  # HHD from linear SH, Eq 8, 56 (stable form), 10, 11
+                bc = _BC_K * lr[0]
+                bx = -_IZ_K * lr[3]
+                by = -_IZ_K * lr[1]
+                bz = _IZ_K * lr[2]
+                disc = (bc - 2.0 * bz) ** 2 + 3.0 * (bx * bx + by * by)
+                ca = ((2.0 * bc - bz) - np.sqrt(disc)) / 3.0
+                ca = min(max(ca, 0.0), liz)
+                _set_unit(d, bx, by, liz - ca)
+                moved = _floor_dir(d)
+                if not rgb and not moved and not shared:
+                    wa[0] = ca / liz
+                    need_ratio = False
+            else:  # optimal linear direction (-l11, -l1-1, l10) of luminance
+                _set_unit(d, -lr[3], -lr[1], lr[2])
+                _floor_dir(d)
+            if need_ratio:
+                if shared:
+                    _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03)
+                    siz[0] = 1.0
+                else:
+                    _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
+                if solver == _GOLDEN:  # deferred to the lockstep block search
+                    nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
+                    cph, sph = (d[0] / nxy, d[1] / nxy) if nxy > 0.0 else (1.0, 0.0)
+                    line_coeffs(cph, sph, gt, e0, siz, nc, amb, gd, go, nb, blk)
+                    bidx[nb] = i
+                    bdir[0, nb] = cph
+                    bdir[1, nb] = sph
+                    for c in range(nc):
+                        bsiz[c, nb] = siz[c]
+                    nb += 1
+                    deferred = True
+                elif solver == _GOLDEN_PHI:
+                    phi0 = np.arctan2(d[1], d[0])
+                    bz, bphi = _search_phi(
+                        phi0, gt, e0, siz, nc, amb, gd, go, blk, wk, fs, cdbk, cdp, cdb
+                    )
+                    sn = np.sqrt(max(0.0, 1.0 - bz * bz))
+                    d[0] = sn * np.cos(bphi)
+                    d[1] = sn * np.sin(bphi)
+                    d[2] = bz
+                    _floor_dir(d)
+                else:
+                    dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
+                if not deferred:
+                    _finish(i, kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
+            else:
+                _finish(i, kind, nc, siz, cdb[:0], d, wa, True, out_d, out_wa)
+            done = True
+        if not done:
+            _finish(i, kind, nc, siz, cdb[:0], d, wa, kind != 2, out_d, out_wa)
+        for c in range(3):
+            out_iz[i, c] = min(iz[c] * m, IZ_MAX)
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def _fit_kernel(x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa, out_bad):
     """The whole per-texel fit. x : (n, 3, 9) float64 radiance SH; outputs float32
     iz (n, 3), direction (n, 3), ambient ratio (n, 1|3), invalid (n,). ``shared``: one w_a
     (luminance ratio) minimising the summed RGB error instead of the luminance error
     (objective="rgb"). See :func:`fit`."""
-    n = x.shape[0]
-    nc = 3 if rgb else 1
-    nchunk = (n + _CHUNK - 1) // _CHUNK
+    nchunk = (x.shape[0] + _CHUNK - 1) // _CHUNK
     for ch in prange(nchunk):
-        xn = np.empty((3, 9))
-        t = np.empty((3, 9))
-        iz = np.empty(3)
-        st = np.empty((3, 9))  # signal: luminance (1 row) or rgb (3 rows) target irradiance
-        siz = np.empty(3)
-        gt = np.empty((3, 9))
-        gt3 = np.empty((3, 9))
-        e03 = np.empty(3)
-        e0 = np.empty(3)
-        r = np.empty(9)
-        u = np.empty(9)
-        cdb = np.empty(3)
-        cdp = np.empty(3)
-        wa = np.empty(3)
-        lr = np.empty(9)
-        d = np.empty(3)
-        blk = np.empty((BLK_ROWS, BLOCK))
-        wk = np.empty((_WK_ROWS, BLOCK))
-        fs = np.empty((GOLDEN_SCAN, BLOCK))
-        cdbk = np.empty((3, BLOCK))
-        bidx = np.empty(BLOCK, np.int64)
-        bdir = np.empty((2, BLOCK))
-        bsiz = np.empty((3, BLOCK))
-        nb = 0
-        i1 = min(n, (ch + 1) * _CHUNK)
-        for i in range(ch * _CHUNK, i1 + 1):
-            # -- a full block of deferred golden searches (or the chunk's rest): search them in
-            # lockstep. One call site, so the search is compiled (inlined) once.
-            if nb == BLOCK or (i == i1 and nb > 0):
-                _flush_block(
-                    nb,
-                    kind,
-                    nc,
-                    blk,
-                    wk,
-                    fs,
-                    cdbk,
-                    bidx,
-                    bdir,
-                    bsiz,
-                    d,
-                    siz,
-                    cdb,
-                    wa,
-                    out_d,
-                    out_wa,
-                )
-                nb = 0
-            if i == i1:
-                break
-            deferred = False
-            done = False
-            # -- normalise, detect NaN/Inf
-            m = 0.0
-            finite = True
-            for c in range(3):
-                for k in range(9):
-                    v = x[i, c, k]
-                    if not np.isfinite(v):
-                        finite = False
-                    elif abs(v) > m:
-                        m = abs(v)
-            if not finite or m == 0.0:
-                for c in range(3):
-                    out_iz[i, c] = 0.0
-                    out_d[i, c] = 0.0
-                for c in range(nc):
-                    out_wa[i, c] = 1.0
-                out_d[i, 2] = 1.0
-                out_bad[i] = 0.0 if finite else 1.0
-                continue
-            out_bad[i] = 0.0
-            for c in range(3):
-                for k in range(9):
-                    xn[c, k] = x[i, c, k] / m  # not * (1/m): 1/m overflows for subnormal m
-                    t[c, k] = xn[c, k] * (1.0 if k == 0 else (_COS1 if k < 4 else _COS2))
-                iz[c] = max(_IZ_K * xn[c, 2], 0.0)  # I_z < 0 (ringing, leaks) -> 0
-            for k in range(9):
-                lr[k] = _LUM_R * xn[0, k] + _LUM_G * xn[1, k] + _LUM_B * xn[2, k]
-            liz = _LUM_R * iz[0] + _LUM_G * iz[1] + _LUM_B * iz[2]
-            if rgb:
-                for c in range(3):
-                    siz[c] = iz[c]
-                    for k in range(9):
-                        st[c, k] = t[c, k]
-            else:
-                siz[0] = liz
-                for k in range(9):
-                    st[0, k] = _LUM_R * t[0, k] + _LUM_G * t[1, k] + _LUM_B * t[2, k]
-            for c in range(nc):
-                wa[c] = 1.0
-            if liz <= IZ_TINY:
-                d[0] = 0.0
-                d[1] = 0.0
-                d[2] = 1.0
-            elif kind == 2:  # HLSH direct (Eq 22), direction from luminance, w_a per channel
-                lt0 = _LUM_R * t[0, 0] + _LUM_G * t[1, 0] + _LUM_B * t[2, 0]
-                lt1 = _LUM_R * t[0, 1] + _LUM_G * t[1, 1] + _LUM_B * t[2, 1]
-                lt2 = _LUM_R * t[0, 2] + _LUM_G * t[1, 2] + _LUM_B * t[2, 2]
-                lt3 = _LUM_R * t[0, 3] + _LUM_G * t[1, 3] + _LUM_B * t[2, 3]
-                lt5 = _LUM_R * t[0, 5] + _LUM_G * t[1, 5] + _LUM_B * t[2, 5]
-                lt6 = _LUM_R * t[0, 6] + _LUM_G * t[1, 6] + _LUM_B * t[2, 6]
-                lt7 = _LUM_R * t[0, 7] + _LUM_G * t[1, 7] + _LUM_B * t[2, 7]
-                ca = (_GB0 * lt0 + _GB2 * lt2 + _GB6 * lt6 - liz * (np.pi / 3.0)) / _GBS
-                cx = (_GB1 * lt3 + _GB2X * lt7) / _GBS
-                cy = (_GB1 * lt1 + _GB2X * lt5) / _GBS
-                sz = liz - ca
-                if sz < 0.0:  # w_a > 1: C_d < 0 and the direction flips, d_z stays >= 0
-                    _set_unit(d, -cx, -cy, -sz)
-                else:
-                    _set_unit(d, cx, cy, sz)
-                _floor_dir(d)
-                for c in range(nc):
-                    b0 = (
-                        _GB0 * st[c, 0] + _GB2 * st[c, 2] + _GB6 * st[c, 6] - siz[c] * (np.pi / 3.0)
-                    ) / _GBS
-                    b1 = (_GB1 * st[c, 3] + _GB2X * st[c, 7]) / _GBS
-                    b2 = (_GB1 * st[c, 1] + _GB2X * st[c, 5]) / _GBS
-                    s = d[2] * d[2] * (siz[c] - b0) + d[2] * (d[0] * b1 + d[1] * b2)
-                    wa[c] = (siz[c] - s) / siz[c] if siz[c] > IZ_TINY else 1.0
-            else:
-                need_ratio = True
-                if solver == _DIRECT:  # HHD from linear SH, Eq 8, 56 (stable form), 10, 11
-                    bc = _BC_K * lr[0]
-                    bx = -_IZ_K * lr[3]
-                    by = -_IZ_K * lr[1]
-                    bz = _IZ_K * lr[2]
-                    disc = (bc - 2.0 * bz) ** 2 + 3.0 * (bx * bx + by * by)
-                    ca = ((2.0 * bc - bz) - np.sqrt(disc)) / 3.0
-                    ca = min(max(ca, 0.0), liz)
-                    _set_unit(d, bx, by, liz - ca)
-                    moved = _floor_dir(d)
-                    if not rgb and not moved and not shared:
-                        wa[0] = ca / liz
-                        need_ratio = False
-                else:  # optimal linear direction (-l11, -l1-1, l10) of luminance
-                    _set_unit(d, -lr[3], -lr[1], lr[2])
-                    _floor_dir(d)
-                if need_ratio:
-                    if shared:
-                        _prep_shared(t, iz, amb, gd, go, gt, e0, r, gt3, e03)
-                        siz[0] = 1.0
-                    else:
-                        _prep_gt(st, siz, nc, amb, gd, go, gt, e0, r)
-                    if solver == _GOLDEN:  # deferred to the lockstep block search
-                        nxy = np.sqrt(d[0] * d[0] + d[1] * d[1])
-                        cph, sph = (d[0] / nxy, d[1] / nxy) if nxy > 0.0 else (1.0, 0.0)
-                        line_coeffs(cph, sph, gt, e0, siz, nc, amb, gd, go, nb, blk)
-                        bidx[nb] = i
-                        bdir[0, nb] = cph
-                        bdir[1, nb] = sph
-                        for c in range(nc):
-                            bsiz[c, nb] = siz[c]
-                        nb += 1
-                        deferred = True
-                    elif solver == _GOLDEN_PHI:
-                        phi0 = np.arctan2(d[1], d[0])
-                        bz, bphi = _search_phi(
-                            phi0, gt, e0, siz, nc, amb, gd, go, blk, wk, fs, cdbk, cdp, cdb
-                        )
-                        sn = np.sqrt(max(0.0, 1.0 - bz * bz))
-                        d[0] = sn * np.cos(bphi)
-                        d[1] = sn * np.sin(bphi)
-                        d[2] = bz
-                        _floor_dir(d)
-                    else:
-                        dir_error(d[0], d[1], d[2], gt, e0, siz, nc, amb, gd, go, True, u, cdb)
-                    if not deferred:
-                        _finish(i, kind, nc, siz, cdb[:nc], d, wa, True, out_d, out_wa)
-                else:
-                    _finish(i, kind, nc, siz, cdb[:0], d, wa, True, out_d, out_wa)
-                done = True
-            if not done:
-                _finish(i, kind, nc, siz, cdb[:0], d, wa, kind != 2, out_d, out_wa)
-            for c in range(3):
-                out_iz[i, c] = min(iz[c] * m, IZ_MAX)
+        _fit_chunk(
+            np.int64(ch), x, kind, rgb, solver, shared, amb, gd, go, out_iz, out_d, out_wa, out_bad
+        )
 
 
 def fit(sh, kind: str, *, ratio: str = "luminance", solver: str = "golden", **options) -> dict:

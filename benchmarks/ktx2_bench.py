@@ -225,7 +225,7 @@ def section(result: dict) -> str:
         "again (bcdec, through imagecodecs) and keeps it only within 1.5 % RMSE / mean over the "
         "covered texels (`usdahd.ktx2.BC6H_MAX_REL_RMSE`: hhd's irradiance is linear in I_z, "
         "and the BC6H rows above stay under 1.4 %); otherwise the texture is E5B9G9R9 "
-        "(shared exponent, 4 B/texel, within 2^-9 of each texel's largest channel).",
+        "(shared exponent, 4 B/texel, within 2^-8 of each texel's largest channel).",
         "- **The IrradZ `ratio` texture** (w_a per channel, ratio rgb) feeds the same 1 / d_z "
         "(C_d = I_z (1 - w_a) / d_z): through BC7, with BC6H I_z within its bound and exact "
         "directions, hhd/rgb held 2 % on 7 of 9 stages (worst 0.0305, cornell_box) and hlsh/rgb "

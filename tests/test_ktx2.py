@@ -193,9 +193,16 @@ def _errors(layer: Path, roles: dict | None = None) -> tuple[float, float, float
                 assert np.array_equal(packed[lay.role], files[lay.role]), lay.role
             elif k["vk_format"] == KR.VK_BC7_UNORM_BLOCK:  # lossy, close to the 8-bit codes
                 code_rmse = max(code_rmse, float(np.sqrt((diff**2).mean())))
-            elif k["vk_format"] == KR.VK_E5B9G9R9_UFLOAT_PACK32:  # within 2^-9 of the max
-                bound = 2.0**-9 * files[lay.role].max(axis=-1, keepdims=True)
-                assert (np.abs(diff) <= bound).all(), lay.role
+            elif k["vk_format"] == KR.VK_E5B9G9R9_UFLOAT_PACK32:  # within 2^-8 of the max
+                # half a step of the 9-bit mantissa at the shared exponent: 2^-9 of the power of
+                # two above the texel's largest channel (a largest channel that rounds up to it
+                # bumps the exponent: 0.2499 -> step 2^-10, error 2^-11), at least the format's
+                # smallest step 2^-24 (every channel near 0)
+                top = files[lay.role].astype(np.float64).max(axis=-1, keepdims=True)
+                pow2 = np.exp2(np.floor(np.log2(np.maximum(top, 2.0**-24))) + 1)
+                bound = 2.0**-9 * pow2 + 2.0**-24
+                bad = np.abs(diff) > bound
+                assert not bad.any(), (lay.role, diff[bad][:5], top[bad.any(-1)][:5])
             else:  # BC6H: within the writer's bound, decoded here by Mesa
                 rmse, mean = np.sqrt((diff**2).mean()), np.abs(files[lay.role]).mean()
                 assert rmse <= ktx2.BC6H_MAX_REL_RMSE * (1 + 1e-6) * mean, (lay.role, rmse, mean)
@@ -260,7 +267,7 @@ def _mesa_rel_rmse(path: Path, src: np.ndarray, m: np.ndarray) -> float:
 def test_bc_holds_its_error_bound_or_writes_lossless(tmp_path):
     """issue 39: `ktx2-bc` textures that hold up. A BC6H texture whose level-0 error (RMSE /
     mean over the covered texels, decoded by bcdec in the writer) exceeds
-    ktx2.BC6H_MAX_REL_RMSE is written E5B9G9R9 (shared exponent: within 2^-9 of each texel's
+    ktx2.BC6H_MAX_REL_RMSE is written E5B9G9R9 (shared exponent: within 2^-8 of each texel's
     largest channel, Mesa's decoder); the error the writer reports is the one Mesa's decoder
     gives; hemi-octahedral direction codes stay RGBA8 (BC7 moves them where 1 / d_z magnifies
     every code), other 8-bit textures go BC7."""

@@ -13,7 +13,7 @@ one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-b
   per texel; -0.0 written as 0: the unsigned encoder reads the bits of -0.0 as 65504) when level
   0 decoded again (bcdec through imagecodecs) is within :data:`BC6H_MAX_REL_RMSE` (RMSE over the
   covered texels / their mean), else ``VK_FORMAT_E5B9G9R9_UFLOAT_PACK32`` (shared exponent,
-  4 bytes per texel, within 2^-9 of each texel's largest channel): BC6H interpolates a 4 x 4
+  4 bytes per texel, within 2^-8 of each texel's largest channel): BC6H interpolates a 4 x 4
   block in its half-float bit domain with 8 or 16 levels, so a block that spans a hotspot
   (floor_lamp's floor: 0.12 to 2.84) is off by up to 13 % per texel, and no ispc-texcomp profile
   (veryfast to veryslow) changes that much. Float16 textures with a negative value (the signed

@@ -40,20 +40,10 @@ CHILD = textwrap.dedent(
     """
     import json, os, sys
     from pathlib import Path
-    from numba.core import event as ev
     from usdahd.bake.kernels.prefetch import Prefetch
+    from usdahd.numerics.numba_cache import CompiledKernels
 
-    names = set()
-
-    class L(ev.Listener):
-        def on_start(self, e):
-            pass
-
-        def on_end(self, e):
-            f = e.data["dispatcher"].py_func
-            names.add(f"{f.__module__}.{f.__qualname__}")
-
-    ev.register("numba:compile", L())
+    names = CompiledKernels().__enter__().names  # open for the life of this child
     from usdahd.cli import main
 
     stage, out = sys.argv[1], sys.argv[2]

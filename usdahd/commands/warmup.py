@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from usdahd.numerics.numba_cache import CompiledKernels
+
 #: The warm-up stage: a 1 x 1 quad (y = 0, facing +y, UVs primvars:st) under a uniform dome.
 STAGE = """#usda 1.0
 (
@@ -123,32 +125,6 @@ def _solve_seams() -> None:
     f.solve(np.ones((2, 27)))
 
 
-class _Compiled:
-    """Names of the usdahd kernels numba compiles while this is open (numba's events)."""
-
-    def __enter__(self):
-        from numba.core import event as ev
-
-        names = self.names = set()
-
-        class _Listener(ev.Listener):
-            def on_start(self, event):
-                pass
-
-            def on_end(self, event):
-                f = event.data["dispatcher"].py_func
-                names.add(f"{f.__module__}.{f.__qualname__}")
-
-        self._listener = _Listener()
-        ev.register("numba:compile", self._listener)
-        return self
-
-    def __exit__(self, *exc):
-        from numba.core import event as ev
-
-        ev.unregister("numba:compile", self._listener)
-
-
 def _noise_stats() -> None:
     """Compile the denoiser's noise statistics (usdahd.numerics.noise) on a small canvas."""
     from usdahd.numerics import noise
@@ -188,7 +164,7 @@ def warmup(*, quiet: bool = False, jobs: int = 2) -> dict:
     then = "usdahd.commands.warmup:_second_worker"
     second = Prefetch(["noise", "fit"], then=then) if jobs > 1 else None
     with second or contextlib.nullcontext():
-        with _Compiled() as c:
+        with CompiledKernels() as c:
             with tempfile.TemporaryDirectory(prefix="usdahd-warmup-") as tmp:
                 stage = Path(tmp) / "warmup.usda"
                 stage.write_text(STAGE)

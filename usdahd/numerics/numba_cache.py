@@ -20,7 +20,7 @@ import hashlib
 import inspect
 from types import ModuleType
 
-__all__ = ["track"]
+__all__ = ["CompiledKernels", "track"]
 
 
 def source_digest(*modules: ModuleType) -> str:
@@ -51,3 +51,39 @@ def track(namespace: dict, *modules: ModuleType) -> list[str]:
         cache_file._source_stamp = ("tracked", stamp, digest)
         tracked.append(name)
     return tracked
+
+
+class CompiledKernels:
+    """Context manager: ``names``, the set of qualified names (``module.qualname``) of the
+    functions numba compiles while it is open, from numba's ``numba:compile`` events (a kernel
+    loaded from the on-disk cache fires none). One listener for warmup, the cold-start
+    prefetch process and the startup tests."""
+
+    def __init__(self) -> None:
+        self.names: set[str] = set()
+        self._listener = None
+
+    def __enter__(self) -> CompiledKernels:
+        from numba.core import event as ev
+
+        names = self.names
+
+        class _Listener(ev.Listener):
+            def on_start(self, event):
+                pass
+
+            def on_end(self, event):
+                f = event.data["dispatcher"].py_func
+                names.add(f"{f.__module__}.{f.__qualname__}")
+
+        self._listener = _Listener()
+        ev.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._listener is not None:
+            from numba.core import event as ev
+
+            ev.unregister("numba:compile", self._listener)
+            self._listener = None
+        return False

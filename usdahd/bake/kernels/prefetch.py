@@ -280,24 +280,15 @@ def _child(argv: list[str]) -> int:
     ``report {json}`` line: the kernels it compiled (numba's compile events), the function's
     return value and its (wall, CPU) seconds."""
     _die_with_parent()
-    from numba.core import event as ev
+    from usdahd.numerics.numba_cache import CompiledKernels
 
     then = None
     if "--then" in argv:
         i = argv.index("--then")
         then, argv = argv[i + 1], argv[:i] + argv[i + 2 :]
     t0, c0 = time.perf_counter(), time.process_time()
-    compiled = set()
-
-    class _Listener(ev.Listener):
-        def on_start(self, event):
-            pass
-
-        def on_end(self, event):
-            f = event.data["dispatcher"].py_func
-            compiled.add(f"{f.__module__}.{f.__qualname__}")
-
-    ev.register("numba:compile", _Listener())
+    recorder = CompiledKernels().__enter__()  # open for the life of this process
+    compiled = recorder.names
     sigs = signatures()
     for name in argv:
         try:

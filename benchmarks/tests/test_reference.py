@@ -1017,3 +1017,47 @@ def test_summary_meshes_checks_the_readme_bounds(tmp_path, capsys):
     assert [r.rstrip(" |").rsplit("| ", 1)[1] for r in rows] == ["yes", "**no**", "**no**"]
     assert "1 of 3 meshes within |bias| <= 1 % and ratio <= 1.5x" in out
     assert "outside: room.usda /B, room.usda /C" in out
+
+
+def test_summary_meshes_noise_separates_the_truths_noise_from_bias(tmp_path, capsys):
+    """`summary --meshes --noise`: a mesh outside |bias| <= 1 % but within 1 % + 2 standard
+    errors of the truth's mesh mean (truth_noise / sqrt(texels)) reads `no (noise)`; one beyond
+    it, or outside the ratio bound, stays `**no**`."""
+    import json
+
+    def mesh(path, bias, ratio, texels, truth_noise):
+        return {
+            "path": path,
+            "compared": texels,
+            "usdahd": {"bias": bias, "rel_rmse": 0.02},
+            "cycles": {"bias": -0.005, "rel_rmse": 0.02 / ratio},
+            "rmse_ratio": ratio,
+            "truth_noise": truth_noise,
+        }
+
+    # /A: 25 texels at 10 % -> SE 2 %, bound 1 % + 4 % = 5 %: -3 % is noise.
+    # /B: 400 texels at 10 % -> SE 0.5 %, bound 2 %: +3 % is beyond. /C: ratio 1.6x.
+    res = {
+        "stage": "/x/room.usda",
+        "meshes": [
+            mesh("/A", -0.03, 0.7, 25, 0.10),
+            mesh("/B", 0.03, 0.7, 400, 0.10),
+            mesh("/C", 0.0, 1.6, 25, 0.10),
+            mesh("/D", 0.002, 0.7, 25, 0.10),
+        ],
+    }
+    f = tmp_path / "r.json"
+    f.write_text(json.dumps([res]))
+    assert compare.main(["summary", "--meshes", "--noise", str(f)]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| room.usda")]
+    assert [r.rstrip(" |").rsplit("| ", 1)[1] for r in rows] == [
+        "no (noise)",
+        "**no**",
+        "**no**",
+        "yes",
+    ]
+    assert "| -0.50 % | 2.00 % |" in rows[0]
+    assert "1 of 4 meshes within" in out
+    assert "1 of the 3 outside are within" in out
+    assert "beyond it: room.usda /B, room.usda /C" in out

@@ -546,6 +546,20 @@ def section_stages(names: list[str] | None = None) -> list[Path]:
     return [by_name[n] for n in dict.fromkeys(names)]
 
 
+def stage_paths(names: list[str]) -> list[Path]:
+    """``--stages`` as files: a ``.usda`` path as given, else a name of :func:`section_stages`
+    (the samples and the shared Cornell boxes, e.g. ``cornell-box_rectlight``) or of
+    ``samples/``. Raises UsageError naming the missing file."""
+    known = {p.stem: p for p in section_stages()}
+    paths = []
+    for s in names:
+        path = Path(s) if s.endswith(".usda") else known.get(s, REPO / "samples" / f"{s}.usda")
+        if not path.is_file():
+            raise UsageError(f"{path}: no such stage")
+        paths.append(path)
+    return paths
+
+
 def run_section(
     plan_name: str, plots_dir: Path, bpy_python: str | None = None, stages: list[str] | None = None
 ) -> dict:
@@ -660,17 +674,15 @@ def main(argv=None) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     try:
+        stages = stage_paths(a.stages)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
         bpy = runner.find_bpy(a.bpy_python)
     except runner.ReferenceUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    stages = []
-    for s in a.stages:
-        path = Path(s) if s.endswith(".usda") else REPO / "samples" / f"{s}.usda"
-        if not path.is_file():
-            print(f"error: {path}: no such stage", file=sys.stderr)
-            return 2
-        stages.append(path)
     if a.truths_only:
         for st in stages:
             _log(f"{st.name}: truths at {a.resolution}^2 ...")

@@ -348,3 +348,18 @@ def test_denoise_cost_table_gives_the_plain_cpu_to_the_defaults_error():
     e = np.where(np.arange(16).reshape(4, 4) % 2, 1, -1) * 0.05 * t.mean()
     got = dc.net_error({"/p": (t + e, m)}, {"/p": (t, m, d)})
     assert got == pytest.approx(0.04)
+
+
+def test_reference_bench_stages_take_the_sections_names(capsys):
+    """``reference_bench.py --stages`` resolves the same names as run.py's reference section
+    (the shared Cornell boxes beside the checkout included) and rejects an unknown one with
+    exit 2 naming the file, before it looks for a bpy interpreter."""
+    import reference_bench as rb
+
+    names = [p.stem for p in rb.section_stages()]
+    assert rb.stage_paths(names) == rb.section_stages()
+    assert rb.stage_paths(["cornell_box"]) == [REPO / "samples" / "cornell_box.usda"]
+    with pytest.raises(UsageError, match=r"nope\.usda: no such stage"):
+        rb.stage_paths(["nope"])
+    assert rb.main(["--stages", "nope", "--bpy-python", "/no/such/python"]) == 2
+    assert "nope.usda: no such stage" in capsys.readouterr().err

@@ -7,9 +7,11 @@ pixel's footprint (``compare.footprint_stats``; ``--footprint``, default the com
     python benchmarks/compare_per_mesh.py BAKED.lightmaps.usda [--camera PATH] [--size W H]
         [--samples N] [--seed S] [--footprint S] [--json]
 
-Prints one line per mesh with >= 1 pixel, largest first: pixels, relRMSE, bias, the
-reference's noise on that mesh; then the whole view (the numbers ``preview --compare --json``
-reports for the same arguments). docs/scenes.md, "Production assets".
+Prints the squared error split into edge pixels, interior pixels on a lighting step of the
+reference and smooth interior pixels (``kinds``), then one line per mesh with >= 1 pixel,
+largest first: pixels, relRMSE, bias, the reference's noise on that mesh; then the whole view
+(the numbers ``preview --compare --json`` reports for the same arguments). docs/scenes.md,
+"Production assets".
 """
 
 from __future__ import annotations
@@ -50,8 +52,46 @@ def per_mesh(layer, camera=None, size=(240, 180), samples=64, seed=0, footprint=
         _, _, st = compare.footprint_stats(image * mask, part, fp)
         rows.append({"mesh": mesh.path, **st})
     rows.sort(key=lambda r: -r["pixels"])
-    _, _, whole = compare.footprint_stats(image, ref, fp)
-    return {"all": whole, "info": ref.info, "meshes": rows}
+    b, r, whole = compare.footprint_stats(image, ref, fp)
+    edge = compare.edge_pixels(ref.owner, fp)
+    return {"all": whole, "info": ref.info, "meshes": rows, "kinds": kinds(b, r, edge)}
+
+
+#: A reference pixel differing from a 3 x 3 neighbour by this share of the view's mean
+#: luminance is on a *lighting step* (a shadow boundary, a crease, a groove).
+STEP = 0.15
+
+
+def kinds(b, r, edge):
+    """The squared error split three ways over the pixels both images cover: ``edge``
+    (:func:`usdahd.preview.compare.edge_pixels`), ``step`` (interior pixels on a lighting step
+    in the reference: a 3 x 3 neighbour's luminance differs by more than STEP x the mean) and
+    ``smooth`` (the rest). Per kind: pixels, relRMSE over them, share of the squared error and
+    the view's relRMSE without them."""
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    cov = (b[..., 3] > 0) & (r[..., 3] > 0)
+    lr = r[..., :3].astype(np.float64) @ luma
+    h, w = lr.shape
+    pad = np.pad(np.where(cov, lr, np.nan), 1, constant_values=np.nan)
+    with np.errstate(invalid="ignore"):
+        diff = np.nanmax(
+            [np.abs(pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] - lr)
+             for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0,
+        )  # fmt: skip
+    step = cov & ~edge & (np.nan_to_num(diff) > STEP * float(lr[cov].mean()))
+    d2 = ((b[..., :3] - r[..., :3]).astype(np.float64) ** 2).sum(-1)
+    r2 = (r[..., :3].astype(np.float64) ** 2).sum(-1)
+    total, rtotal = float(d2[cov].sum()), float(r2[cov].sum())
+    out = {}
+    for name, sel in (("edge", cov & edge), ("step", step), ("smooth", cov & ~edge & ~step)):
+        e = float(d2[sel].sum())
+        out[name] = {
+            "pixels": int(sel.sum()),
+            "relrmse": float(np.sqrt(e / r2[sel].sum())) if sel.any() else None,
+            "error_share": e / total if total > 0 else None,
+            "relrmse_without": float(np.sqrt((total - e) / rtotal)) if rtotal > 0 else None,
+        }
+    return out
 
 
 def main(argv=None) -> int:
@@ -68,6 +108,14 @@ def main(argv=None) -> int:
     if a.json:
         print(json.dumps(out, indent=1))
         return 0
+    for name, k in out["kinds"].items():
+        if k["relrmse"] is None:
+            continue
+        print(
+            f"({name} pixels): {k['pixels']} px, relRMSE {k['relrmse']:.3f}, share of the "
+            f"squared error {k['error_share']:.2f}, the view without them "
+            f"{k['relrmse_without']:.3f}"
+        )
     for r in [*out["meshes"], {"mesh": "(whole view)", **out["all"]}]:
         if r.get("relrmse") is None:
             continue

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 
 import numpy as np
 
@@ -73,7 +74,8 @@ def kinds(b, r, edge):
     lr = r[..., :3].astype(np.float64) @ luma
     h, w = lr.shape
     pad = np.pad(np.where(cov, lr, np.nan), 1, constant_values=np.nan)
-    with np.errstate(invalid="ignore"):
+    with warnings.catch_warnings():  # pixels with no covered neighbour: NaN, no step
+        warnings.simplefilter("ignore", RuntimeWarning)
         diff = np.nanmax(
             [np.abs(pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] - lr)
              for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0,

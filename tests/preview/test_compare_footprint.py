@@ -157,6 +157,7 @@ def test_correct_bake_passes_and_a_scaled_one_fails(baked, tmp_path, capsys):
     assert ok["points"] > 3 * ok["pixels"]  # 4 sub-pixel points per covered pixel, fewer on edges
     assert ok["edge_pixels"] > 0.3 * ok["pixels"]  # edge-heavy
     assert ok["interior_pixels"] + ok["edge_pixels"] == ok["pixels"]
+    assert ok["inside_geometry"] == 0  # per pixel, its 4 points' paths pooled
     assert ok["relrmse"] < 0.06 and abs(ok["bias"]) < 0.02
     assert ok["relrmse"] <= ok["relrmse_subsamples"]  # averaging never adds error here
     assert bad["relrmse"] > 0.08 and -0.12 < bad["bias"] < -0.08

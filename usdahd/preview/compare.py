@@ -73,6 +73,9 @@ __all__ = [
 FOOTPRINT = 2
 #: Largest ``--compare-footprint``.
 MAX_FOOTPRINT = 8
+#: A pixel whose points' paths leave through back faces more often than this is reported in
+#: ``inside_geometry`` (the baker's inside-geometry threshold).
+INSIDE = 0.25
 #: Batches K of the reference (per-pixel noise estimate with K - 1 degrees of freedom).
 BATCHES = 8
 #: Relative error mapped to the top of the heat map's ramp.
@@ -197,8 +200,10 @@ class Reference(NamedTuple):
     var: np.ndarray
     #: (H, W) int64: the index into ``meshes`` of the mesh each pixel shows, -1 for none.
     owner: np.ndarray
-    #: samples, batches, bounces, seed, rays, points, inside_geometry.
+    #: samples, batches, bounces, seed, rays, points, inside_geometry (points).
     info: dict
+    #: (H, W) float64: each point's share of paths that left it through a back face.
+    backface: np.ndarray | None = None
 
 
 def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces, progress=None):
@@ -241,11 +246,14 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
         "rays": 0,
         "inside_geometry": 0,
     }
+    back = np.zeros(h * w)
     if not len(pix):
-        return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info)
+        return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info,
+                         back.reshape(h, w))  # fmt: skip
     image[pix, 3] = 1.0
     if is_dark(scene):  # nothing emits: the exact answer is 0 (the baker traces nothing either)
-        return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info)
+        return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info,
+                         back.reshape(h, w))  # fmt: skip
     index = {m.path: i for i, m in enumerate(scene.meshes)}
     rseed = reference_seed(seed)
     batches = np.zeros((k, len(pix), 3))
@@ -274,10 +282,12 @@ def reference(stage, meshes, viewproj, size, *, samples: int, seed: int, bounces
             info["rays"] += rays
     finally:
         tracer.close()
-    info["inside_geometry"] = int((backface > 0.25).sum())
+    info["inside_geometry"] = int((backface > INSIDE).sum())
     image[pix, :3] = batches.mean(axis=0)
     var[pix] = batches.var(axis=0, ddof=1) / k
-    return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info)
+    back[pix] = backface
+    return Reference(image.reshape(h, w, 4), var.reshape(h, w, 3), owner, info,
+                     back.reshape(h, w))  # fmt: skip
 
 
 def downsample(image: np.ndarray, footprint: int, mask: np.ndarray | None = None) -> np.ndarray:
@@ -322,9 +332,10 @@ def footprint_stats(baked: np.ndarray, ref: Reference, footprint: int):
     same sub-pixel grid. Returns (baked (H, W, 4) float32, reference (H, W, 4) float32, stats):
     each pixel the mean of its sub-pixel points both images cover; stats = :func:`error_stats`
     of the two plus ``footprint``, ``relrmse_subsamples`` (the error point by point at the
-    sub-pixel points), ``interior_pixels`` / ``interior_relrmse`` / ``interior_bias``,
-    ``edge_pixels`` / ``edge_relrmse`` / ``edge_bias`` / ``edge_error_share`` (the edge pixels'
-    share of sum (b - r)^2)."""
+    sub-pixel points), ``inside_geometry`` (pixels whose points' paths leave through back
+    faces more than INSIDE of the time, all their samples pooled), ``interior_pixels`` /
+    ``interior_relrmse`` / ``interior_bias``, ``edge_pixels`` / ``edge_relrmse`` /
+    ``edge_bias`` / ``edge_error_share`` (the edge pixels' share of sum (b - r)^2)."""
     s = int(footprint)
     both = (baked[..., 3] > 0) & (ref.image[..., 3] > 0)
     b = downsample(baked, s, both)
@@ -337,6 +348,9 @@ def footprint_stats(baked: np.ndarray, ref: Reference, footprint: int):
     sub = error_stats(baked, ref.image, ref.var)
     edge = edge_pixels(ref.owner, s)
     out = {"footprint": s, **st, "relrmse_subsamples": sub["relrmse"]}
+    if ref.backface is not None:  # the baker's inside-geometry test on each pixel's paths
+        bf = (ref.backface * both).reshape(h, s, w, s).sum(axis=(1, 3))
+        out["inside_geometry"] = int((bf > INSIDE * np.maximum(cnt, 1.0))[cnt > 0].sum())
     cov = (b[..., 3] > 0) & (r[..., 3] > 0)
     d2 = ((b[..., :3] - r[..., :3]) ** 2).sum(axis=-1)
     total = float(d2[cov].sum())

@@ -1,8 +1,9 @@
 """``usdahd preview --compare``: a path-traced reference of the preview's view (issue 14).
 
-Visible points: one primary ray per pixel centre through the preview's view-projection, the
-closest *front-facing* hit on a baked mesh (:func:`usdahd.preview.raytrace.front_hits`, the
-faces the rasteriser keeps), so the reference is traced at the surface point each preview pixel
+Visible points: one primary ray per pixel centre of the image it is given (the CLI gives the
+sub-pixel grid of the footprint, below) through the preview's view-projection, the closest
+*front-facing* hit on a baked mesh (:func:`usdahd.preview.raytrace.front_hits`, the faces the
+rasteriser keeps), so the reference is traced at the surface point each preview (sub-)pixel
 shows. At each point the frame is built as the baker builds a texel's
 (:func:`usdahd.bake.texels.rasterize`): n the normalized interpolated corner normal, t the
 interpolated corner tangent (:func:`usdahd.bake.texels.tangent_frames`, the one the preview's

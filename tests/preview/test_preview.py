@@ -181,7 +181,7 @@ def test_compare_cornell_baked_view_within_5_percent_of_the_path_traced_view(
 
     Measured (2 x 2 footprint, wgpu, 2026-12-06): relRMSE 1.3 %, bias -0.1 %, reference noise
     1.2 % (1024 samples per pixel; 2536 pixels); one point per pixel 1.3 %, noise 1.0 % (2498
-    pixels; 2.6 % before the sample's density floor). The reference's Monte Carlo noise is
+    pixels; 2.6 % when first written, at an earlier plan). The reference's Monte Carlo noise is
     independent of the bake, so it adds in quadrature: E[relRMSE^2] = (preview error)^2 +
     noise^2. The assertion is on the *raw* relRMSE, noise included, so the noise can only make
     the test harder, never let a worse preview pass; and the noise is required to be small (<

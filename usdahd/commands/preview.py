@@ -126,6 +126,14 @@ def add_parser(sub):
         metavar="N",
         help="the reference's bounce cap (default: the bake's recorded --bounces)",
     )
+    c.add_argument(
+        "--compare-footprint",
+        type=int,
+        metavar="S",
+        help="shade S x S sub-pixel points per pixel in both images and compare pixel averages "
+        "(the same footprint, as an anti-aliased render; the samples are split over the points; "
+        "default 2; 1: one point at each pixel centre)",
+    )
     c.add_argument("--seed", type=int, help="seed of the reference (default 0)")
     p.set_defaults(func=run)
     return p
@@ -165,7 +173,7 @@ def _check(args) -> Path:
     if not args.compare:
         given = [
             a
-            for a in ("compare_samples", "compare_bounces", "seed")
+            for a in ("compare_samples", "compare_bounces", "compare_footprint", "seed")
             if getattr(args, a) is not None
         ]
         if given:
@@ -181,6 +189,8 @@ def _check(args) -> Path:
         raise UsageError(
             f"--compare-bounces {args.compare_bounces}: bounces must be >= 0 (0: direct light)"
         )
+    if args.compare:
+        _footprint(args)
     return out
 
 
@@ -226,6 +236,17 @@ def run_atlas(args, out: Path) -> int:
     return 0
 
 
+def _footprint(args) -> int:
+    """--compare-footprint (default usdahd.preview.compare.FOOTPRINT), checked against the
+    samples before any work."""
+    from usdahd.preview import compare
+
+    fp = compare.FOOTPRINT if args.compare_footprint is None else args.compare_footprint
+    samples = COMPARE_SAMPLES if args.compare_samples is None else args.compare_samples
+    compare.points_per_pixel(samples, fp)  # UsageError: a bad footprint or too few samples
+    return fp
+
+
 def run(args) -> int:
     from usdahd import images
 
@@ -251,11 +272,13 @@ def run(args) -> int:
 
         cuts = cutouts(stage, meshes)
     items = draw_items(meshes, surfaces, ahd_classic=args.ahd_classic, cutouts=cuts)
+    # --compare shades S x S sub-pixel points per pixel (the pixel centres of an image S times
+    # the size) in both images and compares pixel averages (usdahd.preview.compare)
+    fp = _footprint(args) if args.compare else 1
     image = render_view(
-        stage, meshes, items, viewproj, (w, h), gpu[1] if gpu else None, surfaces=surfaces,
-        ahd_classic=args.ahd_classic,
+        stage, meshes, items, viewproj, (w * fp, h * fp), gpu[1] if gpu else None,
+        surfaces=surfaces, ahd_classic=args.ahd_classic,
     )  # fmt: skip
-    ldr, scale = tonemap(image, args.exposure)
     compared = None
     if args.compare:
         from usdahd.preview import compare
@@ -264,20 +287,27 @@ def run(args) -> int:
             if not args.quiet:
                 print(f"usdahd preview: {line}", file=sys.stderr)
 
-        ref, var, info = compare.reference(
+        samples = COMPARE_SAMPLES if args.compare_samples is None else args.compare_samples
+        ref = compare.reference(
             stage,
             meshes,
             viewproj,
-            (w, h),
-            samples=COMPARE_SAMPLES if args.compare_samples is None else args.compare_samples,
+            (w * fp, h * fp),
+            samples=compare.points_per_pixel(samples, fp),
             seed=args.seed or 0,
             bounces=args.compare_bounces,
             progress=progress,
         )
-        compared = {**info, **compare.error_stats(image, ref, var)}
+        image, ref_image, st = compare.footprint_stats(image, ref, fp)
+        info = dict(ref.info, samples=ref.info["samples"] * fp * fp)
+        info["samples_per_point"] = ref.info["samples"]
+        compared = {**info, **st}
+        ldr, scale = tonemap(image, args.exposure)
         ldr = compare.side_by_side(
-            ldr, tonemap_with(ref, scale), compare.heat_map(image, ref)
+            ldr, tonemap_with(ref_image, scale), compare.heat_map(image, ref_image)
         )  # the reference at the preview's exposure: the two panels compare by eye
+    else:
+        ldr, scale = tonemap(image, args.exposure)
     images.write(out, ldr, color_space="srgb_rec709_scene")
     report = {
         "stage": str(args.stage),
@@ -308,6 +338,17 @@ def run(args) -> int:
                 f"{compared['bounces']} bounces): relRMSE {compared['relrmse']:.2%}, bias "
                 f"{compared['bias']:+.2%}, reference noise {compared['reference_noise']:.2%}"
             )
+            fp = compared["footprint"]
+            parts = [f"  {fp}x{fp} points per pixel (point by point: "
+                     f"{compared['relrmse_subsamples']:.2%})"]  # fmt: skip
+            for name in ("interior", "edge"):
+                if compared[f"{name}_relrmse"] is not None:
+                    parts.append(
+                        f"{name} {compared[f'{name}_pixels']} px {compared[f'{name}_relrmse']:.2%}"
+                    )
+            if compared["edge_error_share"] is not None:
+                parts.append(f"edge share of the squared error {compared['edge_error_share']:.0%}")
+            print(", ".join(parts))
 
     emit(args, report, human)
     return 0

@@ -37,7 +37,7 @@ def run(layer: str, size, samples: int) -> dict:
         "wgpu_without_cutouts": render_view(stage, meshes, plain, vp, size, dev),
         "wgpu": render_view(stage, meshes, cut, vp, size, dev),
     }
-    ref, var, _ = compare.reference(
+    ref, var, *_ = compare.reference(
         stage, meshes, vp, size, samples=samples, seed=0, bounces=None,
         progress=lambda s: print(s, file=sys.stderr),
     )  # fmt: skip

@@ -59,6 +59,7 @@ from usdahd.errors import UsageError
 from usdahd.numerics.triangles import edge_cross, texel_frame
 
 __all__ = [
+    "FOOTPRINT",
     "Reference",
     "downsample",
     "edge_pixels",

@@ -1,7 +1,9 @@
 """Blending a denoiser's output with its noisy input by the noise (stage 3 of
 :mod:`usdahd.bake.denoise`): per texel and coefficient ``out = x + w (d - x)`` with
 ``w = min(1, g var / change)`` (:func:`blend_weights`), directional coefficients blended as
-ratios to c00 (:func:`blend_sh`) and each chart's summed I_z kept (:func:`keep_chart_energy`).
+ratios to c00 (:func:`blend_sh`) and each chart's summed I_z kept (:func:`keep_chart_energy`),
+then each ring's from the chart border (:func:`border_depth`) over a record's charts
+(:func:`keep_class_energy`).
 
 Numerics only (numpy); arrays are float64 canvases ``(h, w, c)`` or per-texel SH ``(m, 3, 9)``.
 """

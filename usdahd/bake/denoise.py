@@ -31,7 +31,13 @@ stages per chart:
    ``w ~ g var / b^2`` keeps the input; a noise-free input (``var = 0``) comes back exactly.
    ``var`` is passed in (``variance``; a bake passes the integrator's own,
    :func:`integrator_iz_variance`, averaged over ``VARIANCE_POOL``) or estimated by
-   :func:`noise_variance` from second differences of neighbouring texels.
+   :func:`noise_variance` from second differences of neighbouring texels. With the
+   integrator's variance (``variance_bound``, a bake) each chart's summed c10 is put back to
+   the input's (:func:`~usdahd.bake.blend.keep_chart_energy`), and so is each ring's from the
+   chart border (:func:`~usdahd.bake.blend.border_depth`, up to ``ENERGY_DEPTH``) over all the
+   record's denoised charts (:func:`~usdahd.bake.blend.keep_class_energy`): on charts a few
+   texels wide the network smooths across the chart, moving energy between its border and
+   its middle.
 
 Charts are never mixed: each chart has its own canvas, only its texels are written back.
 OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every prim of a

@@ -22,6 +22,8 @@ __all__ = [
     "blend_weights",
     "border_depth",
     "box_mean",
+    "class_scale",
+    "class_sums",
     "edge_texels",
     "keep_chart_energy",
     "keep_class_energy",
@@ -196,8 +198,13 @@ def keep_class_energy(d: np.ndarray, classes: np.ndarray, s_in: np.ndarray) -> n
     windows_lib_0 at 64^2: the compared middle texels -1.65 % -> -2.97 % against Cycles).
     Pooled over the record's charts, each class holds many texels, so the sums re-inject
     little of the input's noise (per chart they raised small meshes' error)."""
-    s_out = class_sums(d, classes, len(s_in))
-    ok = (s_out > 0) & (s_in > 0)
-    scale = np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
+    scale = class_scale(s_in, class_sums(d, classes, len(s_in)))
     d *= scale[np.asarray(classes, np.intp)][:, :, None].astype(d.dtype)
     return d
+
+
+def class_scale(s_in: np.ndarray, s_out: np.ndarray) -> np.ndarray:
+    """(count, 3) factors taking the summed c10 ``s_out`` of each class and channel to
+    ``s_in`` (1 where the sums are not both positive)."""
+    ok = (s_out > 0) & (s_in > 0)
+    return np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)

@@ -61,9 +61,9 @@ from usdahd.bake.blend import (
     blend_weights,
     border_depth,
     box_mean,
+    class_scale,
     class_sums,
     keep_chart_energy,
-    keep_class_energy,
 )
 from usdahd.bake.mosaic import OIDN_BLOCK, PAD
 from usdahd.bake.mosaic import run as run_mosaic
@@ -527,16 +527,28 @@ def denoise_records(
         if batch:
             den = den or _Denoiser(quality)
             _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
-        for out, depth, s_in in zip(outs, depths, sums_in, strict=True):
-            if rings and (depth >= 0).any():
-                done = np.nonzero(depth >= 0)[0]
-                out[done] = keep_class_energy(out[done], depth[done], s_in)
+        if rings:
+            for out, depth, s_in in zip(outs, depths, sums_in, strict=True):
+                _keep_ring_energy(out, depth, s_in)
     finally:
         if den is not None:
             den.close()
         if pool is not None:
             pool.shutdown()
     return outs
+
+
+def _keep_ring_energy(out: np.ndarray, depth: np.ndarray, s_in: np.ndarray) -> None:
+    """:func:`~usdahd.bake.blend.keep_class_energy` of a record's denoised texels (``depth``
+    >= 0, their ring) in place, in blocks of texels (no copy of a large record's SH)."""
+    done = np.nonzero(depth >= 0)[0]
+    if not len(done):
+        return
+    blocks = [done[a : a + _BLEND_BLOCK] for a in range(0, len(done), _BLEND_BLOCK)]
+    s_out = sum(class_sums(out[b], depth[b], len(s_in)) for b in blocks)
+    scale = class_scale(s_in, s_out)
+    for b in blocks:
+        out[b] *= scale[depth[b].astype(np.intp)][:, :, None].astype(out.dtype)
 
 
 def _chart_pool():

@@ -428,7 +428,8 @@ def denoise_sh(
         inflates the estimate) nor the bound's slack lets the denoiser change signal, the
         blend's gain is
         ``VARIANCE_BOUND_GAIN`` and edges are judged texel by texel; each chart's summed c10
-        per channel is then kept equal to the input's (:func:`keep_chart_energy`).
+        per channel is then kept equal to the input's (:func:`keep_chart_energy`), and so is
+        each ring's from the chart border over all denoised charts (``ENERGY_DEPTH``).
     mosaic : the charts' canvases are denoised as tiles of a few mosaic images, one OIDN run
         per image and coefficient (:func:`usdahd.bake.mosaic.run`); False runs OIDN on each chart's
         canvas alone (the reference the mosaic is measured against).

@@ -199,7 +199,8 @@ def test_sh_variance_from_the_integrators_iz_variance():
 def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
     """variance_bound=True: an unbounded figure gives the second-difference estimate's result
     (blended with VARIANCE_BOUND_GAIN), then each chart's summed c10 per channel is put back
-    to the input's; a zero bound keeps the input (nothing is trusted as noise)."""
+    to the input's, and so is each ring's from the chart border (border_depth up to
+    ENERGY_DEPTH); a zero bound keeps the input (nothing is trusted as noise)."""
     mesh, t = full_quad()
     _clean, noisy = noisy_field(t, 0.3, seed=5)
     charts = charts_of(mesh, t)
@@ -207,9 +208,19 @@ def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
         m.setattr(denoise, "BLEND_GAIN", denoise.VARIANCE_BOUND_GAIN)
         est = denoise.denoise_sh(noisy, t, charts=charts)
     loose = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
-    kept = blend.keep_chart_energy(noisy.astype(np.float64), est.astype(np.float64))
-    np.testing.assert_allclose(loose, kept, rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(loose[:, :, 2].sum(axis=0), noisy[:, :, 2].sum(axis=0), rtol=1e-5)
+    x = noisy.astype(np.float64)
+    kept = blend.keep_chart_energy(x, est.astype(np.float64))
+    mask = np.zeros((32, 32), bool)
+    mask[t.xy[:, 1], t.xy[:, 0]] = True
+    rings = blend.border_depth(mask, denoise.ENERGY_DEPTH)[t.xy[:, 1], t.xy[:, 0]]
+    assert set(np.unique(rings)) == set(range(denoise.ENERGY_DEPTH + 1))
+    kept = blend.keep_class_energy(kept, rings, blend.class_sums(x, rings, len(np.unique(rings))))
+    np.testing.assert_allclose(loose, kept, rtol=1e-5, atol=1e-7)
+    for ring in np.unique(rings):
+        sel = rings == ring
+        np.testing.assert_allclose(
+            loose[sel, :, 2].sum(axis=0), noisy[sel, :, 2].sum(axis=0), rtol=1e-5
+        )
     none = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0, variance_bound=True)
     np.testing.assert_array_equal(none, noisy)
 
@@ -385,6 +396,34 @@ def test_directional_coefficients_of_a_regression_like_input_are_not_made_worse(
         err_in = np.sqrt(np.mean((x[:, :, k] - truth[:, k]) ** 2))
         err_out = np.sqrt(np.mean((out[:, :, k] - truth[:, k]) ** 2))
         assert err_out <= err_in, (k, err_out, err_in)
+
+
+def test_border_depth_and_class_energy():
+    """border_depth: each texel's ring from the mask's border (8-neighbourhood), capped;
+    keep_class_energy: each class's summed c10 per channel put back to the given sums."""
+    mask = np.zeros((7, 9), bool)
+    mask[1:6, 1:8] = True  # a 5 x 7 chart
+    mask[3, 8] = True  # a one-texel bump on its right side
+    depth = blend.border_depth(mask, 5)
+    expected = np.full((7, 9), -1)
+    expected[1:6, 1:8] = 0
+    expected[2:5, 2:7] = 1
+    expected[3, 3:6] = 2
+    expected[3, 8] = 0
+    expected[3, 7] = 0  # its right neighbour is in the mask, its diagonal ones are not
+    np.testing.assert_array_equal(depth, expected)
+    np.testing.assert_array_equal(blend.border_depth(mask, 1), np.minimum(expected, 1))
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.5, 1.5, (mask.sum(), 3, 9))
+    d = x * rng.uniform(0.8, 1.2, (mask.sum(), 3, 1))
+    classes = depth[mask]
+    sums = blend.class_sums(x, classes, 3)
+    np.testing.assert_allclose(sums[2], x[classes == 2, :, 2].sum(axis=0))
+    out = blend.keep_class_energy(d.copy(), classes, sums)
+    np.testing.assert_allclose(blend.class_sums(out, classes, 3), sums)
+    for c in range(3):  # one factor per class and channel, on every coefficient
+        ratio = out[classes == c] / d[classes == c]
+        np.testing.assert_allclose(ratio, np.broadcast_to(ratio[:1, :, :1], ratio.shape))
 
 
 def test_blend_weights():

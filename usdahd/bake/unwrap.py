@@ -24,6 +24,7 @@ import numpy as np
 from usdahd.bake.texels import MAX_RESOLUTION
 from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.charts import (
+    ChartRects,
     destretch,
     extend_into,
     layout,
@@ -219,6 +220,65 @@ def _chart_pass(points, triangles, corner, face, path, chart_options=None):
     return uv, labels, k * tpu, stats
 
 
+#: Pass 1 results kept (:func:`_charts`) for the meshes unwrapped last: the plan unwraps one
+#: mesh again into a square or a minimum map (usdahd.pipeline.plan), from the same charts.
+CHART_CACHE_SIZE = 4
+_chart_cache: dict = {}
+
+
+def _charts(points, triangles, corner, face, path, options):
+    """Pass 1 with the xatlas ChartOptions ``options`` and the candidate labellings of its
+    charts (as they are, and with the rings of each :data:`RING_SOLIDITY` cut, duplicates
+    dropped): (uv1, labels, scale, stats, rects, candidates), ``rects`` the
+    :class:`ChartRects` of uv1 shared by every candidate. Cached by the mesh's bytes and
+    ``options`` (the last :data:`CHART_CACHE_SIZE`): pass 1 is deterministic, and nothing
+    downstream writes into its arrays."""
+    import hashlib
+
+    digest = hashlib.blake2b(digest_size=20)
+    for a in (points, triangles, corner, face):
+        a = np.ascontiguousarray(a)
+        digest.update(repr((a.dtype.str, a.shape)).encode())
+        digest.update(a.tobytes())
+    # the module's settings and helpers pass 1 depends on are part of the key (a test that
+    # patches one of them must not get an earlier mesh's charts)
+    settings = (NORMALIZED_DIAGONAL, CHART_PASS_SIDE, PACK_EFFICIENCY, RING_SOLIDITY)
+    helpers = (_chart_pass, destretch, extend_into, overlaps, project_polygon, self_overlap)
+    helpers += (split_polygons, split_rings, unfold_polygon)
+    key = (digest.digest(), repr(sorted((options or {}).items())), settings, helpers)
+    got = _chart_cache.pop(key, None)
+    if got is None:
+        uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path, options)
+        rects = ChartRects(uv1)
+        candidates = [labels]
+        for solidity in RING_SOLIDITY:
+            cut = split_rings(uv1, labels, face, solidity, rects)
+            if not any(np.array_equal(cut, c) for c in candidates):
+                candidates.append(cut)
+        for a in (uv1, labels, *candidates):
+            a.flags.writeable = False
+        got = (uv1, labels, scale, stats, rects, candidates)
+    _chart_cache[key] = got
+    while len(_chart_cache) > CHART_CACHE_SIZE:
+        _chart_cache.pop(next(iter(_chart_cache)))
+    uv1, labels, scale, stats, rects, candidates = got
+    return uv1, labels, scale, dict(stats), rects, candidates
+
+
+def _chart_sets(points, triangles, corner, face, path):
+    """(k, *:func:`_charts`) for each of :data:`CHART_OPTIONS` whose charts differ from those
+    of every earlier option (a box's charts are the same with every option: the same
+    candidates packed again cannot win, since a later candidate must score strictly higher)."""
+    seen = []
+    for k, options in enumerate(CHART_OPTIONS):
+        got = _charts(points, triangles, corner, face, path, options)
+        uv1, labels = got[0], got[1]
+        if any(np.array_equal(uv1, u) and np.array_equal(labels, lab) for u, lab in seen):
+            continue
+        seen.append((uv1, labels))
+        yield (k, *got)
+
+
 def _run_pack(verts, indices, texels_per_unit, padding):
     """Pass 2: xatlas packs the charts of the UV mesh at a fixed texel density (single atlas;
     resolution left at 0). Returns (w, h, uv (t, 3, 2) float64 in texels, chart count)."""
@@ -283,29 +343,16 @@ def _pack(
     (:func:`widen_thin`). With ``texels_per_unit`` the layout with the most covered texels
     less :data:`FILL_WEIGHT` x map texels wins (then the smaller map); with a ``target`` map
     the one covering most texels (then the highest density; the first of equals)."""
-    uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
-    candidates = [labels]
-    for solidity in RING_SOLIDITY:
-        cut = split_rings(uv1, labels, face, solidity)
-        if not any(np.array_equal(cut, c) for c in candidates):
-            candidates.append(cut)
     world = triangle_areas(np.asarray(points, np.float64)[np.asarray(triangles, np.int64)])
     if texels_per_unit is not None:
         best = None
-        for k, options in enumerate(CHART_OPTIONS):
-            if k:
-                uv1, labels, scale, stats = _chart_pass(
-                    points, triangles, corner, face, path, options
-                )
-                candidates = [labels]
-                for solidity in RING_SOLIDITY:
-                    cut = split_rings(uv1, labels, face, solidity)
-                    if not any(np.array_equal(cut, c) for c in candidates):
-                        candidates.append(cut)
+        for k, uv1, labels, scale, stats, rects, candidates in _chart_sets(
+            points, triangles, corner, face, path
+        ):
             density = texels_per_unit / scale * SHRINK
             for lab in candidates:
                 for width in min_width:
-                    uvw, widened = widen_thin(uv1, lab, density, width)
+                    uvw, widened = widen_thin(uv1, lab, density, width, rects)
                     if width and not widened and width != min_width[0]:
                         continue  # the same charts as a smaller floor
                     w, h, uv, _ = _run_pack(*layout(uvw, lab), density, padding)
@@ -328,14 +375,9 @@ def _pack(
         return w, h, uv, (w, h), stats
     area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
     best = None
-    for k, options in enumerate(CHART_OPTIONS):
-        if k:
-            uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path, options)
-            candidates = [labels]
-            for solidity in RING_SOLIDITY:
-                cut = split_rings(uv1, labels, face, solidity)
-                if not any(np.array_equal(cut, c) for c in candidates):
-                    candidates.append(cut)
+    for k, uv1, labels, scale, stats, rects, candidates in _chart_sets(
+        points, triangles, corner, face, path
+    ):
         for lab in candidates:
             for width in min_width:
                 tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
@@ -349,6 +391,7 @@ def _pack(
                     path,
                     strict=k == 0 and lab is labels,
                     width=width,
+                    rects=rects,
                 )
                 if got is None:
                     continue
@@ -386,13 +429,14 @@ def _spread(uv, world) -> float:
 
 def _covered(uv, w, h) -> int:
     """Texels the (t, 3, 2) pixel-space ``uv`` of a w x h map cover (conservatively, as the
-    bake rasterises them)."""
-    from usdahd.numerics.raster import rasterize_uv
+    bake rasterises them: :func:`usdahd.numerics.raster.coverage`, the rasteriser's texels
+    without their sample points)."""
+    from usdahd.numerics.raster import coverage
 
     flat = np.empty_like(uv)
     flat[..., 0] = uv[..., 0] / w
     flat[..., 1] = 1.0 - uv[..., 1] / h
-    return int(len(rasterize_uv(flat, (w, h)).ids))
+    return int(len(coverage(flat, (w, h))[0]))
 
 
 def _rings_cut(labels, lab) -> int:
@@ -400,7 +444,7 @@ def _rings_cut(labels, lab) -> int:
     return int(len(np.unique(labels[lab != labels])))
 
 
-def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0):
+def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0, rects=None):
     """Pass 2 of the charts ``labels`` at the largest density (from ``tpu``, MAX_ATTEMPTS
     tries) whose atlas fits ``target``: (w, h, uv, density) or None. ``strict``: raise when
     the charts are too many for the map at any density (else None). ``width``: charts
@@ -409,7 +453,7 @@ def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0):
     best = None
     for _ in range(MAX_ATTEMPTS):
         density = tpu / scale * SHRINK
-        uvw, widened = widen_thin(uv1, labels, density, width)
+        uvw, widened = widen_thin(uv1, labels, density, width, rects)
         w, h, uv, charts = _run_pack(*layout(uvw, labels), density, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
             if not strict:

@@ -624,3 +624,35 @@ def test_min_chart_width_stretches_slivers_and_covers_more_texels():
     assert covered > 1.3 * got[0.0][0]
     with pytest.raises(UsageError, match="min_chart_width"):
         unwrap(thin_bars(), texels_per_unit=8.0, isolate=False, min_chart_width=-1.0)
+
+
+def test_a_stalled_worker_is_retried_then_fails_naming_the_prim(monkeypatch, tmp_path):
+    """A worker that stops using CPU while it unwraps (xatlas's thread pool deadlocked: every
+    thread waiting) is stopped after UNWRAP_STALL_S and the mesh retried once in a fresh
+    worker; stalling again fails that prim with a message naming it and the fix."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    unwrap_mod.stop_worker()
+    want = unwrap(box_mesh(), texels_per_unit=20.0)
+    unwrap_mod.stop_worker()
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_S", 1.0)
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_POLL_S", 0.1)
+    marker = tmp_path / "stalled"
+    once = (
+        f"import os, sys, time; m = {str(marker)!r}\n"
+        "if not os.path.exists(m):\n"
+        "    open(m, 'w').close(); sys.stdin.buffer.read(8); time.sleep(600)\n"
+        f"{unwrap_mod._CHILD_CODE}"
+    )
+    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
+    got = unwrap(box_mesh(), texels_per_unit=20.0)
+    assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
+    unwrap_mod.stop_worker()
+    monkeypatch.setattr(
+        unwrap_mod, "_CHILD_CODE", "import sys, time; sys.stdin.buffer.read(8); time.sleep(600)"
+    )
+    with pytest.raises(BakeError, match=r"/box: xatlas crashed .*no CPU time for 1 s.*--uv"):
+        unwrap(box_mesh(), texels_per_unit=20.0)
+    monkeypatch.undo()
+    unwrap_mod.stop_worker()
+    assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], want[0])

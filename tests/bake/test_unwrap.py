@@ -656,3 +656,33 @@ def test_a_stalled_worker_is_retried_then_fails_naming_the_prim(monkeypatch, tmp
     monkeypatch.undo()
     unwrap_mod.stop_worker()
     assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], want[0])
+
+
+def test_pass_one_is_reused_across_unwraps_of_one_mesh_and_repeated_packs_run_once(monkeypatch):
+    """The plan unwraps a mesh at its density, then maybe again into a requested map: pass 1
+    (xatlas's charts, the costly part) runs once per chart option for both, and a candidate
+    that comes out the same as an earlier one (a floor widening nothing more) is not packed
+    again; the layouts are those of fresh runs."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    mesh = frames(count=2)
+    fresh_density = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+    unwrap_mod._chart_cache.clear()
+    fresh_map = unwrap(mesh, resolution=64, isolate=False)
+    unwrap_mod._chart_cache.clear()
+    runs = []
+    real = unwrap_mod._chart_pass
+
+    def counted(*args, **kwargs):
+        runs.append(args[-1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(unwrap_mod, "_chart_pass", counted)
+    info: dict = {}
+    a = unwrap(mesh, texels_per_unit=20.0, isolate=False, info=info)
+    b = unwrap(mesh, resolution=64, isolate=False)
+    assert len(runs) == len(unwrap_mod.CHART_OPTIONS)
+    assert np.array_equal(a[0], fresh_density[0]) and a[1] == fresh_density[1]
+    assert np.array_equal(b[0], fresh_map[0]) and b[1] == fresh_map[1]
+    # candidates: options x (uncut + ring cuts) x floors, some skipped or repeated
+    assert 1 <= info["packs"] <= len(unwrap_mod.CHART_OPTIONS) * 3 * 2

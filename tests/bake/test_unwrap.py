@@ -686,3 +686,19 @@ def test_pass_one_is_reused_across_unwraps_of_one_mesh_and_repeated_packs_run_on
     assert np.array_equal(b[0], fresh_map[0]) and b[1] == fresh_map[1]
     # candidates: options x (uncut + ring cuts) x floors, some skipped or repeated
     assert 1 <= info["packs"] <= len(unwrap_mod.CHART_OPTIONS) * 3 * 2
+
+
+def test_one_or_two_workers_give_the_in_process_layout(monkeypatch):
+    """The chart options' parts run in two workers at once or one after the other in one
+    worker (UNWRAP_WORKERS = 1, or a 1-core machine): the same layout as in-process."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    mesh = frames(count=2)
+    want = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+    for workers in (2, 1):
+        unwrap_mod.stop_worker()
+        monkeypatch.setattr(unwrap_mod, "UNWRAP_WORKERS", workers)
+        got = unwrap(mesh, texels_per_unit=20.0)
+        assert np.array_equal(got[0], want[0]) and got[1] == want[1]
+        assert len([w for w in unwrap_mod._helpers if w is not None]) == workers - 1
+    unwrap_mod.stop_worker()

@@ -624,3 +624,81 @@ def test_min_chart_width_stretches_slivers_and_covers_more_texels():
     assert covered > 1.3 * got[0.0][0]
     with pytest.raises(UsageError, match="min_chart_width"):
         unwrap(thin_bars(), texels_per_unit=8.0, isolate=False, min_chart_width=-1.0)
+
+
+def test_a_stalled_worker_is_retried_then_fails_naming_the_prim(monkeypatch, tmp_path):
+    """A worker that stops using CPU while it unwraps (xatlas's thread pool deadlocked: every
+    thread waiting) is stopped after UNWRAP_STALL_S and the mesh retried once in a fresh
+    worker; stalling again fails that prim with a message naming it and the fix."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    unwrap_mod.stop_worker()
+    want = unwrap(box_mesh(), texels_per_unit=20.0)
+    unwrap_mod.stop_worker()
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_S", 1.0)
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_POLL_S", 0.1)
+    marker = tmp_path / "stalled"
+    once = (
+        f"import os, sys, time; m = {str(marker)!r}\n"
+        "if not os.path.exists(m):\n"
+        "    open(m, 'w').close(); sys.stdin.buffer.read(8); time.sleep(600)\n"
+        f"{unwrap_mod._CHILD_CODE}"
+    )
+    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
+    got = unwrap(box_mesh(), texels_per_unit=20.0)
+    assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
+    unwrap_mod.stop_worker()
+    monkeypatch.setattr(
+        unwrap_mod, "_CHILD_CODE", "import sys, time; sys.stdin.buffer.read(8); time.sleep(600)"
+    )
+    with pytest.raises(BakeError, match=r"/box: xatlas crashed .*no CPU time for 1 s.*--uv"):
+        unwrap(box_mesh(), texels_per_unit=20.0)
+    monkeypatch.undo()
+    unwrap_mod.stop_worker()
+    assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], want[0])
+
+
+def test_pass_one_is_reused_across_unwraps_of_one_mesh_and_repeated_packs_run_once(monkeypatch):
+    """The plan unwraps a mesh at its density, then maybe again into a requested map: pass 1
+    (xatlas's charts, the costly part) runs once per chart option for both, and a candidate
+    that comes out the same as an earlier one (a floor widening nothing more) is not packed
+    again; the layouts are those of fresh runs."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    mesh = frames(count=2)
+    fresh_density = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+    unwrap_mod._chart_cache.clear()
+    fresh_map = unwrap(mesh, resolution=64, isolate=False)
+    unwrap_mod._chart_cache.clear()
+    runs = []
+    real = unwrap_mod._chart_pass
+
+    def counted(*args, **kwargs):
+        runs.append(args[-1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(unwrap_mod, "_chart_pass", counted)
+    info: dict = {}
+    a = unwrap(mesh, texels_per_unit=20.0, isolate=False, info=info)
+    b = unwrap(mesh, resolution=64, isolate=False)
+    assert len(runs) == len(unwrap_mod.CHART_OPTIONS)
+    assert np.array_equal(a[0], fresh_density[0]) and a[1] == fresh_density[1]
+    assert np.array_equal(b[0], fresh_map[0]) and b[1] == fresh_map[1]
+    # candidates: options x (uncut + ring cuts) x floors, some skipped or repeated
+    assert 1 <= info["packs"] <= len(unwrap_mod.CHART_OPTIONS) * 3 * 2
+
+
+def test_one_or_two_workers_give_the_in_process_layout(monkeypatch):
+    """The chart options' parts run in two workers at once or one after the other in one
+    worker (UNWRAP_WORKERS = 1, or a 1-core machine): the same layout as in-process."""
+    from usdahd.bake import unwrap as unwrap_mod
+
+    mesh = frames(count=2)
+    want = unwrap(mesh, texels_per_unit=20.0, isolate=False)
+    for workers in (2, 1):
+        unwrap_mod.stop_worker()
+        monkeypatch.setattr(unwrap_mod, "UNWRAP_WORKERS", workers)
+        got = unwrap(mesh, texels_per_unit=20.0)
+        assert np.array_equal(got[0], want[0]) and got[1] == want[1]
+        assert len([w for w in unwrap_mod._helpers if w is not None]) == workers - 1
+    unwrap_mod.stop_worker()

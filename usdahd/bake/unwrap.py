@@ -24,6 +24,7 @@ import numpy as np
 from usdahd.bake.texels import MAX_RESOLUTION
 from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.charts import (
+    ChartRects,
     destretch,
     extend_into,
     layout,
@@ -51,6 +52,29 @@ PACK_EFFICIENCY = 0.6
 #: (and a CI job) that never ends.
 UNWRAP_TIMEOUT_S = 300.0
 UNWRAP_TIMEOUT_PER_TRIANGLE_S = 2e-3
+
+
+#: A worker that uses no CPU time for this long (seconds) while it unwraps a mesh is wedged:
+#: xatlas 0.0.11's thread pool can deadlock, every thread of the process waiting on a futex
+#: (seen three times in a day of plans of the classroom and Sponza on a loaded 2-core machine,
+#: on meshes that unwrap in a second). It is stopped and the mesh retried once in a fresh
+#: worker (xatlas is deterministic: the same layout), instead of waiting UNWRAP_TIMEOUT_S.
+#: Linux only (/proc); elsewhere the timeout alone applies.
+UNWRAP_STALL_S = 30.0
+#: How often (seconds) a waiting parent looks at its worker's CPU time.
+UNWRAP_STALL_POLL_S = 2.0
+
+
+def _cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of process ``pid`` (all its threads), None when unknown."""
+    import os
+
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
@@ -219,6 +243,92 @@ def _chart_pass(points, triangles, corner, face, path, chart_options=None):
     return uv, labels, k * tpu, stats
 
 
+#: Pass 1 results kept (:func:`_charts`) for the meshes unwrapped last: the plan unwraps one
+#: mesh again into a square or a minimum map (usdahd.pipeline.plan), from the same charts.
+CHART_CACHE_SIZE = 4
+_chart_cache: dict = {}
+
+
+def _charts(points, triangles, corner, face, path, options):
+    """Pass 1 with the xatlas ChartOptions ``options`` and the candidate labellings of its
+    charts (as they are, and with the rings of each :data:`RING_SOLIDITY` cut, duplicates
+    dropped): (uv1, labels, scale, stats, rects, candidates), ``rects`` the
+    :class:`ChartRects` of uv1 shared by every candidate. Cached by the mesh's bytes and
+    ``options`` (the last :data:`CHART_CACHE_SIZE`): pass 1 is deterministic, and nothing
+    downstream writes into its arrays."""
+    key = _chart_key(points, triangles, corner, face, options)
+    got = _chart_cache.pop(key, None)
+    if got is None:
+        uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path, options)
+        rects = ChartRects(uv1)
+        candidates = [labels]
+        for solidity in RING_SOLIDITY:
+            cut = split_rings(uv1, labels, face, solidity, rects)
+            if not any(np.array_equal(cut, c) for c in candidates):
+                candidates.append(cut)
+        for a in (uv1, labels, *candidates):
+            a.flags.writeable = False
+        got = (uv1, labels, scale, stats, rects, candidates)
+    _chart_cache[key] = got
+    while len(_chart_cache) > CHART_CACHE_SIZE:
+        _chart_cache.pop(next(iter(_chart_cache)))
+    uv1, labels, scale, stats, rects, candidates = got
+    return uv1, labels, scale, dict(stats), rects, candidates
+
+
+def _chart_key(points, triangles, corner, face, options):
+    """:func:`_charts`' cache key."""
+    import hashlib
+
+    digest = hashlib.blake2b(digest_size=20)
+    for a in (points, triangles, corner, face):
+        a = np.ascontiguousarray(a)
+        digest.update(repr((a.dtype.str, a.shape)).encode())
+        digest.update(a.tobytes())
+    # the module's settings and helpers pass 1 depends on are part of the key (a test that
+    # patches one of them must not get an earlier mesh's charts)
+    settings = (NORMALIZED_DIAGONAL, CHART_PASS_SIDE, PACK_EFFICIENCY, RING_SOLIDITY)
+    helpers = (_chart_pass, destretch, extend_into, overlaps, project_polygon, self_overlap)
+    helpers += (split_polygons, split_rings, unfold_polygon)
+    return (digest.digest(), repr(sorted((options or {}).items())), settings, helpers)
+
+
+def _repeats_earlier(points, triangles, corner, face, k, uv1, labels) -> bool:
+    """Whether the charts of CHART_OPTIONS[k] are those of an earlier option this process
+    already made (a box's charts are the same with every option): the same candidates packed
+    again cannot win, since a later candidate must score strictly higher."""
+    for j in range(k):
+        got = _chart_cache.get(_chart_key(points, triangles, corner, face, CHART_OPTIONS[j]))
+        if got is not None and np.array_equal(got[0], uv1) and np.array_equal(got[1], labels):
+            return True
+    return False
+
+
+class _Packs:
+    """:func:`_run_pack` results of one :func:`_pack` call by their inputs' bytes: two
+    candidates that come out the same (a floor that widens no chart more than the floor below
+    it, at the densities a requested map size tries) are packed once. xatlas's pack is
+    deterministic, so the result is the one a second run would give."""
+
+    def __init__(self):
+        self.done: dict[bytes, tuple] = {}
+        self.calls = 0
+
+    def __call__(self, verts, indices, texels_per_unit, padding):
+        import hashlib
+
+        digest = hashlib.blake2b(digest_size=20)
+        for a in (verts, indices):
+            digest.update(repr((a.dtype.str, a.shape)).encode())
+            digest.update(np.ascontiguousarray(a).tobytes())
+        digest.update(repr((float(texels_per_unit), int(padding))).encode())
+        key = digest.digest()
+        if key not in self.done:
+            self.calls += 1
+            self.done[key] = _run_pack(verts, indices, texels_per_unit, padding)
+        return self.done[key]
+
+
 def _run_pack(verts, indices, texels_per_unit, padding):
     """Pass 2: xatlas packs the charts of the UV mesh at a fixed texel density (single atlas;
     resolution left at 0). Returns (w, h, uv (t, 3, 2) float64 in texels, chart count)."""
@@ -282,60 +392,83 @@ def _pack(
     is packed with the charts narrower than each floor of ``min_width`` (texels) widened to it
     (:func:`widen_thin`). With ``texels_per_unit`` the layout with the most covered texels
     less :data:`FILL_WEIGHT` x map texels wins (then the smaller map); with a ``target`` map
-    the one covering most texels (then the highest density; the first of equals)."""
-    uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path)
-    candidates = [labels]
-    for solidity in RING_SOLIDITY:
-        cut = split_rings(uv1, labels, face, solidity)
-        if not any(np.array_equal(cut, c) for c in candidates):
-            candidates.append(cut)
-    world = triangle_areas(np.asarray(points, np.float64)[np.asarray(triangles, np.int64)])
-    if texels_per_unit is not None:
-        best = None
-        for k, options in enumerate(CHART_OPTIONS):
-            if k:
-                uv1, labels, scale, stats = _chart_pass(
-                    points, triangles, corner, face, path, options
-                )
-                candidates = [labels]
-                for solidity in RING_SOLIDITY:
-                    cut = split_rings(uv1, labels, face, solidity)
-                    if not any(np.array_equal(cut, c) for c in candidates):
-                        candidates.append(cut)
-            density = texels_per_unit / scale * SHRINK
-            for lab in candidates:
-                for width in min_width:
-                    uvw, widened = widen_thin(uv1, lab, density, width)
-                    if width and not widened and width != min_width[0]:
-                        continue  # the same charts as a smaller floor
-                    w, h, uv, _ = _run_pack(*layout(uvw, lab), density, padding)
-                    spread = _spread(uv, world)
-                    score = _covered(uv, w, h) - FILL_WEIGHT * w * h
-                    key = (
-                        spread <= DENSITY_SPREAD_MAX,
-                        score if spread <= DENSITY_SPREAD_MAX else -spread,
-                        -w * h,
-                    )
-                    if best is None or key > best[0]:
-                        best = (key, w, h, uv, lab, widened, labels, k, stats)
-        _, w, h, uv, lab, widened, labels, k, stats = best
-        stats = dict(stats, options=k, rings_cut=_rings_cut(labels, lab), widened=widened)
-        if max(w, h) > max_resolution:
-            raise UsageError(
-                f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
-                f"above the maximum {max_resolution}; lower --texel-density"
-            )
-        return w, h, uv, (w, h), stats
-    area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
+    the one covering most texels (then the highest density; the first of equals). One
+    :func:`_pack_part` per chart option, then :func:`_choose`: the isolated run hands the
+    parts to two worker processes."""
+    args = (points, triangles, corner, face, texels_per_unit, target, padding, max_resolution)
+    args += (path, min_width)
+    return _choose([_pack_part(*args, k) for k in range(len(CHART_OPTIONS))], args)
+
+
+def _choose(parts, args):
+    """The best of :func:`_pack_part`'s results (an earlier part on equal keys: the order
+    of one loop over every candidate), checked as :func:`_pack` promises."""
+    texels_per_unit, target, padding, max_resolution, path = args[4:9]
     best = None
-    for k, options in enumerate(CHART_OPTIONS):
-        if k:
-            uv1, labels, scale, stats = _chart_pass(points, triangles, corner, face, path, options)
-            candidates = [labels]
-            for solidity in RING_SOLIDITY:
-                cut = split_rings(uv1, labels, face, solidity)
-                if not any(np.array_equal(cut, c) for c in candidates):
-                    candidates.append(cut)
+    packs = 0
+    for part in parts:
+        if part is None:
+            continue
+        packs += part[1][4]["packs"]
+        if best is None or part[0] > best[0]:
+            best = part
+    if best is None:
+        raise BakeError(
+            f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
+            f"(padding {padding}); raise --resolution"
+        )
+    w, h, uv, size, stats = best[1]
+    if texels_per_unit is not None and max(w, h) > max_resolution:
+        raise UsageError(
+            f"{path}: {texels_per_unit:g} texels per unit gives a {w}x{h} lightmap, "
+            f"above the maximum {max_resolution}; lower --texel-density"
+        )
+    return w, h, uv, size, dict(stats, packs=packs)
+
+
+def _pack_part(
+    points,
+    triangles,
+    corner,
+    face,
+    texels_per_unit,
+    target,
+    padding,
+    max_resolution,
+    path,
+    min_width=(0.0,),
+    k=0,
+):
+    """:func:`_pack`'s candidates of the chart option ``CHART_OPTIONS[k]`` only: (key, (w, h,
+    uv, target, stats)) of the best of them (the first of equal keys), None when none fits
+    (or its charts repeat an earlier option's, :func:`_repeats_earlier`)."""
+    world = triangle_areas(np.asarray(points, np.float64)[np.asarray(triangles, np.int64)])
+    packs = _Packs()
+    uv1, labels, scale, stats, rects, candidates = _charts(
+        points, triangles, corner, face, path, CHART_OPTIONS[k]
+    )
+    if k and _repeats_earlier(points, triangles, corner, face, k, uv1, labels):
+        return None
+    best = None
+    if texels_per_unit is not None:
+        density = texels_per_unit / scale * SHRINK
+        for lab in candidates:
+            for width in min_width:
+                uvw, widened = widen_thin(uv1, lab, density, width, rects)
+                if width and not widened and width != min_width[0]:
+                    continue  # the same charts as a smaller floor
+                w, h, uv, _ = packs(*layout(uvw, lab), density, padding)
+                spread = _spread(uv, world)
+                score = _covered(uv, w, h) - FILL_WEIGHT * w * h
+                key = (
+                    spread <= DENSITY_SPREAD_MAX,
+                    score if spread <= DENSITY_SPREAD_MAX else -spread,
+                    -w * h,
+                )
+                if best is None or key > best[0]:
+                    best = (key, (w, h, uv, (w, h)), lab, widened)
+    else:
+        area = _world_area(points.astype(np.float64), triangles.astype(np.int64))
         for lab in candidates:
             for width in min_width:
                 tpu = min(target) * np.sqrt(PACK_EFFICIENCY / area)
@@ -349,6 +482,8 @@ def _pack(
                     path,
                     strict=k == 0 and lab is labels,
                     width=width,
+                    rects=rects,
+                    packs=packs,
                 )
                 if got is None:
                     continue
@@ -356,15 +491,14 @@ def _pack(
                 even = spread <= DENSITY_SPREAD_MAX
                 score = (even, _covered(got[2], *target) if even else -spread, got[3])
                 if best is None or score > best[0]:
-                    best = (score, got, dict(stats, options=k, rings_cut=_rings_cut(labels, lab)))
+                    best = (score, (*got[:3], target), lab, got[4])
     if best is None:
-        raise BakeError(
-            f"{path}: could not pack the unwrapped charts into {target[0]}x{target[1]} texels "
-            f"(padding {padding}); raise --resolution"
-        )
-    _, best, stats = best
-    stats["widened"] = best[4]
-    return (*best[:3], target, stats)
+        return None
+    key, layout_, lab, widened = best
+    stats = dict(
+        stats, options=k, rings_cut=_rings_cut(labels, lab), widened=widened, packs=packs.calls
+    )
+    return key, (*layout_, stats)
 
 
 def _spread(uv, world) -> float:
@@ -386,13 +520,14 @@ def _spread(uv, world) -> float:
 
 def _covered(uv, w, h) -> int:
     """Texels the (t, 3, 2) pixel-space ``uv`` of a w x h map cover (conservatively, as the
-    bake rasterises them)."""
-    from usdahd.numerics.raster import rasterize_uv
+    bake rasterises them: :func:`usdahd.numerics.raster.coverage`, the rasteriser's texels
+    without their sample points)."""
+    from usdahd.numerics.raster import coverage
 
     flat = np.empty_like(uv)
     flat[..., 0] = uv[..., 0] / w
     flat[..., 1] = 1.0 - uv[..., 1] / h
-    return int(len(rasterize_uv(flat, (w, h)).ids))
+    return int(len(coverage(flat, (w, h))[0]))
 
 
 def _rings_cut(labels, lab) -> int:
@@ -400,17 +535,20 @@ def _rings_cut(labels, lab) -> int:
     return int(len(np.unique(labels[lab != labels])))
 
 
-def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0):
+def _fit(
+    uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0, rects=None, packs=None
+):
     """Pass 2 of the charts ``labels`` at the largest density (from ``tpu``, MAX_ATTEMPTS
     tries) whose atlas fits ``target``: (w, h, uv, density) or None. ``strict``: raise when
     the charts are too many for the map at any density (else None). ``width``: charts
     narrower (texels, at each density tried) are widened to it (:func:`widen_thin`); the
-    result then ends with the number widened."""
+    result then ends with the number widened. ``packs``: a :class:`_Packs` to share."""
+    packs = _Packs() if packs is None else packs
     best = None
     for _ in range(MAX_ATTEMPTS):
         density = tpu / scale * SHRINK
-        uvw, widened = widen_thin(uv1, labels, density, width)
-        w, h, uv, charts = _run_pack(*layout(uvw, labels), density, padding)
+        uvw, widened = widen_thin(uv1, labels, density, width, rects)
+        w, h, uv, charts = packs(*layout(uvw, labels), density, padding)
         if best is None and charts * (1 + padding) ** 2 > target[0] * target[1]:
             if not strict:
                 return None
@@ -436,7 +574,7 @@ def _fit(uv1, labels, scale, tpu, target, padding, path, *, strict, width=0.0):
 
 def _child_main() -> None:
     """Worker-process entry point: for each request on stdin (an 8-byte big-endian length,
-    then the pickled arguments of :func:`_pack`), run it and answer on stdout in the same
+    then the pickled arguments of :func:`_pack_part`), run it and answer on stdout in the same
     framing with ("ok", result), ("usage" | "bake" | "error", message); stop at EOF."""
     import pickle
     import sys
@@ -448,7 +586,7 @@ def _child_main() -> None:
             return
         args = pickle.loads(inp.read(int.from_bytes(head, "big")))
         try:
-            msg = ("ok", _pack(*args))
+            msg = ("ok", _pack_part(*args))
         except UsageError as exc:
             msg = ("usage", str(exc))
         except BakeError as exc:  # already names the prim
@@ -486,6 +624,7 @@ class _Worker:
         # stderr to a file, not a pipe: a child that writes warnings mesh after mesh must not
         # block on a full pipe nobody reads until it dies
         self.err = tempfile.TemporaryFile()
+        self.stalled = False
         self.proc = subprocess.Popen(
             [sys.executable, "-c", _CHILD_CODE],
             stdin=subprocess.PIPE,
@@ -500,15 +639,26 @@ class _Worker:
     def request(self, data: bytes, timeout: float):
         """Send one pickled request; returns the unpickled reply, or None when the worker
         died; raises TimeoutError after ``timeout`` seconds (the worker is then stopped)."""
-        import pickle
         import time
 
+        if not self.send(data):
+            return None
+        return self.receive(time.monotonic() + timeout)
+
+    def send(self, data: bytes) -> bool:
+        """Send one pickled request; False when the worker is dead."""
         try:
             self.proc.stdin.write(len(data).to_bytes(8, "big") + data)
             self.proc.stdin.flush()
         except (BrokenPipeError, OSError):
-            return None
-        end = time.monotonic() + timeout
+            return False
+        return True
+
+    def receive(self, end: float):
+        """The unpickled reply to the request sent, or None when the worker died; raises
+        TimeoutError at ``end`` (time.monotonic(); the worker is then stopped)."""
+        import pickle
+
         head = self._read(8, end)
         if head is None:
             return None
@@ -522,13 +672,24 @@ class _Worker:
 
         fd = self.proc.stdout.fileno()
         buf = b""
+        cpu, since = None, time.monotonic()
         with selectors.DefaultSelector() as sel:
             sel.register(fd, selectors.EVENT_READ)
             while len(buf) < n:
-                left = end - time.monotonic()
-                if left <= 0 or not sel.select(left):
+                now = time.monotonic()
+                left = end - now
+                if left <= 0:
                     self.stop()
                     raise TimeoutError
+                if not sel.select(min(left, UNWRAP_STALL_POLL_S)):
+                    used = _cpu_seconds(self.proc.pid)
+                    if used is None or used != cpu:
+                        cpu, since = used, now
+                    elif now - since >= UNWRAP_STALL_S:
+                        self.stalled = True
+                        self.stop()
+                        return None
+                    continue
                 chunk = os.read(fd, n - len(buf))
                 if not chunk:
                     return None
@@ -536,7 +697,9 @@ class _Worker:
         return buf
 
     def failure(self) -> str:
-        """The dead worker's last stderr line or its exit code."""
+        """The dead worker's last stderr line or its exit code (or that it stalled)."""
+        if self.stalled:
+            return f"its threads stopped working: no CPU time for {UNWRAP_STALL_S:g} s"
         try:
             self.proc.wait(timeout=5)
             self.err.seek(0)
@@ -559,61 +722,115 @@ class _Worker:
                 pass
 
 
-_worker: _Worker | None = None
+#: Worker processes an isolated unwrap runs its chart options' parts in (:func:`_pack_part`,
+#: one option each, at the same time): the machine's cores, at most one per chart option.
+UNWRAP_WORKERS = 2
+_worker: _Worker | None = None  # the first worker; the others are in _helpers
+_helpers: list[_Worker | None] = []
+_registered = False
 
 
 def stop_worker() -> None:
+    """Stop every worker process (the next unwrap starts new ones)."""
     global _worker
-    if _worker is not None:
-        _worker.stop()
+    for w in [_worker, *_helpers]:
+        if w is not None:
+            w.stop()
+    _worker = None
+    _helpers.clear()
+
+
+def _slots() -> int:
+    import os
+
+    return max(1, min(UNWRAP_WORKERS, len(CHART_OPTIONS), os.cpu_count() or 1))
+
+
+def _slot_worker(i: int, fresh: bool = False) -> _Worker:
+    """Worker ``i`` (0 is ``_worker``), started when missing, dead or ``fresh``."""
+    import atexit
+
+    global _worker, _registered
+    if not _registered:
+        atexit.register(stop_worker)
+        _registered = True
+    while len(_helpers) < i:
+        _helpers.append(None)
+    w = _worker if i == 0 else _helpers[i - 1]
+    if w is None or fresh or not w.alive():
+        if w is not None:
+            w.stop()
+        w = _Worker()
+        if i == 0:
+            _worker = w
+        else:
+            _helpers[i - 1] = w
+    return w
+
+
+def _forget(i: int) -> None:
+    global _worker
+    if i == 0:
         _worker = None
+    elif i - 1 < len(_helpers):
+        _helpers[i - 1] = None
 
 
 def _pack_isolated(args, path):
-    """Run :func:`_pack` in the worker process (started on first use, restarted after a
-    crash; stopped at interpreter exit)."""
-    import atexit
+    """Run :func:`_pack` in worker processes (started on first use, restarted after a crash;
+    stopped at interpreter exit): each chart option's :func:`_pack_part` in its own worker
+    (:data:`UNWRAP_WORKERS`), at the same time, then :func:`_choose` here."""
     import pickle
+    import time
 
-    global _worker
     limit = UNWRAP_TIMEOUT_S + UNWRAP_TIMEOUT_PER_TRIANGLE_S * len(args[1])
-    # A worker that dies on a mesh gets one retry in a fresh worker: a death from outside
-    # (a signal, memory pressure) then fails no prim, and xatlas's segfaults, which follow the
-    # mesh, fail the second time too.
-    for attempt in range(2):
-        if _worker is None or not _worker.alive():
-            if _worker is None:
-                atexit.register(stop_worker)
-            else:
-                _worker.stop()
-            _worker = _Worker()
-        try:
-            reply = _worker.request(pickle.dumps(args), limit)
-        except TimeoutError:
-            _worker = None
-            raise BakeError(
-                f"{path}: xatlas did not finish unwrapping this mesh within {limit:.0f} s "
-                "(the child process was stopped); author a lightmap UV set for it and pass it "
-                "with --uv"
-            ) from None
-        if reply is not None:
-            break
-        detail = _worker.failure()
-        _worker.stop()
-        if attempt:
-            _worker = None
-            raise BakeError(
-                f"{path}: xatlas crashed while unwrapping this mesh ({detail}); "
-                "author a lightmap UV set for it and pass it with --uv"
-            )
-    kind, value = reply
-    if kind == "usage":
-        raise UsageError(value)
-    if kind == "bake":
-        raise BakeError(value)
-    if kind == "error":
-        raise BakeError(f"{path}: unwrapping failed: {value}")
-    return value
+    slots = _slots()
+    parts = list(range(len(CHART_OPTIONS)))
+    replies: dict[int, object] = {}
+    waves = [parts[i : i + slots] for i in range(0, len(parts), slots)]
+    for wave in waves:
+        # A worker that dies on a mesh gets one retry in a fresh worker: a death from outside
+        # (a signal, memory pressure) then fails no prim, and xatlas's segfaults, which follow
+        # the mesh, fail the second time too.
+        pending = list(wave)
+        for attempt in range(2):
+            used = {k: _slot_worker(wave.index(k), fresh=attempt > 0) for k in pending}
+            sent = [k for k in pending if used[k].send(pickle.dumps((*args, k)))]
+            end = time.monotonic() + limit
+            for k in pending:
+                try:
+                    replies[k] = used[k].receive(end) if k in sent else None
+                except TimeoutError:
+                    stop_worker()
+                    raise BakeError(
+                        f"{path}: xatlas did not finish unwrapping this mesh within "
+                        f"{limit:.0f} s (the child process was stopped); author a lightmap UV "
+                        "set for it and pass it with --uv"
+                    ) from None
+            dead = [k for k in pending if replies[k] is None]
+            if not dead:
+                break
+            if attempt:
+                detail = used[dead[0]].failure()
+                for k in dead:
+                    used[k].stop()
+                    _forget(wave.index(k))
+                raise BakeError(
+                    f"{path}: xatlas crashed while unwrapping this mesh ({detail}); "
+                    "author a lightmap UV set for it and pass it with --uv"
+                )
+            pending = dead
+    results = []
+    for k in parts:
+        kind, value = replies[k]
+        if kind == "usage":
+            raise UsageError(value)
+        if kind == "bake":
+            raise BakeError(value)
+        if kind == "error":
+            raise BakeError(f"{path}: unwrapping failed: {value}")
+        results.append(value)
+    return _choose(results, args)
 
 
 def unwrap(
@@ -648,8 +865,9 @@ def unwrap(
     ``info``, when given, receives pass 1's counts: ``charts_xatlas``, ``split_polygons``
     (polygons xatlas cut), ``extended`` (re-joined to a chart) and ``own_chart``, and pass 2's
     ``rings_cut`` (ring charts packed cut into their sides, :func:`split_rings`),
-    ``widened`` (charts stretched to a width floor) and ``options`` (the index of the
-    :data:`CHART_OPTIONS` kept).
+    ``widened`` (charts stretched to a width floor), ``options`` (the index of the
+    :data:`CHART_OPTIONS` kept) and ``packs`` (xatlas pack passes run: the distinct candidate
+    layouts tried).
     Deterministic for a given mesh and options.
     Raises UsageError if the atlas would exceed ``max_resolution``.
     """

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from usdahd.bake import texels as tx
+from usdahd.bake import unwrap_worker
 from usdahd.bake.unwrap import unrepresentable_corners, unwrap
 from usdahd.errors import BakeError, UsageError
 from usdahd.scene.types import MeshData
@@ -127,20 +128,20 @@ def test_one_worker_unwraps_mesh_after_mesh_and_survives_a_crash(monkeypatch):
 
     unwrap_mod.stop_worker()
     a = unwrap(box_mesh(), texels_per_unit=20.0)
-    pid = unwrap_mod._worker.proc.pid
+    pid = unwrap_worker._worker.proc.pid
     b = unwrap(box_mesh(), texels_per_unit=20.0)
-    assert unwrap_mod._worker.proc.pid == pid and np.array_equal(a[0], b[0])
-    unwrap_mod._worker.proc.kill()  # dies between two meshes
-    unwrap_mod._worker.proc.wait()
+    assert unwrap_worker._worker.proc.pid == pid and np.array_equal(a[0], b[0])
+    unwrap_worker._worker.proc.kill()  # dies between two meshes
+    unwrap_worker._worker.proc.wait()
     assert np.array_equal(unwrap(box_mesh(), texels_per_unit=20.0)[0], a[0])
-    assert unwrap_mod._worker.proc.pid != pid
+    assert unwrap_worker._worker.proc.pid != pid
     # a worker that dies while unwrapping (stands in for xatlas's segfault)
     unwrap_mod.stop_worker()
     crash = (
         "import os, sys; sys.stdin.buffer.read(8); "
         "sys.stderr.write('Segmentation fault\\n'); sys.stderr.flush(); os._exit(139)"
     )
-    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", crash)
+    monkeypatch.setattr(unwrap_worker, "CHILD_CODE", crash)
     with pytest.raises(BakeError, match=r"/box: xatlas crashed .*Segmentation fault.*--uv"):
         unwrap(box_mesh(), texels_per_unit=20.0)
     monkeypatch.undo()
@@ -160,9 +161,9 @@ def test_a_worker_killed_during_one_mesh_fails_no_prim(monkeypatch, tmp_path):
         f"import os, sys; m = {str(marker)!r}\n"
         "if not os.path.exists(m):\n"
         "    open(m, 'w').close(); sys.stdin.buffer.read(8); os._exit(137)\n"
-        f"{unwrap_mod._CHILD_CODE}"
+        f"{unwrap_worker.CHILD_CODE}"
     )
-    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
+    monkeypatch.setattr(unwrap_worker, "CHILD_CODE", once)
     got = unwrap(box_mesh(), texels_per_unit=20.0)
     assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
     unwrap_mod.stop_worker()
@@ -635,21 +636,21 @@ def test_a_stalled_worker_is_retried_then_fails_naming_the_prim(monkeypatch, tmp
     unwrap_mod.stop_worker()
     want = unwrap(box_mesh(), texels_per_unit=20.0)
     unwrap_mod.stop_worker()
-    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_S", 1.0)
-    monkeypatch.setattr(unwrap_mod, "UNWRAP_STALL_POLL_S", 0.1)
+    monkeypatch.setattr(unwrap_worker, "STALL_S", 1.0)
+    monkeypatch.setattr(unwrap_worker, "STALL_POLL_S", 0.1)
     marker = tmp_path / "stalled"
     once = (
         f"import os, sys, time; m = {str(marker)!r}\n"
         "if not os.path.exists(m):\n"
         "    open(m, 'w').close(); sys.stdin.buffer.read(8); time.sleep(600)\n"
-        f"{unwrap_mod._CHILD_CODE}"
+        f"{unwrap_worker.CHILD_CODE}"
     )
-    monkeypatch.setattr(unwrap_mod, "_CHILD_CODE", once)
+    monkeypatch.setattr(unwrap_worker, "CHILD_CODE", once)
     got = unwrap(box_mesh(), texels_per_unit=20.0)
     assert marker.exists() and np.array_equal(got[0], want[0]) and got[1] == want[1]
     unwrap_mod.stop_worker()
     monkeypatch.setattr(
-        unwrap_mod, "_CHILD_CODE", "import sys, time; sys.stdin.buffer.read(8); time.sleep(600)"
+        unwrap_worker, "CHILD_CODE", "import sys, time; sys.stdin.buffer.read(8); time.sleep(600)"
     )
     with pytest.raises(BakeError, match=r"/box: xatlas crashed .*no CPU time for 1 s.*--uv"):
         unwrap(box_mesh(), texels_per_unit=20.0)
@@ -700,5 +701,5 @@ def test_one_or_two_workers_give_the_in_process_layout(monkeypatch):
         monkeypatch.setattr(unwrap_mod, "UNWRAP_WORKERS", workers)
         got = unwrap(mesh, texels_per_unit=20.0)
         assert np.array_equal(got[0], want[0]) and got[1] == want[1]
-        assert len([w for w in unwrap_mod._helpers if w is not None]) == workers - 1
+        assert len([w for w in unwrap_worker._helpers if w is not None]) == workers - 1
     unwrap_mod.stop_worker()

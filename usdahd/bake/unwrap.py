@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.bake import unwrap_worker
 from usdahd.bake.texels import MAX_RESOLUTION
+from usdahd.bake.unwrap_worker import stop_worker
 from usdahd.errors import BakeError, InputError, UsageError
 from usdahd.numerics.charts import (
     ChartRects,
@@ -39,7 +41,14 @@ from usdahd.numerics.charts import (
 from usdahd.numerics.triangles import triangle_areas
 from usdahd.scene.types import MeshData
 
-__all__ = ["CHART_MIN_WIDTH", "CHART_PADDING", "PACK_EFFICIENCY", "stop_worker", "unwrap"]
+__all__ = [
+    "CHART_MIN_WIDTH",
+    "CHART_PADDING",
+    "PACK_EFFICIENCY",
+    "pack_part",
+    "stop_worker",
+    "unwrap",
+]
 
 #: Attempts at shrinking texels_per_unit until the atlas fits a requested resolution.
 MAX_ATTEMPTS = 8
@@ -52,29 +61,6 @@ PACK_EFFICIENCY = 0.6
 #: (and a CI job) that never ends.
 UNWRAP_TIMEOUT_S = 300.0
 UNWRAP_TIMEOUT_PER_TRIANGLE_S = 2e-3
-
-
-#: A worker that uses no CPU time for this long (seconds) while it unwraps a mesh is wedged:
-#: xatlas 0.0.11's thread pool can deadlock, every thread of the process waiting on a futex
-#: (seen three times in a day of plans of the classroom and Sponza on a loaded 2-core machine,
-#: on meshes that unwrap in a second). It is stopped and the mesh retried once in a fresh
-#: worker (xatlas is deterministic: the same layout), instead of waiting UNWRAP_TIMEOUT_S.
-#: Linux only (/proc); elsewhere the timeout alone applies.
-UNWRAP_STALL_S = 30.0
-#: How often (seconds) a waiting parent looks at its worker's CPU time.
-UNWRAP_STALL_POLL_S = 2.0
-
-
-def _cpu_seconds(pid: int) -> float | None:
-    """User + system CPU seconds of process ``pid`` (all its threads), None when unknown."""
-    import os
-
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            fields = f.read().rsplit(b")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def _world_area(points: np.ndarray, triangles: np.ndarray) -> float:
@@ -393,15 +379,15 @@ def _pack(
     (:func:`widen_thin`). With ``texels_per_unit`` the layout with the most covered texels
     less :data:`FILL_WEIGHT` x map texels wins (then the smaller map); with a ``target`` map
     the one covering most texels (then the highest density; the first of equals). One
-    :func:`_pack_part` per chart option, then :func:`_choose`: the isolated run hands the
+    :func:`pack_part` per chart option, then :func:`_choose`: the isolated run hands the
     parts to two worker processes."""
     args = (points, triangles, corner, face, texels_per_unit, target, padding, max_resolution)
     args += (path, min_width)
-    return _choose([_pack_part(*args, k) for k in range(len(CHART_OPTIONS))], args)
+    return _choose([pack_part(*args, k) for k in range(len(CHART_OPTIONS))], args)
 
 
 def _choose(parts, args):
-    """The best of :func:`_pack_part`'s results (an earlier part on equal keys: the order
+    """The best of :func:`pack_part`'s results (an earlier part on equal keys: the order
     of one loop over every candidate), checked as :func:`_pack` promises."""
     texels_per_unit, target, padding, max_resolution, path = args[4:9]
     best = None
@@ -426,7 +412,7 @@ def _choose(parts, args):
     return w, h, uv, size, dict(stats, packs=packs)
 
 
-def _pack_part(
+def pack_part(
     points,
     triangles,
     corner,
@@ -572,172 +558,9 @@ def _fit(
     return best
 
 
-def _child_main() -> None:
-    """Worker-process entry point: for each request on stdin (an 8-byte big-endian length,
-    then the pickled arguments of :func:`_pack_part`), run it and answer on stdout in the same
-    framing with ("ok", result), ("usage" | "bake" | "error", message); stop at EOF."""
-    import pickle
-    import sys
-
-    inp, out = sys.stdin.buffer, sys.stdout.buffer
-    while True:
-        head = inp.read(8)
-        if len(head) < 8:
-            return
-        args = pickle.loads(inp.read(int.from_bytes(head, "big")))
-        try:
-            msg = ("ok", _pack_part(*args))
-        except UsageError as exc:
-            msg = ("usage", str(exc))
-        except BakeError as exc:  # already names the prim
-            msg = ("bake", str(exc))
-        except Exception as exc:  # noqa: BLE001 - reported to the parent as a BakeError
-            msg = ("error", f"{type(exc).__name__}: {exc}")
-        data = pickle.dumps(msg)
-        out.write(len(data).to_bytes(8, "big") + data)
-        out.flush()
-
-
-#: What the worker process runs (a module attribute so a test can make it crash).
-_CHILD_CODE = "from usdahd.bake.unwrap import _child_main; _child_main()"
-
-
-class _Worker:
-    """One long-lived child Python process that runs :func:`_pack` for mesh after mesh, so an
-    unwrap costs xatlas's time, not an interpreter start-up each (classroom, 74 meshes
-    without UVs: ~0.12 s each). xatlas 0.0.11 segfaults on some meshes (e.g. a subdivided
-    icosphere of 82k triangles): that kills the worker, fails that one prim, and the next
-    mesh starts a new worker. A plain subprocess (not multiprocessing) so the caller's
-    __main__ is not re-run."""
-
-    def __init__(self):
-        import os
-        import subprocess
-        import sys
-        import tempfile
-
-        import usdahd
-
-        root = os.path.dirname(os.path.dirname(os.path.abspath(usdahd.__file__)))
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([root, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-        # stderr to a file, not a pipe: a child that writes warnings mesh after mesh must not
-        # block on a full pipe nobody reads until it dies
-        self.err = tempfile.TemporaryFile()
-        self.stalled = False
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", _CHILD_CODE],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self.err,
-            env=env,
-        )
-
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    def request(self, data: bytes, timeout: float):
-        """Send one pickled request; returns the unpickled reply, or None when the worker
-        died; raises TimeoutError after ``timeout`` seconds (the worker is then stopped)."""
-        import time
-
-        if not self.send(data):
-            return None
-        return self.receive(time.monotonic() + timeout)
-
-    def send(self, data: bytes) -> bool:
-        """Send one pickled request; False when the worker is dead."""
-        try:
-            self.proc.stdin.write(len(data).to_bytes(8, "big") + data)
-            self.proc.stdin.flush()
-        except (BrokenPipeError, OSError):
-            return False
-        return True
-
-    def receive(self, end: float):
-        """The unpickled reply to the request sent, or None when the worker died; raises
-        TimeoutError at ``end`` (time.monotonic(); the worker is then stopped)."""
-        import pickle
-
-        head = self._read(8, end)
-        if head is None:
-            return None
-        body = self._read(int.from_bytes(head, "big"), end)
-        return None if body is None else pickle.loads(body)
-
-    def _read(self, n: int, end: float):
-        import os
-        import selectors
-        import time
-
-        fd = self.proc.stdout.fileno()
-        buf = b""
-        cpu, since = None, time.monotonic()
-        with selectors.DefaultSelector() as sel:
-            sel.register(fd, selectors.EVENT_READ)
-            while len(buf) < n:
-                now = time.monotonic()
-                left = end - now
-                if left <= 0:
-                    self.stop()
-                    raise TimeoutError
-                if not sel.select(min(left, UNWRAP_STALL_POLL_S)):
-                    used = _cpu_seconds(self.proc.pid)
-                    if used is None or used != cpu:
-                        cpu, since = used, now
-                    elif now - since >= UNWRAP_STALL_S:
-                        self.stalled = True
-                        self.stop()
-                        return None
-                    continue
-                chunk = os.read(fd, n - len(buf))
-                if not chunk:
-                    return None
-                buf += chunk
-        return buf
-
-    def failure(self) -> str:
-        """The dead worker's last stderr line or its exit code (or that it stalled)."""
-        if self.stalled:
-            return f"its threads stopped working: no CPU time for {UNWRAP_STALL_S:g} s"
-        try:
-            self.proc.wait(timeout=5)
-            self.err.seek(0)
-            err = self.err.read().decode(errors="replace").strip().splitlines()
-        except Exception:  # noqa: BLE001 - best effort: the message only
-            err = []
-        return err[-1] if err else f"exit code {self.proc.returncode}"
-
-    def stop(self) -> None:
-        if self.alive():
-            self.proc.kill()
-        try:
-            self.proc.wait(timeout=5)
-        except Exception:  # noqa: BLE001 - nothing more to do for a stuck child
-            pass
-        for f in (self.proc.stdin, self.proc.stdout, self.err):
-            try:
-                f.close()
-            except OSError:
-                pass
-
-
-#: Worker processes an isolated unwrap runs its chart options' parts in (:func:`_pack_part`,
+#: Worker processes an isolated unwrap runs its chart options' parts in (:func:`pack_part`,
 #: one option each, at the same time): the machine's cores, at most one per chart option.
 UNWRAP_WORKERS = 2
-_worker: _Worker | None = None  # the first worker; the others are in _helpers
-_helpers: list[_Worker | None] = []
-_registered = False
-
-
-def stop_worker() -> None:
-    """Stop every worker process (the next unwrap starts new ones)."""
-    global _worker
-    for w in [_worker, *_helpers]:
-        if w is not None:
-            w.stop()
-    _worker = None
-    _helpers.clear()
 
 
 def _slots() -> int:
@@ -746,39 +569,9 @@ def _slots() -> int:
     return max(1, min(UNWRAP_WORKERS, len(CHART_OPTIONS), os.cpu_count() or 1))
 
 
-def _slot_worker(i: int, fresh: bool = False) -> _Worker:
-    """Worker ``i`` (0 is ``_worker``), started when missing, dead or ``fresh``."""
-    import atexit
-
-    global _worker, _registered
-    if not _registered:
-        atexit.register(stop_worker)
-        _registered = True
-    while len(_helpers) < i:
-        _helpers.append(None)
-    w = _worker if i == 0 else _helpers[i - 1]
-    if w is None or fresh or not w.alive():
-        if w is not None:
-            w.stop()
-        w = _Worker()
-        if i == 0:
-            _worker = w
-        else:
-            _helpers[i - 1] = w
-    return w
-
-
-def _forget(i: int) -> None:
-    global _worker
-    if i == 0:
-        _worker = None
-    elif i - 1 < len(_helpers):
-        _helpers[i - 1] = None
-
-
 def _pack_isolated(args, path):
     """Run :func:`_pack` in worker processes (started on first use, restarted after a crash;
-    stopped at interpreter exit): each chart option's :func:`_pack_part` in its own worker
+    stopped at interpreter exit): each chart option's :func:`pack_part` in its own worker
     (:data:`UNWRAP_WORKERS`), at the same time, then :func:`_choose` here."""
     import pickle
     import time
@@ -794,14 +587,14 @@ def _pack_isolated(args, path):
         # the mesh, fail the second time too.
         pending = list(wave)
         for attempt in range(2):
-            used = {k: _slot_worker(wave.index(k), fresh=attempt > 0) for k in pending}
+            used = {k: unwrap_worker.slot_worker(wave.index(k), fresh=attempt > 0) for k in pending}
             sent = [k for k in pending if used[k].send(pickle.dumps((*args, k)))]
             end = time.monotonic() + limit
             for k in pending:
                 try:
                     replies[k] = used[k].receive(end) if k in sent else None
                 except TimeoutError:
-                    stop_worker()
+                    unwrap_worker.stop_worker()
                     raise BakeError(
                         f"{path}: xatlas did not finish unwrapping this mesh within "
                         f"{limit:.0f} s (the child process was stopped); author a lightmap UV "
@@ -814,7 +607,7 @@ def _pack_isolated(args, path):
                 detail = used[dead[0]].failure()
                 for k in dead:
                     used[k].stop()
-                    _forget(wave.index(k))
+                    unwrap_worker.forget(wave.index(k))
                 raise BakeError(
                     f"{path}: xatlas crashed while unwrapping this mesh ({detail}); "
                     "author a lightmap UV set for it and pass it with --uv"

@@ -418,7 +418,7 @@ class Raster:
     ids: np.ndarray  # (n,) int64 texel ids y * w + x, ascending
     triangle: np.ndarray  # (n,) int64 winning triangle per texel
     center_inside: np.ndarray  # (n,) bool: the texel centre lies in its triangle
-    barycentrics: np.ndarray  # (n, 3) float64 of the sample point (centre or closest point)
+    barycentrics: np.ndarray  # (n, 3) float64 of the sample point (centre, or inset)
     overlap_ids: np.ndarray  # (m,) int64 ascending: centres strictly inside >= 2 triangles
     degenerate: np.ndarray  # (t,) bool: UV triangles with |2 area| <= DEGENERATE_UV_AREA2 px^2
 

@@ -27,7 +27,7 @@ from tests.stats import SIGMAS, standard_error
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.texels import half_texel_vectors, push_off_contacts, rasterize
 from usdahd.bake.trace import Tracer
-from usdahd.numerics import sh
+from usdahd.numerics import raster, sh
 from usdahd.usd.reader import load_scene
 
 RES = 32
@@ -227,12 +227,19 @@ def _side_row(texels, mesh):
 
 
 @pytest.mark.parametrize("backend", ["native", "embreex"])
-def test_contact_row_is_not_brighter_than_its_open_sky(backend):
+def test_contact_row_is_not_brighter_than_its_open_sky(backend, monkeypatch):
+    """The frustum's sides overhang and rest on the ground: texels sampled on their bottom edge
+    (the contact line) have their ray origin under the ground and see the dome there, until
+    push_off_contacts moves them. Since issue 37 conservative texels are sampled inside their
+    covered part, above the contact line (checked last); the rule is tested on the sample
+    points on the line (``CONSERVATIVE_INSET = 0``), as a texel centre on a contact gives."""
     st = _frustum_stage()
     scene = load_scene(st)
     tracer = Tracer(scene, threads=1, backend=backend)
     mi, frustum = next((i, m) for i, m in enumerate(scene.meshes) if m.path == "/frustum")
-    texels = rasterize(frustum, (RES, RES))
+    with monkeypatch.context() as m:
+        m.setattr(raster, "CONSERVATIVE_INSET", 0.0)
+        texels = rasterize(frustum, (RES, RES))
     row, n = _side_row(texels, frustum)
     assert tracer.offset_eps < 0.01  # well inside half a texel of the sides (~0.05 m)
     assert row.sum() >= 8 and n[2] == pytest.approx(-0.2425, abs=1e-3)
@@ -272,6 +279,14 @@ def test_contact_row_is_not_brighter_than_its_open_sky(backend):
     # the sun is exact (one delta shadow ray); the dome part is a mean of 256 samples of
     # 2 cos(theta) <= 2, whose standard deviation is at most sqrt(4/3 / 256) = 0.072
     assert giz.max() < 2.0 + SIGMAS * 0.072
+
+    # the default sample points of the row lie inside the covered part, above the ground by
+    # more than the ray offset: no view under the ground even before the contact rule
+    inset = rasterize(frustum, (RES, RES))
+    np.testing.assert_array_equal(inset.xy, texels.xy)
+    assert (inset.position[row, 2] > 4 * tracer.offset_eps).all()
+    own, _ = row_iz(inset)
+    assert own.mean() < bound + SIGMAS * standard_error(own) + HORIZON
 
 
 def test_bake_moves_contact_texels_and_reports_them(tmp_path, capsys):

@@ -68,3 +68,73 @@ def test_coverage_is_rasterize_uvs_texels(backend):
     assert len(r.overlap_ids) > 0  # the case exercises overlaps
     np.testing.assert_array_equal(ids, r.ids)
     np.testing.assert_array_equal(overlap, r.overlap_ids)
+
+
+def _subsample_inside(c, P, n=64):
+    """Brute force: n x n sub-points of the unit squares centred at c (m, 2) inside triangles
+    P (m, 3, 2): the points (m, n*n, 2) and the mask."""
+    sub = (np.arange(n) + 0.5) / n - 0.5
+    X, Y = np.meshgrid(sub, sub)
+    pts = c[:, None, :] + np.stack([X.ravel(), Y.ravel()], 1)[None]
+    a2 = raster.signed_area2(P)
+    inside = np.ones(pts.shape[:2], bool)
+    for i in range(3):
+        a = P[:, (i + 1) % 3]
+        e = P[:, (i + 2) % 3] - a
+        inside &= raster.cross2(e[:, None, :], pts - a[:, None, :]) * np.sign(a2)[:, None] > 0
+    return pts, inside
+
+
+def test_clip_square_area_and_centroid_match_brute_force():
+    rng = np.random.default_rng(11)
+    P = rng.uniform(0, 4, (3000, 3, 2))
+    c = rng.integers(0, 4, (3000, 2)) + 0.5
+    area, cen = raster.clip_square(c, P, raster.signed_area2(P))
+    pts, inside = _subsample_inside(c, P)
+    share = inside.mean(axis=1)
+    # 64 x 64 sub-points: each edge crossing the square miscounts at most ~64 of 4096 cells
+    # by half (worst case 0.02), typically far fewer
+    np.testing.assert_allclose(area, share, atol=0.02)
+    assert np.abs(area - share).mean() < 0.001
+    assert (area[share == 0] < 0.006).all() and (share == 0).any() and (share == 1).any()
+    ok = share > 0.1  # the sub-point centroid of a sliver is coarse
+    mean = (pts * inside[..., None]).sum(axis=1)[ok] / inside.sum(axis=1)[ok, None]
+    np.testing.assert_allclose(cen[ok], mean, atol=0.03)
+    assert np.abs(cen[ok] - mean).mean() < 0.002
+    # an exact case: the edge x = 1.2 crosses the square centred at (1, 0)
+    P1 = np.array([[[1.2, -10.0], [11.2, 0.0], [1.2, 10.0]]])
+    for tri in (P1, P1[:, ::-1]):  # either winding
+        a, g = raster.clip_square(np.array([[1.0, 0.0]]), tri, raster.signed_area2(tri))
+        np.testing.assert_allclose(a, [0.3])
+        np.testing.assert_allclose(g, [[1.35, 0.0]], atol=1e-12)
+        q = raster.conservative_points(np.array([[1.0, 0.0]]), tri, raster.signed_area2(tri), 0.5)
+        np.testing.assert_allclose(q, [[1.275, 0.0]], atol=1e-12)  # half way from 1.2 to 1.35
+
+
+@pytest.mark.parametrize("backend", raster.BACKENDS)
+def test_conservative_sample_points_lie_strictly_inside_triangle_and_square(backend):
+    """A conservative texel's sample point is inside its triangle (every barycentric > 0, not
+    on an edge: on a crease the edge sees the other face) and inside the texel's square, half
+    way from the closest point to the centroid of the covered part."""
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(0.05, 0.95, (30, 3, 2))
+    res = (29, 31)
+    r = raster.rasterize_uv(uv, res, backend=backend)
+    cons = ~r.center_inside
+    assert cons.sum() > 50
+    px = raster.uv_to_pixel(uv, res)[r.triangle]
+    q = np.einsum("nc,nci->ni", r.barycentrics, px)
+    centre = r.xy + 0.5
+    assert (np.abs(q - centre)[cons] <= 0.5 + 1e-9).all()
+    area, cen = raster.clip_square(centre[cons], px[cons], raster.signed_area2(px[cons]))
+    closest, _ = raster.closest_point(centre[cons], px[cons])
+    ok = area > raster.CENTROID_MIN_AREA
+    # where the triangle's closest point lies in the square it is the covered part's closest
+    # point too (else that part's is on the square's boundary, still inside the square)
+    sq = ok & (np.abs(closest - centre[cons]) <= 0.5).all(axis=1)
+    assert sq.mean() > 0.8
+    want = closest + raster.CONSERVATIVE_INSET * (cen - closest)
+    np.testing.assert_allclose(q[cons][sq], want[sq], atol=1e-9)
+    # strictly inside: the point sits off every edge (the old rule put it on one)
+    assert (r.barycentrics[cons][ok].min(axis=1) > 1e-9).all() and ok.mean() > 0.9
+    np.testing.assert_allclose(q[~cons], centre[~cons], atol=1e-9)  # centres stay centres

@@ -336,9 +336,10 @@ def rasterize(
     Coverage, the triangle each texel takes and its sample point are
     :func:`usdahd.numerics.raster.rasterize_uv` (``conservative``, ``backend`` passed on): a
     texel is covered when its centre lies in a triangle, or (``conservative``) when its square
-    overlaps one; then the sample point is the closest point of the triangle and
-    ``center_inside`` is False. This adds the checks (resolution at most ``max_resolution``,
-    finite UVs of shape (t, 3, 2)) and the 3-D side.
+    overlaps one; then ``center_inside`` is False and the sample point lies inside the part of
+    the square the triangle covers (``raster.CONSERVATIVE_INSET``, docs/texels.md). This
+    adds the checks (resolution at most ``max_resolution``, finite UVs of shape (t, 3, 2))
+    and the 3-D side.
 
     Returns :class:`~usdahd.bake.types.Texels` sorted by ``y * w + x`` (row-major) with
 

@@ -25,8 +25,8 @@ class Texels:
 
     resolution : (width, height).
     xy : (n, 2) int32 texel column, row (row 0 = top, see module doc).
-    position : (n, 3) float32 world sample point (texel centre on the surface, or the closest
-        point on the triangle for conservatively covered texels).
+    position : (n, 3) float32 world sample point (texel centre on the surface, or for
+        conservatively covered texels a point inside the part of the texel the triangle covers).
     geom_normal : (n, 3) float32 unit geometric normal of the sampled triangle (ray offsets).
     frame : (n, 3, 3) float32 rows = tangent, bitangent, shading normal (orthonormal,
         right-handed except on mirrored UV charts, where b = -cross(n, t) and det = -1); the

@@ -51,6 +51,17 @@ DEGENERATE_UV_AREA2 = 1e-10
 #: Candidate texels per vectorized chunk of the numpy path: bounds peak memory (~100 bytes per
 #: candidate).
 CHUNK = 1 << 20
+#: Sample point of a conservative texel (centre outside every triangle): this fraction of the
+#: way from the point of the texel square's part inside the triangle closest to the centre (on
+#: the triangle's edge) to that part's centroid; strictly inside both when > 0. Until issue 37
+#: it was the triangle's closest point (0 here gives exactly that): on a step under a tenth of
+#: a texel high the crease's dark line became the texel's value (-13 % along the border); 0.5
+#: measured best over steps of 0.05 to 4 texels (benchmarks/crease_texels.py, docs/texels.md
+#: "Conservative texels: the sample point").
+CONSERVATIVE_INSET = 0.5
+#: Overlap area (texels^2) below which a conservative texel keeps the closest point (the
+#: centroid of a sliver of area ~COVER_EPS is that point up to rounding).
+CENTROID_MIN_AREA = 1e-9
 #: Rasteriser implementations: "numba" (default, dense per-texel buffers of 9 bytes per texel)
 #: and "numpy" (the reference; the same result, tested in tests/bake/test_texels.py).
 BACKENDS = ("numba", "numpy")
@@ -147,6 +158,88 @@ def edge_distances(c: np.ndarray, P: np.ndarray, area2: np.ndarray):
     dist = cross2(e, c[:, None, :] - a) * np.sign(area2)[:, None] / elen
     half = 0.5 * (np.abs(e[..., 0]) + np.abs(e[..., 1])) / elen
     return dist, half
+
+
+def _clip_square(c: np.ndarray, P: np.ndarray, area2: np.ndarray):
+    """The unit squares centred at c (m, 2) clipped to triangles P (m, 3, 2) (Sutherland-
+    Hodgman, one half-plane per edge): polygons (m, 7, 2) relative to c and their vertex
+    counts (m,) (fewer than 3: no overlap)."""
+    m = len(c)
+    kmax = 7
+    off = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    poly = np.zeros((m, kmax, 2))
+    poly[:, :4] = off  # relative to the centre, for precision
+    P = P - c[:, None, :]
+    cnt = np.full(m, 4, np.int64)
+    sgn = np.sign(area2)
+    rows = np.arange(m)
+    for i in range(3):
+        a = P[:, (i + 1) % 3]
+        e = P[:, (i + 2) % 3] - a
+        # signed side of every vertex, >= 0 inside (edge i, opposite corner i)
+        side = cross2(e[:, None, :], poly - a[:, None, :]) * sgn[:, None]
+        out = np.zeros((m, kmax, 2))
+        ocnt = np.zeros(m, np.int64)
+        for k in range(kmax):
+            live = k < cnt
+            nxt = np.where(k + 1 < cnt, k + 1, 0)
+            cur_p, nxt_p = poly[:, k], poly[rows, nxt]
+            cur_s, nxt_s = side[:, k], side[rows, nxt]
+            keep = live & (cur_s >= 0)
+            out[rows[keep], ocnt[keep]] = cur_p[keep]
+            ocnt += keep
+            cross = live & ((cur_s >= 0) != (nxt_s >= 0))
+            den = np.where(cross, cur_s - nxt_s, 1.0)
+            x = cur_p + (cur_s / den)[:, None] * (nxt_p - cur_p)
+            ok = cross & (ocnt < kmax)
+            out[rows[ok], ocnt[ok]] = x[ok]
+            ocnt += ok
+        poly, cnt = out, ocnt
+    return poly, cnt
+
+
+def _polygon_next(cnt: np.ndarray, kmax: int) -> np.ndarray:
+    k = np.arange(kmax)
+    return np.where(k[None, :] + 1 < cnt[:, None], k[None, :] + 1, 0)
+
+
+def clip_square(c: np.ndarray, P: np.ndarray, area2: np.ndarray):
+    """Area (m,) and centroid (m, 2) of the part of the unit square centred at each c (m, 2)
+    inside its triangle P (m, 3, 2) (area 0, centroid nan where they do not overlap)."""
+    poly, cnt = _clip_square(c, P, area2)
+    kmax = poly.shape[1]
+    q1 = np.take_along_axis(poly, _polygon_next(cnt, kmax)[..., None], axis=1)
+    cr = np.where(np.arange(kmax)[None, :] < cnt[:, None], cross2(poly, q1), 0.0)
+    area = 0.5 * cr.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cen = ((poly + q1) * cr[..., None]).sum(axis=1) / (6.0 * area)[:, None]
+    return np.abs(area), c + cen
+
+
+def conservative_points(c: np.ndarray, P: np.ndarray, area2: np.ndarray, inset: float):
+    """Sample points (m, 2) of conservative texels with centres c (m, 2) outside their
+    triangles P (m, 3, 2): ``inset`` (0..1) of the way from the point of the texel square's
+    part inside the triangle closest to c to that part's centroid (CONSERVATIVE_INSET). Both
+    lie in that convex part, so for inset > 0 the point is strictly inside it. Texels whose
+    square overlaps by at most CENTROID_MIN_AREA, and every texel at inset 0, take the
+    triangle's closest point."""
+    q, _ = closest_point(c, P)
+    if inset == 0.0 or not len(c):
+        return q  # the rule until issue 37
+    poly, cnt = _clip_square(c, P, area2)
+    kmax = poly.shape[1]
+    # closest point of the clipped polygon to the centre (the origin of poly's coordinates)
+    nxt = np.take_along_axis(poly, _polygon_next(cnt, kmax)[..., None], axis=1)
+    best, best_d2 = np.zeros((len(c), 2)), np.full(len(c), np.inf)
+    for k in range(kmax):
+        qk, dk = _closest_on_segment(np.zeros((len(c), 2)), poly[:, k], nxt[:, k])
+        better = (k < cnt) & (dk < best_d2)
+        best = np.where(better[:, None], qk, best)
+        best_d2 = np.where(better, dk, best_d2)
+    area, cen = clip_square(c, P, area2)
+    ok = (area > CENTROID_MIN_AREA) & np.isfinite(cen).all(axis=1) & (cnt >= 3)
+    inner = c + best + inset * (cen - (c + best))
+    return np.where(ok[:, None], inner, q)
 
 
 # -- numpy reference path ------------------------------------------------------------------
@@ -325,7 +418,7 @@ class Raster:
     ids: np.ndarray  # (n,) int64 texel ids y * w + x, ascending
     triangle: np.ndarray  # (n,) int64 winning triangle per texel
     center_inside: np.ndarray  # (n,) bool: the texel centre lies in its triangle
-    barycentrics: np.ndarray  # (n, 3) float64 of the sample point (centre or closest point)
+    barycentrics: np.ndarray  # (n, 3) float64 of the sample point (centre, or inset)
     overlap_ids: np.ndarray  # (m,) int64 ascending: centres strictly inside >= 2 triangles
     degenerate: np.ndarray  # (t,) bool: UV triangles with |2 area| <= DEGENERATE_UV_AREA2 px^2
 
@@ -371,8 +464,10 @@ def rasterize_uv(
     """Rasterise UV triangles at ``resolution`` (w, h) into covered texels and their winners.
 
     A texel is covered when its centre lies in a triangle, or (``conservative``) when its square
-    overlaps a triangle by more than COVER_EPS; then the sample point is the point of the
-    triangle closest (in UV) to the texel centre and ``center_inside`` is False. Each texel
+    overlaps a triangle by more than COVER_EPS; then ``center_inside`` is False and the sample
+    point lies inside the triangle and the square, half way (CONSERVATIVE_INSET) from the
+    point of the square's part inside the triangle closest to the centre to that part's
+    centroid (:func:`conservative_points`). Each texel
     takes one triangle: one containing its centre if any (the deepest), else the nearest; ties
     go to the lower triangle index. Degenerate UV triangles cover nothing.
 
@@ -385,7 +480,7 @@ def rasterize_uv(
         uv, (w, h), conservative=conservative, backend=backend
     )
 
-    # sample point of each winner: the centre if inside, else the closest point
+    # sample point of each winner: the centre if inside, else inset from the closest point
     x = ids % w
     y = ids // w
     c = np.stack([x + 0.5, y + 0.5], axis=1).astype(np.float64)
@@ -395,7 +490,7 @@ def rasterize_uv(
     q = c.copy()
     out = np.nonzero(~inside)[0]
     if len(out):
-        q[out], _ = closest_point(c[out], P[out])
+        q[out] = conservative_points(c[out], P[out], area2[tri_idx[out]], CONSERVATIVE_INSET)
     lam = cross2(P[:, [2, 0, 1]] - P[:, [1, 2, 0]], q[:, None, :] - P[:, [1, 2, 0]])
     lam = np.clip(lam / area2[tri_idx][:, None], 0.0, None)
     lam /= np.where(lam.sum(axis=1) > 0, lam.sum(axis=1), 1.0)[:, None]

@@ -27,8 +27,10 @@ __all__ = [
 #: (seen three times in a day of plans of the classroom and Sponza on a loaded 2-core machine,
 #: on meshes that unwrap in a second). It is stopped and the mesh retried once in a fresh
 #: worker (xatlas is deterministic: the same layout), instead of waiting UNWRAP_TIMEOUT_S.
-#: Linux only (/proc); elsewhere the timeout alone applies.
-STALL_S = 30.0
+#: Linux only (/proc); elsewhere the timeout alone applies. 10 s: a live xatlas run uses CPU
+#: every clock tick it is scheduled (even a nice-19 process against busy cores gets ~1.5 %,
+#: i.e. ticks every second), and a deadlock costs this long before the retry.
+STALL_S = 10.0
 #: How often (seconds) a waiting parent looks at its worker's CPU time.
 STALL_POLL_S = 2.0
 

@@ -380,7 +380,7 @@ def _pack(
     less :data:`FILL_WEIGHT` x map texels wins (then the smaller map); with a ``target`` map
     the one covering most texels (then the highest density; the first of equals). One
     :func:`pack_part` per chart option, then :func:`_choose`: the isolated run hands the
-    parts to two worker processes."""
+    parts to worker processes (:data:`UNWRAP_WORKERS`)."""
     args = (points, triangles, corner, face, texels_per_unit, target, padding, max_resolution)
     args += (path, min_width)
     return _choose([pack_part(*args, k) for k in range(len(CHART_OPTIONS))], args)

@@ -9,6 +9,8 @@ The analytic share of cosine-weighted directions that hit a flat cover at height
 is 1 - (h / D)^2: 0.974 at 1 cm, 0.77 under a table top at 3 cm (stays estimated).
 """
 
+import json
+
 import numpy as np
 import pytest
 from pxr import UsdLux
@@ -142,7 +144,13 @@ def test_bake_fills_the_ground_under_the_box(tmp_path, capsys):
     out = tmp_path / "out.lightmaps.usda"
     argv = ["bake", str(path), "-o", str(out), "--json", "--resolution", str(RES)]
     assert cli.main([*argv, "--samples", "32", "--quiet"]) == 0
-    capsys.readouterr()
+    report = json.loads(capsys.readouterr().out)
+    prims = {p["path"]: p for p in report["prims"]}
+    assert prims["/ground"]["invalid_texels"] >= 49
+    # the box's bottom face lies 1 cm over the ground: its inner texels are covered too, but a
+    # covered texel is not "inside geometry?" (no such warning)
+    assert prims["/box"]["invalid_texels"] > 0
+    assert not any("inside geometry" in w for p in prims.values() for w in p["warnings"])
     _, meshes, _ = baked_meshes(str(out))
     mesh, res, *_ = next(m for m in meshes if m[0].path == "/ground")
     iz = np.asarray(schema.read_record_pixels(res, "iz"), np.float64)[..., :3].mean(axis=-1)
@@ -152,3 +160,25 @@ def test_bake_fills_the_ground_under_the_box(tmp_path, capsys):
     deep = (p[:, 0] > lo + 0.1) & (p[:, 0] < hi - 0.1) & (p[:, 1] > lo + 0.1) & (p[:, 1] < hi - 0.1)
     values = iz[tx.xy[deep, 1], tx.xy[deep, 0]]
     assert values.min() > 0.05  # filled from neighbours (the old bake: 0 exactly)
+
+
+def test_a_wholly_covered_chart_keeps_its_estimate_without_a_warning(tmp_path, capsys):
+    """A box 2 mm over the ground at 64 x 64: every texel of its bottom face is covered by the
+    ground, so its chart has no valid texel to fill from. The texels keep their estimate (no
+    view sees them); the warning for unfilled texels inside geometry ("flipped normals?") is
+    not given for them (it was, before covered texels were told apart)."""
+    from usdahd import cli
+
+    st = new_stage()
+    _ground(st)
+    lo, hi = BOX
+    define_box(st, "/box", (lo, lo, 0.002), (hi, hi, 1.002))
+    UsdLux.DomeLight.Define(st, "/sky")
+    path = tmp_path / "box.usda"
+    st.GetRootLayer().Export(str(path))
+    out = tmp_path / "out.lightmaps.usda"
+    argv = ["bake", str(path), "-o", str(out), "--json", "--resolution", "64"]
+    assert cli.main([*argv, "--samples", "16", "--quiet"]) == 0
+    prims = {p["path"]: p for p in json.loads(capsys.readouterr().out)["prims"]}
+    assert prims["/box"]["invalid_texels"] > 0
+    assert not any("inside geometry" in w for w in prims["/box"]["warnings"])

@@ -239,8 +239,13 @@ def bake_texels(
             if est_rays_per_sample is None:
                 est_rays_per_sample = done_rays / max(1, int(acc.count.sum()))
             progress(done_rays, int(est_rays_per_sample * n * samples) or done_rays)
-    invalid = inside_geometry(tracer, texels, offsets, backfrac, backface_threshold, mesh)
-    return out, _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
+    invalid = inside_geometry(tracer, texels, offsets, backfrac, backface_threshold)
+    cov = np.zeros(n, bool)
+    if mesh is not None:  # the covered rule, apart: a chart wholly covered is not a warning
+        cov = covered_texels(tracer, texels, offsets, mesh, ~invalid)
+    stats = _stats(tracer, rays0, t0, invalid | cov, backfrac, used, saved, iz_var, iz_halves)
+    stats["covered"] = cov
+    return out, stats
 
 
 def inside_geometry(
@@ -263,14 +268,24 @@ def inside_geometry(
     if inside.any():
         idx = np.nonzero(inside)[0]
         inside[idx] = walled_in(texels.position[idx], texels.geom_normal[idx], offsets[idx], tracer)
-    if mesh is not None and len(texels):
-        if isinstance(mesh, (int, np.integer)):
-            mesh = tracer.scene.meshes[int(mesh)]
-        rest = np.nonzero(~inside)[0]
-        size = texel_sizes(texels, mesh)[rest]
-        pos, ng = texels.position[rest], texels.geom_normal[rest]
-        inside[rest] = covered(pos, ng, np.asarray(offsets)[rest], size, tracer)
+    if mesh is not None:
+        inside |= covered_texels(tracer, texels, offsets, mesh, ~inside)
     return inside
+
+
+def covered_texels(tracer, texels, offsets, mesh, among=None) -> np.ndarray:
+    """(n,) bool: :func:`usdahd.bake.texels.covered` over ``texels`` of the scene mesh ``mesh``
+    (index or MeshData), tested only where ``among`` ((n,) bool, default all) is set."""
+    out = np.zeros(len(texels), bool)
+    if len(texels) == 0:
+        return out
+    if isinstance(mesh, (int, np.integer)):
+        mesh = tracer.scene.meshes[int(mesh)]
+    rest = np.arange(len(texels)) if among is None else np.nonzero(among)[0]
+    size = texel_sizes(texels, mesh)[rest]
+    pos, ng = texels.position[rest], texels.geom_normal[rest]
+    out[rest] = covered(pos, ng, np.asarray(offsets)[rest], size, tracer)
+    return out
 
 
 def iz_batches(

@@ -275,12 +275,15 @@ def inside_geometry(
 
 def covered_texels(tracer, texels, offsets, mesh, among=None) -> np.ndarray:
     """(n,) bool: :func:`usdahd.bake.texels.covered` over ``texels`` of the scene mesh ``mesh``
-    (index or MeshData), tested only where ``among`` ((n,) bool, default all) is set."""
+    (index or MeshData), tested only where ``among`` ((n,) bool, default all) is set; none
+    when the mesh has no lightmap UVs (texels given by their points, e.g. in tests)."""
     out = np.zeros(len(texels), bool)
     if len(texels) == 0:
         return out
     if isinstance(mesh, (int, np.integer)):
         mesh = tracer.scene.meshes[int(mesh)]
+    if mesh.uv is None:  # texels not laid out on this mesh's lightmap UVs: no texel size
+        return out
     rest = np.arange(len(texels)) if among is None else np.nonzero(among)[0]
     size = texel_sizes(texels, mesh)[rest]
     pos, ng = texels.position[rest], texels.geom_normal[rest]

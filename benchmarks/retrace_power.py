@@ -212,7 +212,7 @@ def bias(args) -> None:
                     )  # fmt: skip
                     sub = texels.take(est)
                     inside = integrate.inside_geometry(
-                        tracer, sub, tracer.texel_offsets(sub, mi), bf
+                        tracer, sub, tracer.texel_offsets(sub, mi), bf, mesh=mi
                     )
                     b = RT.baked_iz(bake, rows[est])[~inside]
                     p = p[~inside]

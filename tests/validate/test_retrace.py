@@ -683,7 +683,7 @@ def test_replay_reproduces_a_no_denoise_bake_bit_for_bit(cornell):
             scene, tracer, texels, est, seed=seed, samples=spp, bounces=bounces, mesh=mi
         )
         sub = texels.take(est)
-        inside = integrate.inside_geometry(tracer, sub, tracer.texel_offsets(sub, mi), bf)
+        inside = integrate.inside_geometry(tracer, sub, tracer.texel_offsets(sub, mi), bf, mesh=mi)
         baked = RT.baked_iz(bake, rows[est])[~inside]
         assert rays > 0 and len(baked) > 100
         np.testing.assert_allclose(baked, iz[~inside], rtol=1e-6, atol=1e-7, err_msg=path)

@@ -39,9 +39,10 @@ variance) is below ``adaptive_tol`` times max(its Iz, ``ADAPTIVE_FLOOR`` times t
 largest Iz). ``stats["rays_saved"]`` counts the rays not traced.
 
 Texels inside geometry: a texel whose hemisphere rays hit back faces more often than
-``backface_threshold`` and that is walled in along its surface (:func:`inside_geometry`) is
-flagged in ``stats["invalid"]`` (its SH is still returned; post processing replaces it by its
-valid neighbours).
+``backface_threshold`` and that is walled in along its surface, or whose point is covered by a
+surface much closer than the texel is wide (:func:`inside_geometry`), is flagged in
+``stats["invalid"]`` (its SH is still returned; post processing replaces it by its valid
+neighbours).
 
 Determinism: each chunk of texels draws from ``np.random.default_rng([seed, stream, first])``
 so results depend on the seed and texel order only, not on threads or executors.
@@ -79,7 +80,7 @@ from usdahd.bake.kernels.layout import (
 )
 from usdahd.bake.kernels.lights import pack_lights
 from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_linking
-from usdahd.bake.texels import walled_in
+from usdahd.bake.texels import covered, texel_sizes, walled_in
 from usdahd.numerics.sampling import r2_sequence
 
 __all__ = [
@@ -239,23 +240,55 @@ def bake_texels(
                 est_rays_per_sample = done_rays / max(1, int(acc.count.sum()))
             progress(done_rays, int(est_rays_per_sample * n * samples) or done_rays)
     invalid = inside_geometry(tracer, texels, offsets, backfrac, backface_threshold)
-    return out, _stats(tracer, rays0, t0, invalid, backfrac, used, saved, iz_var, iz_halves)
+    cov = np.zeros(n, bool)
+    if mesh is not None:  # the covered rule, apart: a chart wholly covered is not a warning
+        cov = covered_texels(tracer, texels, offsets, mesh, ~invalid)
+    stats = _stats(tracer, rays0, t0, invalid | cov, backfrac, used, saved, iz_var, iz_halves)
+    stats["covered"] = cov
+    return out, stats
 
 
-def inside_geometry(tracer, texels, offsets, backfrac, threshold: float = 0.25) -> np.ndarray:
+def inside_geometry(
+    tracer, texels, offsets, backfrac, threshold: float = 0.25, mesh=None
+) -> np.ndarray:
     """(n,) bool: texels inside geometry, whose estimate the pipeline replaces by its neighbours'.
 
     texels : usdahd.bake.types.Texels; offsets : (n,) float64 ray-origin offsets; backfrac :
-    (n,) the fraction of each texel's hemisphere rays that hit a back face of a one-sided mesh.
-    Both must hold: ``backfrac > threshold`` (the texel's view is mostly the back of something)
-    and :func:`usdahd.bake.texels.walled_in` (rays along its surface meet back faces on all
-    sides), so a thin gap behind a one-sided card is estimated, not filled (docs/integrator.md).
+    (n,) the fraction of each texel's hemisphere rays that hit a back face of a one-sided mesh;
+    mesh : the scene mesh the texels belong to (its index in ``tracer.scene.meshes`` or its
+    MeshData), for the texels' world size; None skips the covered test below.
+    A texel is inside geometry when ``backfrac > threshold`` (the texel's view is mostly the
+    back of something) and :func:`usdahd.bake.texels.walled_in` (rays along its surface meet
+    back faces on all sides), so a thin gap behind a one-sided card is estimated, not filled
+    (docs/integrator.md); or when it is :func:`usdahd.bake.texels.covered`: its point lies under
+    a surface (front or back face) much closer than the texel is wide, e.g. the board under a
+    chess piece's closed base, which front faces hide (docs/texels.md, "Covered texels").
     """
     inside = np.asarray(backfrac) > threshold
     if inside.any():
         idx = np.nonzero(inside)[0]
         inside[idx] = walled_in(texels.position[idx], texels.geom_normal[idx], offsets[idx], tracer)
+    if mesh is not None:
+        inside |= covered_texels(tracer, texels, offsets, mesh, ~inside)
     return inside
+
+
+def covered_texels(tracer, texels, offsets, mesh, among=None) -> np.ndarray:
+    """(n,) bool: :func:`usdahd.bake.texels.covered` over ``texels`` of the scene mesh ``mesh``
+    (index or MeshData), tested only where ``among`` ((n,) bool, default all) is set; none
+    when the mesh has no lightmap UVs (texels given by their points, e.g. in tests)."""
+    out = np.zeros(len(texels), bool)
+    if len(texels) == 0:
+        return out
+    if isinstance(mesh, (int, np.integer)):
+        mesh = tracer.scene.meshes[int(mesh)]
+    if mesh.uv is None:  # texels not laid out on this mesh's lightmap UVs: no texel size
+        return out
+    rest = np.arange(len(texels)) if among is None else np.nonzero(among)[0]
+    size = texel_sizes(texels, mesh)[rest]
+    pos, ng = texels.position[rest], texels.geom_normal[rest]
+    out[rest] = covered(pos, ng, np.asarray(offsets)[rest], size, tracer)
+    return out
 
 
 def iz_batches(

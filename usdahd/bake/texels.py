@@ -31,7 +31,13 @@ import numpy as np
 from usdahd.bake.types import Texels
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics.raster import rasterize_uv, signed_area2
-from usdahd.numerics.sampling import orthonormal_basis, r2_sequence, to_world, uniform_hemisphere
+from usdahd.numerics.sampling import (
+    cosine_hemisphere,
+    orthonormal_basis,
+    r2_sequence,
+    to_world,
+    uniform_hemisphere,
+)
 from usdahd.numerics.triangles import (
     any_perpendicular,
     normalize,
@@ -45,10 +51,12 @@ from usdahd.scene.types import MeshData
 __all__ = [
     "MAX_RESOLUTION",
     "chart_ids",
+    "covered",
     "push_off_contacts",
     "rasterize",
     "resolution_for_density",
     "tangent_frames",
+    "texel_sizes",
     "uv_charts",
     "walled_in",
 ]
@@ -467,15 +475,19 @@ def _back_fraction(origin: np.ndarray, g: np.ndarray, local: np.ndarray, tracer)
     return tracer.back_face(tri, dirs, hn).reshape(m, r).mean(axis=1)
 
 
-def half_texel_vectors(mesh: MeshData, resolution) -> np.ndarray:
-    """World vectors (t, 2, 3) float64 of half a texel step along u and along v per triangle.
+def half_texel_vectors(mesh: MeshData, resolution, triangles=None) -> np.ndarray:
+    """World vectors (t, 2, 3) float64 of half a texel step along u and along v per triangle
+    (of ``triangles``, an index array, when given: then (len(triangles), 2, 3)).
 
     ``dP/du / (2 w)`` and ``dP/dv / (2 h)`` from the triangle's UV Jacobian; zero for
     triangles with degenerate UVs (their texels are not probed).
     """
     w, h = _check_resolution(resolution, max_resolution=np.iinfo(np.int32).max)
     uv = _check_mesh(mesh)
-    p = np.asarray(mesh.points, dtype=np.float64)[np.asarray(mesh.triangles, dtype=np.int64)]
+    tris = np.asarray(mesh.triangles, dtype=np.int64)
+    if triangles is not None:
+        uv, tris = uv[triangles], tris[triangles]
+    p = np.asarray(mesh.points, dtype=np.float64)[tris]
     dp = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=2)  # (t, 3, 2)
     duv = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)  # (t, 2, 2)
     det = duv[:, 0, 0] * duv[:, 1, 1] - duv[:, 0, 1] * duv[:, 1, 0]
@@ -681,3 +693,63 @@ def walled_in(position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray
     local = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)  # z = normal
     origin = tracer.offset(p, g, g, np.asarray(offsets, np.float64))
     return _back_fraction(origin, g, local, tracer) >= WALLED_IN
+
+
+#: Covered texels (:func:`covered`): cosine-distributed probe directions, the probe length in
+#: texel sizes, and the share of probes that must hit within it.
+COVERED_RAYS = 32
+COVERED_DISTANCE = 0.5
+COVERED = 0.9
+
+
+def texel_sizes(texels: Texels, mesh: MeshData) -> np.ndarray:
+    """(n,) float64 world size of each texel: the longer of its two sides on its triangle,
+    ``2 * max(|a_u|, |a_v|)`` (:func:`half_texel_vectors`); 0 on triangles with degenerate
+    UVs."""
+    tri, inv = np.unique(np.asarray(texels.triangle, np.int64), return_inverse=True)
+    half = half_texel_vectors(mesh, texels.resolution, tri)
+    return 2.0 * np.linalg.norm(half, axis=-1).max(axis=-1)[inv.reshape(-1)]
+
+
+def covered(
+    position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray, size: np.ndarray, tracer
+) -> np.ndarray:
+    """(n,) bool: texels whose point lies under a surface much closer than the texel is wide,
+    e.g. the board under a chess piece's closed base (docs/texels.md, "Covered texels").
+
+    position, geom_normal : (n, 3); offsets : (n,) ray-origin offsets; size : (n,) world texel
+    sizes (:func:`texel_sizes`). With ``D = COVERED_DISTANCE * size`` (half a texel: the
+    reach of the texel's footprint from its centre), both must hold: the ray along the
+    geometric normal hits a surface within ``D`` (something lies right over the point), and at
+    least ``COVERED`` of ``COVERED_RAYS`` fixed cosine-distributed directions hit a surface
+    (either face, any mesh) within ``D``. Such a point sees nothing but the underside of what
+    covers it: it bakes black, and the bilinear lookup spreads that black half a texel beyond
+    the cover's outline, where the surface is lit. Under a flat cover at height ``h`` the share
+    is ``1 - (h / D)^2`` (cosine-weighted directions within ``acos(h / D)`` of the normal), so
+    only a cover lower than ``0.32 D`` (0.16 texel) counts; a point beside one wall reaches
+    0.5, in an inner corner 0.75, at the end of a slot 0.875, and a crevice open above fails
+    the first test: they stay estimated.
+    """
+    p = np.asarray(position, np.float64)
+    g = np.asarray(geom_normal, np.float64)
+    reach = COVERED_DISTANCE * np.asarray(size, np.float64)
+    out = np.zeros(len(p), bool)
+    if len(p) == 0:
+        return out
+    origin = tracer.offset(p, g, g, np.asarray(offsets, np.float64))
+    ok = reach > 0
+    over = np.zeros(len(p), bool)
+    idx = np.nonzero(ok)[0]
+    if len(idx):
+        over[idx] = tracer.intersect(origin[idx], g[idx], reach[idx])["tri"] >= 0
+    cand = np.nonzero(over)[0]
+    if len(cand) == 0:
+        return out
+    local, _ = cosine_hemisphere(r2_sequence(COVERED_RAYS))
+    r = len(local)
+    frames = orthonormal_basis(g[cand])
+    dirs = to_world(local[None, :, :], frames[:, None, :, :]).reshape(-1, 3)
+    hit = tracer.intersect(np.repeat(origin[cand], r, axis=0), dirs, np.repeat(reach[cand], r))
+    share = (hit["tri"] >= 0).reshape(-1, r).mean(axis=1)
+    out[cand] = share >= COVERED
+    return out

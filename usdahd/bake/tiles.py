@@ -121,6 +121,7 @@ def trace_tile(key, scene, tile: Tile, backend: str, threads: int | None = None)
         "first": tile.first,
         "sh": sh,
         "invalid": stats["invalid"] | contact_invalid,
+        "covered": stats.get("covered", np.zeros(len(sh), bool)),
         "backface_fraction": stats["backface_fraction"],
         "samples": stats["samples"],
         "iz_variance": stats["iz_variance"],
@@ -141,6 +142,7 @@ def gather(texels: Texels, results: list[dict]) -> tuple[Texels, np.ndarray, dic
     n = len(texels)
     sh = np.zeros((n, 3, 9), np.float32)
     invalid = np.zeros(n, bool)
+    cov = np.zeros(n, bool)
     backfrac = np.zeros(n, np.float32)
     used = np.zeros(n, np.int32)
     iz_var = np.zeros(n)
@@ -150,6 +152,7 @@ def gather(texels: Texels, results: list[dict]) -> tuple[Texels, np.ndarray, dic
     for r in results:
         sl = slice(r["first"], r["first"] + len(r["sh"]))
         sh[sl], invalid[sl], backfrac[sl] = r["sh"], r["invalid"], r["backface_fraction"]
+        cov[sl] = r.get("covered", False)
         used[sl], position[sl], iz_var[sl] = r["samples"], r["position"], r["iz_variance"]
         iz_halves[sl] = r["iz_variance_halves"]
         covered += len(r["sh"])
@@ -164,6 +167,7 @@ def gather(texels: Texels, results: list[dict]) -> tuple[Texels, np.ndarray, dic
         "rays": sum(r["rays"] for r in results),
         "time": sum(r["seconds"] for r in results),
         "invalid": invalid,
+        "covered": cov,
         "backface_fraction": backfrac,
         "samples": used,
         "iz_variance": iz_var,

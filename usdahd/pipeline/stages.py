@@ -202,6 +202,8 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
         invalid = np.asarray(job.stats.get("invalid", np.zeros(len(job.texels), bool)))
         if invalid.any():
             job.sh, unfilled = post.fill_invalid(job.sh, job.texels, invalid, charts=job.charts)
+            # a chart wholly covered (e.g. a base resting on a floor): unseen, keep its estimate
+            unfilled &= ~np.asarray(job.stats.get("covered", np.zeros(len(invalid), bool)))
             if unfilled.any():
                 faces = np.unique(job.mesh.face[job.texels.triangle[unfilled]])
                 shown = ", ".join(str(int(f)) for f in faces[:8])

@@ -221,7 +221,7 @@ def run(path: str, got: tuple, opt) -> dict | str:
         )
         sub = texels.take(pick)
         inside = integrate.inside_geometry(
-            tracer, sub, tracer.texel_offsets(sub, mi), backface, backface_threshold()
+            tracer, sub, tracer.texel_offsets(sub, mi), backface, backface_threshold(), mi
         )
         parts.append((baked_iz(bake, rows[pick]), iz, inside))
         rays, done = rays + r, target

@@ -526,7 +526,9 @@ def _check(prim, opt: RetraceOptions) -> list:
         inside = np.zeros(len(pick), bool)
     else:  # the baker's rule (it filled these from neighbours)
         offsets = tracer.texel_offsets(sub, mesh)
-        inside = integrate.inside_geometry(tracer, sub, offsets, backface, backface_threshold())
+        inside = integrate.inside_geometry(
+            tracer, sub, offsets, backface, backface_threshold(), mesh
+        )
     finite = np.isfinite(baked).all(axis=1) & np.isfinite(batches).all(axis=(0, 2))
     use = ~inside & finite
     n = int(use.sum())

@@ -66,6 +66,7 @@ from usdahd.bake.blend import (
     keep_chart_energy,
 )
 from usdahd.bake.mosaic import OIDN_BLOCK, PAD
+from usdahd.bake.mosaic import plan as plan_mosaic
 from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
 from usdahd.bake.types import Texels
@@ -612,15 +613,22 @@ def _prepare_chart(
             guides["albedo"] = np.clip(cv.image(np.asarray(albedo)[sel]), 0.0, 1.0)
         if normal is not None:
             guides["normal"] = np.clip(cv.image(np.asarray(normal)[sel]), -1.0, 1.0)
+    # every coefficient's canvas from one fill per group (dilation and mirroring act on each
+    # channel alone: the same values as one canvas per coefficient, a ninth of the calls)
+    filled = {}
+    for g in groups:
+        img = cv.image(_channels(x, g))
+        for j, k in enumerate(g):
+            filled[int(k)] = img[:, :, j :: len(g)]
     images = {}
     c00 = None
     for k in _HDR_COEFFS:
-        band = np.maximum(cv.image(x[:, :, k]), 0.0)
+        band = np.maximum(filled.pop(k), 0.0)
         c00 = band if k == 0 else c00
         images[k] = band
     safe = np.where(c00 > 0, c00, 1.0)
     for k in RATIO_COEFFS:
-        ratio = np.where(c00 > 0, cv.image(x[:, :, k]) / (BAND_BOUND[k] * safe), 0.0)
+        ratio = np.where(c00 > 0, filled.pop(k) / (BAND_BOUND[k] * safe), 0.0)
         ratio = np.clip(ratio, -1.0, 1.0)
         images[k] = ratio if filter == "RTLightmap" else 0.5 * (ratio + 1.0)
     depth = None
@@ -644,11 +652,12 @@ def _finish(
     """OIDN on every chart of ``batch`` (one mosaic per coefficient, or chart by chart), then
     each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
+    layout = plan_mosaic(batch) if mosaic else None  # one layout for the 9 runs
     for k in (*_HDR_COEFFS, *RATIO_COEFFS):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
-            res = run_mosaic(den, batch, k, kind, use_guides)
+            res = run_mosaic(den, batch, k, kind, use_guides, layout)
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch

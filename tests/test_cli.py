@@ -422,6 +422,41 @@ def test_subprocess_directory_stage_is_one_line(tmp_path):
     )
 
 
+def test_importing_the_cli_loads_neither_usd_nor_numba():
+    """``import usdahd.cli`` (every command's start) stays light: USD, numba, OIDN and Embree
+    load only when a command needs them (issue 43: start-up is part of a small bake's time)."""
+    code = (
+        "import sys, usdahd.cli\n"
+        "heavy = [m for m in ('pxr', 'numba', 'pyoidn', 'embreex', 'scipy') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+    )
+    env = dict(os.environ, PYTHONPATH=USDAHD_PATH)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_bake_loads_numba_without_scipys_blas(tmp_path):
+    """A bake (as a subprocess: a fresh interpreter) loads numba's array-math registry without
+    importing scipy.linalg (cli._numba_without_scipy_blas: 0.13 s of CPU per command when SciPy
+    is installed), and SciPy's BLAS still imports afterwards in the same process."""
+    pytest.importorskip("scipy.linalg")
+    stage = _copy(tmp_path)
+    code = (
+        "import sys\n"
+        "from usdahd import cli\n"
+        f"assert cli.main(['bake', {str(stage)!r}, *{FAST!r}, '-q']) == 0\n"
+        "assert 'numba.np.arraymath' in sys.modules\n"
+        "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg imported'\n"
+        "import scipy.linalg.cython_blas\n"
+    )
+    env = dict(os.environ, PYTHONPATH=USDAHD_PATH)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "open_plane.lightmaps.usda").is_file()
+
+
 # ------------------------------------------------------------------------------- validate
 
 

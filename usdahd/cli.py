@@ -38,6 +38,34 @@ COMMANDS = {
 }
 
 
+#: Commands that load numba kernels in every run (:func:`_numba_without_scipy_blas` first).
+NUMBA_COMMANDS = ("bake", "warmup")
+
+
+def _numba_without_scipy_blas() -> None:
+    """Import numba's array-math registry without importing SciPy's BLAS.
+
+    numba's ``numba.np.arraymath`` checks at import whether ``scipy.linalg.cython_blas``
+    imports (``_HAVE_BLAS``), and so imports all of ``scipy.linalg`` when SciPy is installed:
+    0.13 s of CPU in every ``usdahd bake`` process (docs/time-to-quality.md, issue 43), for a
+    flag that only picks BLAS or a plain loop for ``np.vdot``-style inner products, which no
+    usdahd kernel uses (they call no BLAS: numerics/cholesky.py is hand-written). The module
+    is imported here with that one import blocked for the duration, then unblocked: SciPy and
+    numba's own ``np.dot``/``np.linalg`` support (which imports SciPy's BLAS when it compiles)
+    work as before. A no-op when numba's registry or SciPy's BLAS is already imported."""
+    blas = "scipy.linalg.cython_blas"
+    if "numba.np.arraymath" in sys.modules or blas in sys.modules:
+        return
+    sys.modules[blas] = None  # an import of it raises ImportError without importing scipy
+    try:
+        import numba.np.arraymath  # noqa: F401
+    except ImportError:
+        pass  # numba missing: the command says so where it needs it
+    finally:
+        if sys.modules.get(blas, 0) is None:
+            del sys.modules[blas]
+
+
 def _available():
     for name, path in COMMANDS.items():
         try:
@@ -192,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
             raise
         command = args.command
         as_json = bool(getattr(args, "json", False))
+        if command in NUMBA_COMMANDS:
+            _numba_without_scipy_blas()
         return _run_captured(args, command)
     except KeyboardInterrupt:
         return _interrupted(command, as_json)

@@ -147,6 +147,15 @@ OIDN_LARGE_MEMORY_MB = 512
 #: about a third of the denoiser's CPU time (docs/time-to-quality.md, issue 43). Each chart's
 #: result does not depend on the threads (tests/bake/test_denoise.py).
 CHART_THREADS = 2
+#: The directional coefficients' OIDN tiles (7 of a mosaic's 9 runs) are cropped to the
+#: chart's box and PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
+#: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
+#: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. c00 and c10
+#: (I_z, what the validator and the Cycles comparison check) keep whole canvases, so I_z is
+#: unchanged bit for bit (a crop of every run put a noise-free gradient's I_z 0.53 % off, over
+#: the 0.5 % of tests/bake/test_denoise.py); the directional coefficients' error against a
+#: converged bake is in docs/time-to-quality.md.
+DIRECTIONAL_CROP = True
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 #: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
@@ -652,12 +661,17 @@ def _finish(
     """OIDN on every chart of ``batch`` (one mosaic per coefficient, or chart by chart), then
     each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
-    layout = plan_mosaic(batch) if mosaic else None  # one layout for the 9 runs
+    # one layout for the HDR runs, one for the directional ones (computed once, not per run)
+    layouts = {
+        False: plan_mosaic(batch),
+        True: plan_mosaic(batch, cropped=True) if DIRECTIONAL_CROP else None,
+    } if mosaic else {}  # fmt: skip
     for k in (*_HDR_COEFFS, *RATIO_COEFFS):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
-            res = run_mosaic(den, batch, k, kind, use_guides, layout)
+            cropped = DIRECTIONAL_CROP and k in RATIO_COEFFS
+            res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped])
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch

@@ -34,30 +34,36 @@ OIDN_BLOCK = 16
 MOSAIC_CROP = False
 #: Extra mirrored texels around each tile (0: the canvas's own context is the gap).
 MOSAIC_GAP = 0
+#: Column width (pixels) of the skyline packing of cropped tiles (:func:`layout`): 16-pixel
+#: columns lose most of what a crop saves (exterior_sun_sky 32^2: tiles of 17,850 pixels in a
+#: mosaic of 21,504 on 16-pixel columns, 20,736 on 4-pixel ones; its canvases 24,576).
+MOSAIC_GRID = 4
 
 
-def crop(cv, gap: int) -> tuple[int, int, int, int]:
+def crop(cv, gap: int, cropped: bool | None = None) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1) of the part of chart canvas ``cv`` given to OIDN in a mosaic: the
     chart's bounding box and ``PAD`` texels of context on every side. The canvas's rounding
     to OIDN_BLOCK and MIN_CROP serve a run of the canvas alone (OIDN pads an image to whole
     blocks, and a tiny image has no context at its borders); in a mosaic neither applies, and
     leaving them out sends OIDN 0.4-0.6x the pixels of small charts. The noise estimate and
-    the blend still use the whole canvas, so they are the same as chart by chart."""
+    the blend still use the whole canvas, so they are the same as chart by chart.
+    ``cropped``: crop or not (default MOSAIC_CROP)."""
     y0, y1, x0, x1 = cv.box
     h, w = cv.shape
-    if not MOSAIC_CROP:
+    if not (MOSAIC_CROP if cropped is None else cropped):
         return 0, h, 0, w
     return max(y0 - PAD, 0), min(y1 + PAD, h), max(x0 - PAD, 0), min(x1 + PAD, w)
 
 
-def layout(crops: list[tuple[int, int, int, int]], gap: int):
+def layout(crops: list[tuple[int, int, int, int]], gap: int, grid: int = OIDN_BLOCK):
     """Packing of tiles (each crop grown by ``gap`` on every side) into one mosaic:
     ((H, W), [(y, x) of each crop's origin]). Tiles go by decreasing height, either into
     shelves (rows) of the mosaic's width or onto a skyline (each tile at the lowest place its
     width fits, on a grid of OIDN_BLOCK columns: tiles of different heights stack into the
     gaps a shelf leaves); of the widths from the widest tile to twice the square's side (at
     most ~32 of them, in OIDN_BLOCK steps) and the two packings, the one with the fewest
-    mosaic pixels (OIDN's time follows them; the height is rounded to OIDN_BLOCK)."""
+    mosaic pixels (OIDN's time follows them; the height is rounded to OIDN_BLOCK). ``grid``:
+    the skyline's column width (cropped tiles are not whole OIDN blocks: MOSAIC_GRID)."""
     tiles = [(y1 - y0 + 2 * gap, x1 - x0 + 2 * gap) for y0, y1, x0, x1 in crops]
     order = sorted(range(len(tiles)), key=lambda i: (-tiles[i][0], -tiles[i][1]))
     area = sum(h * w for h, w in tiles)
@@ -68,14 +74,14 @@ def layout(crops: list[tuple[int, int, int, int]], gap: int):
     step = OIDN_BLOCK * max(1, (hi - first) // (32 * OIDN_BLOCK))  # <= ~32 widths tried
     for width in range(first, hi + step, step):
         for pack in (_shelves, _skyline):
-            top, pos = pack(tiles, order, width)
+            top, pos = pack(tiles, order, width, grid)
             height = -(-top // OIDN_BLOCK) * OIDN_BLOCK
             if best is None or height * width < best[0][0] * best[0][1]:
                 best = ((height, width), [(y + gap, x + gap) for y, x in pos])
     return best
 
 
-def _shelves(tiles, order, width):
+def _shelves(tiles, order, width, grid=None):
     """(used height, [(y, x) of each tile]): rows of tiles in ``order``, left to right."""
     pos = [None] * len(tiles)
     x = y = row = 0
@@ -88,20 +94,20 @@ def _shelves(tiles, order, width):
     return y + row, pos
 
 
-def _skyline(tiles, order, width):
+def _skyline(tiles, order, width, grid=OIDN_BLOCK):
     """(used height, [(y, x) of each tile]): each tile in ``order`` at the lowest (then
-    leftmost) place on the skyline of the tiles before it, on OIDN_BLOCK-wide columns."""
-    cols = width // OIDN_BLOCK
+    leftmost) place on the skyline of the tiles before it, on ``grid``-wide columns."""
+    cols = width // grid
     sky = np.zeros(cols, np.int64)
     pos = [None] * len(tiles)
     for i in order:
         h, w = tiles[i]
-        c = -(-w // OIDN_BLOCK)
+        c = -(-w // grid)
         tops = np.lib.stride_tricks.sliding_window_view(sky, c).max(axis=1)
         x = int(np.argmin(tops))  # the first of the lowest
         y = int(tops[x])
         sky[x : x + c] = y + h
-        pos[i] = (y, x * OIDN_BLOCK)
+        pos[i] = (y, x * grid)
     return int(sky.max()), pos
 
 
@@ -128,12 +134,16 @@ def autoexposure(img: np.ndarray) -> float:
     return 0.18 / float(np.exp2(np.mean(logs))) if logs else 1.0
 
 
-def plan(batch: list):
+def plan(batch: list, cropped: bool | None = None):
     """(crops, ((H, W), positions)) of the mosaic of ``batch``'s charts: the same for each
     coefficient's run, so :func:`run` takes it computed once per batch (the layout's search
-    over widths and packings was 10 % of a 32^2 bake's CPU when repeated for 9 runs)."""
-    crops = [crop(ch.cv, MOSAIC_GAP) for ch in batch]
-    return crops, layout(crops, MOSAIC_GAP)
+    over widths and packings was 10 % of a 32^2 bake's CPU when repeated for 9 runs).
+    ``cropped``: tiles cropped to the chart's box and PAD (default MOSAIC_CROP), packed on
+    MOSAIC_GRID columns."""
+    cropped = MOSAIC_CROP if cropped is None else cropped
+    crops = [crop(ch.cv, MOSAIC_GAP, cropped) for ch in batch]
+    grid = MOSAIC_GRID if cropped else OIDN_BLOCK
+    return crops, layout(crops, MOSAIC_GAP, grid)
 
 
 def run(den, batch: list, k: int, kind: dict, use_guides: bool, plan_=None) -> list:

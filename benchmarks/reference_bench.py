@@ -50,7 +50,7 @@ def _log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def compile_package() -> int:
+def compile_package(pkg: Path | None = None) -> int:
     """Byte-compile usdahd's modules (``__pycache__`` beside them) before any timed run, as a
     user's ``pip install`` does for an installed package; returns how many were (re)written.
     An editable install under ``PYTHONDONTWRITEBYTECODE=1`` (this project's sessions) never
@@ -62,7 +62,7 @@ def compile_package() -> int:
     import contextlib
     import io
 
-    pkg = REPO / "usdahd"
+    pkg = REPO / "usdahd" if pkg is None else Path(pkg)
     before = {p: p.stat().st_mtime for p in pkg.rglob("__pycache__/*.pyc")}
     with contextlib.redirect_stdout(io.StringIO()):
         compileall.compile_dir(str(pkg), quiet=2)

@@ -148,7 +148,7 @@ OIDN_LARGE_MEMORY_MB = 512
 #: result does not depend on the threads (tests/bake/test_denoise.py).
 CHART_THREADS = 2
 #: The directional coefficients' OIDN tiles (7 of a mosaic's 9 runs) are cropped to the
-#: chart's box and PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
+#: chart's box and mosaic.CROP_PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
 #: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
 #: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. c00 and c10
 #: (I_z, what the validator and the Cycles comparison check) keep whole canvases, so I_z is

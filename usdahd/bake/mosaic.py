@@ -34,6 +34,13 @@ OIDN_BLOCK = 16
 MOSAIC_CROP = False
 #: Extra mirrored texels around each tile (0: the canvas's own context is the gap).
 MOSAIC_GAP = 0
+#: Context (texels) on every side of a cropped tile (<= PAD: the canvas holds PAD), i.e. of
+#: the directional coefficients' tiles (denoise.DIRECTIONAL_CROP). Their error against a
+#: converged bake (benchmarks/denoise_directional.py method, 4 stages x 16-256 spp x 2 seeds,
+#: docs/time-to-quality.md): 10 / 8 texels within +-1.1 / +-1.7 % of the whole canvas's, 6 up
+#: to +5 % (exterior_sun_sky's l=1 at 256 spp); OIDN pixels of exterior_sun_sky's 32^2
+#: directional runs 20,736 / 16,640 / 12,288 (whole canvases 24,576).
+CROP_PAD = 8
 #: Column width (pixels) of the skyline packing of cropped tiles (:func:`layout`): 16-pixel
 #: columns lose most of what a crop saves (exterior_sun_sky 32^2: tiles of 17,850 pixels in a
 #: mosaic of 21,504 on 16-pixel columns, 20,736 on 4-pixel ones; its canvases 24,576).
@@ -42,7 +49,7 @@ MOSAIC_GRID = 4
 
 def crop(cv, gap: int, cropped: bool | None = None) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1) of the part of chart canvas ``cv`` given to OIDN in a mosaic: the
-    chart's bounding box and ``PAD`` texels of context on every side. The canvas's rounding
+    chart's bounding box and ``CROP_PAD`` texels of context on every side. The canvas's rounding
     to OIDN_BLOCK and MIN_CROP serve a run of the canvas alone (OIDN pads an image to whole
     blocks, and a tiny image has no context at its borders); in a mosaic neither applies, and
     leaving them out sends OIDN 0.4-0.6x the pixels of small charts. The noise estimate and
@@ -52,7 +59,8 @@ def crop(cv, gap: int, cropped: bool | None = None) -> tuple[int, int, int, int]
     h, w = cv.shape
     if not (MOSAIC_CROP if cropped is None else cropped):
         return 0, h, 0, w
-    return max(y0 - PAD, 0), min(y1 + PAD, h), max(x0 - PAD, 0), min(x1 + PAD, w)
+    pad = CROP_PAD
+    return max(y0 - pad, 0), min(y1 + pad, h), max(x0 - pad, 0), min(x1 + pad, w)
 
 
 def layout(crops: list[tuple[int, int, int, int]], gap: int, grid: int = OIDN_BLOCK):

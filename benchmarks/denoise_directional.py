@@ -3,7 +3,7 @@ tiles cropped (``denoise.DIRECTIONAL_CROP``, the default) and uncropped, against
 converged bake (issue 43: the crop must not cost directional accuracy).
 
     python benchmarks/denoise_directional.py --stages exterior_sun_sky stretched_boxes \
-        floor_lamp cornell_box --samples 16 64 256 --seeds 0 1 --truth-spp 4096
+        floor_lamp cornell_box --samples 16 64 256 --seeds 0 1 --truth-spp 4096 [--pads 10 8 6]
 
 Every bake runs in this process (kernels loaded once, one untimed 4-spp bake first). Truth:
 the mean of two ``--no-denoise`` bakes at ``--truth-spp`` (seeds 1000 and 1001), whose
@@ -12,7 +12,8 @@ i.e. I_z; ``l1``: c1-1 and c11; ``l2``: the five l=2 coefficients): RMS of the R
 luminance of the coefficients' error over the interior covered texels, relative to the RMS
 luminance of the truth's c00, in %, mean over seeds; CPU: the bake call's process CPU seconds
 (every thread), median over seeds. Variants: ``plain`` (--no-denoise), ``full`` (uncropped),
-``cropped`` (the default). Prints one JSON row per stage, samples and variant.
+``cropped`` (the default), or with ``--pads`` ``pad N`` (cropped with ``mosaic.CROP_PAD``
+N). Prints one JSON row per stage, samples and variant.
 """
 
 from __future__ import annotations
@@ -85,10 +86,16 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, nargs="+", default=[16, 64, 256])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--truth-spp", type=int, default=4096)
+    ap.add_argument("--pads", type=int, nargs="+", help="cropped variants at these CROP_PAD")
     a = ap.parse_args(argv)
-    from usdahd.bake import denoise
+    from usdahd.bake import denoise, mosaic
 
-    default = denoise.DIRECTIONAL_CROP
+    default, default_pad = denoise.DIRECTIONAL_CROP, mosaic.CROP_PAD
+    variants = [("plain", ["--no-denoise"], None, None), ("full", [], False, None)]
+    if a.pads:
+        variants += [(f"pad {p}", [], True, p) for p in a.pads]
+    else:
+        variants.append(("cropped", [], True, None))
     for name in a.stages:
         src = REPO / "samples" / f"{name}.usda"
         if not src.is_file():
@@ -102,12 +109,12 @@ def main(argv=None) -> int:
             ta, _ = bake(stage, a.truth_spp, 1000, ["--no-denoise"])
             tb, _ = bake(stage, a.truth_spp, 1001, ["--no-denoise"])
             for spp in a.samples:
-                for label, flags, crop in (("plain", ["--no-denoise"], None),
-                                           ("full", [], False), ("cropped", [], True)):  # fmt: skip
+                for label, flags, crop, pad in variants:
                     errs, cpus = [], []
                     for seed in a.seeds:
                         if crop is not None:
                             denoise.DIRECTIONAL_CROP = crop
+                        mosaic.CROP_PAD = default_pad if pad is None else pad
                         est, cpu = bake(stage, spp, seed, flags)
                         errs.append(errors(est, ta, tb))
                         cpus.append(cpu)
@@ -116,7 +123,7 @@ def main(argv=None) -> int:
                     row |= {k: round(float(np.mean([e[k] for e in errs])), 3) for k in BANDS}
                     print(json.dumps(row), flush=True)
         finally:
-            denoise.DIRECTIONAL_CROP = default
+            denoise.DIRECTIONAL_CROP, mosaic.CROP_PAD = default, default_pad
             shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

@@ -1,4 +1,4 @@
-"""``python -m benchmarks.reference {compare,bake,calibrate} ...`` (see README.md)."""
+"""``python -m benchmarks.reference {compare,bake,summary,calibrate,seeds} ...`` (see README.md)."""
 
 from __future__ import annotations
 
@@ -13,17 +13,23 @@ def main(argv=None) -> int:
         print("  bake STAGE --resolution N --spp S: Cycles I_z per mesh into an .npz")
         print("  summary A.json B.json ...: one line per stage from compare --json outputs")
         print("  calibrate [--spp S]: the analytic cases")
+        print("  seeds STAGE --prim P --resolution N: one mesh's bias over many seeds and spp")
         return 0 if argv else 2
     cmd, rest = argv[0], argv[1:]
     if cmd == "calibrate":
         from benchmarks.reference import calibrate
 
         return calibrate.main(rest)
+    if cmd == "seeds":
+        from benchmarks.reference import seeds
+
+        return seeds.main(rest)
     if cmd in ("compare", "bake", "summary"):
         from benchmarks.reference import compare
 
         return compare.main([cmd, *rest])
-    print(f"error: unknown command {cmd!r} (compare, bake, calibrate)", file=sys.stderr)
+    known = "compare, bake, summary, calibrate, seeds"
+    print(f"error: unknown command {cmd!r} ({known})", file=sys.stderr)
     return 2
 
 

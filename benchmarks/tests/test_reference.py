@@ -36,7 +36,7 @@ from benchmarks.reference import calibrate, compare, export, probes, runner  # n
 REL = 1e-6  # float32 storage of authored values
 
 
-def _plane(stage, path="/World/Plane", st=True, normals=False):
+def _plane(stage, path="/World/Geometry/Plane", st=True, normals=False):
     m = UsdGeom.Mesh.Define(stage, path)
     m.CreatePointsAttr(Vt.Vec3fArray([(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]))
     m.CreateFaceVertexCountsAttr(Vt.IntArray([4]))
@@ -442,7 +442,8 @@ def test_export_errors_name_the_problem(tmp_path):
         export.export_stage(tmp_path / "missing.usda", resolution=8)
     with pytest.raises(export.ExportError, match="lightmap UV primvar 'uv2' not found"):
         export.export_stage(
-            tmp_path / "s.usda", baked={"/World/Plane": {"uv": "uv2", "resolution": [8, 8]}}
+            tmp_path / "s.usda",
+            baked={"/World/Geometry/Plane": {"uv": "uv2", "resolution": [8, 8]}},
         )
 
 
@@ -718,7 +719,7 @@ def test_smoke_cycles_sees_through_cutouts(tmp_path, bpy_python):
     for alpha, name in ((0.0, "clear.usda"), (1.0, "opaque.usda")):
         st = _cutout_stage(tmp_path, alpha, name)
         sc = export.export_stage(st.GetRootLayer().realPath, resolution=4)
-        plane = next(i for i, m in enumerate(sc.meshes) if m["path"] == "/World/Plane")
+        plane = next(i for i, m in enumerate(sc.meshes) if m["path"] == "/World/Geometry/Plane")
         sf = export.save_scene(sc, tmp_path / f"{name}.npz")
         _, images = runner.run_cycles(sf, 16, bpy=bpy_python, quiet=True)
         iz = images[plane]
@@ -1061,3 +1062,61 @@ def test_summary_meshes_noise_separates_the_truths_noise_from_bias(tmp_path, cap
     assert "1 of 4 meshes within" in out
     assert "1 of the 3 outside are within" in out
     assert "beyond it: room.usda /B, room.usda /C" in out
+
+
+def test_seed_rows_pool_per_spp_with_the_standard_error_of_the_seeds():
+    from benchmarks.reference import seeds
+
+    rows = seeds.seed_rows({256: [-0.01, 0.0, 0.01, 0.02], 64: [0.5]})
+    assert [r["spp"] for r in rows] == [64, 256]
+    r = rows[1]
+    assert r["seeds"] == 4 and r["bias"] == pytest.approx(0.005)
+    sd = float(np.std([-0.01, 0.0, 0.01, 0.02], ddof=1))
+    assert r["sd"] == pytest.approx(sd) and r["se"] == pytest.approx(sd / 2)
+    assert (r["min"], r["max"]) == (-0.01, 0.02)
+    assert math.isnan(rows[0]["se"])  # one seed: no standard error
+    assert "| 256 | 4 | +0.50 % | 0.65 % | 1.29 % | -1.00 % / +2.00 % |" in seeds.table(rows)
+
+
+def test_seeds_cli_usage_errors(tmp_path, capsys):
+    import subprocess
+
+    from benchmarks.reference import __main__ as ref_main
+
+    stage = ROOT / "samples" / "open_plane.usda"
+    base = ["seeds", str(stage), "--prim", "/World/Geometry/Plane", "--resolution", "8"]
+    assert ref_main.main(["seeds", str(tmp_path / "none.usda"), "--prim", "/P",
+                          "--resolution", "8"]) == 2  # fmt: skip
+    assert "none.usda: no such file" in capsys.readouterr().err
+    assert ref_main.main([*base, "--spp", "64,x"]) == 2
+    assert "--spp takes comma-separated integers, got '64,x'" in capsys.readouterr().err
+    assert ref_main.main([*base, "--seeds", "0"]) == 2
+    assert "--seeds values must be >= 1, got '0'" in capsys.readouterr().err
+    assert ref_main.main([*base, "--spp", "64,256", "--seeds", "4"]) == 2
+    assert "--spp and --seeds need as many values each" in capsys.readouterr().err
+    r = subprocess.run(
+        [sys.executable, "-m", "benchmarks.reference", "seeds", str(tmp_path / "none.usda"),
+         "--prim", "/P", "--resolution", "8"],
+        capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    assert r.returncode == 2 and "none.usda: no such file" in r.stderr
+
+
+def test_seeds_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch):
+    """Every seed and spp of a uniform dome is exact (usdahd ~1e-8 at these samples), the
+    texels are compare's (same count), and an unknown prim says so."""
+    from benchmarks.reference import seeds
+
+    monkeypatch.setenv(runner.CACHE_VAR, str(tmp_path / "cache"))
+    stage = ROOT / "samples" / "open_plane.usda"
+    cmp = compare.run_compare(
+        stage, resolution=8, truth_spp=8, bpy=bpy_python, quiet=True, point=True
+    )
+    res = seeds.run_seeds(stage, "/World/Geometry/Plane", resolution=8, spps=[16, 64], seeds=[2, 3],
+                          truth_spp=8, bpy=bpy_python, quiet=True)  # fmt: skip
+    assert res["compared"] == cmp["meshes"][0]["compared"] > 0 and res["truth_cached"]
+    assert [(r["spp"], r["seeds"]) for r in res["rows"]] == [(16, 2), (64, 3)]
+    assert all(abs(b) < 1e-4 for v in res["biases"].values() for b in v)
+    with pytest.raises(compare.CompareError, match="/World/Nope: not baked"):
+        seeds.run_seeds(stage, "/World/Nope", resolution=8, spps=[16], seeds=[1],
+                        truth_spp=8, bpy=bpy_python, quiet=True)  # fmt: skip

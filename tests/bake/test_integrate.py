@@ -99,6 +99,29 @@ def test_uniform_dome_mc_estimator_unbiased():
     _check_mc(sh.iz(out)[:, 1], 1.0)
 
 
+def _square_view_factor(a, h):
+    """View factor from a point to a square of half-side ``a`` centred ``h`` above it, facing
+    it: four a x a rectangles above a corner (parallel rectangles, Howell's catalogue C-11)."""
+    x = a / h
+    s = np.sqrt(1 + x * x)
+    return 4 * (2 * x / s * np.arctan(x / s)) / (2 * np.pi)
+
+
+@pytest.mark.parametrize("samples", [64, 256])
+def test_regression_estimator_unbiased_under_a_partly_blocked_dome(samples):
+    """The default SH fit (regression) is a ratio estimator: biased at few samples for radiance
+    outside the span of the 9 functions. Under a dome with a black square overhead (I_z = 1 - F,
+    F the square's view factor) it is within 5 SE of the exact value from 64 samples on
+    (measured, 4000 texels: +1.02 +- 0.19 % at 16 samples, +0.28 +- 0.10 % at 32, +0.04 +-
+    0.05 % at 64; docs/integrator.md)."""
+    st = new_stage()
+    _ground(st)
+    define_quad(st, "/occluder", [(-0.5, -0.5, 1), (0.5, -0.5, 1), (0.5, 0.5, 1), (-0.5, 0.5, 1)])
+    UsdLux.DomeLight.Define(st, "/dome")
+    out, _ = _bake(st, _texels(_same_point((0, 0, 0), 2000)), samples=samples)
+    _check_mc(sh.iz(out)[:, 1], 1.0 - _square_view_factor(0.5, 1.0))
+
+
 @pytest.mark.parametrize("normalize", [True, False])
 @pytest.mark.parametrize("tilt", [0.0, 60.0])
 def test_distant_light(normalize, tilt):

@@ -703,3 +703,36 @@ def test_one_or_two_workers_give_the_in_process_layout(monkeypatch):
         assert np.array_equal(got[0], want[0]) and got[1] == want[1]
         assert len([w for w in unwrap_worker._helpers if w is not None]) == workers - 1
     unwrap_mod.stop_worker()
+
+
+def test_atlases_outlive_their_use_by_the_retire_time(monkeypatch):
+    """xatlas 0.0.11's Destroy can deadlock right after an atlas's last task
+    (unwrap_worker.ATLAS_RETIRE_S): an atlas is kept until that long after the next one is
+    made, and dropped after."""
+    from usdahd.bake import unwrap_worker as w
+
+    monkeypatch.setattr(w, "_ATLASES", [])
+    monkeypatch.setattr(w, "ATLAS_RETIRE_S", 60.0)
+    a = w.new_atlas()
+    b = w.new_atlas()
+    kept = [e[0] for e in w._ATLASES]
+    assert kept[0] is a and kept[1] is b
+    assert w._ATLASES[0][1] is not None and w._ATLASES[1][1] is None  # a done, b in use
+    monkeypatch.setattr(w, "ATLAS_RETIRE_S", 0.0)
+    c = w.new_atlas()
+    assert [e[0] for e in w._ATLASES] == [c]
+    del a, b, kept
+    w._ATLASES.clear()  # destroyed here, long after their (empty) use
+
+
+def test_unwrap_worker_leaves_at_end_of_input_with_exit_code_0(tmp_path):
+    """The worker process leaves with os._exit(0) at EOF (its last atlases never destroyed)."""
+    import subprocess
+    import sys
+
+    from usdahd.bake import unwrap_worker as w
+
+    proc = subprocess.run(
+        [sys.executable, "-c", w.CHILD_CODE], input=b"", capture_output=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr.decode()

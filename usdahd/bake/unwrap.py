@@ -149,7 +149,7 @@ def _chart_pass(points, triangles, corner, face, path, chart_options=None):
     k = NORMALIZED_DIAGONAL / max(float(np.linalg.norm(hi - lo)), 1e-30)
     q = np.ascontiguousarray((p - lo) * k, dtype=np.float32)
     tpu = CHART_PASS_SIDE * np.sqrt(PACK_EFFICIENCY / _world_area(q.astype(np.float64), triangles))
-    atlas = xatlas.Atlas()
+    atlas = unwrap_worker.new_atlas()
     atlas.add_mesh(q, triangles)
     pack = xatlas.PackOptions()
     pack.padding = 0
@@ -320,7 +320,7 @@ def _run_pack(verts, indices, texels_per_unit, padding):
     resolution left at 0). Returns (w, h, uv (t, 3, 2) float64 in texels, chart count)."""
     import xatlas
 
-    atlas = xatlas.Atlas()
+    atlas = unwrap_worker.new_atlas()
     atlas.add_uv_mesh(verts, indices)
     pack = xatlas.PackOptions()
     pack.padding = int(padding)

@@ -2,8 +2,11 @@
 
 xatlas 0.0.11 can segfault (some meshes) or deadlock (its thread pool, every thread on a
 futex), so unwraps run in long-lived child processes: a crash fails one prim, a stall is
-seen from the child's CPU time (Linux /proc) and retried once. The requests are pickled
-arguments of :func:`usdahd.bake.unwrap.pack_part`, framed by an 8-byte big-endian length.
+seen from the child's CPU time (Linux /proc) and retried once. The deadlock is xatlas's
+``Destroy`` (found with gdb), so atlases are made by :func:`new_atlas` and destroyed only
+seconds after their use, and a worker leaves without destroying its last ones. The requests
+are pickled arguments of :func:`usdahd.bake.unwrap.pack_part`, framed by an 8-byte
+big-endian length.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 from usdahd.errors import BakeError, UsageError
 
 __all__ = [
+    "ATLAS_RETIRE_S",
     "CHILD_CODE",
     "STALL_POLL_S",
     "STALL_S",
@@ -18,6 +22,7 @@ __all__ = [
     "child_main",
     "cpu_seconds",
     "forget",
+    "new_atlas",
     "slot_worker",
     "stop_worker",
 ]
@@ -47,11 +52,59 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
+#: Seconds an xatlas ``Atlas`` is kept alive after its last use (:func:`new_atlas`).
+#: xatlas 0.0.11's ``Destroy`` wakes its thread pool's workers without holding their mutex and
+#: then joins them: a worker preempted between testing its wake-up flag and going to sleep
+#: misses the wake-up, and the join waits forever (gdb on a wedged unwrap worker: the main
+#: thread in ``TaskScheduler::~TaskScheduler`` -> ``std::thread::join``, the pool's worker in
+#: ``condition_variable::wait``; two classroom plans in a row with two workers at load ~7).
+#: Seconds after its last task a worker is asleep for sure, and then the wake-up reaches it.
+ATLAS_RETIRE_S = 2.0
+_ATLASES: list[list] = []  # [atlas, time its use ended or None while in use]
+
+
+def new_atlas():
+    """A new ``xatlas.Atlas``, kept referenced until :data:`ATLAS_RETIRE_S` after the next
+    atlas is made (unwraps run one at a time per process, so a new atlas means the earlier
+    ones are done); the last ones of a process are never destroyed: the worker process leaves
+    with ``os._exit`` (:func:`child_main`), and an in-process unwrap
+    waits them out at exit (:func:`_retire_all`)."""
+    import atexit
+    import time
+
+    import xatlas
+
+    now = time.monotonic()
+    if not _ATLASES:
+        atexit.register(_retire_all)
+    for entry in _ATLASES:
+        if entry[1] is None:
+            entry[1] = now
+    _ATLASES[:] = [e for e in _ATLASES if now - e[1] < ATLAS_RETIRE_S]
+    atlas = xatlas.Atlas()
+    _ATLASES.append([atlas, None])
+    return atlas
+
+
+def _retire_all() -> None:
+    """At interpreter exit: destroy the atlases still kept once the youngest is
+    :data:`ATLAS_RETIRE_S` old (at most that long a wait)."""
+    import time
+
+    if not _ATLASES:
+        return
+    now = time.monotonic()
+    last = max(now if e[1] is None else e[1] for e in _ATLASES)
+    time.sleep(max(0.0, last + ATLAS_RETIRE_S - now))
+    _ATLASES.clear()
+
+
 def child_main() -> None:
     """Worker-process entry point: for each request on stdin (an 8-byte big-endian length,
     then the pickled arguments of :func:`usdahd.bake.unwrap.pack_part`), run it and answer
     on stdout in the same framing with ("ok", result), ("usage" | "bake" | "error",
     message); stop at EOF."""
+    import os
     import pickle
     import sys
 
@@ -61,7 +114,10 @@ def child_main() -> None:
     while True:
         head = inp.read(8)
         if len(head) < 8:
-            return
+            # leave without destroying the last xatlas atlases (ATLAS_RETIRE_S: the
+            # destructor can deadlock); everything answered is flushed already
+            sys.stderr.flush()
+            os._exit(0)
         args = pickle.loads(inp.read(int.from_bytes(head, "big")))
         try:
             msg = ("ok", pack_part(*args))

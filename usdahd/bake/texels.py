@@ -789,6 +789,27 @@ def _uv_barycentrics(tuv: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarra
     return np.stack([1.0 - l1 - l2, l1, l2], axis=-1)
 
 
+def _closest_on_triangle(tuv: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """(u, v) (m, k) moved to their closest points on the UV triangles tuv (m, 3, 2) when they
+    lie outside (points inside stay)."""
+    p = np.stack([u, v], axis=-1)  # (m, k, 2)
+    bary = _uv_barycentrics(tuv, u, v)
+    inside = np.all(bary >= 0.0, axis=-1)
+    best = p.copy()
+    dist = np.full(u.shape, np.inf)
+    for i in range(3):
+        a, b = tuv[:, i][:, None, :], tuv[:, (i + 1) % 3][:, None, :]
+        ab = b - a
+        den = np.maximum((ab**2).sum(axis=-1), 1e-300)
+        t = np.clip(((p - a) * ab).sum(axis=-1) / den, 0.0, 1.0)
+        q = a + t[..., None] * ab
+        d = ((p - q) ** 2).sum(axis=-1)
+        closer = ~inside & (d < dist)
+        best = np.where(closer[..., None], q, best)
+        dist = np.where(closer, d, dist)
+    return best[..., 0], best[..., 1]
+
+
 def move_off_covers(texels: Texels, mesh: MeshData, tracer, skip=None) -> tuple[Texels, np.ndarray]:
     """Move the sample point of a *rim texel* out from under a low cover to the uncovered part
     of its footprint (docs/texels.md, "Rim texels").
@@ -845,8 +866,14 @@ def move_off_covers(texels: Texels, mesh: MeshData, tracer, skip=None) -> tuple[
     u = (xy[:, 0:1] + gx[None, :]) / w
     v = 1.0 - (xy[:, 1:2] + gy[None, :]) / h  # row 0 = top (v = 1)
     tri = np.asarray(texels.triangle)[cand]
-    bary = _uv_barycentrics(uv_t[tri].astype(np.float64), u, v)  # (m, k, 3)
-    on_tri = np.all(bary >= -1e-9, axis=-1)  # NaN (degenerate UVs) is not
+    tuv = uv_t[tri].astype(np.float64)
+    # grid points off the triangle go to its closest point (a sliver thinner than the grid
+    # spacing, e.g. a step face of the chess board's frame, still gets candidates)
+    u, v = _closest_on_triangle(tuv, u, v)
+    bary = _uv_barycentrics(tuv, u, v)  # (m, k, 3)
+    on_tri = np.all(bary >= -1e-6, axis=-1)  # NaN (degenerate UVs) is not
+    bary = np.clip(bary, 0.0, None)
+    bary /= np.where(on_tri, bary.sum(axis=-1), 1.0)[..., None]
     corners = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)[tri]]
     q = np.einsum("mkc,mci->mki", np.nan_to_num(bary), corners)  # (m, k, 3)
     pc, gc, sc, lc = p[cand], g[cand], scales[cand], low[cand]
@@ -871,7 +898,8 @@ def move_off_covers(texels: Texels, mesh: MeshData, tracer, skip=None) -> tuple[
 def _rim_uncovered(p, g, scales, low, q, tracer) -> np.ndarray:
     """(m, k) bool: candidate points q (m, k, 3) on the planes of points p (m, 3) (normals g,
     ray offsets scales, cover heights low) whose normal ray meets nothing within ``low`` and
-    whose ray origin the way along the surface from p's origin reaches unobstructed."""
+    whose ray origin the way along the surface from p's origin reaches without meeting a
+    surface that faces it (a back face, the way out of a solid, does not block)."""
     m, k = q.shape[:2]
     gk = np.repeat(g, k, axis=0)
     sk = np.repeat(scales, k)
@@ -882,5 +910,10 @@ def _rim_uncovered(p, g, scales, low, q, tracer) -> np.ndarray:
     length = np.linalg.norm(way, axis=1)
     go = length > 0
     d = np.where(go[:, None], way / np.where(go, length, 1.0)[:, None], gk)
-    blocked = go & (tracer.intersect(o, d, np.where(go, length, 0.0))["tri"] >= 0)
+    hit = tracer.intersect(o, d, np.where(go, length, 0.0))
+    tri = hit["tri"]
+    hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
+    # a surface facing the way blocks it (a wall between); a back face is the way out of a
+    # solid the origin lies in (the contact rule's case), which leads to the open side
+    blocked = go & (tri >= 0) & ~tracer.back_face(tri, d, hn)
     return (~over & ~blocked).reshape(m, k)

@@ -276,3 +276,46 @@ def test_a_wholly_covered_chart_keeps_its_estimate_without_a_warning(tmp_path, c
     prims = {p["path"]: p for p in json.loads(capsys.readouterr().out)["prims"]}
     assert prims["/box"]["invalid_texels"] > 0
     assert not any("inside geometry" in w for w in prims["/box"]["warnings"])
+
+
+def test_a_sliver_face_under_a_cover_moves_to_its_open_edge():
+    """The chess board's playing-field plate meets the frame along a vertical face 1 mm tall
+    that the asset's UVs map to a sliver a sixth of a texel high; its lower part is buried
+    behind the frame's inner wall, 15 um in front of it, and the texel centres lie there
+    (covered, dark: the preview read them along the field's front edge at 0.5 of the
+    reference). Here: a wall at y = 0 facing -y, 3 cm tall (z in [-2, 1] cm), in 64 strips,
+    mapped to v in [0.5106, 0.5256] of a 32 x 32 map (0.48 texel of row 15, whose centre v =
+    0.5156 lies at z = -1 cm); a closed box in front of it up to z = 0 with its face 0.2 mm
+    from the wall. None of the texel's 4 x 4 grid points is on the open part (z > 0: v >
+    0.5223), so the grid points are taken to their closest points on the texel's triangle;
+    the points move above the box, on the wall, in their own texel column."""
+    n = 64
+    xs = np.linspace(-1.0, 1.0, n + 1)
+    v0, v1 = 0.510625, 0.525625
+    pts = [(x, 0.0, z) for z in (-0.02, 0.01) for x in xs]
+    uv = [((x + 1) / 2, v) for v in (v0, v1) for x in xs]
+    faces = [(i, i + 1, n + 2 + i, n + 1 + i) for i in range(n)]  # facing -y
+
+    def scene(st):
+        define_mesh(st, "/wall", pts, faces, uv, uv_interpolation="vertex")
+        define_box(st, "/frame", (-2.0, -1.0, -1.0), (2.0, -0.0002, 0.0))
+
+    st = new_stage()
+    scene(st)
+    UsdLux.DomeLight.Define(st, "/sky")
+    sc = load_scene(st)
+    tracer = Tracer(sc, threads=1)
+    mi = next(i for i, m in enumerate(sc.meshes) if m.path == "/wall")
+    mesh = sc.meshes[mi]
+    tx = T.rasterize(mesh, (RES, RES))
+    row = (tx.xy[:, 1] == 15) & (tx.xy[:, 0] > 0) & (tx.xy[:, 0] < RES - 1)
+    assert row.sum() == RES - 2
+    c = tx.position.astype(np.float64)
+    assert (c[row, 2] < 0).all()  # the centres lie behind the box
+    moved, invalid = T.push_off_contacts(tx, mesh, tracer)
+    new = moved.position.astype(np.float64)
+    assert not invalid[row].any()
+    assert (new[row, 2] > 0).all()  # above the box: open to the sky
+    np.testing.assert_allclose(new[row, 1], 0.0, atol=1e-6)  # on the wall
+    col = tx.xy[row, 0]
+    assert (np.abs((new[row, 0] + 1) / 2 * RES - (col + 0.5)) <= 0.5).all()  # own column

@@ -9,7 +9,9 @@ contacts as the bake does (:func:`usdahd.bake.texels.push_off_contacts`), and th
 run with the probe length ``D`` texels (default ``texels.COVERED_DISTANCE``). Printed per prim:
 the texels, the covered ones, and of those how many the layer stores dark (luminance of the
 ``iz`` texture < 0.02: a bake before the rule, or filled from dark neighbours) and lit (> 0.3:
-candidates for false positives). docs/texels.md, "Covered texels".
+candidates for false positives), and the rim texels (points moved out from under a low cover,
+:func:`usdahd.bake.texels.move_off_covers`) with how many of those it stores dark.
+docs/texels.md, "Covered texels" and "Rim texels".
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -42,13 +45,19 @@ def covered_texels(layer: str, prims=None, distance: float | None = None) -> lis
         h, w = iz.shape[:2]
         lum = iz[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
         tx = T.rasterize(scene.meshes[mi], (w, h))
+        t1 = time.perf_counter()
+        before = tx.position
         tx, stuck = T.push_off_contacts(tx, scene.meshes[mi], tracer)
+        push_seconds = time.perf_counter() - t1
         t0 = time.perf_counter()
         size = T.texel_sizes(tx, scene.meshes[mi])
         cov = T.covered(tx.position, tx.geom_normal, tracer.texel_offsets(tx, mi), size, tracer)
         cov &= ~stuck
         seconds = time.perf_counter() - t0
         v = lum[tx.xy[:, 1], tx.xy[:, 0]]
+        # rim texels: points moved out from under a low cover (push_off_contacts' last step)
+        # (recomputed from the rasterised points, without the contact moves before it)
+        rim = T.move_off_covers(replace(tx, position=before), scene.meshes[mi], tracer, stuck)[1]
         out.append(
             {
                 "prim": mesh.path,
@@ -57,7 +66,10 @@ def covered_texels(layer: str, prims=None, distance: float | None = None) -> lis
                 "covered": int(cov.sum()),
                 "covered_dark": int((cov & (v < 0.02)).sum()),
                 "covered_lit": int((cov & (v > 0.3)).sum()),
+                "rim": int(rim.sum()),
+                "rim_dark": int((rim & (v < 0.02)).sum()),
                 "seconds": seconds,
+                "push_seconds": push_seconds,
             }
         )
     return out
@@ -77,12 +89,15 @@ def main(argv=None) -> int:
     for r in rows:
         print(
             f"{r['prim']}: {r['texels']} texels ({1000 * r['texel_size_median']:.2f} mm), "
-            f"covered {r['covered']} (stored dark {r['covered_dark']}, lit {r['covered_lit']})"
+            f"covered {r['covered']} (stored dark {r['covered_dark']}, lit {r['covered_lit']}), "
+            f"rim {r['rim']} (stored dark {r['rim_dark']})"
         )
-    tot = {k: sum(r[k] for r in rows) for k in ("texels", "covered", "covered_dark", "seconds")}
+    keys = ("texels", "covered", "covered_dark", "rim", "rim_dark", "seconds", "push_seconds")
+    tot = {k: sum(r[k] for r in rows) for k in keys}
     print(
         f"total: {tot['texels']} texels, covered {tot['covered']}, stored dark "
-        f"{tot['covered_dark']}, covered test {tot['seconds']:.1f} s"
+        f"{tot['covered_dark']}, covered test {tot['seconds']:.1f} s; rim {tot['rim']} (stored "
+        f"dark {tot['rim_dark']}), push_off_contacts {tot['push_seconds']:.1f} s"
     )
     return 0
 

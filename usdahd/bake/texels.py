@@ -20,6 +20,7 @@ mesh_from_arrays(points, triangles, *, uv=None, normals=None, path="/mesh") -> M
 texel_density(mesh, resolution) -> float                    texels per world unit achieved
 half_texel_vectors(mesh, resolution) -> (t, 2, 3)          half a texel along u, v in world units
 push_off_contacts(texels, mesh, tracer) -> (Texels, invalid) sample points moved off contacts
+move_off_covers(texels, mesh, tracer) -> (Texels, moved)    rim texels moved out from under covers
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ __all__ = [
     "MAX_RESOLUTION",
     "chart_ids",
     "covered",
+    "move_off_covers",
     "push_off_contacts",
     "rasterize",
     "resolution_for_density",
@@ -590,13 +592,20 @@ def push_off_contacts(texels: Texels, mesh: MeshData, tracer) -> tuple[Texels, n
             if position is None:
                 position = texels.position.copy()
             position[a:b][mv] = pos[mv]
-    if not moved.any() and not invalid.any():
-        return texels, invalid
-    # invalid texels keep their original point
-    if position is None:
-        position = texels.position.copy()
-    stats = dict(texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum()))
-    return replace(texels, position=position, stats=stats), invalid
+    if moved.any() or invalid.any():  # invalid texels keep their original point
+        if position is None:
+            position = texels.position.copy()
+        stats = dict(
+            texels.stats, contact_texels=int(moved.sum()), contact_invalid=int(invalid.sum())
+        )
+        texels = replace(texels, position=position, stats=stats)
+    texels, rim = move_off_covers(texels, mesh, tracer, skip=invalid)
+    if rim.any():
+        moved |= rim
+        stats = dict(texels.stats, contact_texels=int(moved.sum()), rim_texels=int(rim.sum()))
+        stats.setdefault("contact_invalid", int(invalid.sum()))
+        texels = replace(texels, stats=stats)
+    return texels, invalid
 
 
 #: Texels probed at once by :func:`push_off_contacts` (bounds its memory; any value gives the
@@ -753,3 +762,158 @@ def covered(
     share = (hit["tri"] >= 0).reshape(-1, r).mean(axis=1)
     out[cand] = share >= COVERED
     return out
+
+
+#: Rim texels (:func:`move_off_covers`): a point counts as under a cover when the ray along its
+#: geometric normal hits a surface within ``RIM_HEIGHT`` of the covered probe length ``D``
+#: (``sqrt(1 - COVERED)``, 0.32: the height under which a flat cover makes a texel
+#: :func:`covered`); the footprint is searched on a ``RIM_GRID`` x ``RIM_GRID`` grid of points
+#: (the centres of its sub-squares); the new point lies ``RIM_INSET`` of the way from the
+#: uncovered candidate closest to the old point to the uncovered candidates' centroid (the rule
+#: of ``raster.CONSERVATIVE_INSET`` for the covered part of a conservative texel).
+RIM_HEIGHT = float(np.sqrt(1.0 - COVERED))
+RIM_GRID = 4
+RIM_INSET = 0.5
+
+
+def _uv_barycentrics(tuv: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(m, k, 3) barycentrics of the UV points (u, v) (m, k) on the UV triangles tuv (m, 3, 2);
+    NaN on degenerate triangles."""
+    a, b, c = tuv[:, 0], tuv[:, 1], tuv[:, 2]
+    e1, e2 = b - a, c - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    safe = np.where(np.abs(det) > 1e-300, det, np.nan)[:, None]
+    du, dv = u - a[:, 0:1], v - a[:, 1:2]
+    l1 = (du * e2[:, 1:2] - dv * e2[:, 0:1]) / safe
+    l2 = (e1[:, 0:1] * dv - e1[:, 1:2] * du) / safe
+    return np.stack([1.0 - l1 - l2, l1, l2], axis=-1)
+
+
+def _closest_on_triangle(tuv: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """(u, v) (m, k) moved to their closest points on the UV triangles tuv (m, 3, 2) when they
+    lie outside (points inside stay)."""
+    p = np.stack([u, v], axis=-1)  # (m, k, 2)
+    bary = _uv_barycentrics(tuv, u, v)
+    inside = np.all(bary >= 0.0, axis=-1)
+    best = p.copy()
+    dist = np.full(u.shape, np.inf)
+    for i in range(3):
+        a, b = tuv[:, i][:, None, :], tuv[:, (i + 1) % 3][:, None, :]
+        ab = b - a
+        den = np.maximum((ab**2).sum(axis=-1), 1e-300)
+        t = np.clip(((p - a) * ab).sum(axis=-1) / den, 0.0, 1.0)
+        q = a + t[..., None] * ab
+        d = ((p - q) ** 2).sum(axis=-1)
+        closer = ~inside & (d < dist)
+        best = np.where(closer[..., None], q, best)
+        dist = np.where(closer, d, dist)
+    return best[..., 0], best[..., 1]
+
+
+def move_off_covers(texels: Texels, mesh: MeshData, tracer, skip=None) -> tuple[Texels, np.ndarray]:
+    """Move the sample point of a *rim texel* out from under a low cover to the uncovered part
+    of its footprint (docs/texels.md, "Rim texels").
+
+    A texel whose point lies under a surface much closer than the texel is wide (the board
+    under a chess piece's base floating 0.5 mm over it) sees that surface's underside. Deep
+    under the cover :func:`covered` flags it and the bake fills it from its chart; near the
+    cover's outline its point still sees out sideways, so it stays estimated, dark, while
+    the bilinear lookup reads it up to half a texel outside the outline, where the surface
+    is lit and the path-traced view averages the lit part of the footprint only (the part
+    under the cover is hidden from every view).
+
+    The rule: a texel is *under a cover* when the ray along its geometric normal from its ray
+    origin hits a surface (either face) within ``RIM_HEIGHT * COVERED_DISTANCE`` of its
+    world size (:func:`texel_sizes`: 0.16 texel, the height under which a flat cover makes a
+    texel :func:`covered`). Its footprint (the texel's square in UV, mapped through its own
+    triangle) is searched on a ``RIM_GRID`` x ``RIM_GRID`` grid; a candidate is *uncovered*
+    when it lies on the triangle, its normal ray hits nothing within that height, and the
+    way along the surface from the texel's ray origin to the candidate's meets nothing. The
+    point moves ``RIM_INSET`` of the way from the uncovered candidate closest to it toward the
+    uncovered candidates' centroid (the closest one when that point fails the same tests).
+    Texels with no uncovered candidate (the whole footprint under the cover), and those in
+    ``skip`` ((n,) bool), keep their point. The frame and geometric normal are kept.
+
+    Returns ``(texels, moved (n,) bool)``; ``texels`` is the same object when no point moved,
+    else a copy with the new ``position``. Costs one ray per texel and ``2 * RIM_GRID^2``
+    more for texels under a cover.
+    """
+    n = len(texels)
+    moved = np.zeros(n, bool)
+    if n == 0 or mesh.uv is None:
+        return texels, moved
+    w, h = texels.resolution
+    uv_t = _check_mesh(mesh)
+    size = texel_sizes(texels, mesh)
+    low = RIM_HEIGHT * COVERED_DISTANCE * size
+    scales = tracer.texel_offsets(texels, mesh)
+    p = texels.position.astype(np.float64)
+    g = texels.geom_normal.astype(np.float64)
+    ok = low > 0
+    if skip is not None:
+        ok &= ~np.asarray(skip, bool)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return texels, moved
+    o = tracer.offset(p[idx], g[idx], g[idx], scales[idx])
+    cand = idx[tracer.intersect(o, g[idx], low[idx])["tri"] >= 0]
+    if len(cand) == 0:
+        return texels, moved
+    s = (np.arange(RIM_GRID) + 0.5) / RIM_GRID  # sub-square centres, in texels from the corner
+    gx, gy = (a.ravel() for a in np.meshgrid(s, s))
+    k = len(gx)
+    xy = texels.xy[cand].astype(np.float64)
+    u = (xy[:, 0:1] + gx[None, :]) / w
+    v = 1.0 - (xy[:, 1:2] + gy[None, :]) / h  # row 0 = top (v = 1)
+    tri = np.asarray(texels.triangle)[cand]
+    tuv = uv_t[tri].astype(np.float64)
+    # grid points off the triangle go to its closest point (a sliver thinner than the grid
+    # spacing, e.g. a step face of the chess board's frame, still gets candidates)
+    u, v = _closest_on_triangle(tuv, u, v)
+    bary = _uv_barycentrics(tuv, u, v)  # (m, k, 3)
+    on_tri = np.all(bary >= -1e-6, axis=-1)  # NaN (degenerate UVs) is not
+    bary = np.clip(bary, 0.0, None)
+    bary /= np.where(on_tri, bary.sum(axis=-1), 1.0)[..., None]
+    corners = np.asarray(mesh.points, np.float64)[np.asarray(mesh.triangles, np.int64)[tri]]
+    q = np.einsum("mkc,mci->mki", np.nan_to_num(bary), corners)  # (m, k, 3)
+    pc, gc, sc, lc = p[cand], g[cand], scales[cand], low[cand]
+    free = _rim_uncovered(pc, gc, sc, lc, q.reshape(len(cand), k, 3), tracer) & on_tri
+    has = free.any(axis=1)
+    if not has.any():
+        return texels, moved
+    rows = np.nonzero(has)[0]
+    fq, ff = q[rows], free[rows]
+    dist = np.where(ff, np.linalg.norm(fq - pc[rows, None, :], axis=-1), np.inf)
+    c0 = fq[np.arange(len(rows)), np.argmin(dist, axis=1)]
+    c1 = (fq * ff[..., None]).sum(axis=1) / ff.sum(axis=1)[:, None]
+    new = c0 + RIM_INSET * (c1 - c0)
+    good = _rim_uncovered(pc[rows], gc[rows], sc[rows], lc[rows], new[:, None, :], tracer)[:, 0]
+    new = np.where(good[:, None], new, c0)
+    position = texels.position.copy()
+    position[cand[rows]] = new.astype(np.float32)
+    moved[cand[rows]] = True
+    return replace(texels, position=position), moved
+
+
+def _rim_uncovered(p, g, scales, low, q, tracer) -> np.ndarray:
+    """(m, k) bool: candidate points q (m, k, 3) on the planes of points p (m, 3) (normals g,
+    ray offsets scales, cover heights low) whose normal ray meets nothing within ``low`` and
+    whose ray origin the way along the surface from p's origin reaches without meeting a
+    surface that faces it (a back face, the way out of a solid, does not block)."""
+    m, k = q.shape[:2]
+    gk = np.repeat(g, k, axis=0)
+    sk = np.repeat(scales, k)
+    oq = tracer.offset(q.reshape(-1, 3), gk, gk, sk)
+    over = tracer.intersect(oq, gk, np.repeat(low, k))["tri"] >= 0
+    o = np.repeat(tracer.offset(p, g, g, scales), k, axis=0)
+    way = oq - o
+    length = np.linalg.norm(way, axis=1)
+    go = length > 0
+    d = np.where(go[:, None], way / np.where(go, length, 1.0)[:, None], gk)
+    hit = tracer.intersect(o, d, np.where(go, length, 0.0))
+    tri = hit["tri"]
+    hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
+    # a surface facing the way blocks it (a wall between); a back face is the way out of a
+    # solid the origin lies in (the contact rule's case), which leads to the open side
+    blocked = go & (tri >= 0) & ~tracer.back_face(tri, d, hn)
+    return (~over & ~blocked).reshape(m, k)

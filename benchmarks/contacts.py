@@ -155,7 +155,8 @@ def probe_cost(layer: Path, repeat: int = 3) -> dict:
     """Median seconds of :func:`push_off_contacts` per baked mesh of an output layer (this
     checkout, in process, the tracer's default threads), with the texel count."""
     from benchmarks.reference.compare import usdahd_results
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.contacts import push_off_contacts
+    from usdahd.bake.texels import rasterize
     from usdahd.bake.trace import Tracer
     from usdahd.usd.reader import load_scene
 

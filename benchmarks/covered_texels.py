@@ -1,16 +1,16 @@
 """Covered texels of a baked layer (issue 37, the chess pieces' feet): per baked prim, how many
-texels :func:`usdahd.bake.texels.covered` flags and what the bake stored there.
+texels :func:`usdahd.bake.contacts.covered` flags and what the bake stored there.
 
     python benchmarks/covered_texels.py BAKED.lightmaps.usda [--prim PRIM ...] [--distance D]
                                         [--json]
 
 Each prim's lightmap UVs are rasterised at its texture's size, the sample points pushed off
-contacts as the bake does (:func:`usdahd.bake.texels.push_off_contacts`), and the covered test
-run with the probe length ``D`` texels (default ``texels.COVERED_DISTANCE``). Printed per prim:
+contacts as the bake does (:func:`usdahd.bake.contacts.push_off_contacts`), and the covered test
+run with the probe length ``D`` texels (default ``contacts.COVERED_DISTANCE``). Printed per prim:
 the texels, the covered ones, and of those how many the layer stores dark (luminance of the
 ``iz`` texture < 0.02: a bake before the rule, or filled from dark neighbours) and lit (> 0.3:
 candidates for false positives), and the rim texels (points moved out from under a low cover,
-:func:`usdahd.bake.texels.move_off_covers`) with how many of those it stores dark.
+:func:`usdahd.bake.contacts.move_off_covers`) with how many of those it stores dark.
 docs/texels.md, "Covered texels" and "Rim texels".
 """
 
@@ -25,6 +25,7 @@ import numpy as np
 
 
 def covered_texels(layer: str, prims=None, distance: float | None = None) -> list[dict]:
+    from usdahd.bake import contacts as C
     from usdahd.bake import texels as T
     from usdahd.bake.trace import Tracer
     from usdahd.preview.meshes import baked_meshes, preview_scene
@@ -34,7 +35,7 @@ def covered_texels(layer: str, prims=None, distance: float | None = None) -> lis
     scene = preview_scene(layer, meshes[0][1].uv_primvar)
     tracer = Tracer(scene)
     if distance is not None:
-        T.COVERED_DISTANCE = float(distance)
+        C.COVERED_DISTANCE = float(distance)
     index = {m.path: i for i, m in enumerate(scene.meshes)}
     out = []
     for mesh, res, *_ in meshes:
@@ -47,17 +48,17 @@ def covered_texels(layer: str, prims=None, distance: float | None = None) -> lis
         tx = T.rasterize(scene.meshes[mi], (w, h))
         t1 = time.perf_counter()
         before = tx.position
-        tx, stuck = T.push_off_contacts(tx, scene.meshes[mi], tracer)
+        tx, stuck = C.push_off_contacts(tx, scene.meshes[mi], tracer)
         push_seconds = time.perf_counter() - t1
         t0 = time.perf_counter()
-        size = T.texel_sizes(tx, scene.meshes[mi])
-        cov = T.covered(tx.position, tx.geom_normal, tracer.texel_offsets(tx, mi), size, tracer)
+        size = C.texel_sizes(tx, scene.meshes[mi])
+        cov = C.covered(tx.position, tx.geom_normal, tracer.texel_offsets(tx, mi), size, tracer)
         cov &= ~stuck
         seconds = time.perf_counter() - t0
         v = lum[tx.xy[:, 1], tx.xy[:, 0]]
         # rim texels: points moved out from under a low cover (push_off_contacts' last step)
         # (recomputed from the rasterised points, without the contact moves before it)
-        rim = T.move_off_covers(replace(tx, position=before), scene.meshes[mi], tracer, stuck)[1]
+        rim = C.move_off_covers(replace(tx, position=before), scene.meshes[mi], tracer, stuck)[1]
         out.append(
             {
                 "prim": mesh.path,

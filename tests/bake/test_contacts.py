@@ -1,4 +1,4 @@
-"""Sample points on contacts (issue 17 item 5): :func:`usdahd.bake.texels.push_off_contacts`.
+"""Sample points on contacts (issue 17 item 5): :func:`usdahd.bake.contacts.push_off_contacts`.
 
 Two analytic stages (Z up, a 4 x 4 m ground quad at z = 0 with a 32 x 32 lightmap, so a texel is
 0.125 m and its footprint reaches 0.0625 m from the centre):
@@ -24,8 +24,9 @@ from pxr import Gf, UsdGeom, UsdLux, UsdShade
 
 from tests.scenes import define_mesh, new_stage, preview_material
 from tests.stats import SIGMAS, standard_error
+from usdahd.bake.contacts import push_off_contacts
 from usdahd.bake.integrate import bake_texels
-from usdahd.bake.texels import half_texel_vectors, push_off_contacts, rasterize
+from usdahd.bake.texels import half_texel_vectors, rasterize
 from usdahd.bake.trace import Tracer
 from usdahd.numerics import raster, sh
 from usdahd.usd.reader import load_scene
@@ -172,7 +173,7 @@ def test_push_leaves_texels_outside_a_single_sided_shell_alone():
 def test_push_in_chunks_gives_the_same_points(monkeypatch):
     """push_off_contacts probes its texels in chunks of CONTACT_CHUNK (bounded memory): chunks
     of 7 texels (boundaries through the moved rows) give exactly the result of one chunk."""
-    import usdahd.bake.texels as tx
+    import usdahd.bake.contacts as tx
 
     scene, tracer = _tracer(_box_stage())
     ground = _mesh_of(scene, "/ground")

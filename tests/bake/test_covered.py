@@ -1,4 +1,4 @@
-"""Covered texels (issue 37, the chess pieces' feet): :func:`usdahd.bake.texels.covered`.
+"""Covered texels (issue 37, the chess pieces' feet): :func:`usdahd.bake.contacts.covered`.
 
 A 4 x 4 m ground quad at z = 0 with a 32 x 32 lightmap (a texel is 0.125 m; the probe length
 ``D`` is half a texel, 0.0625 m). A closed box (bottom face included, faces outward) of 1 m
@@ -16,6 +16,7 @@ import pytest
 from pxr import UsdLux
 
 from tests.scenes import define_box, define_mesh, define_quad, new_stage
+from usdahd.bake import contacts as C
 from usdahd.bake import texels as T
 from usdahd.bake.integrate import inside_geometry
 from usdahd.bake.trace import Tracer
@@ -58,7 +59,7 @@ def _flagged(st):
 def test_texel_sizes_are_the_world_size_of_a_texel():
     scene = load_scene(_stage(box=False))
     tx = T.rasterize(scene.meshes[0], (RES, RES))
-    np.testing.assert_allclose(T.texel_sizes(tx, scene.meshes[0]), TEXEL, rtol=1e-9)
+    np.testing.assert_allclose(C.texel_sizes(tx, scene.meshes[0]), TEXEL, rtol=1e-9)
 
 
 def test_ground_under_a_closed_box_is_covered_and_beside_it_is_not():
@@ -126,7 +127,7 @@ def _contacts(st):
     tracer = Tracer(scene, threads=1)
     mi = next(i for i, m in enumerate(scene.meshes) if m.path == "/ground")
     tx = T.rasterize(scene.meshes[mi], (RES, RES))
-    moved, invalid = T.push_off_contacts(tx, scene.meshes[mi], tracer)
+    moved, invalid = C.push_off_contacts(tx, scene.meshes[mi], tracer)
     return tx, moved, invalid
 
 
@@ -182,7 +183,7 @@ def _covered_points(st, pos):
     n = len(pos)
     g = np.tile([0.0, 0.0, 1.0], (n, 1))
     offsets = tracer.offset_scale(np.asarray(pos, np.float64))
-    return T.covered(pos, g, offsets, np.full(n, TEXEL), tracer)
+    return C.covered(pos, g, offsets, np.full(n, TEXEL), tracer)
 
 
 def test_bake_fills_the_ground_under_the_box(tmp_path, capsys):
@@ -312,7 +313,7 @@ def test_a_sliver_face_under_a_cover_moves_to_its_open_edge():
     assert row.sum() == RES - 2
     c = tx.position.astype(np.float64)
     assert (c[row, 2] < 0).all()  # the centres lie behind the box
-    moved, invalid = T.push_off_contacts(tx, mesh, tracer)
+    moved, invalid = C.push_off_contacts(tx, mesh, tracer)
     new = moved.position.astype(np.float64)
     assert not invalid[row].any()
     assert (new[row, 2] > 0).all()  # above the box: open to the sky

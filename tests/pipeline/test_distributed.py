@@ -66,7 +66,8 @@ def test_tiles_reproduce_the_whole_mesh_bit_for_bit(monkeypatch, samples_dir):
     """Many tiles per mesh (small chunks), traced out of order and gathered: the SH, the
     invalid flags and the contact-pushed positions equal the whole-mesh bake's; the Embree
     scene is built once for all the tiles of one scene key."""
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.contacts import push_off_contacts
+    from usdahd.bake.texels import rasterize
     from usdahd.bake.trace import Tracer
     from usdahd.usd.reader import load_scene
 

@@ -208,8 +208,9 @@ def test_levels_respect_the_triangle_budget(monkeypatch):
 
 
 def _sphere_bake(refine: bool, res=32, spp=64):
+    from usdahd.bake.contacts import push_off_contacts
     from usdahd.bake.integrate import bake_texels
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.texels import rasterize
     from usdahd.bake.trace import Tracer
     from usdahd.numerics import sh
 

@@ -69,6 +69,7 @@ import time
 
 import numpy as np
 
+from usdahd.bake.contacts import covered, texel_sizes, walled_in
 from usdahd.bake.kernels.integrate import native_pass, native_result, native_work
 from usdahd.bake.kernels.layout import (
     CFG_LEN,
@@ -80,7 +81,6 @@ from usdahd.bake.kernels.layout import (
 )
 from usdahd.bake.kernels.lights import pack_lights
 from usdahd.bake.reference import Accum, LightGroups, ReferenceCtx, has_light_linking
-from usdahd.bake.texels import covered, texel_sizes, walled_in
 from usdahd.numerics.sampling import r2_sequence
 
 __all__ = [
@@ -258,9 +258,9 @@ def inside_geometry(
     mesh : the scene mesh the texels belong to (its index in ``tracer.scene.meshes`` or its
     MeshData), for the texels' world size; None skips the covered test below.
     A texel is inside geometry when ``backfrac > threshold`` (the texel's view is mostly the
-    back of something) and :func:`usdahd.bake.texels.walled_in` (rays along its surface meet
+    back of something) and :func:`usdahd.bake.contacts.walled_in` (rays along its surface meet
     back faces on all sides), so a thin gap behind a one-sided card is estimated, not filled
-    (docs/integrator.md); or when it is :func:`usdahd.bake.texels.covered`: its point lies under
+    (docs/integrator.md); or when it is :func:`usdahd.bake.contacts.covered`: its point lies under
     a surface (front or back face) much closer than the texel is wide, e.g. the board under a
     chess piece's closed base, which front faces hide (docs/texels.md, "Covered texels").
     """
@@ -274,7 +274,7 @@ def inside_geometry(
 
 
 def covered_texels(tracer, texels, offsets, mesh, among=None) -> np.ndarray:
-    """(n,) bool: :func:`usdahd.bake.texels.covered` over ``texels`` of the scene mesh ``mesh``
+    """(n,) bool: :func:`usdahd.bake.contacts.covered` over ``texels`` of the scene mesh ``mesh``
     (index or MeshData), tested only where ``among`` ((n,) bool, default all) is set; none
     when the mesh has no lightmap UVs (texels given by their points, e.g. in tests)."""
     out = np.zeros(len(texels), bool)

@@ -9,7 +9,7 @@ generator, so tracing the tiles anywhere and gathering them in texel order gives
 of the whole-mesh bake (bit for bit, for any number of tiles or workers).
 
 :func:`trace_tile` is what a worker runs: the contact push
-(:func:`usdahd.bake.texels.push_off_contacts`, per texel) and :func:`bake_texels` over the
+(:func:`usdahd.bake.contacts.push_off_contacts`, per texel) and :func:`bake_texels` over the
 tile. The Embree scene is built once per process and scene (:func:`tracer_for`, cached by a key
 the client chooses), not once per tile. :func:`gather` puts the tiles of one mesh back together.
 This module knows nothing of Dask (``usdahd/pipeline/distributed.py`` schedules the tiles).
@@ -96,8 +96,8 @@ def trace_tile(key, scene, tile: Tile, backend: str, threads: int | None = None)
     ``first``, ``sh`` (n, 3, 9), ``invalid``, ``backface_fraction``, ``samples``,
     ``iz_variance``, ``iz_variance_halves``, the sample ``position`` after the contact push,
     ``contact_texels``/``contact_invalid`` counts, ``rays``, ``rays_saved`` and ``seconds``."""
+    from usdahd.bake.contacts import push_off_contacts
     from usdahd.bake.integrate import bake_texels
-    from usdahd.bake.texels import push_off_contacts
 
     t0 = time.perf_counter()
     if threads is None:

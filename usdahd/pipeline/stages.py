@@ -73,8 +73,9 @@ def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
     """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats);
     with ``--workers`` / ``--scheduler`` the tracing runs in tiles on a Dask cluster
     (:mod:`usdahd.pipeline.distributed`), with the same results."""
+    from usdahd.bake.contacts import push_off_contacts
     from usdahd.bake.integrate import bake_texels
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.texels import rasterize
     from usdahd.bake.trace import Tracer
     from usdahd.errors import UsdAhdError
     from usdahd.progress import Progress

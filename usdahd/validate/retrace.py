@@ -421,7 +421,8 @@ def prim_candidates(prim):
     bake estimated, estimated all such texels (centres or not: the replay's population); or a
     str saying why the rule cannot run."""
     from usdahd import validate as V
-    from usdahd.bake.texels import push_off_contacts, rasterize
+    from usdahd.bake.contacts import push_off_contacts
+    from usdahd.bake.texels import rasterize
     from usdahd.errors import UsdAhdError
 
     path = str(prim.GetPath())

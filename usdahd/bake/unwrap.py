@@ -559,13 +559,14 @@ def _fit(
 
 
 #: Worker processes an isolated unwrap runs its chart options' parts in (:func:`pack_part`,
-#: one option each, at the same time), at most one per chart option and core. 1: on an idle
-#: 2-core machine two workers planned Sponza in 13.5 s instead of 19.2 s, but the classroom's
-#: plan hit xatlas's thread-pool deadlock (unwrap_worker.STALL_S) in 3 of 7 runs with two
-#: workers (each xatlas pool sized to every core) and in none of 7 with one: 20.8-21.2 s
-#: or 53-56 s with two, 30.6-31.5 s with one (`usdahd bake classroom.usdc --dry-run`,
-#: load 1.1-1.8, 2026-12-06, docs/scenes.md "The plan's cost halved").
-UNWRAP_WORKERS = 1
+#: one option each, at the same time), at most one per chart option and core. 2: on an idle
+#: 2-core machine two workers planned Sponza in 13.5 s instead of 19.2 s and the classroom in
+#: 21 s instead of 31 s (`usdahd bake classroom.usdc --dry-run`, load 1.1-1.8, 2026-12-06,
+#: docs/scenes.md "The plan's cost halved"). It was 1 while xatlas's Destroy deadlocked two
+#: workers' plans (3 of 7 classroom plans); atlases now outlive their use
+#: (unwrap_worker.ATLAS_RETIRE_S): 0 stalls in 6 two-worker classroom plans at load 6-7.5,
+#: where 2 of 2 stalled before.
+UNWRAP_WORKERS = 2
 
 
 def _slots() -> int:

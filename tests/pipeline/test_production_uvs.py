@@ -162,3 +162,45 @@ def test_prop_cap_keeps_every_raised_map_within_the_budget_left():
     for budget, prims in ((1 << 20, 1000), (300_000, 77), (4096, 3)):
         side = prop_cap(budget, prims)
         assert side % 4 == 0 and prims * side * side <= budget
+
+
+def test_one_prim_unwrapped_by_an_authored_uv_primvar(capsys, tmp_path):
+    """docs/texels.md, "Unwrapping one prim whose texture UVs the plan keeps": a layer over the
+    stage applies AhdLightmapAPI to the meshes to bake (the API selects: the others are only
+    traced) and names a primvar the asset lacks on one of them, which is unwrapped into it while
+    the other keeps its authored ``st``."""
+    layer = tmp_path / "one_unwrapped.usda"
+    layer.write_text(
+        f"""#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+    subLayers = [@{STAGE.as_posix()}@]
+)
+
+over "World"
+{{
+    over "Ground" (prepend apiSchemas = ["AhdLightmapAPI"])
+    {{
+    }}
+    over "Ribbons" (prepend apiSchemas = ["AhdLightmapAPI"])
+    {{
+        string ahdLightmap:uvPrimvar = "st_lightmap"
+    }}
+}}
+"""
+    )
+    report = _dry_run(capsys, layer, "-o", str(tmp_path / "o.lightmaps.usda"))
+    prims = _prims(report)
+    assert set(prims) == {"/World/Ground", "/World/Ribbons"}, sorted(prims)
+    ground, ribbons = prims["/World/Ground"], prims["/World/Ribbons"]
+    assert ground["resolution"] == [128, 128]
+    assert not any("xatlas" in m for m in ground["warnings"] + ground.get("notes", []))
+    assert any(
+        "no UV set 'st_lightmap': unwrapped with xatlas" in w for w in ribbons["warnings"]
+    ), ribbons
+    # Without the layer the same mesh keeps its st, raised to 64x64 (the stage's plan, above).
+    alone = _prims(_dry_run(capsys, STAGE, "-o", str(tmp_path / "s.lightmaps.usda")))
+    assert alone["/World/Ribbons"]["resolution"] == [64, 64]
+    assert not any("xatlas" in m for m in alone["/World/Ribbons"].get("notes", []))

@@ -9,24 +9,25 @@ one of two compressions (``usdahd bake --container ktx2`` / ``--container ktx2-b
   texel).
 - ``"bc"`` (``ktx2-bc``): block-compressed where the result holds up (issue 39: the default
   hhd/luminance within 2 % relRMSE of the EXR/PNG irradiance on every sample). Non-negative RGB
-  float16 textures (I_z, ambient, C_d, hemisphere, ...) ``VK_FORMAT_BC6H_UFLOAT_BLOCK`` (1 byte
-  per texel; -0.0 written as 0: the unsigned encoder reads the bits of -0.0 as 65504) when level
-  0 decoded again (bcdec through imagecodecs) is within :data:`BC6H_MAX_REL_RMSE` (RMSE over the
-  covered texels / their mean), else ``VK_FORMAT_E5B9G9R9_UFLOAT_PACK32`` (shared exponent,
-  4 bytes per texel, within 2^-8 of each texel's largest channel): BC6H interpolates a 4 x 4
-  block in its half-float bit domain with 8 or 16 levels, so a block that spans a hotspot
-  (floor_lamp's floor: 0.12 to 2.84) is off by up to 13 % per texel, and no ispc-texcomp profile
-  (veryfast to veryslow) changes that much. Float16 textures with a negative value (the signed
-  SH / HL2 / ambient-cube coefficients, no signed BC6H encoder on the package index) or an alpha
-  stay RGBA16F. 8-bit textures ``VK_FORMAT_BC7_UNORM_BLOCK``, except the hemi-octahedral
-  direction and ratio codes (:data:`LOSSLESS_PACKINGS`), which stay RGBA8: BC7 moves (u, v) codes by
-  several steps where the direction varies texel to texel inside a block, and ``C_d = I_z
-  (1 - w_a) / d_z`` magnifies a move towards the horizon (hhd/luminance through BC7: 61 %
-  relRMSE of irradiance on pillar_room; no BC7 profile, gutter fill or layout tried came within
-  10x of 2 %, docs/benchmarks.md). The encoder is ispc-texcomp (Python bindings of Intel's
-  ISPCTextureCompressor, MIT; manylinux, macOS and Windows abi3 wheels): the only BC6H encoder
-  on the package index, and its BC7 ("slow" profile) halves etcpak's error. BC6H uses the
-  "slow" profile (2.2 s per 512 x 512 here; "veryslow" 4.7 s for the same result).
+  float16 textures (I_z, ambient, C_d, hemisphere, ...) ``VK_FORMAT_BC6H_UFLOAT_BLOCK`` (1 byte per
+  texel; -0.0 written as 0: the unsigned encoder reads the bits of -0.0 as 65504) when level 0
+  decoded again (bcdec through imagecodecs) is within :data:`BC6H_MAX_REL_RMSE` (RMSE over the
+  covered texels / their mean), else ``VK_FORMAT_E5B9G9R9_UFLOAT_PACK32`` (shared exponent, 4 bytes
+  per texel, within 2^-8 of each texel's largest channel): BC6H interpolates a 4 x 4 block in its
+  half-float bit domain with 8 or 16 levels, so a block that spans a hotspot (floor_lamp's floor:
+  0.12 to 2.84) is off by up to 13 % per texel, and no ispc-texcomp profile (veryfast to veryslow)
+  changes that much. Float16 textures with a negative value (the signed SH / HL2 / ambient-cube
+  coefficients, no signed BC6H encoder on the package index) or an alpha stay RGBA16F. 8-bit
+  textures ``VK_FORMAT_BC7_UNORM_BLOCK`` when level 0's decoded quantities (bcdec through
+  imagecodecs) are within :data:`BC7_MAX_REL_RMSE`, else RGBA8, except the hemi-octahedral direction
+  and ratio codes (:data:`LOSSLESS_PACKINGS`), which stay RGBA8: BC7 moves (u, v) codes by several
+  steps where the direction varies texel to texel inside a block, and ``C_d = I_z (1 - w_a) / d_z``
+  magnifies a move towards the horizon (hhd/luminance through BC7: 61 % relRMSE of irradiance on
+  pillar_room; no BC7 profile, gutter fill or layout tried came within 10x of 2 %,
+  docs/benchmarks.md). The encoder is ispc-texcomp (Python bindings of Intel's
+  ISPCTextureCompressor, MIT; manylinux, macOS and Windows abi3 wheels): the only BC6H encoder on
+  the package index, and its BC7 ("slow" profile) halves etcpak's error. BC6H uses the "slow"
+  profile (2.2 s per 512 x 512 here; "veryslow" 4.7 s for the same result).
 
 The codes keep their meaning (the biases of docs/schema.md apply to the decoded bytes).
 
@@ -77,6 +78,34 @@ BC7_PROFILE = "slow"
 #: written E5B9G9R9 (shared exponent, 4 B/texel; RGBA16F with an alpha). 1.5 % keeps the
 #: default hhd/luminance within issue 39's 2 % of irradiance (linear in I_z; docs/benchmarks.md)
 BC6H_MAX_REL_RMSE = 0.015
+#: the largest BC7 error an 8-bit "bc" texture may keep: RMSE of level 0's decoded quantities
+#: (:func:`packed_quantities`: the channel codes of its packing, for Enlighten's 8-bit SH the
+#: irradiance L0 + L1 . n over :data:`CHECK_NORMALS`) over the covered texels, divided by their
+#: mean |value|; above it the texture is written RGBA8. sh_l1/8bit through BC7 unchecked read
+#: 2.9 % to 72 % of irradiance on 6 of 9 samples (docs/benchmarks.md): a BC7 endpoint error of a
+#: few codes in a small L0 code q is 2 dq / q of L0, and every L1 code is relative to it.
+BC7_MAX_REL_RMSE = 0.015
+#: Tangent-space unit normals the 8-bit SH check evaluates L0 + L1 . n at: the pole and two rings
+#: (45 and 80 degrees from it, 6 and 8 azimuths: the horizon is where L1 errors weigh most).
+CHECK_NORMALS = np.concatenate(
+    [
+        [[0.0, 0.0, 1.0]],
+        *(
+            np.stack(
+                [
+                    np.sin(t) * np.cos(a),
+                    np.sin(t) * np.sin(a),
+                    np.full(len(a), np.cos(t)),
+                ],
+                axis=-1,
+            )
+            for t, a in (
+                (np.radians(45.0), np.arange(6) * np.pi / 3),
+                (np.radians(80.0), np.arange(8) * np.pi / 4),
+            )
+        ),
+    ]
+)
 #: 8-bit packings that stay RGBA8 under "bc": the hemi-octahedral direction codes (u, v) of the
 #: IrradZ models and ahd_classic and the IrradZ per-channel ambient ratios w_a (``ratio``), whose
 #: BC7 error the decode multiplies by 1 / d_z (C_d = I_z (1 - w_a) / d_z)
@@ -294,6 +323,64 @@ def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
     return t.compress_blocks_bc7(surf, t.BC7EncSettings.from_profile(prof))
 
 
+def _bc7_decode(blocks: bytes, h: int, w: int) -> np.ndarray:
+    """BC7 blocks -> (h, w, 4) float64 codes 0..255 (bcdec through imagecodecs)."""
+    try:
+        import imagecodecs
+    except ImportError:
+        raise ImageError(
+            "KTX2 block compression (--container ktx2-bc) needs imagecodecs (it checks each "
+            "BC7 texture's error): pip install 'usdahd[ktx2]'"
+        ) from None
+    hp, wp = h + (-h % 4), w + (-w % 4)
+    out = imagecodecs.bcn_decode(blocks, imagecodecs.BCN.FORMAT.BC7, shape=(hp, wp, 4))
+    return np.asarray(out, np.float64)[:h, :w]
+
+
+def packing_codes(packing: str) -> list[str]:
+    """The channel codes of a ``usdahd:packing`` value (``R=L0.R:l0_8bit*l0Scale G=...`` ->
+    ["l0_8bit", ...]; docs/schema.md), in channel order; [] for an empty packing."""
+    return [item.split(":", 1)[1].split("*", 1)[0] for item in packing.split() if ":" in item]
+
+
+def packed_quantities(q: np.ndarray, codes: list[str]) -> np.ndarray:
+    """(n, 4) float64 8-bit codes -> (n, k) float64 quantities the BC7 check compares.
+
+    Enlighten's 8-bit SH (codes ``l0_8bit, l1_8bit x 3``): the irradiance-like L0 + L1 . n at
+    each of :data:`CHECK_NORMALS` with L0 = (q0 / 255)^2 and L1_i = (q_i - 127) / 127 L0 (the
+    l0Scale factor cancels in a relative error). Otherwise each channel's own code
+    (``unorm8`` q / 255, ``snorm8b`` (q - 128) / 127; ``reserved`` channels dropped; a channel
+    without a code, e.g. RGBA8's opaque A, dropped; an unknown code read as q / 255)."""
+    q = np.asarray(q, np.float64)
+    if codes[:4] == ["l0_8bit", "l1_8bit", "l1_8bit", "l1_8bit"]:
+        l0 = (q[:, 0] / 255.0) ** 2
+        l1 = (q[:, 1:4] - 127.0) / 127.0 * l0[:, None]
+        return l0[:, None] + l1 @ CHECK_NORMALS.T
+    cols = []
+    for i, code in enumerate(codes[: q.shape[1]]):
+        if code == "reserved":
+            continue
+        cols.append((q[:, i] - 128.0) / 127.0 if code == "snorm8b" else q[:, i] / 255.0)
+    return np.stack(cols, axis=-1) if cols else q[:, :0]
+
+
+def bc7_rel_rmse(blocks: bytes, px: np.ndarray, mask: np.ndarray, codes: list[str]) -> float:
+    """Error of BC7 blocks against their (h, w, 4) uint8 source: RMSE of the decoded quantities
+    (:func:`packed_quantities`) over the covered texels / their mean |value| (0 when exact, inf
+    for a zero source that does not decode to zero)."""
+    h, w = px.shape[:2]
+    m = np.asarray(mask, bool) if np.asarray(mask).any() else np.ones((h, w), bool)
+    src = packed_quantities(px.astype(np.float64)[m], codes)
+    dec = packed_quantities(_bc7_decode(blocks, h, w)[m], codes)
+    if src.size == 0:
+        return 0.0
+    rmse = math.sqrt(float(((dec - src) ** 2).mean()))
+    mean = float(np.abs(src).mean())
+    if rmse == 0.0:
+        return 0.0
+    return rmse / mean if mean > 0 else math.inf
+
+
 def _bc6h(rgba: np.ndarray) -> bytes:
     """(h, w, 4) float16 >= 0 -> BC6H_UF16 blocks (ISPCTextureCompressor)."""
     t = _encoder()
@@ -335,6 +422,8 @@ def encode_levels(
     lossless: bool = False,
     max_rel_rmse: float = BC6H_MAX_REL_RMSE,
     stats=None,
+    codes: tuple[str, ...] = (),
+    max_bc7_rel_rmse: float = BC7_MAX_REL_RMSE,
 ) -> tuple[int, list[bytes]]:
     """Mip levels [(image (h, w, c) float64, mask)] -> (VkFormat, level payloads).
 
@@ -342,9 +431,11 @@ def encode_levels(
     and level 0's error (:func:`bc6h_rel_rmse` over its covered texels) is at most
     ``max_rel_rmse`` (:data:`BC6H_MAX_REL_RMSE`), else E5B9G9R9 (RGB) or RGBA16F (RGBA, or a
     negative value); fmt "unorm8": RGBA8 of the rounded codes (A = 255 for RGB), or BC7 with
-    compression "bc" unless ``lossless`` (the codes of :data:`LOSSLESS_PACKINGS`).
-    ``stats``: a dict that receives ``bc_rel_rmse`` (the BC6H error measured) and, when a "bc"
-    texture is not block-compressed, ``bc_fallback`` (why, and the format written)."""
+    compression "bc" unless ``lossless`` (the codes of :data:`LOSSLESS_PACKINGS`) or level 0's
+    error (:func:`bc7_rel_rmse` of the channel ``codes``, :func:`packing_codes`) is above
+    ``max_bc7_rel_rmse`` (:data:`BC7_MAX_REL_RMSE`). ``stats``: a dict that receives
+    ``bc_rel_rmse`` (the BC6H / BC7 error measured) and, when a "bc" texture is not
+    block-compressed, ``bc_fallback`` (why, and the format written)."""
     if compression not in COMPRESSIONS:
         raise ImageError(f"KTX2 compression must be one of {COMPRESSIONS}, got {compression!r}")
     bc = compression == "bc"
@@ -376,7 +467,15 @@ def encode_levels(
             stats["bc_fallback"] = "direction / ratio codes (BC7 error times 1 / d_z): RGBA8"
         elif bc:
             alpha = levels[0][0].shape[-1] == 4
-            return VK_FORMAT_BC7_UNORM_BLOCK, [_bc7(p, alpha) for p in pxs]
+            first = _bc7(pxs[0], alpha)
+            err = bc7_rel_rmse(first, pxs[0], levels[0][1], list(codes))
+            stats["bc_rel_rmse"] = err if math.isfinite(err) else None
+            if err <= max_bc7_rel_rmse:
+                return VK_FORMAT_BC7_UNORM_BLOCK, [first] + [_bc7(p, alpha) for p in pxs[1:]]
+            stats["bc_fallback"] = (
+                f"BC7 error {err:.3g} > {max_bc7_rel_rmse:g} (RMSE / mean of level 0's decoded "
+                "quantities): RGBA8"
+            )
         return VK_FORMAT_R8G8B8A8_UNORM, [p.tobytes() for p in pxs]
     raise ImageError(f"no KTX2 encoding for texture format {fmt!r}")
 
@@ -391,6 +490,7 @@ def write(
     compression: str = "none",
     attributes: dict[str, str] | None = None,
     max_rel_rmse: float = BC6H_MAX_REL_RMSE,
+    max_bc7_rel_rmse: float = BC7_MAX_REL_RMSE,
 ) -> dict:
     """Write one lightmap texture as KTX2 with its chart-aware mip chain (atomically).
 
@@ -398,9 +498,11 @@ def write(
     chart ids. fmt : the layout format ("half" or "unorm8"). compression : "none" (lossless
     RGBA16F / RGBA8) or "bc" (BC6H / BC7, see the module docstring). attributes : extra key/value
     pairs (e.g. ``usdahd:packing``; a packing of :data:`LOSSLESS_PACKINGS` stays RGBA8 under
-    "bc"). max_rel_rmse : the BC6H error bound of :func:`encode_levels`. returns {"vk_format",
-    "levels", "bytes", "bytes_per_texel"} plus, under "bc", ``bc_rel_rmse`` (the BC6H error
-    measured) and ``bc_fallback`` (why a texture is not block-compressed, and its format).
+    "bc"). max_rel_rmse, max_bc7_rel_rmse : the BC6H / BC7 error bounds of
+    :func:`encode_levels` (the BC7 one on the quantities of the packing's channel codes).
+    returns {"vk_format", "levels", "bytes", "bytes_per_texel"} plus, under "bc",
+    ``bc_rel_rmse`` (the BC6H / BC7 error measured) and ``bc_fallback`` (why a texture is not
+    block-compressed, and its format).
     """
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[-1] not in (3, 4):
@@ -411,7 +513,14 @@ def write(
     lossless = any(packing.startswith(p) for p in LOSSLESS_PACKINGS)
     stats: dict = {}
     vk, payloads = encode_levels(
-        levels, fmt, compression, lossless=lossless, max_rel_rmse=max_rel_rmse, stats=stats
+        levels,
+        fmt,
+        compression,
+        lossless=lossless,
+        max_rel_rmse=max_rel_rmse,
+        stats=stats,
+        codes=tuple(packing_codes(packing)),
+        max_bc7_rel_rmse=max_bc7_rel_rmse,
     )
     dfd = _dfd(vk)
     kv = {"KTXwriter": f"usdahd {__version__}", "KTXorientation": "rd"}

@@ -486,6 +486,27 @@ def test_castle_unwraps_without_overlap():
     mesh = load_scene(str(stage)).meshes[0]
     uv, res = unwrap(mesh, resolution=256, isolate=False)
     _check_representable(mesh, uv, res, degenerate=5)
+    # at the automatic density the bake plans for it (16/m, 14.4 m stage): the second chart
+    # option with its rings cut overlapped on 2,746 texels (1.6 %) and won on fill; a layout
+    # that overlaps now ranks below every one that does not
+    mesh = load_scene(str(stage)).meshes[0]
+    uv, res = unwrap(mesh, texels_per_unit=16.0, isolate=False)
+    _check_representable(mesh, uv, res, degenerate=5)
+
+
+def test_candidate_layouts_count_their_overlapping_texels():
+    """unwrap's candidate key counts overlap as validate's UVOverlap rule does (centres
+    strictly inside two triangles), so an overlapping layout never wins on fill."""
+    from usdahd.bake.unwrap import _covered
+
+    quad = np.array([[[0, 0], [8, 0], [8, 8]], [[0, 0], [8, 8], [0, 8]]], np.float32)
+    covered, overlap = _covered(quad, 16, 16)
+    assert (covered, overlap) == (64, 0)
+    shifted = np.concatenate([quad, quad + np.float32(4)])  # a copy over a quarter of it
+    covered, overlap = _covered(shifted, 16, 16)
+    # the 16 centres both squares hold, less the 4 on their shared diagonal (on the edge
+    # between a square's two triangles, so strictly inside only the other square's)
+    assert covered == 64 + 64 - 16 and overlap == 16 - 4
 
 
 def test_small_charts_keep_one_texel_of_padding_and_fill_their_map():

@@ -445,8 +445,10 @@ def pack_part(
                     continue  # the same charts as a smaller floor
                 w, h, uv, _ = packs(*layout(uvw, lab), density, padding)
                 spread = _spread(uv, world)
-                score = _covered(uv, w, h) - FILL_WEIGHT * w * h
+                covered, overlap = _covered(uv, w, h)
+                score = covered - FILL_WEIGHT * w * h
                 key = (
+                    -overlap,
                     spread <= DENSITY_SPREAD_MAX,
                     score if spread <= DENSITY_SPREAD_MAX else -spread,
                     -w * h,
@@ -475,7 +477,8 @@ def pack_part(
                     continue
                 spread = _spread(got[2], world)
                 even = spread <= DENSITY_SPREAD_MAX
-                score = (even, _covered(got[2], *target) if even else -spread, got[3])
+                covered, overlap = _covered(got[2], *target)
+                score = (-overlap, even, covered if even else -spread, got[3])
                 if best is None or score > best[0]:
                     best = (score, (*got[:3], target), lab, got[4])
     if best is None:
@@ -504,16 +507,19 @@ def _spread(uv, world) -> float:
     return float(p90 / p10) if p10 > 0 else float("inf")
 
 
-def _covered(uv, w, h) -> int:
-    """Texels the (t, 3, 2) pixel-space ``uv`` of a w x h map cover (conservatively, as the
-    bake rasterises them: :func:`usdahd.numerics.raster.coverage`, the rasteriser's texels
-    without their sample points)."""
+def _covered(uv, w, h) -> tuple[int, int]:
+    """(covered, overlapping) texels of the (t, 3, 2) pixel-space ``uv`` of a w x h map:
+    covered conservatively, as the bake rasterises them, and overlapping as ``usdahd
+    validate``'s UVOverlap rule counts them (centres strictly inside two triangles;
+    :func:`usdahd.numerics.raster.coverage`, the rasteriser's texels without their sample
+    points)."""
     from usdahd.numerics.raster import coverage
 
     flat = np.empty_like(uv)
     flat[..., 0] = uv[..., 0] / w
     flat[..., 1] = 1.0 - uv[..., 1] / h
-    return int(len(coverage(flat, (w, h))[0]))
+    ids, overlap_ids = coverage(flat, (w, h))[:2]
+    return int(len(ids)), int(len(overlap_ids))
 
 
 def _rings_cut(labels, lab) -> int:

@@ -841,6 +841,46 @@ def test_compare_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch):
     assert abs(row["usdahd"]["bias"]) < 1e-4 and abs(row["cycles"]["bias"]) < 1e-5
     assert "| **overall** |" in compare.table(res)
     assert list((tmp_path / "cache").glob("*.npz"))  # the truth was cached
+    # the bake's own standard error came through bakevar.py: an upper bound (s^2 / S of the
+    # per-sample values; the regression estimator integrates the uniform dome exactly, so it
+    # is loose here: 0.33 % measured where the bias is ~1e-8)
+    assert 0 < row["bake_se"] < 0.01 and "bake_se" in res["overall"]
+
+
+def test_bakevar_keeps_the_integrators_variances_per_prim(tmp_path, capsys):
+    """bakevar.py is ``usdahd bake`` (same exit code, same layer) that also writes each
+    prim's texel coordinates and per-texel I_z variances; in process and as a subprocess."""
+    import json
+    import subprocess
+
+    from benchmarks.reference import bakevar
+
+    stage = ROOT / "samples" / "cornell_box.usda"
+    args = [str(stage), "--resolution", "8", "--samples", "16", "--no-denoise", "--json"]
+    out = tmp_path / "v.npz"
+    assert bakevar.main([str(out), *args, "-o", str(tmp_path / "a" / "c.lightmaps.usda")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    got = bakevar.read(out)
+    assert set(got) == {p["path"] for p in report["prims"] if p.get("status") == "baked"}
+    for v in got.values():
+        n = len(v["xy"])
+        assert n and v["s2"].shape == v["halves"].shape == (n,)
+        assert (v["s2"] >= 0).all() and (v["halves"] >= 0).all() and v["s2"].max() > 0
+        assert 0 <= v["xy"].min() and v["xy"].max() < 8
+    out2 = tmp_path / "w.npz"
+    r = subprocess.run(
+        [sys.executable, "-m", "benchmarks.reference.bakevar", str(out2), *args, "-o",
+         str(tmp_path / "b" / "c.lightmaps.usda")], capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    again = bakevar.read(out2)
+    for k, v in got.items():  # seeded: the same variances
+        np.testing.assert_array_equal(again[k]["s2"], v["s2"])
+    assert bakevar.main([str(out)]) == 2
+    assert "usage" in capsys.readouterr().err
+    # usdahd's own errors and exit code pass through (no such stage)
+    assert bakevar.main([str(tmp_path / "x.npz"), str(tmp_path / "none.usda"), "-o",
+                         str(tmp_path / "x.usda")]) == 2  # fmt: skip
 
 
 def test_time_to_quality_interpolates_in_log_log_and_says_not_reached():
@@ -1143,7 +1183,14 @@ def test_seed_rows_pool_per_spp_with_the_standard_error_of_the_seeds():
     assert r["sd"] == pytest.approx(sd) and r["se"] == pytest.approx(sd / 2)
     assert (r["min"], r["max"]) == (-0.01, 0.02)
     assert math.isnan(rows[0]["se"])  # one seed: no standard error
-    assert "| 256 | 4 | +0.50 % | 0.65 % | 1.29 % | -1.00 % / +2.00 % |" in seeds.table(rows)
+    row = "| 256 | 4 | +0.50 % | 0.65 % | 1.29 % | -1.00 % / +2.00 % | — | — |"
+    assert row in seeds.table(rows)
+    # the bake's own SE estimates per seed: their RMS, beside the measured SD
+    est = {"256": {"integrator": [0.01, 0.01, 0.014, 0.014], "seed_pairs": [0.012, 0.012]}}
+    r = seeds.seed_rows({256: [-0.01, 0.0, 0.01, 0.02]}, est)[0]
+    assert r["est_integrator"] == pytest.approx(math.sqrt((0.0001 + 0.000196) / 2))
+    assert r["est_seed_pairs"] == pytest.approx(0.012)
+    assert "| 1.22 % | 1.20 % |" in seeds.table([r])
 
 
 def test_seeds_cli_usage_errors(tmp_path, capsys):

@@ -191,8 +191,9 @@ def bake_mean_error(variance, lit: np.ndarray, mean_truth: float) -> dict | None
     return out
 
 
-def variance_images(variance: dict, path: str, shape) -> tuple[np.ndarray, np.ndarray] | None:
-    """(s2, halves) (h, w) images (NaN where not traced) of one prim from ``bakevar.read``."""
+def variance_images(variance: dict, path: str, shape):
+    """(s2, halves) (h, w) images (NaN where not traced) and the (h, w) bool image of texels
+    the bake filled from neighbours (``invalid``) of one prim from ``bakevar.read``, or None."""
     v = variance.get(path)
     if v is None:
         return None
@@ -205,16 +206,21 @@ def variance_images(variance: dict, path: str, shape) -> tuple[np.ndarray, np.nd
         img = np.full((h, w), np.nan)
         img[xy[:, 1], xy[:, 0]] = v[name]
         out.append(img)
-    return out[0], out[1]
+    filled = np.zeros((h, w), bool)
+    filled[xy[:, 1], xy[:, 0]] = np.asarray(v.get("invalid", np.zeros(len(xy), bool)), bool)
+    return (out[0], out[1]), filled
 
 
 def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
-                   variance: dict | None = None) -> dict:  # fmt: skip
+                   variance: dict | None = None, filled: dict | None = None) -> dict:  # fmt: skip
     """Per-mesh and overall figures. truth/equal: {mesh index: (h, w, 3)}; ours:
     {mesh index: (iz (h, w, 3), covered (h, w))}; variance: {mesh index: (s2, halves)} (h, w)
     per-texel variances of usdahd's I_z luminance (:func:`bake_mean_error`; a mesh's row gets
-    ``bake_se``). Returns {"meshes": [...], "overall": {...}}."""
+    ``bake_se``); filled: {mesh index: (h, w) bool} texels usdahd filled from neighbours
+    instead of estimating (inside geometry, covered, contacts): reported apart (``filled``),
+    as the contact texels are. Returns {"meshes": [...], "overall": {...}}."""
     variance = variance or {}
+    filled = filled or {}
     all_lum = np.concatenate(
         [(np.nan_to_num(truth[k].reshape(-1, 3)) @ LUMA) for k in truth]
     ) if truth else np.zeros(0)  # fmt: skip
@@ -231,6 +237,10 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
         # averages its texel footprint there, usdahd samples the centre or fills it).
         lit = interior(bright)
         contact = interior(cov) & bright & ~lit
+        fill = filled.get(k)
+        if fill is not None and fill.shape == lit.shape:
+            fill = fill & lit
+            lit = lit & ~fill
         row = {"path": m["path"], "resolution": m["resolution"], "covered": int(cov.sum()),
                "compared": int(lit.sum())}  # fmt: skip
         if k in ours:
@@ -255,6 +265,9 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
             if contact.any():  # reported apart: where leaks at contact edges would show
                 row["contact"] = {"texels": int(contact.sum()),
                                   **error_stats(iz[contact], t[contact])}  # fmt: skip
+            if fill is not None and (fill & ucov).any():  # the fill rule's, not an estimate
+                f = fill & ucov
+                row["filled"] = {"texels": int(f.sum()), **error_stats(iz[f], t[f])}
         c = equal.get(k)
         if c is not None:
             ok = lit & np.isfinite(c[..., 0])
@@ -498,15 +511,16 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
             threads=threads,
             quiet=quiet, oversample=oversample, point=point,
         )  # fmt: skip
-        ours, variance = {}, {}
+        ours, variance, filled = {}, {}, {}
         for k, m in enumerate(scene.meshes):
             r = results.get(m["path"])
             if m["baked"] and r and r.get("sidecar"):
                 ours[k] = usdahd_iz(r["record"])
                 v = variance_images(baked["variance"], m["path"], ours[k][1].shape)
                 if v is not None:
-                    variance[k] = v
-        out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp, variance)
+                    variance[k], filled[k] = v
+        out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp, variance,
+                             filled)  # fmt: skip
         out.update(
             stage=str(stage),
             usdahd_args=[

@@ -410,6 +410,26 @@ def test_compare_images_uses_interior_lit_texels_only():
     assert row["cycles"]["bias"] == pytest.approx(0.0)
 
 
+def test_texels_the_bake_filled_are_reported_apart():
+    """A texel usdahd filled from its neighbours (bakevar's ``invalid``: covered, inside
+    geometry) carries the fill rule's value, not an estimate: left out of the mesh's figures
+    and reported apart (``filled``), as the classroom ground's texel under the building is."""
+    meshes = [{"path": "/G", "baked": True, "resolution": [9, 9]}]
+    truth = np.ones((9, 9, 3))
+    ours = np.ones((9, 9, 3))
+    ours[4, 4] = 6.0  # the neighbours' mean where the point itself is dim
+    fill = np.zeros((9, 9), bool)
+    fill[4, 4] = True
+    var = np.full((9, 9), 1e-4)
+    args = (meshes, {0: truth}, {}, {0: (ours, np.ones((9, 9), bool))}, 16, 64, {0: (var, var)})
+    row = compare.compare_images(*args, {0: fill})["meshes"][0]
+    assert row["compared"] == 48 and row["usdahd"]["bias"] == pytest.approx(0.0)
+    assert row["filled"]["texels"] == 1 and row["filled"]["bias"] == pytest.approx(5.0)
+    row = compare.compare_images(*args)["meshes"][0]  # without the fill mask: in the figures
+    assert row["compared"] == 49 and row["usdahd"]["bias"] == pytest.approx(5.0 / 49)
+    assert "filled" not in row
+
+
 def test_texels_next_to_unlit_ones_are_reported_apart():
     """A dark footprint (a box standing on the floor) in the middle of a lit chart: its lit
     neighbours are 'contact' texels, not part of the main figures."""
@@ -867,6 +887,7 @@ def test_bakevar_keeps_the_integrators_variances_per_prim(tmp_path, capsys):
         assert n and v["s2"].shape == v["halves"].shape == (n,)
         assert (v["s2"] >= 0).all() and (v["halves"] >= 0).all() and v["s2"].max() > 0
         assert 0 <= v["xy"].min() and v["xy"].max() < 8
+        assert v["invalid"].shape == (n,) and v["invalid"].dtype == bool
     out2 = tmp_path / "w.npz"
     r = subprocess.run(
         [sys.executable, "-m", "benchmarks.reference.bakevar", str(out2), *args, "-o",

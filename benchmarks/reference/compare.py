@@ -256,7 +256,8 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
             row["compared"] = int(lit.sum())
             row["usdahd"] = error_stats(iz[lit], t[lit])
             pool["u"].append(iz[lit])
-            se = bake_mean_error(variance.get(k), lit, float((t[lit] @ LUMA).mean()))
+            se = bake_mean_error(variance.get(k), lit, float((t[lit] @ LUMA).mean())) \
+                if lit.any() else None  # fmt: skip
             if se is not None:
                 row["bake_se"] = se["se"]
                 row["bake_se_bounds"] = {"s2": se["se_s2"], "halves": se["se_halves"]}
@@ -280,7 +281,7 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
         tt = np.concatenate(pool["t"])
         if pool["u"] and len(pool["u"]) == len(pool["t"]):
             overall["usdahd"] = error_stats(np.concatenate(pool["u"]), tt)
-        if pool["v"] and len(pool["v"]) == len(pool["t"]):
+        if pool["v"] and sum(v.shape[1] for v in pool["v"]) == len(tt):  # every texel has one
             vv = np.concatenate(pool["v"], axis=1)
             se = bake_mean_error((vv[0], vv[1]), np.ones(len(tt), bool), float((tt @ LUMA).mean()))
             if se is not None:

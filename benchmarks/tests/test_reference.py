@@ -1191,6 +1191,13 @@ def test_bake_mean_error_needs_every_compared_texel():
     var[0, 0] = np.nan  # a compared texel the bake has no variance for
     assert compare.bake_mean_error((var, var), lit, 1.0) is None
     assert compare.bake_mean_error(None, lit, 1.0) is None
+    # pooled over meshes even when one has no compared texel (a dark mesh)
+    meshes = [{"path": p, "baked": True, "resolution": [9, 9]} for p in ("/A", "/B")]
+    t, dark, v = np.ones((9, 9, 3)), np.zeros((9, 9, 3)), np.full((9, 9), 1e-4)
+    cov = np.ones((9, 9), bool)
+    out = compare.compare_images(meshes, {0: t, 1: dark}, {}, {0: (t, cov), 1: (dark, cov)},
+                                 16, 64, {0: (v, v), 1: (v, v)})  # fmt: skip
+    assert out["overall"]["bake_se"] == pytest.approx(math.sqrt(49e-4) / 49)
 
 
 def test_seed_rows_pool_per_spp_with_the_standard_error_of_the_seeds():

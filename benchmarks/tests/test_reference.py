@@ -1263,3 +1263,30 @@ def test_seeds_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch):
     with pytest.raises(compare.CompareError, match="/World/Nope: not baked"):
         seeds.run_seeds(stage, "/World/Nope", resolution=8, spps=[16], seeds=[1],
                         truth_spp=8, bpy=bpy_python, quiet=True)  # fmt: skip
+
+
+def test_truth_pair_usage_errors(tmp_path, capsys):
+    from benchmarks.reference import truth_pair
+
+    assert truth_pair.main([str(tmp_path / "none.usda"), "--resolution", "8"]) == 2
+    assert "no such file" in capsys.readouterr().err
+    stage = str(ROOT / "samples" / "open_plane.usda")
+    assert truth_pair.main([stage, "--resolution", "8", "--spp", "16", "--seeds", "1"]) == 2
+    assert "two values each" in capsys.readouterr().err
+    assert truth_pair.main([stage, "--resolution", "8", "--spp", "16,16", "--seeds", "1,1"]) == 2
+    assert "must differ" in capsys.readouterr().err
+
+
+def test_truth_pair_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch, capsys):
+    """Two truths of the uniform dome agree exactly (every path escapes to the same radiance)."""
+    from benchmarks.reference import truth_pair
+
+    monkeypatch.setenv(runner.CACHE_VAR, str(tmp_path / "cache"))
+    args = [str(ROOT / "samples" / "open_plane.usda"), "--resolution", "8", "--spp", "8,16",
+            "--seeds", "1,3", "--bpy-python", bpy_python, "--quiet"]  # fmt: skip
+    assert truth_pair.main([*args, "--json"]) == 0
+    res = __import__("json").loads(capsys.readouterr().out)
+    (m,) = res["meshes"].values()
+    assert m["texels"] > 0 and abs(m["bias"]) < 1e-5 and res["cached"] == [False, False]
+    assert truth_pair.main(args) == 0  # now from the cache, as a table
+    assert "| truth 8 spp (seed 1) vs 16 spp (seed 3) |" in capsys.readouterr().out

@@ -15,7 +15,10 @@ standard deviation over sqrt(seeds): the usdahd side only; the truth's own error
 mesh's mean is common to every row, so rows compare with each other at the SE shown), the
 per-seed standard deviation and the range. An estimator whose bias shrinks with samples shows
 as a trend down the rows; one noise draw as a row mean within a few SE of the converged row's.
-The undenoised estimate is what is measured (the denoiser is not run).
+The undenoised estimate is what is measured (the denoiser is not run). Also printed: the RMS
+over seeds of the bake's own standard-error estimates of the mesh's bias, from the integrator's
+per-texel variances as ``compare`` takes them (:func:`benchmarks.reference.compare.bake_mean_error`)
+and from seed pairs (``(a - b)^2 / 2`` per texel), to check against the measured per-seed SD.
 """
 
 from __future__ import annotations

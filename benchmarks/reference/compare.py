@@ -321,18 +321,20 @@ def table(result: dict) -> str:
         f"(truth noise ~{_pct0(r['overall'].get('truth_noise'))} relRMSE)",
         "",
         "| mesh | texels | usdahd bias | usdahd relRMSE | Cycles bias | Cycles relRMSE | ratio "
-        "| contact texels: usdahd bias |",
-        "|---|---|---|---|---|---|---|---|",
+        "| contact texels: usdahd bias | filled texels: usdahd bias | bake SE of mean |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in r["meshes"] + [dict(r["overall"], path="**overall**")]:
         u, c = m.get("usdahd", {}), m.get("cycles", {})
         ratio = m.get("rmse_ratio")
-        ct = m.get("contact")
+        ct, fl = m.get("contact"), m.get("filled")
         ct = "—" if not ct else f"{ct['texels']}: {_pct(ct['bias'])}"
+        fl = "—" if not fl else f"{fl['texels']}: {_pct(fl['bias'])}"
         lines.append(
             f"| {m['path']} | {m.get('compared', 0)} | {_pct(u.get('bias'))} | "
             f"{_pct0(u.get('rel_rmse'))} | {_pct(c.get('bias'))} | {_pct0(c.get('rel_rmse'))} | "
-            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {ct} |"
+            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {ct} | {fl} | "
+            f"{_pct0(m.get('bake_se'))} |"
         )
     t = r["seconds"]
     lines += [

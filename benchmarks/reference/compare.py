@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 import usdahd.usd  # noqa: F401  (registers the AhdLightmapAPI plugin before pxr builds its registry)
-from benchmarks.reference import export, runner
+from benchmarks.reference import bakevar, export, runner
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 #: A texel is "lit" when the truth's luminance exceeds this fraction of the stage's 99th
@@ -74,13 +74,16 @@ def bake_usdahd(stage: Path, out_dir: Path, resolution: int | None, uv: str | No
                 extra: list[str], quiet: bool = False) -> dict:  # fmt: skip
     """``python -m usdahd bake`` into out_dir; returns {"report", "seconds", "layer"}."""
     layer = out_dir / f"{stage.stem}.lightmaps.usda"
-    cmd = [sys.executable, "-m", "usdahd", "bake", str(stage), "-o", str(layer), "--json"]
+    var_file = out_dir / "bake_variance.npz"
+    # usdahd's own CLI, keeping the integrator's per-texel variances (bakevar.py)
+    cmd = [sys.executable, "-m", "benchmarks.reference.bakevar", str(var_file), str(stage),
+           "-o", str(layer), "--json"]  # fmt: skip
     if resolution:
         cmd += ["--resolution", str(resolution)]
     if uv:
         cmd += ["--uv", uv]
     cmd += extra
-    _log("usdahd: " + " ".join(shlex.quote(c) for c in cmd[1:]), quiet)
+    _log("usdahd bake " + " ".join(shlex.quote(c) for c in cmd[4:]), quiet)
     t0 = time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
     seconds = time.perf_counter() - t0
@@ -91,7 +94,8 @@ def bake_usdahd(stage: Path, out_dir: Path, resolution: int | None, uv: str | No
         report = json.loads(r.stdout)
     except json.JSONDecodeError:
         report = {}
-    return {"report": report, "seconds": seconds, "layer": layer}
+    variance = bakevar.read(var_file) if var_file.is_file() else {}
+    return {"report": report, "seconds": seconds, "layer": layer, "variance": variance}
 
 
 def usdahd_results(layer: Path) -> dict:
@@ -163,14 +167,65 @@ def truth_noise(rel_rmse: float, spp: int, truth_spp: int) -> float:
     return rel_rmse * math.sqrt(r / (1 + r))
 
 
-def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict:
+def bake_mean_error(variance, lit: np.ndarray, mean_truth: float) -> dict | None:
+    """The bake's own standard error on a mesh's bias (relative to the truth's mean) from the
+    integrator's per-texel variances of its I_z luminance ``variance`` = (s2 (h, w), halves
+    (h, w)) (:mod:`benchmarks.reference.bakevar`; NaN: not traced) over the ``lit`` texels:
+    texels' noise is independent (one random stream per texel chunk, no shared samples), so
+    the variance of the mean is sum(var) / n^2. Both per-texel figures are upper bounds of the
+    stratified estimate's variance with one (halves) or many (s2) degrees of freedom per texel;
+    summed over a mesh both are well determined and the smaller is used (``se``; ``se_s2`` and
+    ``se_halves`` kept). The undenoised estimate's error: the denoiser keeps each chart's sum
+    (usdahd.bake.denoise), so the denoised mean scatters as much. None when any lit texel
+    has no variance or the truth's mean is not positive."""
+    n = int(lit.sum())
+    if variance is None or not n or not mean_truth > 0:
+        return None
+    out = {}
+    for name, img in zip(("s2", "halves"), variance, strict=True):
+        v = np.asarray(img, np.float64)[lit]
+        if not np.isfinite(v).all():
+            return None
+        out[f"se_{name}"] = float(np.sqrt(v.sum())) / n / mean_truth
+    out["se"] = min(out["se_s2"], out["se_halves"])
+    return out
+
+
+def variance_images(variance: dict, path: str, shape):
+    """(s2, halves) (h, w) images (NaN where not traced) and the (h, w) bool image of texels
+    the bake filled from neighbours (``invalid``) of one prim from ``bakevar.read``, or None."""
+    v = variance.get(path)
+    if v is None:
+        return None
+    xy = np.asarray(v["xy"], np.int64)
+    h, w = shape[:2]
+    if not len(xy) or xy[:, 0].max() >= w or xy[:, 1].max() >= h or xy.min() < 0:
+        return None
+    out = []
+    for name in ("s2", "halves"):
+        img = np.full((h, w), np.nan)
+        img[xy[:, 1], xy[:, 0]] = v[name]
+        out.append(img)
+    filled = np.zeros((h, w), bool)
+    filled[xy[:, 1], xy[:, 0]] = np.asarray(v.get("invalid", np.zeros(len(xy), bool)), bool)
+    return (out[0], out[1]), filled
+
+
+def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,
+                   variance: dict | None = None, filled: dict | None = None) -> dict:  # fmt: skip
     """Per-mesh and overall figures. truth/equal: {mesh index: (h, w, 3)}; ours:
-    {mesh index: (iz (h, w, 3), covered (h, w))}. Returns {"meshes": [...], "overall": {...}}."""
+    {mesh index: (iz (h, w, 3), covered (h, w))}; variance: {mesh index: (s2, halves)} (h, w)
+    per-texel variances of usdahd's I_z luminance (:func:`bake_mean_error`; a mesh's row gets
+    ``bake_se``); filled: {mesh index: (h, w) bool} texels usdahd filled from neighbours
+    instead of estimating (inside geometry, covered, contacts): reported apart (``filled``),
+    as the contact texels are. Returns {"meshes": [...], "overall": {...}}."""
+    variance = variance or {}
+    filled = filled or {}
     all_lum = np.concatenate(
         [(np.nan_to_num(truth[k].reshape(-1, 3)) @ LUMA) for k in truth]
     ) if truth else np.zeros(0)  # fmt: skip
     p99 = float(np.percentile(all_lum, 99)) if all_lum.size else 0.0
-    rows, pool = [], {"t": [], "c": [], "u": []}
+    rows, pool = [], {"t": [], "c": [], "u": [], "v": []}
     for k, m in enumerate(meshes):
         if not m["baked"] or k not in truth:
             continue
@@ -182,6 +237,10 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
         # averages its texel footprint there, usdahd samples the centre or fills it).
         lit = interior(bright)
         contact = interior(cov) & bright & ~lit
+        fill = filled.get(k)
+        if fill is not None and fill.shape == lit.shape:
+            fill = fill & lit
+            lit = lit & ~fill
         row = {"path": m["path"], "resolution": m["resolution"], "covered": int(cov.sum()),
                "compared": int(lit.sum())}  # fmt: skip
         if k in ours:
@@ -197,10 +256,19 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
             row["compared"] = int(lit.sum())
             row["usdahd"] = error_stats(iz[lit], t[lit])
             pool["u"].append(iz[lit])
+            se = bake_mean_error(variance.get(k), lit, float((t[lit] @ LUMA).mean())) \
+                if lit.any() else None  # fmt: skip
+            if se is not None:
+                row["bake_se"] = se["se"]
+                row["bake_se_bounds"] = {"s2": se["se_s2"], "halves": se["se_halves"]}
+                pool["v"].append(np.stack([variance[k][0][lit], variance[k][1][lit]]))
             contact &= ucov
             if contact.any():  # reported apart: where leaks at contact edges would show
                 row["contact"] = {"texels": int(contact.sum()),
                                   **error_stats(iz[contact], t[contact])}  # fmt: skip
+            if fill is not None and (fill & ucov).any():  # the fill rule's, not an estimate
+                f = fill & ucov
+                row["filled"] = {"texels": int(f.sum()), **error_stats(iz[f], t[f])}
         c = equal.get(k)
         if c is not None:
             ok = lit & np.isfinite(c[..., 0])
@@ -213,6 +281,11 @@ def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int) -> dict
         tt = np.concatenate(pool["t"])
         if pool["u"] and len(pool["u"]) == len(pool["t"]):
             overall["usdahd"] = error_stats(np.concatenate(pool["u"]), tt)
+        if pool["v"] and sum(v.shape[1] for v in pool["v"]) == len(tt):  # every texel has one
+            vv = np.concatenate(pool["v"], axis=1)
+            se = bake_mean_error((vv[0], vv[1]), np.ones(len(tt), bool), float((tt @ LUMA).mean()))
+            if se is not None:
+                overall["bake_se"] = se["se"]
         cc = np.concatenate(pool["c"])
         if np.isfinite(cc).all():
             overall["cycles"] = error_stats(cc, tt)
@@ -248,18 +321,20 @@ def table(result: dict) -> str:
         f"(truth noise ~{_pct0(r['overall'].get('truth_noise'))} relRMSE)",
         "",
         "| mesh | texels | usdahd bias | usdahd relRMSE | Cycles bias | Cycles relRMSE | ratio "
-        "| contact texels: usdahd bias |",
-        "|---|---|---|---|---|---|---|---|",
+        "| contact texels: usdahd bias | filled texels: usdahd bias | bake SE of mean |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in r["meshes"] + [dict(r["overall"], path="**overall**")]:
         u, c = m.get("usdahd", {}), m.get("cycles", {})
         ratio = m.get("rmse_ratio")
-        ct = m.get("contact")
+        ct, fl = m.get("contact"), m.get("filled")
         ct = "—" if not ct else f"{ct['texels']}: {_pct(ct['bias'])}"
+        fl = "—" if not fl else f"{fl['texels']}: {_pct(fl['bias'])}"
         lines.append(
             f"| {m['path']} | {m.get('compared', 0)} | {_pct(u.get('bias'))} | "
             f"{_pct0(u.get('rel_rmse'))} | {_pct(c.get('bias'))} | {_pct0(c.get('rel_rmse'))} | "
-            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {ct} |"
+            f"{'—' if ratio is None else f'{ratio:.2f}x'} | {ct} | {fl} | "
+            f"{_pct0(m.get('bake_se'))} |"
         )
     t = r["seconds"]
     lines += [
@@ -308,8 +383,8 @@ BIAS_BOUND = 0.01
 RATIO_BOUND = 1.5
 
 
-#: ``summary --meshes --noise``: a mesh's bias counts as the truth's noise when it is within
-#: the bound plus this many standard errors of the truth's mesh mean.
+#: A mesh's bias bound is ``BIAS_BOUND`` plus this many standard errors of its mean: the
+#: truth's and the bake's own, combined (:func:`bias_bound`).
 NOISE_SIGMAS = 2.0
 
 
@@ -320,17 +395,35 @@ def truth_mean_error(m: dict) -> float | None:
     return None if tn is None or not k else tn / math.sqrt(k)
 
 
+def bias_bound(m: dict) -> float:
+    """README.md's per-mesh bias bound: ``BIAS_BOUND + NOISE_SIGMAS * sqrt(SE_truth^2 +
+    SE_bake^2)``, the truth's standard error on the mesh's mean (:func:`truth_mean_error`) and
+    the bake's own (``bake_se``, :func:`bake_mean_error`); a figure a result does not have
+    counts as 0 (so an old result without either is held to the bare 1 %)."""
+    se_t = truth_mean_error(m) or 0.0
+    se_b = m.get("bake_se") or 0.0
+    return BIAS_BOUND + NOISE_SIGMAS * math.hypot(se_t, se_b)
+
+
+def within(m: dict) -> bool:
+    """Whether a compare row is within README.md's bounds: |bias| <= :func:`bias_bound` and
+    usdahd's relRMSE <= ``RATIO_BOUND`` x Cycles' at equal spp."""
+    b, ratio = m["usdahd"]["bias"], m.get("rmse_ratio")
+    return abs(b) <= bias_bound(m) and (ratio is None or ratio <= RATIO_BOUND)
+
+
 def bounds(results: list[dict], noise: bool = False) -> str:
     """Per mesh of every stage: usdahd's bias and relRMSE ratio against README.md's bounds
-    (|bias| <= 1 %, ratio <= 1.5x), the meshes outside first named in a last line.
+    (|bias| <= 1 % + 2 x the combined standard error of the mesh's mean, :func:`bias_bound`;
+    ratio <= 1.5x), the meshes outside named in a last line.
 
-    noise: also Cycles' own bias at equal spp and the truth's standard error on the mesh's mean
-    (:func:`truth_mean_error`); a mesh outside only by its bias, and within the bound plus
-    ``NOISE_SIGMAS`` of those errors, is marked ``no (noise)``: the truth cannot tell."""
+    noise: also Cycles' own bias at equal spp, the truth's and the bake's standard errors and
+    the bias bound they give; a mesh within only thanks to them (|bias| > 1 %) reads
+    ``yes (noise)``."""
     head = "| stage | mesh | texels | usdahd bias | usdahd relRMSE | Cycles relRMSE | ratio "
     if noise:
-        head += "| Cycles bias | truth SE of mean "
-    lines = [head + "| within |", "|---" * (10 if noise else 8) + "|"]
+        head += "| Cycles bias | truth SE of mean | bake SE of mean | bias bound "
+    lines = [head + "| within |", "|---" * (12 if noise else 8) + "|"]
     out, n, noisy = [], 0, []
     for r in results:
         for m in r["meshes"]:
@@ -338,17 +431,15 @@ def bounds(results: list[dict], noise: bool = False) -> str:
                 continue
             n += 1
             b, ratio = m["usdahd"]["bias"], m.get("rmse_ratio")
-            ratio_ok = ratio is None or ratio <= RATIO_BOUND
-            ok = abs(b) <= BIAS_BOUND and ratio_ok
             name = f"{Path(r['stage']).name} {m['path']}"
+            ok = within(m)
             verdict = "yes" if ok else "**no**"
-            se = truth_mean_error(m)
             if not ok:
                 out.append(name)
-                if noise and ratio_ok and se is not None:
-                    if abs(b) <= BIAS_BOUND + NOISE_SIGMAS * se:
-                        verdict = "no (noise)"
-                        noisy.append(name)
+            elif abs(b) > BIAS_BOUND:
+                noisy.append(name)
+                if noise:
+                    verdict = "yes (noise)"
             row = (
                 f"| {Path(r['stage']).name} | {m['path']} | {m.get('compared', 0)} | {_pct(b)} | "
                 f"{_pct0(m['usdahd'].get('rel_rmse'))} | "
@@ -356,20 +447,22 @@ def bounds(results: list[dict], noise: bool = False) -> str:
                 f"{'—' if ratio is None else f'{ratio:.2f}x'} | "
             )
             if noise:
-                row += f"{_pct(m.get('cycles', {}).get('bias'))} | {_pct0(se)} | "
+                row += (
+                    f"{_pct(m.get('cycles', {}).get('bias'))} | {_pct0(truth_mean_error(m))} | "
+                    f"{_pct0(m.get('bake_se'))} | {_pct0(bias_bound(m))} | "
+                )
             lines.append(row + f"{verdict} |")
     lines += [
         "",
-        f"{n - len(out)} of {n} meshes within |bias| <= {100 * BIAS_BOUND:g} % and ratio <= "
-        f"{RATIO_BOUND:g}x" + (f"; outside: {', '.join(out)}" if out else ""),
+        f"{n - len(out)} of {n} meshes within |bias| <= {100 * BIAS_BOUND:g} % + "
+        f"{NOISE_SIGMAS:g} x sqrt(SE_truth^2 + SE_bake^2) and ratio <= {RATIO_BOUND:g}x"
+        + (f"; outside: {', '.join(out)}" if out else ""),
     ]
     if noise:
         lines += [
             "",
-            f"{len(noisy)} of the {len(out)} outside are within |bias| <= "
-            f"{100 * BIAS_BOUND:g} % + {NOISE_SIGMAS:g} x the truth's standard error on the "
-            f"mesh's mean (no (noise)); beyond it: "
-            + (", ".join(x for x in out if x not in noisy) or "none"),
+            f"{len(noisy)} of them within only by the standard errors (|bias| > "
+            f"{100 * BIAS_BOUND:g} %): " + (", ".join(noisy) or "none"),
         ]
     return "\n".join(lines)
 
@@ -381,7 +474,7 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
                 usdahd_args: str = "", spp: int | None = None, truth_spp: int = 4096,
                 bpy: str | None = None, use_cache: bool = True, keep: str | None = None,
                 threads: int = 0, quiet: bool = False, oversample: int = 1,
-                point: bool = False) -> dict:  # fmt: skip
+                point: bool = False, cache_equal: bool = False) -> dict:  # fmt: skip
     stage = Path(stage).resolve()
     if not stage.is_file():
         raise CompareError(f"{stage}: no such file")
@@ -417,15 +510,20 @@ def run_compare(stage, *, resolution: int | None, uv: str | None = None,
         )  # fmt: skip
         _log(f"Cycles at equal spp: {spp_eq}", quiet)
         e_info, equal, _ = runner.cached_cycles(
-            scene, sf, spp_eq, seed=EQUAL_SEED, bpy=bpy, use_cache=False, threads=threads,
+            scene, sf, spp_eq, seed=EQUAL_SEED, bpy=bpy, use_cache=cache_equal and use_cache,
+            threads=threads,
             quiet=quiet, oversample=oversample, point=point,
         )  # fmt: skip
-        ours = {}
+        ours, variance, filled = {}, {}, {}
         for k, m in enumerate(scene.meshes):
             r = results.get(m["path"])
             if m["baked"] and r and r.get("sidecar"):
                 ours[k] = usdahd_iz(r["record"])
-        out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp)
+                v = variance_images(baked["variance"], m["path"], ours[k][1].shape)
+                if v is not None:
+                    variance[k], filled[k] = v
+        out = compare_images(scene.meshes, truth, equal, ours, spp_eq, truth_spp, variance,
+                             filled)  # fmt: skip
         out.update(
             stage=str(stage),
             usdahd_args=[
@@ -491,6 +589,9 @@ def main(argv=None) -> int:
     c.add_argument("--point", action="store_true",
                    help="Cycles samples each texel's centre point (probes.py), as usdahd does, "
                         "for the truth and the equal-spp run")  # fmt: skip
+    c.add_argument("--cache-equal", action="store_true",
+                   help="cache Cycles' equal-spp run too (it does not depend on usdahd's seed, "
+                        "so a re-run with another --usdahd-args seed reuses it)")  # fmt: skip
     c.add_argument("--json", action="store_true")
     c.add_argument("--quiet", action="store_true")
     b = sub.add_parser("bake", help="Cycles I_z per mesh of a stage with lightmap UVs")
@@ -510,7 +611,8 @@ def main(argv=None) -> int:
     s.add_argument(
         "--noise",
         action="store_true",
-        help="with --meshes: Cycles' bias and the truth's standard error on each mesh's mean",
+        help="with --meshes: Cycles' bias and the truth's and the bake's standard errors on "
+        "each mesh's mean",
     )
     a = p.parse_args(argv)
     if a.cmd == "summary":
@@ -541,7 +643,7 @@ def main(argv=None) -> int:
                 stage, resolution=a.resolution, uv=a.uv, usdahd_args=a.usdahd_args, spp=a.spp,
                 truth_spp=a.truth_spp, bpy=a.bpy_python, use_cache=not a.no_cache,
                 keep=a.keep, threads=a.threads, quiet=a.quiet, oversample=a.oversample,
-                point=a.point,
+                point=a.point, cache_equal=a.cache_equal,
             )  # fmt: skip
             results.append(res)
             if not a.json:

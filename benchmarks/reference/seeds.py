@@ -15,7 +15,10 @@ standard deviation over sqrt(seeds): the usdahd side only; the truth's own error
 mesh's mean is common to every row, so rows compare with each other at the SE shown), the
 per-seed standard deviation and the range. An estimator whose bias shrinks with samples shows
 as a trend down the rows; one noise draw as a row mean within a few SE of the converged row's.
-The undenoised estimate is what is measured (the denoiser is not run).
+The undenoised estimate is what is measured (the denoiser is not run). Also printed: the RMS
+over seeds of the bake's own standard-error estimates of the mesh's bias, from the integrator's
+per-texel variances as ``compare`` takes them (:func:`benchmarks.reference.compare.bake_mean_error`)
+and from seed pairs (``(a - b)^2 / 2`` per texel), to check against the measured per-seed SD.
 """
 
 from __future__ import annotations
@@ -33,26 +36,35 @@ from benchmarks.reference import compare, export, runner
 __all__ = ["main", "seed_rows"]
 
 
-def seed_rows(biases: dict[int, list[float]]) -> list[dict]:
-    """Per spp (ascending): seeds, mean bias, its standard error, per-seed SD, min, max."""
+def seed_rows(biases: dict[int, list[float]], se: dict | None = None) -> list[dict]:
+    """Per spp (ascending): seeds, mean bias, its standard error, per-seed SD, min, max; with
+    ``se`` ({str(spp): {"integrator": [...], "seed_pairs": [...]}}) also the RMS over seeds of
+    the bake's own standard-error estimates (``est_integrator``, ``est_seed_pairs``), which
+    should match the measured per-seed SD."""
     rows = []
     for spp in sorted(biases):
         b = np.asarray(biases[spp], np.float64)
         sd = float(b.std(ddof=1)) if len(b) > 1 else float("nan")
-        rows.append({
+        row = {
             "spp": spp, "seeds": len(b), "bias": float(b.mean()),
             "se": sd / np.sqrt(len(b)), "sd": sd, "min": float(b.min()), "max": float(b.max()),
-        })  # fmt: skip
+        }  # fmt: skip
+        for name, v in ((se or {}).get(str(spp)) or {}).items():
+            if name in ("integrator", "seed_pairs") and v:
+                row[f"est_{name}"] = float(np.sqrt(np.mean(np.square(v))))
+        rows.append(row)
     return rows
 
 
 def table(rows: list[dict]) -> str:
     pc = compare._pct
-    head = "| spp | seeds | mean bias | SE of the mean | SD per seed | min / max |\n"
-    head += "|---|---|---|---|---|---|\n"
+    head = "| spp | seeds | mean bias | SE of the mean | SD per seed | min / max "
+    head += "| bake SE est. (integrator) | bake SE est. (seed pairs) |\n"
+    head += "|---|---|---|---|---|---|---|---|\n"
     return head + "\n".join(
         f"| {r['spp']} | {r['seeds']} | {pc(r['bias'])} | {compare._pct0(r['se'])} | "
-        f"{compare._pct0(r['sd'])} | {pc(r['min'])} / {pc(r['max'])} |"
+        f"{compare._pct0(r['sd'])} | {pc(r['min'])} / {pc(r['max'])} | "
+        f"{compare._pct0(r.get('est_integrator'))} | {compare._pct0(r.get('est_seed_pairs'))} |"
         for r in rows
     )
 
@@ -86,6 +98,7 @@ def run_seeds(stage, prim: str, *, resolution: int, spps: list[int], seeds: list
     bpy = runner.find_bpy(bpy)  # fail before any long work
     orig = integ.bake_texels
     est: dict[int, list[np.ndarray]] = {s: [] for s in spps}
+    var: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {s: [] for s in spps}
     found = {}
 
     def hook(scene, tracer, texels, **kw):
@@ -95,9 +108,11 @@ def run_seeds(stage, prim: str, *, resolution: int, spps: list[int], seeds: list
         found["xy"] = texels.xy.copy()
         for spp, n in zip(spps, seeds, strict=True):
             for s in range(seed_base, seed_base + n):
-                sh, _ = orig(scene, tracer, texels, samples=spp, seed=_job_seed(s, prim),
-                             mesh=mesh, bounces=kw["bounces"])  # fmt: skip
+                sh, st = orig(scene, tracer, texels, samples=spp, seed=_job_seed(s, prim),
+                              mesh=mesh, bounces=kw["bounces"])  # fmt: skip
                 est[spp].append(_iz(sh))
+                var[spp].append((np.asarray(st["iz_variance"]),
+                                 np.asarray(st["iz_variance_halves"])))  # fmt: skip
                 compare._log(f"{prim}: {spp} spp, seed {s} done", quiet)
         return orig(scene, tracer, texels, **kw)
 
@@ -128,10 +143,23 @@ def run_seeds(stage, prim: str, *, resolution: int, spps: list[int], seeds: list
     yt = t[xy[sel, 1], xy[sel, 0]] @ compare.LUMA
     biases = {s: [float((v[sel] @ compare.LUMA).mean() / yt.mean() - 1.0) for v in est[s]]
               for s in spps}  # fmt: skip
+    se = {}
+    for spp in spps:  # the bake's own SE estimates (compare.bake_mean_error) per seed
+        rows = [compare.bake_mean_error((s2[sel], hv[sel]), np.ones(int(sel.sum()), bool),
+                                        float(yt.mean())) for s2, hv in var[spp]]  # fmt: skip
+        ys = [v[sel] @ compare.LUMA for v in est[spp]]
+        # two seeds' difference: per-texel variance (a - b)^2 / 2, summed, over n^2
+        pairs = [float(np.sqrt(np.sum((a - b) ** 2) / 2)) / len(a) / float(yt.mean())
+                 for a, b in zip(ys[0::2], ys[1::2], strict=False)]  # fmt: skip
+        se[str(spp)] = {
+            "integrator": [r["se"] for r in rows], "s2": [r["se_s2"] for r in rows],
+            "halves": [r["se_halves"] for r in rows], "seed_pairs": pairs,
+        }  # fmt: skip
     return {
         "stage": str(stage), "prim": prim, "resolution": resolution, "truth_spp": truth_spp,
         "truth_cached": bool(hit), "compared": int(sel.sum()), "seed_base": seed_base,
-        "biases": {str(s): b for s, b in biases.items()}, "rows": seed_rows(biases),
+        "biases": {str(s): b for s, b in biases.items()}, "rows": seed_rows(biases, se),
+        "bake_se": se,
     }  # fmt: skip
 
 

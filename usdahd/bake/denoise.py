@@ -65,7 +65,7 @@ from usdahd.bake.blend import (
     class_sums,
     keep_chart_energy,
 )
-from usdahd.bake.mosaic import OIDN_BLOCK, PAD
+from usdahd.bake.mosaic import HDR_CROP_PAD, OIDN_BLOCK, PAD
 from usdahd.bake.mosaic import plan as plan_mosaic
 from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
@@ -156,6 +156,13 @@ CHART_THREADS = 2
 #: the 0.5 % of tests/bake/test_denoise.py); the directional coefficients' error against a
 #: converged bake is in docs/time-to-quality.md.
 DIRECTIONAL_CROP = True
+#: c00's and c10's (I_z's) OIDN tiles cropped too, to the chart's box and mosaic.HDR_CROP_PAD
+#: (10) texels, on a mosaic whose empty pixels are filled from the tiles (mosaic.fill_empty):
+#: the other 2 of a mosaic's 9 runs, 16-40 % fewer pixels at 32^2 (the canvases' rounding to
+#: OIDN_BLOCK and MIN_CROP is context OIDN needs only for a canvas run alone). Cropped on a
+#: zero mosaic the noise-free gradient's I_z came back 0.53 % off (> 0.5 %,
+#: tests/bake/test_denoise.py): the zeros a crop's width from the chart read as a dark border.
+HDR_CROP = True
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 #: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
@@ -663,7 +670,7 @@ def _finish(
     den_out: list[dict] = [{} for _ in batch]
     # one layout for the HDR runs, one for the directional ones (computed once, not per run)
     layouts = {
-        False: plan_mosaic(batch),
+        False: plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD),
         True: plan_mosaic(batch, cropped=True) if DIRECTIONAL_CROP else None,
     } if mosaic else {}  # fmt: skip
     for k in (*_HDR_COEFFS, *RATIO_COEFFS):
@@ -671,7 +678,8 @@ def _finish(
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
             cropped = DIRECTIONAL_CROP and k in RATIO_COEFFS
-            res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped])
+            fill = HDR_CROP and k in _HDR_COEFFS
+            res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped], fill=fill)
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch

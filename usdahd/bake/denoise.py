@@ -163,6 +163,8 @@ DIRECTIONAL_CROP = True
 #: zero mosaic the noise-free gradient's I_z came back 0.53 % off (> 0.5 %,
 #: tests/bake/test_denoise.py): the zeros a crop's width from the chart read as a dark border.
 HDR_CROP = True
+#: The directional runs' mosaic filled as well (mosaic.fill_empty; else 0 between tiles).
+DIRECTIONAL_FILL = False
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 #: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
@@ -678,7 +680,7 @@ def _finish(
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
             cropped = DIRECTIONAL_CROP and k in RATIO_COEFFS
-            fill = HDR_CROP and k in _HDR_COEFFS
+            fill = HDR_CROP if k in _HDR_COEFFS else DIRECTIONAL_FILL
             res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped], fill=fill)
         else:
             res = [

@@ -150,11 +150,8 @@ CHART_THREADS = 2
 #: The directional coefficients' OIDN tiles (7 of a mosaic's 9 runs) are cropped to the
 #: chart's box and mosaic.CROP_PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
 #: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
-#: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. c00 and c10
-#: (I_z, what the validator and the Cycles comparison check) keep whole canvases, so I_z is
-#: unchanged bit for bit (a crop of every run put a noise-free gradient's I_z 0.53 % off, over
-#: the 0.5 % of tests/bake/test_denoise.py); the directional coefficients' error against a
-#: converged bake is in docs/time-to-quality.md.
+#: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. Their error
+#: against a converged bake is in docs/time-to-quality.md.
 DIRECTIONAL_CROP = True
 #: c00's and c10's (I_z's) OIDN tiles cropped too, to the chart's box and mosaic.HDR_CROP_PAD
 #: (10) texels, on a mosaic whose empty pixels are filled from the tiles (mosaic.fill_empty):
@@ -163,7 +160,10 @@ DIRECTIONAL_CROP = True
 #: zero mosaic the noise-free gradient's I_z came back 0.53 % off (> 0.5 %,
 #: tests/bake/test_denoise.py): the zeros a crop's width from the chart read as a dark border.
 HDR_CROP = True
-#: The directional runs' mosaic filled as well (mosaic.fill_empty; else 0 between tiles).
+#: The directional runs' mosaic filled from the tiles as well (mosaic.fill_empty), else 0
+#: between tiles (0 is a neutral ratio). Off: with it CROP_PAD 6 kept the stages' directional
+#: error within +0.5 % of 8's, but the noisy fields of tests/bake/test_denoise.py came back
+#: 4-7 % worse than with whole canvases at pads 6-8 (0 between tiles: 0-2 %).
 DIRECTIONAL_FILL = False
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
@@ -671,17 +671,17 @@ def _finish(
     each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
     # one layout for the HDR runs, one for the directional ones (computed once, not per run)
+    fills = {"hdr": HDR_CROP, "dir": DIRECTIONAL_FILL}
     layouts = {
-        False: plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD),
-        True: plan_mosaic(batch, cropped=True) if DIRECTIONAL_CROP else None,
+        "hdr": plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD),
+        "dir": plan_mosaic(batch, cropped=DIRECTIONAL_CROP),
     } if mosaic else {}  # fmt: skip
     for k in (*_HDR_COEFFS, *RATIO_COEFFS):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
-            cropped = DIRECTIONAL_CROP and k in RATIO_COEFFS
-            fill = HDR_CROP if k in _HDR_COEFFS else DIRECTIONAL_FILL
-            res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped], fill=fill)
+            runs = "hdr" if k in _HDR_COEFFS else "dir"
+            res = run_mosaic(den, batch, k, kind, use_guides, layouts[runs], fill=fills[runs])
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch

@@ -112,11 +112,15 @@ def main(argv=None) -> int:
     if not a.stage.is_file():
         print(f"error: {a.stage}: no such stage", file=sys.stderr)
         return 2
-    if a.serial:
-        from usdahd.bake import denoise
+    from usdahd.bake import denoise
 
+    threads = denoise.CHART_THREADS
+    if a.serial:
         denoise.CHART_THREADS = 1
-    cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
+    try:
+        cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
+    finally:
+        denoise.CHART_THREADS = threads
     rays = sum(p.get("rays", 0) for p in rep.get("prims", []))
     covered = sum(p.get("texels", 0) for p in rep.get("prims", []))
     print(

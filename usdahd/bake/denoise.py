@@ -43,8 +43,10 @@ Charts are never mixed: each chart has its own canvas, only its texels are writt
 OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every prim of a
 bake): they are laid out side by side as tiles of one mosaic image per coefficient
 (:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
-chart sees its own filled context for 10-17 texels on every side and the run count no longer
-grows with the charts (9 runs per mosaic instead of 9 per chart). Results differ from chart
+chart sees its own filled context on every side (``HDR_CROP``: 10 texels for c00 and c10,
+``DIRECTIONAL_CROP``: 8 for the others; between tiles the HDR mosaics are filled from the
+nearest tile, not 0) and the run count no longer grows with the charts (9 runs per mosaic
+instead of 9 per chart). Results differ from chart
 by chart only by the network's response to what lies beyond a canvas (another tile instead
 of the image border): docs/time-to-quality.md states the bound measured on the samples.
 """

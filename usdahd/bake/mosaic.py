@@ -1,15 +1,16 @@
 """Mosaics for the denoiser (:mod:`usdahd.bake.denoise`): the chart canvases of many records
 laid out as tiles of one image per coefficient, so OIDN runs once per mosaic instead of once per
 chart. ``crop`` (the part of a canvas given to OIDN), ``layout`` (shelf or skyline packing of
-the tiles), ``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run
-over a batch). numpy only; the OIDN device comes from the caller (``den.run``).
+the tiles), ``fill_empty`` (the pixels between tiles taken from the nearest tile),
+``autoexposure`` (OIDN's own HDR exposure of one tile) and ``run`` (one OIDN run over a batch).
+numpy only; the OIDN device comes from the caller (``den.run``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["OIDN_BLOCK", "PAD", "fill_empty", "plan", "run"]
+__all__ = ["HDR_CROP_PAD", "OIDN_BLOCK", "PAD", "fill_empty", "plan", "run"]
 
 #: Least dilated context (texels) on every side of a chart: a constant chart comes back
 #: within 0.6 % of itself at 4, 0.12 % at 8, 0.08 % at 16 (OIDN 2.x, quality high, measured).

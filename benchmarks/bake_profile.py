@@ -1,7 +1,7 @@
 """CPU seconds per phase of one ``usdahd bake`` (issue 43: where a small bake's time goes).
 
     python benchmarks/bake_profile.py samples/exterior_sun_sky.usda --resolution 32 \
-        --samples 256 [--flags=--no-denoise] [--top 30]
+        --samples 256 [--flags=--no-denoise] [--top 30 [--sort tottime]] [--serial]
 
 The bake runs in this process after one untimed 4-spp bake of the same stage (numba kernels
 and caches loaded, as ``benchmarks/reference/warm.py`` times usdahd), under cProfile with the
@@ -102,11 +102,25 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=256)
     ap.add_argument("--flags", default="", help="more bake flags, e.g. --flags=--no-denoise")
     ap.add_argument("--top", type=int, default=0, help="also cProfile's N largest entries")
+    ap.add_argument("--sort", default="cumulative", help="--top's order (cumulative, tottime)")
+    ap.add_argument(
+        "--serial", action="store_true",
+        help="the denoiser's chart work on the calling thread (denoise.CHART_THREADS = 1), so "
+        "cProfile sees it (on its threads it shows as a wait)",
+    )  # fmt: skip
     a = ap.parse_args(argv)
     if not a.stage.is_file():
         print(f"error: {a.stage}: no such stage", file=sys.stderr)
         return 2
-    cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
+    from usdahd.bake import denoise
+
+    threads = denoise.CHART_THREADS
+    if a.serial:
+        denoise.CHART_THREADS = 1
+    try:
+        cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
+    finally:
+        denoise.CHART_THREADS = threads
     rays = sum(p.get("rays", 0) for p in rep.get("prims", []))
     covered = sum(p.get("texels", 0) for p in rep.get("prims", []))
     print(
@@ -121,7 +135,7 @@ def main(argv=None) -> int:
         if label in got:
             print(f"| {label} | {got[label]:.3f} | {100 * got[label] / cpu:.1f} % |")
     if a.top:
-        stats.sort_stats("cumulative").print_stats(a.top)
+        stats.sort_stats(a.sort).print_stats(a.top)
     return 0
 
 

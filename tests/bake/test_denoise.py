@@ -755,3 +755,60 @@ def test_directional_crop_leaves_iz_bit_for_bit_and_direction_as_good(monkeypatc
         errs.append([np.sqrt(np.mean((o[:, :, ratio] - clean[:, :, ratio]) ** 2)) for o in (c, f)])
     e = np.array(errs)
     assert e[:, 0].sum() < 1.03 * e[:, 1].sum(), e
+
+
+def test_fill_empty_extends_the_nearest_tile_along_rows_then_columns():
+    """mosaic.fill_empty: used pixels unchanged; an empty pixel takes its row's nearest used
+    pixel (the left one on a tie); a row with none takes the nearest row that has one."""
+    mos = np.zeros((5, 7, 1), np.float32)
+    used = np.zeros((5, 7), bool)
+    used[1, 1], used[1, 5] = True, True
+    used[3, 2:4] = True
+    mos[1, 1], mos[1, 5], mos[3, 2], mos[3, 3] = 1.0, 5.0, 2.0, 3.0
+    out = mosaic.fill_empty(mos.copy(), used)[..., 0]
+    np.testing.assert_array_equal(out[1], [1, 1, 1, 1, 5, 5, 5])  # x=3: tie, the left one
+    np.testing.assert_array_equal(out[3], [2, 2, 2, 3, 3, 3, 3])
+    np.testing.assert_array_equal(out[0], out[1])  # no used pixel: the nearest row's
+    np.testing.assert_array_equal(out[2], out[1])  # rows 1 and 3 equally near: row 1
+    np.testing.assert_array_equal(out[4], out[3])
+    whole = np.ones((2, 2), bool)
+    m = np.arange(4, dtype=np.float32).reshape(2, 2, 1)
+    np.testing.assert_array_equal(mosaic.fill_empty(m.copy(), whole), m)
+
+
+def test_iz_mosaic_is_cropped_and_filled():
+    """HDR_CROP: c00's and c10's runs get each chart's box + HDR_CROP_PAD texels (exterior_sun_sky
+    32^2: 20,736 mosaic pixels against its canvases' 24,576), and the mosaic's pixels outside
+    every tile are filled from the tiles, not 0 (zeros a crop's width from a chart put the
+    noise-free gradient's I_z 0.53 % off, the bound of test_noise_free_field_comes_back_unchanged
+    being 0.5 %)."""
+    assert denoise.HDR_CROP
+    batch = _box_charts(EXTERIOR_32_BOXES)
+    crops, ((H, W), _) = mosaic.plan(batch, cropped=True, pad=mosaic.HDR_CROP_PAD)
+    assert H * W == 20_736
+    for ch, (y0, y1, x0, x1) in zip(batch, crops, strict=True):
+        by0, by1, bx0, bx1 = ch.cv.box
+        assert min(by0 - y0, y1 - by1, bx0 - x0, x1 - bx1) >= mosaic.HDR_CROP_PAD
+    # what OIDN gets for c00: no zero pixel (the charts' values are all positive)
+    seen = []
+
+    class Recording(denoise._Denoiser):  # the real OIDN run, its input kept
+        def run(self, color, **kw):
+            seen.append((np.array(color), kw))
+            return super().run(color, **kw)
+
+    mesh, t = two_chart_plane()
+    clean = field(t, "gradient").astype(np.float32)
+    charts = charts_of(mesh, t)
+    args = (None, None, None, "RTLightmap", False, False, 0)  # no guides or variance
+    batch = [
+        denoise._prepare_chart(0, np.nonzero(charts == c)[0], clean, t, *args)
+        for c in np.unique(charts)
+    ]
+    den = Recording("high")
+    try:
+        denoise._finish(den, batch, [clean.copy()], "RTLightmap", False, False, True)
+    finally:
+        den.close()
+    hdr = [c for c, kw in seen if kw.get("hdr")]
+    assert len(hdr) == 2 and all((c > 0).all() for c in hdr)

@@ -43,8 +43,10 @@ Charts are never mixed: each chart has its own canvas, only its texels are writt
 OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every prim of a
 bake): they are laid out side by side as tiles of one mosaic image per coefficient
 (:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
-chart sees its own filled context for 10-17 texels on every side and the run count no longer
-grows with the charts (9 runs per mosaic instead of 9 per chart). Results differ from chart
+chart sees its own filled context on every side (``HDR_CROP``: 10 texels for c00 and c10,
+``DIRECTIONAL_CROP``: 8 for the others; between tiles the HDR mosaics are filled from the
+nearest tile, not 0) and the run count no longer grows with the charts (9 runs per mosaic
+instead of 9 per chart). Results differ from chart
 by chart only by the network's response to what lies beyond a canvas (another tile instead
 of the image border): docs/time-to-quality.md states the bound measured on the samples.
 """
@@ -65,7 +67,7 @@ from usdahd.bake.blend import (
     class_sums,
     keep_chart_energy,
 )
-from usdahd.bake.mosaic import OIDN_BLOCK, PAD
+from usdahd.bake.mosaic import HDR_CROP_PAD, OIDN_BLOCK, PAD
 from usdahd.bake.mosaic import plan as plan_mosaic
 from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
@@ -150,12 +152,21 @@ CHART_THREADS = 2
 #: The directional coefficients' OIDN tiles (7 of a mosaic's 9 runs) are cropped to the
 #: chart's box and mosaic.CROP_PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
 #: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
-#: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. c00 and c10
-#: (I_z, what the validator and the Cycles comparison check) keep whole canvases, so I_z is
-#: unchanged bit for bit (a crop of every run put a noise-free gradient's I_z 0.53 % off, over
-#: the 0.5 % of tests/bake/test_denoise.py); the directional coefficients' error against a
-#: converged bake is in docs/time-to-quality.md.
+#: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. Their error
+#: against a converged bake is in docs/time-to-quality.md.
 DIRECTIONAL_CROP = True
+#: c00's and c10's (I_z's) OIDN tiles cropped too, to the chart's box and mosaic.HDR_CROP_PAD
+#: (10) texels, on a mosaic whose empty pixels are filled from the tiles (mosaic.fill_empty):
+#: the other 2 of a mosaic's 9 runs, 16-40 % fewer pixels at 32^2 (the canvases' rounding to
+#: OIDN_BLOCK and MIN_CROP is context OIDN needs only for a canvas run alone). Cropped on a
+#: zero mosaic the noise-free gradient's I_z came back 0.53 % off (> 0.5 %,
+#: tests/bake/test_denoise.py): the zeros a crop's width from the chart read as a dark border.
+HDR_CROP = True
+#: The directional runs' mosaic filled from the tiles as well (mosaic.fill_empty), else 0
+#: between tiles (0 is a neutral ratio). Off: with it CROP_PAD 6 kept the stages' directional
+#: error within +0.5 % of 8's, but the noisy fields of tests/bake/test_denoise.py came back
+#: 4-7 % worse than with whole canvases at pads 6-8 (0 between tiles: 0-2 %).
+DIRECTIONAL_FILL = False
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
 #: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
@@ -662,16 +673,17 @@ def _finish(
     each chart's blend, written into ``outs`` (on ``pool``'s threads when given)."""
     den_out: list[dict] = [{} for _ in batch]
     # one layout for the HDR runs, one for the directional ones (computed once, not per run)
+    fills = {"hdr": HDR_CROP, "dir": DIRECTIONAL_FILL}
     layouts = {
-        False: plan_mosaic(batch),
-        True: plan_mosaic(batch, cropped=True) if DIRECTIONAL_CROP else None,
+        "hdr": plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD),
+        "dir": plan_mosaic(batch, cropped=DIRECTIONAL_CROP),
     } if mosaic else {}  # fmt: skip
     for k in (*_HDR_COEFFS, *RATIO_COEFFS):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
-            cropped = DIRECTIONAL_CROP and k in RATIO_COEFFS
-            res = run_mosaic(den, batch, k, kind, use_guides, layouts[cropped])
+            runs = "hdr" if k in _HDR_COEFFS else "dir"
+            res = run_mosaic(den, batch, k, kind, use_guides, layouts[runs], fill=fills[runs])
         else:
             res = [
                 den.run(ch.images[k], **kind, **(ch.guides if use_guides else {})) for ch in batch

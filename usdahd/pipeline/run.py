@@ -12,6 +12,8 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from usdahd.errors import BakeError, InputError, StageError, UsageError
 from usdahd.pipeline.outputs import (
     LIGHTMAPS_DIR,
@@ -238,7 +240,7 @@ def _shared_density(scene, planned: dict, density, report) -> float | None:
     td.update(
         shared_density=new,
         raised_prims=len(raised),
-        raised_median_density=round(float(sorted(gains)[len(gains) // 2]), 1),
+        raised_median_density=round(float(np.median(gains)), 1),
     )
     report["notes"].append(
         f"texel density {new:g}/m (not {density:g}/m) for the {len(alone)} prim(s) on the "

@@ -451,6 +451,18 @@ def test_a_slab_under_raised_props_steps_up_to_their_density(tmp_path, capsys):
     assert report["texels_total"] == 216**2 + 3 * 128**2
 
 
+def test_the_shared_density_does_not_depend_on_the_prim_selection(tmp_path, capsys):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    full = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"))
+    one = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"), "--prim", "/World/Slab")
+    assert one["texel_density"] == full["texel_density"]
+    assert [p["path"] for p in one["prims"]] == ["/World/Slab"]
+    assert _resolutions(one)["/World/Slab"] == _resolutions(full)["/World/Slab"] == (216, 216)
+    box = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"), "--prim", "/World/Box1")
+    assert box["texel_density"] == full["texel_density"]
+    assert _resolutions(box)["/World/Box1"] == (128, 128)
+
+
 def test_the_shared_density_stays_within_the_texel_budget(tmp_path, capsys):
     stage = _slab_and_props(tmp_path / "slab.usda")
     budget = 62000  # the 16/m plan (128^2 + 3 x 32^2) fits with room for the raises

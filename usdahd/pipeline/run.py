@@ -219,12 +219,13 @@ def _left_alone(job: PrimJob) -> bool:
     return _on_auto_density(job) and job.raised_from is None
 
 
-def _shared_density(scene, planned: dict, density, report) -> float | None:
+def _shared_density(scene, planned: list, density, report) -> float | None:
     """The density the prims on the automatic density that no prop rule raised are planned
-    again at (plan.shared_density), reported; None when it stays ``density``."""
+    again at (plan.shared_density; ``planned``: (entry, job) of every prim of the density's
+    pool), reported; None when it stays ``density``."""
     if density is None:
         return None
-    jobs = [job for _, job in planned.values() if job is not None and _on_auto_density(job)]
+    jobs = [job for _, job in planned if job is not None and _on_auto_density(job)]
     raised = [j for j in jobs if j.raised_from is not None]
     alone = [j for j in jobs if j.raised_from is None]
     if not raised or not alone:
@@ -392,7 +393,16 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
         auto_density,
         prop_side,
     )
-    shared = _shared_density(scene, planned, auto_density, report)
+    # With --prim the pool's other prims are planned too (not baked), so that which prims are
+    # raised, and so the shared density, does not depend on the selection.
+    outside = {}
+    if opts.prims and auto_density is not None:
+        pool = {m.path for m in _density_pool(scene, stage, api_prims, opts, checked)}
+        rest = [i for i, m in enumerate(scene.meshes) if not m.bake and m.path in pool]
+        outside = _plan_meshes(scene, rest, stage, opts, {}, None, auto_density, prop_side)
+        for i in rest:
+            scene.meshes[i].uv, scene.meshes[i].uv_name = uvs[scene.meshes[i].path]
+    shared = _shared_density(scene, [*planned.values(), *outside.values()], auto_density, report)
     if shared is not None:  # plan again the prims the prop rules left alone, on the new density
         again = [i for i, (_, job) in planned.items() if job is not None and _left_alone(job)]
         for i in again:

@@ -489,9 +489,10 @@ def test_shared_density_rule():
     assert shared_density(d, [], [1.3], 0, 1 << 20) == d
     assert shared_density(d, [800.0], [], 0, 1 << 20) == d
     assert shared_density(d, [800.0], [0.1], 0, 1 << 20) == d  # 21.5 texels: at the minimum 32
-    # the chess set: a board of extent 1.3 m under pieces raised to a median 861/m
-    got = shared_density(d, [430.5, 626.3, 861.2, 861.2, 861.2], [1.3], 0, 1 << 20)
-    assert got == 362.0 and got >= SHARED_DENSITY_SHARE * 861.2 > got * DENSITY_LADDER
+    # the chess set: a board of extent 1.3 m under 32 pieces raised to a median 813/m
+    raised = [430.5] * 4 + [626.3] * 4 + [689.0] * 4 + [765.5] * 4 + [861.2] * 16
+    got = shared_density(d, raised, [1.3], 0, 1 << 20)
+    assert got == 362.0 and got >= SHARED_DENSITY_SHARE * np.median(raised) > got * DENSITY_LADDER
     # the texel budget stops the steps: 400^2 fits, the next (472^2) does not
     assert shared_density(d, [861.2], [1.3], 900_000, 900_000 + 400**2) == 304.4
     assert shared_density(d, [861.2], [1.3], 1 << 20, 1 << 20) == d  # no room at all

@@ -210,9 +210,9 @@ def planned_texels(density: float, extents, minimum: int = MIN_RESOLUTION) -> in
 #: raise maps, the automatic density of the prims they leave alone steps up the ladder (within
 #: the texel budget) to at least this share of the raised prims' median density
 #: (:func:`shared_density`). The chess set's board, 3-6x coarser than the pieces standing on it
-#: (215.3/m against a raised median of 861/m), reads relRMSE 0.0697 against the path tracer at
+#: (215.3/m against a raised median of 813/m), reads relRMSE 0.0697 against the path tracer at
 #: 215.3/m, 0.0597 at 304.4/m and 0.0513 at 362/m, the first step clearly under 0.06: 0.4 x
-#: 861 picks it (docs/texels.md, "Prims on one stage share one density").
+#: 813 picks it (docs/texels.md, "Prims on one stage share one density").
 SHARED_DENSITY_SHARE = 0.4
 
 

@@ -545,3 +545,28 @@ def test_the_samples_texel_totals_are_unchanged(name, capsys, tmp_path):
     report = _dry_run(capsys, SAMPLES / name, "-o", str(tmp_path / "o.usda"))
     assert report["texels_total"] == SAMPLE_TOTALS[name]
     assert "shared_density" not in report.get("texel_density", {})
+
+
+def test_an_unchanged_rebake_on_the_shared_density_is_skipped(tmp_path, capsys):
+    """The slab's record holds the shared density, and a re-bake (which plans the stage's
+    density, then the shared one, again) skips every prim; --prim the slab alone too."""
+    stage = _slab_and_props(tmp_path / "slab.usda", props=1)
+    argv = ["bake", str(stage), "--samples", "4", "--bounces", "0", "--json", "--quiet"]
+    assert cli.main(argv) == 0
+    first = json.loads(capsys.readouterr().out)
+    shared = first["texel_density"]["shared_density"]
+    assert {p["status"] for p in first["prims"]} == {"baked"}
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    layer = Usd.Stage.Open(str(tmp_path / "slab.lightmaps.usda"))
+    assert schema.read_results(layer.GetPrimAtPath("/World/Slab")).settings["texel_density"] == (
+        shared
+    )
+    assert cli.main(argv) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert {p["status"] for p in again["prims"]} == {"skipped"}, again["prims"]
+    assert cli.main([*argv, "--prim", "/World/Slab"]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert [(p["path"], p["status"]) for p in one["prims"]] == [("/World/Slab", "skipped")]

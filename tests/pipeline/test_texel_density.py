@@ -451,6 +451,20 @@ def test_a_slab_under_raised_props_steps_up_to_their_density(tmp_path, capsys):
     assert report["texels_total"] == 216**2 + 3 * 128**2
 
 
+def test_a_slab_under_raised_props_subprocess(tmp_path):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(stage), "-o", str(tmp_path / "o.usda"),
+         "--dry-run", "--json"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["texel_density"]["shared_density"] == 26.91
+    assert _resolutions(report)["/World/Slab"] == (216, 216)
+    assert any("texel density 26.91/m (not 16/m)" in n for n in report["notes"])
+
+
 def test_the_shared_density_does_not_depend_on_the_prim_selection(tmp_path, capsys):
     stage = _slab_and_props(tmp_path / "slab.usda")
     full = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"))

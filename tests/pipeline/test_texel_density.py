@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,10 +15,13 @@ import pytest
 from tests.scenes import SAMPLES, sample_stages
 from usdahd import cli
 from usdahd.pipeline.plan import (
+    SHARED_DENSITY_SHARE,
     STAGE_MIN_TEXELS,
     _pad_to_multiple,
     auto_texel_density,
     density_ceiling,
+    planned_texels,
+    shared_density,
 )
 from usdahd.pipeline.settings import (
     DEFAULT_TEXEL_BUDGET,
@@ -374,3 +378,209 @@ def test_an_unchanged_rebake_on_the_automatic_density_is_skipped(tmp_path, capsy
     third = json.loads(capsys.readouterr().out)
     assert third["texel_density"]["density"] < top
     assert third["prims"][0]["status"] == "baked" and third["texels_total"] <= 4000
+
+
+# -- prims on one stage share one density (issue 37: the chess board under its pieces)
+
+
+def _slab_and_props(path, slab=8.0, props=3):
+    """A ``slab`` m ground quad (one-chart st: a lightmap layout) and ``props`` 20 cm boxes
+    whose st is six strips side by side 1/500 apart (a texture layout the prop rule raises,
+    tests/data/production/make_texture_uvs.py), as a usda file."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_texture_uvs", Path(__file__).parents[1] / "data/production/make_texture_uvs.py"
+    )
+    mk = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mk)
+    h = slab / 2
+    boxes = "".join(
+        f'    def Mesh "Box{k}"\n    {{\n{mk._box(0.2, (0.5 * k, 0.1, 0.0), True)}\n    }}\n'
+        for k in range(props)
+    )
+    path.write_text(
+        f"""#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+
+def Xform "World"
+{{
+    def DomeLight "Sky"
+    {{
+        float inputs:intensity = 1
+    }}
+
+    def Mesh "Slab"
+    {{
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-{h}, 0, {h}), ({h}, 0, {h}), ({h}, 0, -{h}), (-{h}, 0, -{h})]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "vertex"
+        )
+        uniform token subdivisionScheme = "none"
+    }}
+
+{boxes}}}
+"""
+    )
+    return path
+
+
+def test_a_slab_under_raised_props_steps_up_to_their_density(tmp_path, capsys):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    report = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"))
+    td, res = report["texel_density"], _resolutions(report)
+    # The 8 m stage is held at the 16/m ceiling; the prop rule raises each box 32 -> 128
+    # (64/m), so the slab steps up to the first step at SHARED_DENSITY_SHARE x 64/m.
+    assert td["density"] == DENSITY_AUTO_MAX and td["raised_prims"] == 3
+    assert td["raised_median_density"] == pytest.approx(DENSITY_AUTO_MAX * 128 / 32, abs=0.1)
+    want = td["shared_density"]
+    assert want >= SHARED_DENSITY_SHARE * td["raised_median_density"] > want * DENSITY_LADDER
+    assert want == 26.91  # 16 * 2^(3/4)
+    assert res["/World/Slab"] == (216, 216)  # ceil(8 m x 26.91/m) on 4-texel blocks
+    for k in range(3):
+        assert res[f"/World/Box{k}"] == (128, 128)
+    slab = next(p for p in report["prims"] if p["path"] == "/World/Slab")
+    assert not slab["warnings"]
+    assert any("prims on one stage share one density" in n for n in report["notes"])
+    assert report["texels_total"] == 216**2 + 3 * 128**2
+
+
+def test_a_slab_under_raised_props_subprocess(tmp_path):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    proc = subprocess.run(
+        [sys.executable, "-m", "usdahd", "bake", str(stage), "-o", str(tmp_path / "o.usda"),
+         "--dry-run", "--json"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["texel_density"]["shared_density"] == 26.91
+    assert _resolutions(report)["/World/Slab"] == (216, 216)
+    assert any("texel density 26.91/m (not 16/m)" in n for n in report["notes"])
+
+
+def test_the_shared_density_does_not_depend_on_the_prim_selection(tmp_path, capsys):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    full = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"))
+    one = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"), "--prim", "/World/Slab")
+    assert one["texel_density"] == full["texel_density"]
+    assert [p["path"] for p in one["prims"]] == ["/World/Slab"]
+    assert _resolutions(one)["/World/Slab"] == _resolutions(full)["/World/Slab"] == (216, 216)
+    box = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"), "--prim", "/World/Box1")
+    assert box["texel_density"] == full["texel_density"]
+    assert _resolutions(box)["/World/Box1"] == (128, 128)
+
+
+def test_the_shared_density_stays_within_the_texel_budget(tmp_path, capsys):
+    stage = _slab_and_props(tmp_path / "slab.usda")
+    budget = 62000  # the 16/m plan (128^2 + 3 x 32^2) fits with room for the raises
+    report = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"), "--texel-budget", str(budget))
+    td, res = report["texel_density"], _resolutions(report)
+    boxes = sum(res[f"/World/Box{k}"][0] * res[f"/World/Box{k}"][1] for k in range(3))
+    d = td.get("shared_density", td["density"])
+    assert d > td["density"]  # it did step up
+    assert report["texels_total"] == res["/World/Slab"][0] ** 2 + boxes <= budget
+    nxt = float(f"{d / DENSITY_LADDER:.4g}")  # the next step would not fit
+    assert boxes + planned_texels(nxt, [8.0]) > budget
+
+
+def test_a_stage_with_no_raised_prim_keeps_its_density(tmp_path, capsys):
+    stage = _slab_and_props(tmp_path / "slab.usda", props=0)
+    report = _dry_run(capsys, stage, "-o", str(tmp_path / "o.usda"))
+    assert "shared_density" not in report["texel_density"]
+    assert _resolutions(report)["/World/Slab"] == (128, 128)
+
+
+def test_shared_density_rule():
+    d = 215.3
+    # nothing raised, nothing left alone, or every map left alone at its minimum: unchanged
+    assert shared_density(d, [], [1.3], 0, 1 << 20) == d
+    assert shared_density(d, [800.0], [], 0, 1 << 20) == d
+    assert shared_density(d, [800.0], [0.1], 0, 1 << 20) == d  # 21.5 texels: at the minimum 32
+    # the chess set: a board of extent 1.3 m under 32 pieces raised to a median 813/m
+    raised = [430.5] * 4 + [626.3] * 4 + [689.0] * 4 + [765.5] * 4 + [861.2] * 16
+    got = shared_density(d, raised, [1.3], 0, 1 << 20)
+    assert got == 362.0 and got >= SHARED_DENSITY_SHARE * np.median(raised) > got * DENSITY_LADDER
+    # the texel budget stops the steps: 400^2 fits, the next (472^2) does not
+    assert shared_density(d, [861.2], [1.3], 900_000, 900_000 + 400**2) == 304.4
+    assert shared_density(d, [861.2], [1.3], 1 << 20, 1 << 20) == d  # no room at all
+    # already dense enough: unchanged
+    assert shared_density(d, [400.0], [1.3], 0, 1 << 20) == d
+
+
+def test_instance_copies_of_a_prototype_with_a_resolution_leave_the_density_pool(tmp_path, capsys):
+    """A PointInstancer's copies read their inputs from the prototype mesh: one that authors
+    ahdLightmap:resolution keeps its copies off the automatic density (they were counted,
+    lowering the density of the rest, before)."""
+    from pxr import Usd
+
+    from tests.instance_scene import POINTS, write_stage
+    from usdahd.usd import plugin, schema
+
+    plugin.register()
+    path = write_stage(tmp_path / "inst.usda")
+    stage = Usd.Stage.Open(str(path))
+    box = stage.GetPrimAtPath("/Proto/Box")
+    schema.apply(box)
+    schema.write_inputs(box, resolution=16)
+    schema.apply(stage.GetPrimAtPath("/World/Ground"))
+    stage.GetRootLayer().Save()
+    report = _dry_run(capsys, path, "-o", str(tmp_path / "o.usda"))
+    copies = [p for p in report["prims"] if p["path"].startswith("/World/Pawns/instance_")]
+    assert copies and len(POINTS) > 1
+    assert all(p["resolution"] == [16, 16] for p in copies)
+    assert report["texel_density"]["prims"] == 1  # the ground alone
+    assert report["texel_density"]["density"] == DENSITY_AUTO_MAX  # 60 m ground at 16/m
+
+
+#: Every sample's dry-run texel total at the defaults: the shared density leaves them as they
+#: were (no prop rule raises a map there).
+SAMPLE_TOTALS = {
+    "cornell_box.usda": 138128,
+    "emissive_only.usda": 179984,
+    "exterior_sun_sky.usda": 39504,
+    "floor_lamp.usda": 41472,
+    "indirect_ceiling.usda": 126080,
+    "normal_wall.usda": 36992,
+    "open_plane.usda": 18496,
+    "pillar_room.usda": 88528,
+    "stretched_boxes.usda": 35664,
+}
+
+
+@pytest.mark.parametrize("name", sample_stages())
+def test_the_samples_texel_totals_are_unchanged(name, capsys, tmp_path):
+    report = _dry_run(capsys, SAMPLES / name, "-o", str(tmp_path / "o.usda"))
+    assert report["texels_total"] == SAMPLE_TOTALS[name]
+    assert "shared_density" not in report.get("texel_density", {})
+
+
+def test_an_unchanged_rebake_on_the_shared_density_is_skipped(tmp_path, capsys):
+    """The slab's record holds the shared density, and a re-bake (which plans the stage's
+    density, then the shared one, again) skips every prim; --prim the slab alone too."""
+    stage = _slab_and_props(tmp_path / "slab.usda", props=1)
+    argv = ["bake", str(stage), "--samples", "4", "--bounces", "0", "--json", "--quiet"]
+    assert cli.main(argv) == 0
+    first = json.loads(capsys.readouterr().out)
+    shared = first["texel_density"]["shared_density"]
+    assert {p["status"] for p in first["prims"]} == {"baked"}
+    from pxr import Usd
+
+    from usdahd.usd import schema
+
+    layer = Usd.Stage.Open(str(tmp_path / "slab.lightmaps.usda"))
+    assert schema.read_results(layer.GetPrimAtPath("/World/Slab")).settings["texel_density"] == (
+        shared
+    )
+    assert cli.main(argv) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert {p["status"] for p in again["prims"]} == {"skipped"}, again["prims"]
+    assert cli.main([*argv, "--prim", "/World/Slab"]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert [(p["path"], p["status"]) for p in one["prims"]] == [("/World/Slab", "skipped")]

@@ -12,6 +12,8 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from usdahd.errors import BakeError, InputError, StageError, UsageError
 from usdahd.pipeline.outputs import (
     LIGHTMAPS_DIR,
@@ -25,6 +27,7 @@ from usdahd.pipeline.outputs import (
 )
 from usdahd.pipeline.plan import (
     REFIT_SETTINGS,
+    SHARED_DENSITY_SHARE,
     STAGE_MIN_TEXELS,
     PrimJob,
     auto_texel_density,
@@ -34,6 +37,7 @@ from usdahd.pipeline.plan import (
     refit_source,
     settings_as_stored,
     settings_resolution_given,
+    shared_density,
     stage_extent,
 )
 from usdahd.pipeline.preflight import (
@@ -114,8 +118,10 @@ def _density_pool(scene, stage, api_prims: dict, opts: BakeOptions, checked) -> 
             api = api_prims.get(m.path)
             if api_prims and not (api and schema.read_inputs(api, validate=False).bake):
                 continue
+        # an instance copy's inputs are its prototype mesh's (plan_job reads them there too)
+        source = m.instance.source if getattr(m, "instance", None) else m.path
         try:
-            authored = authored_inputs(prim) if m.path in api_prims else {}
+            authored = authored_inputs(prim_at(stage, source)) if source in api_prims else {}
         except SchemaError:
             continue  # reported by the plan of that prim
         if "resolution" in authored or "texel_density" in authored:
@@ -162,6 +168,89 @@ def _auto_density(scene, stage, api_prims, opts, checked, report) -> float | Non
             "pass --texel-density / --resolution"
         )
     return density
+
+
+def _plan_meshes(
+    scene, indices, stage, opts, prev, old_layer, auto_density, prop_side
+) -> dict[int, tuple[dict, PrimJob | None]]:
+    """Plan the meshes at ``indices`` (plan.plan_job): mesh index -> (its report entry, its
+    job; None when the prim failed, the entry saying why)."""
+    out = {}
+    for i in indices:
+        mesh = scene.meshes[i]
+        entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
+        try:
+            job = plan_job(
+                scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density, prop_side
+            )
+        except (InputError, UsageError, BakeError) as exc:
+            entry.update(status="failed", error=str(exc))
+            out[i] = (entry, None)
+            continue
+        entry["resolution"] = list(job.resolution)
+        job.normals = scene.computed_normals.get(mesh.path)
+        if (
+            max(job.resolution) < TINY_RESOLUTION
+            and not settings_resolution_given(job)
+            and "min_resolution" not in job.settings
+        ):
+            entry["warnings"].append(
+                f"texel density {job.settings['texel_density']:g}/m gives only "
+                f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
+                "metersPerUnit or pass --texel-density / --resolution"
+            )
+        if job.unwrapped and not any(
+            "xatlas" in w for w in entry["warnings"] + entry.get("notes", [])
+        ):
+            entry["warnings"].append(
+                f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
+                f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
+            )
+        out[i] = (entry, job)
+    return out
+
+
+def _on_auto_density(job: PrimJob) -> bool:
+    return "min_resolution" in job.settings and job.settings.get("texel_density") is not None
+
+
+def _left_alone(job: PrimJob) -> bool:
+    """A prim on the automatic density whose map no prop rule raised."""
+    return _on_auto_density(job) and job.raised_from is None
+
+
+def _shared_density(scene, planned: list, density, report) -> float | None:
+    """The density the prims on the automatic density that no prop rule raised are planned
+    again at (plan.shared_density; ``planned``: (entry, job) of every prim of the density's
+    pool), reported; None when it stays ``density``."""
+    if density is None:
+        return None
+    jobs = [job for _, job in planned if job is not None and _on_auto_density(job)]
+    raised = [j for j in jobs if j.raised_from is not None]
+    alone = [j for j in jobs if j.raised_from is None]
+    if not raised or not alone:
+        return None
+    td = report["texel_density"]
+    gains = [density * max(j.resolution) / max(j.raised_from) for j in raised]
+    fixed = sum(int(j.resolution[0]) * int(j.resolution[1]) for j in raised)
+    # the maps' extents from the UVs they were planned with (an unwrap: its packed atlas)
+    extents = [mesh_extent(j.mesh, scene.meters_per_unit) for j in alone]
+    new = shared_density(density, gains, extents, fixed, td["budget"])
+    if new == density:
+        return None
+    td.update(
+        shared_density=new,
+        raised_prims=len(raised),
+        raised_median_density=round(float(np.median(gains)), 1),
+    )
+    report["notes"].append(
+        f"texel density {new:g}/m (not {density:g}/m) for the {len(alone)} prim(s) on the "
+        f"automatic density whose maps no prop rule raised: {len(raised)} prim(s) got maps "
+        f"raised for their charts (a median {td['raised_median_density']:g}/m), and prims on "
+        f"one stage share one density (at least {SHARED_DENSITY_SHARE:g} x that, within the "
+        f"texel budget of {td['budget']}; docs/texels.md)"
+    )
+    return new
 
 
 #: Bytes of working memory a whole bake may plan for (SH, fits and copies; see bake()).
@@ -293,39 +382,38 @@ def _bake_locked(src: Path, out: Path, stage, opts: BakeOptions, t_start: float)
 
         td = report["texel_density"]  # raises share what the plan leaves of the budget
         prop_side = prop_cap(td["budget"] - td["estimated_texels"], td["prims"])
-    for i, mesh in enumerate(scene.meshes):
-        if not mesh.bake:
-            continue
-        entry = {"path": mesh.path, "warnings": list(mesh.warnings)}
+    uvs = {m.path: (m.uv, m.uv_name) for m in scene.meshes}  # plan_job replaces a mesh's UVs
+    planned = _plan_meshes(
+        scene,
+        [i for i, m in enumerate(scene.meshes) if m.bake],
+        stage,
+        opts,
+        prev,
+        old_layer,
+        auto_density,
+        prop_side,
+    )
+    # With --prim the pool's other prims are planned too (not baked), so that which prims are
+    # raised, and so the shared density, does not depend on the selection.
+    outside = {}
+    if opts.prims and auto_density is not None:
+        pool = {m.path for m in _density_pool(scene, stage, api_prims, opts, checked)}
+        rest = [i for i, m in enumerate(scene.meshes) if not m.bake and m.path in pool]
+        outside = _plan_meshes(scene, rest, stage, opts, {}, None, auto_density, prop_side)
+        for i in rest:
+            scene.meshes[i].uv, scene.meshes[i].uv_name = uvs[scene.meshes[i].path]
+    shared = _shared_density(scene, [*planned.values(), *outside.values()], auto_density, report)
+    if shared is not None:  # plan again the prims the prop rules left alone, on the new density
+        again = [i for i, (_, job) in planned.items() if job is not None and _left_alone(job)]
+        for i in again:
+            scene.meshes[i].uv, scene.meshes[i].uv_name = uvs[scene.meshes[i].path]
+        planned.update(_plan_meshes(scene, again, stage, opts, prev, old_layer, shared, prop_side))
+    for entry, job in planned.values():
         report["prims"].append(entry)
-        try:
-            job = plan_job(
-                scene, i, mesh, stage, opts, entry, prev, old_layer, auto_density, prop_side
-            )
-        except (InputError, UsageError, BakeError) as exc:
-            entry.update(status="failed", error=str(exc))
+        if job is None:
             failed += 1
-            continue
-        entry["resolution"] = list(job.resolution)
-        job.normals = scene.computed_normals.get(mesh.path)
-        if (
-            max(job.resolution) < TINY_RESOLUTION
-            and not settings_resolution_given(job)
-            and "min_resolution" not in job.settings
-        ):
-            entry["warnings"].append(
-                f"texel density {job.settings['texel_density']:g}/m gives only "
-                f"{job.resolution[0]}x{job.resolution[1]} texels: check the stage's "
-                "metersPerUnit or pass --texel-density / --resolution"
-            )
-        if job.unwrapped and not any(
-            "xatlas" in w for w in entry["warnings"] + entry.get("notes", [])
-        ):
-            entry["warnings"].append(
-                f"no UV set {job.settings['uv']!r}: unwrapped with xatlas into "
-                f"{job.resolution[0]}x{job.resolution[1]}; the UVs are authored in the output layer"
-            )
-        jobs.append(job)
+        else:
+            jobs.append(job)
     if not jobs and not failed:
         raise InputError(no_mesh_message(src, api_prims))
     # The plan's unwrapping is done: stop the xatlas worker process now (~60 MB held through

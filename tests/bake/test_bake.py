@@ -358,7 +358,7 @@ def test_unauthored_meters_per_unit_and_tiny_maps_are_warned(tmp_path, capsys):
     # 4 m at USD's fallback 0.01 m/unit, a 4 cm stage: the automatic density's floor by stage
     # size still puts STAGE_MIN_TEXELS texels across it (docs/texels.md), so the map does not
     # depend on the units; an explicit 16 texels/m gives a 1x1 map, flagged.
-    from usdahd.pipeline.plan import STAGE_MIN_TEXELS
+    from usdahd.pipeline.density import STAGE_MIN_TEXELS
 
     assert report["texel_density"]["stage_extent"] == pytest.approx(0.04)
     assert STAGE_MIN_TEXELS <= report["prims"][0]["resolution"][0] <= 1.2 * STAGE_MIN_TEXELS

@@ -14,14 +14,17 @@ import pytest
 
 from tests.scenes import SAMPLES, sample_stages
 from usdahd import cli
-from usdahd.pipeline.plan import (
+from usdahd.pipeline.density import (
+    SHARED_DENSITY_MAX_RATIO,
     SHARED_DENSITY_SHARE,
     STAGE_MIN_TEXELS,
-    _pad_to_multiple,
     auto_texel_density,
     density_ceiling,
     planned_texels,
     shared_density,
+)
+from usdahd.pipeline.plan import (
+    _pad_to_multiple,
 )
 from usdahd.pipeline.settings import (
     DEFAULT_TEXEL_BUDGET,
@@ -512,6 +515,11 @@ def test_shared_density_rule():
     assert shared_density(d, [861.2], [1.3], 1 << 20, 1 << 20) == d  # no room at all
     # already dense enough: unchanged
     assert shared_density(d, [400.0], [1.3], 0, 1 << 20) == d
+    # one very dense raised prop over a large stage with room in the budget: at most
+    # SHARED_DENSITY_MAX_RATIO x the density (the step at or under it), not the budget's limit
+    big = shared_density(16.0, [2000.0], [8.0], 0, 1 << 24)
+    assert big == 32.0 == SHARED_DENSITY_MAX_RATIO * 16.0
+    assert shared_density(16.0, [2000.0], [8.0], 0, 1 << 24, max_ratio=8.0) == 128.0
 
 
 def test_instance_copies_of_a_prototype_with_a_resolution_leave_the_density_pool(tmp_path, capsys):

@@ -15,6 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from usdahd.errors import BakeError, InputError, StageError, UsageError
+from usdahd.pipeline.density import (
+    SHARED_DENSITY_SHARE,
+    STAGE_MIN_TEXELS,
+    auto_texel_density,
+    density_ceiling,
+    mesh_extent,
+    shared_density,
+    stage_extent,
+)
 from usdahd.pipeline.outputs import (
     LIGHTMAPS_DIR,
     author_layer,
@@ -27,18 +36,11 @@ from usdahd.pipeline.outputs import (
 )
 from usdahd.pipeline.plan import (
     REFIT_SETTINGS,
-    SHARED_DENSITY_SHARE,
-    STAGE_MIN_TEXELS,
     PrimJob,
-    auto_texel_density,
-    density_ceiling,
-    mesh_extent,
     plan_job,
     refit_source,
     settings_as_stored,
     settings_resolution_given,
-    shared_density,
-    stage_extent,
 )
 from usdahd.pipeline.preflight import (
     check_stage_inputs,
@@ -131,7 +133,7 @@ def _density_pool(scene, stage, api_prims: dict, opts: BakeOptions, checked) -> 
 
 
 def _auto_density(scene, stage, api_prims, opts, checked, report) -> float | None:
-    """The stage's automatic texel density (plan.auto_texel_density), reported; None when no
+    """The stage's automatic texel density (density.auto_texel_density), reported; None when no
     prim uses it."""
     pool = _density_pool(scene, stage, api_prims, opts, checked)
     if not pool:
@@ -221,7 +223,7 @@ def _left_alone(job: PrimJob) -> bool:
 
 def _shared_density(scene, planned: list, density, report) -> float | None:
     """The density the prims on the automatic density that no prop rule raised are planned
-    again at (plan.shared_density; ``planned``: (entry, job) of every prim of the density's
+    again at (density.shared_density; ``planned``: (entry, job) of every prim of the density's
     pool), reported; None when it stays ``density``."""
     if density is None:
         return None

@@ -75,7 +75,7 @@ DEFAULT_TEXEL_BUDGET = 1 << 20
 #: Density ceiling (texels per metre, 6.25 cm texels): the former fixed default, between
 #: Godot's import default (generate_lightmap_uv2_texel_size 0.2 m = 5 texels/m) and Unity's
 #: Lightmap Resolution (40 texels per unit); stages of 8 m and more keep it, smaller ones start
-#: higher (plan.STAGE_MIN_TEXELS: the floor by stage size).
+#: higher (density.STAGE_MIN_TEXELS: the floor by stage size).
 DENSITY_AUTO_MAX = 16.0
 #: Steps of the automatic density: DENSITY_AUTO_MAX * 2^(-k/4), so a small edit of one prim
 #: rarely moves the stage's density (which would re-bake every prim).
@@ -155,7 +155,7 @@ def resolve_settings(
     """Built-in defaults < CLI flags < per-prim authored schema inputs.
 
     auto_density : the stage's automatic texel density (texels per metre,
-        :func:`usdahd.pipeline.plan.auto_texel_density`), used when neither a resolution nor a
+        :func:`usdahd.pipeline.density.auto_texel_density`), used when neither a resolution nor a
         density is given; then ``min_resolution`` is recorded too (it decides the map size;
         the budget itself is not a setting, only the density it gives is, so a new budget that
         gives the same density re-bakes nothing). None: DENSITY_AUTO_MAX.

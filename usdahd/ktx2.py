@@ -284,18 +284,32 @@ def _encoder():
     return ispc_texcomp
 
 
-def _bc6h_decode(blocks: bytes, h: int, w: int) -> np.ndarray:
-    """BC6H_UF16 blocks -> (h, w, 3) float64 (bcdec through imagecodecs)."""
+def _bcn_decode(blocks: bytes, h: int, w: int, fmt: str) -> np.ndarray:
+    """BC6H_UF16 (``fmt`` "BC6HU": (h, w, 3)) or BC7 ("BC7": (h, w, 4) codes 0..255) blocks ->
+    float64 (bcdec through imagecodecs)."""
     try:
         import imagecodecs
     except ImportError:
         raise ImageError(
             "KTX2 block compression (--container ktx2-bc) needs imagecodecs (it checks each "
-            "BC6H texture's error): pip install 'usdahd[ktx2]'"
+            f"{fmt.rstrip('U')} texture's error): pip install 'usdahd[ktx2]'"
         ) from None
     hp, wp = h + (-h % 4), w + (-w % 4)
-    out = imagecodecs.bcn_decode(blocks, imagecodecs.BCN.FORMAT.BC6HU, shape=(hp, wp, 3))
+    c = 3 if fmt == "BC6HU" else 4
+    out = imagecodecs.bcn_decode(blocks, getattr(imagecodecs.BCN.FORMAT, fmt), shape=(hp, wp, c))
     return np.asarray(out, np.float64)[:h, :w]
+
+
+def _rel_rmse(dec: np.ndarray, src: np.ndarray) -> float:
+    """RMSE of ``dec`` against ``src`` / mean |src| (0 when exact, inf for a zero source that
+    does not decode to zero)."""
+    if src.size == 0:
+        return 0.0
+    rmse = math.sqrt(float(((dec - src) ** 2).mean()))
+    mean = float(np.abs(src).mean())
+    if rmse == 0.0:
+        return 0.0
+    return rmse / mean if mean > 0 else math.inf
 
 
 def bc6h_rel_rmse(blocks: bytes, px: np.ndarray, mask: np.ndarray, channels: int = 3) -> float:
@@ -303,14 +317,9 @@ def bc6h_rel_rmse(blocks: bytes, px: np.ndarray, mask: np.ndarray, channels: int
     and the first ``channels`` channels (4: an alpha that BC6H decodes as 1) / their mean |value|
     (0 when exact, inf for a zero source that does not decode to zero)."""
     h, w = px.shape[:2]
-    dec = np.concatenate([_bc6h_decode(blocks, h, w), np.ones((h, w, 1))], axis=-1)
+    dec = np.concatenate([_bcn_decode(blocks, h, w, "BC6HU"), np.ones((h, w, 1))], axis=-1)
     m = np.asarray(mask, bool) if np.asarray(mask).any() else np.ones((h, w), bool)
-    src = px.astype(np.float64)[m][:, :channels]
-    rmse = math.sqrt(float(((dec[m][:, :channels] - src) ** 2).mean()))
-    mean = float(np.abs(src).mean())
-    if rmse == 0.0:
-        return 0.0
-    return rmse / mean if mean > 0 else math.inf
+    return _rel_rmse(dec[m][:, :channels], px.astype(np.float64)[m][:, :channels])
 
 
 def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
@@ -321,20 +330,6 @@ def _bc7(rgba: np.ndarray, alpha: bool) -> bytes:
     surf = t.RGBASurface(p.tobytes(), p.shape[1], p.shape[0], p.shape[1] * 4)
     prof = ("alpha_" if alpha else "") + BC7_PROFILE
     return t.compress_blocks_bc7(surf, t.BC7EncSettings.from_profile(prof))
-
-
-def _bc7_decode(blocks: bytes, h: int, w: int) -> np.ndarray:
-    """BC7 blocks -> (h, w, 4) float64 codes 0..255 (bcdec through imagecodecs)."""
-    try:
-        import imagecodecs
-    except ImportError:
-        raise ImageError(
-            "KTX2 block compression (--container ktx2-bc) needs imagecodecs (it checks each "
-            "BC7 texture's error): pip install 'usdahd[ktx2]'"
-        ) from None
-    hp, wp = h + (-h % 4), w + (-w % 4)
-    out = imagecodecs.bcn_decode(blocks, imagecodecs.BCN.FORMAT.BC7, shape=(hp, wp, 4))
-    return np.asarray(out, np.float64)[:h, :w]
 
 
 def packing_codes(packing: str) -> list[str]:
@@ -371,14 +366,7 @@ def bc7_rel_rmse(blocks: bytes, px: np.ndarray, mask: np.ndarray, codes: list[st
     h, w = px.shape[:2]
     m = np.asarray(mask, bool) if np.asarray(mask).any() else np.ones((h, w), bool)
     src = packed_quantities(px.astype(np.float64)[m], codes)
-    dec = packed_quantities(_bc7_decode(blocks, h, w)[m], codes)
-    if src.size == 0:
-        return 0.0
-    rmse = math.sqrt(float(((dec - src) ** 2).mean()))
-    mean = float(np.abs(src).mean())
-    if rmse == 0.0:
-        return 0.0
-    return rmse / mean if mean > 0 else math.inf
+    return _rel_rmse(packed_quantities(_bcn_decode(blocks, h, w, "BC7")[m], codes), src)
 
 
 def _bc6h(rgba: np.ndarray) -> bytes:

@@ -679,6 +679,10 @@ def main(argv=None) -> int:
                    help="only compute (cache) the stages' Cycles truths, untimed, and exit: "
                         "run it beforehand (e.g. with nice) so the timed runs find them "
                         "cached")  # fmt: skip
+    p.add_argument("--store", action="store_true",
+                   help="with --truths-only: also keep the truths in the repository "
+                        "(benchmarks/reference/truths/, compressed), read after the user "
+                        "cache, so a new machine finds them")  # fmt: skip
     p.add_argument("--bpy-python")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "benchmarks" / "reference.md")
     p.add_argument("--from-json", type=Path, help="rewrite table + plot from saved rows")
@@ -691,6 +695,10 @@ def main(argv=None) -> int:
         a.out.write_text(markdown(rows, a, png.name if has_plot else None), encoding="utf-8")
         print(a.out)
         return 0
+    if a.store and not a.truths_only:
+        print("error: --store keeps the truths that --truths-only computes; add --truths-only",
+              file=sys.stderr)  # fmt: skip
+        return 2
     if a.cycles_samples and 1024 not in a.cycles_samples:
         print("error: --cycles-samples must include 1024 (the target's sample count)",
               file=sys.stderr)  # fmt: skip
@@ -708,9 +716,12 @@ def main(argv=None) -> int:
     if a.truths_only:
         for st in stages:
             _log(f"{st.name}: truths at {a.resolution}^2 ...")
+            first = len(runner.files_used)
             got = cache_truths(st, a.resolution, a.truth_spp, bpy, a.centre_spp)
+            kept = runner.store(runner.files_used[first:]) if a.store else []
             print(f"{st.name}: truths in {got['seconds']:.0f} s"
-                  f"{' (box truth cached)' if got['box_cached'] else ''}")  # fmt: skip
+                  f"{' (box truth cached)' if got['box_cached'] else ''}"
+                  f"{f', {len(kept)} file(s) stored' if a.store else ''}")  # fmt: skip
         return 0
     rows = []
     _log(f"usdahd byte-compiled ({compile_package()} modules written), as pip install does")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -1051,6 +1052,74 @@ def test_smoke_truths_only_caches_what_bench_stage_reads(tmp_path, bpy_python, m
     rows = rb.bench_stage(stage, 8, [4], 8, bpy_python, cycles_samples=[4])
     assert calls == [(4, compare.EQUAL_SEED, False)]
     assert {r["renderer"] for r in rows} == {"usdahd", "cycles"}
+
+
+def test_smoke_stored_truths_serve_a_new_machine(tmp_path, bpy_python, monkeypatch):
+    """``--truths-only --store`` keeps the truths in the repository's store; with an empty user
+    cache (a new machine) bench_stage reads them from there and renders no truth."""
+    from benchmarks import reference_bench as rb
+
+    monkeypatch.setenv(runner.CACHE_VAR, str(tmp_path / "cache"))
+    monkeypatch.setattr(runner, "STORE_DIR", tmp_path / "store")
+    args = ["--truths-only", "--store", "--stages", "floor_lamp", "--resolution", "8",
+            "--truth-spp", "8", "--bpy-python", bpy_python]  # fmt: skip
+    assert rb.main(args) == 0
+    assert len(list((tmp_path / "store").glob("*.npz"))) == 3
+    for f in (tmp_path / "cache").glob("*.npz"):
+        f.unlink()
+    calls = []
+    real = runner.run_cycles
+
+    def spy(scene_file, spp, **kw):
+        calls.append((spp, kw.get("seed"), kw.get("point", False)))
+        return real(scene_file, spp, **kw)
+
+    monkeypatch.setattr(runner, "run_cycles", spy)
+    rb.bench_stage(ROOT / "samples" / "floor_lamp.usda", 8, [4], 8, bpy_python,
+                   cycles_samples=[4])  # fmt: skip
+    assert calls == [(4, compare.EQUAL_SEED, False)]
+
+
+class _Scene:
+    def __init__(self, digest):
+        self._digest = digest
+
+    def digest(self):
+        return self._digest
+
+
+def test_the_store_is_read_after_the_user_cache_without_bpy(tmp_path, monkeypatch):
+    """A result in the repository's store (compressed, same arrays) is found with no bpy
+    interpreter and an empty user cache; the user cache's own file wins when both exist; a
+    key in neither needs bpy (the message says how to set it up)."""
+    monkeypatch.setenv(runner.CACHE_VAR, str(tmp_path / "cache"))
+    monkeypatch.setattr(runner, "STORE_DIR", tmp_path / "store")
+    (tmp_path / "cache").mkdir()
+    scene = _Scene("d" * 16)
+    key = runner.cache_key(scene.digest(), 64, 1)
+    iz = np.arange(12, dtype=np.float32).reshape(2, 2, 3)
+    meta = {"meshes": [{"index": 0}], "spp": 64}
+    runner.save_npz(tmp_path / "cache" / f"{key}.npz",
+                    {"iz_0": iz, "meta": np.array(json.dumps(meta))})  # fmt: skip
+    assert runner.store([tmp_path / "cache" / f"{key}.npz"]) == [tmp_path / "store" / f"{key}.npz"]
+    assert runner.store([tmp_path / "cache" / f"{key}.npz"]) == []  # already there
+    (tmp_path / "cache" / f"{key}.npz").unlink()
+    info, images, hit = runner.cached_cycles(scene, None, 64, seed=1, bpy=None)
+    assert hit and info["cached"] == str(tmp_path / "store" / f"{key}.npz")
+    np.testing.assert_array_equal(images[0], iz)
+    runner.save_npz(tmp_path / "cache" / f"{key}.npz",
+                    {"iz_0": iz + 1, "meta": np.array(json.dumps(meta))})  # fmt: skip
+    _, images, _ = runner.cached_cycles(scene, None, 64, seed=1, bpy=None)
+    np.testing.assert_array_equal(images[0], iz + 1)
+    with pytest.raises(runner.ReferenceUnavailable, match="pip install bpy"):
+        runner.cached_cycles(scene, None, 128, seed=1, bpy=None)
+
+
+def test_store_needs_truths_only(capsys):
+    from benchmarks import reference_bench as rb
+
+    assert rb.main(["--store", "--stages", "floor_lamp"]) == 2
+    assert "--store keeps the truths that --truths-only computes" in capsys.readouterr().err
 
 
 def test_summary_meshes_checks_the_readme_bounds(tmp_path, capsys):

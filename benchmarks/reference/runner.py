@@ -84,16 +84,47 @@ def cached_file(key: str) -> Path | None:
     return None
 
 
+def _half(img: np.ndarray) -> tuple[np.ndarray, float]:
+    """(float16 image, power-of-two scale): ``img`` / scale puts its largest |value| in
+    (2^14, 2^15], so every value within 2^28 of the largest is a normal float16 with 11
+    significant bits (relative rounding <= 2^-11 = 0.049 %, RMS ~0.02 %); scaling by a power
+    of two is exact."""
+    peak = float(np.nanmax(np.abs(img))) if img.size else 0.0
+    scale = 2.0 ** (np.ceil(np.log2(peak)) - 15) if peak > 0 and np.isfinite(peak) else 1.0
+    return (img / scale).astype(np.float16), scale
+
+
+def read_images(data, meshes) -> dict:
+    """{mesh index: (h, w, 3) float32} from an opened result ``data`` (a cache file's float32
+    ``iz_<k>``, or the store's float16 ``iz_<k>`` with its scale ``scale_<k>``)."""
+    out = {}
+    for m in meshes:
+        k = m["index"]
+        img = np.asarray(data[f"iz_{k}"], np.float32)
+        if f"scale_{k}" in data.files:
+            img = img * np.float32(data[f"scale_{k}"])
+        out[k] = img
+    return out
+
+
 def store(paths) -> list[Path]:
-    """Copy cached results into :data:`STORE_DIR`, compressed (``np.savez_compressed``, the same
-    arrays), skipping those already there; returns the files written."""
+    """Copy cached results into :data:`STORE_DIR`, skipping those already there; returns the
+    files written. Images are kept as float16 with a power-of-two scale each (:func:`_half`:
+    ~0.02 % RMS rounding, far below a 4096-spp truth's own noise; the point truth's two halves
+    round independently, so their difference counts it as truth noise) and deflated: half of
+    float32's size, ~1.4 MB for the ten stages at 32² (~23 MB at 128² in float32)."""
     written = []
     for src in paths:
         dst = STORE_DIR / Path(src).name
         if dst.is_file() or Path(src).resolve() == dst.resolve():
             continue
         with np.load(src, allow_pickle=False) as data:
-            arrays = {k: np.array(data[k]) for k in data.files}
+            arrays = {}
+            for k in data.files:
+                a = np.array(data[k])
+                if k.startswith("iz_") and a.dtype == np.float32:
+                    a, arrays[f"scale_{k[3:]}"] = _half(a)
+                arrays[k] = a
         STORE_DIR.mkdir(parents=True, exist_ok=True)
         save_npz(dst, arrays, prefix=".store.", compress=True)
         written.append(dst)
@@ -165,7 +196,7 @@ def cached_cycles(
     if found is not None:
         with np.load(found, allow_pickle=False) as data:
             info = json.loads(str(data["meta"]))
-            images = {m["index"]: np.array(data[f"iz_{m['index']}"]) for m in info["meshes"]}
+            images = read_images(data, info["meshes"])
         info["cached"] = str(found)
         files_used.append(found)
         return info, images, True

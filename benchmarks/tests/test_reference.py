@@ -1097,7 +1097,7 @@ def test_the_store_is_read_after_the_user_cache_without_bpy(tmp_path, monkeypatc
     (tmp_path / "cache").mkdir()
     scene = _Scene("d" * 16)
     key = runner.cache_key(scene.digest(), 64, 1)
-    iz = np.arange(12, dtype=np.float32).reshape(2, 2, 3)
+    iz = (np.arange(12, dtype=np.float32) * 0.37 + 1e-7).reshape(2, 2, 3)
     meta = {"meshes": [{"index": 0}], "spp": 64}
     runner.save_npz(tmp_path / "cache" / f"{key}.npz",
                     {"iz_0": iz, "meta": np.array(json.dumps(meta))})  # fmt: skip
@@ -1106,13 +1106,29 @@ def test_the_store_is_read_after_the_user_cache_without_bpy(tmp_path, monkeypatc
     (tmp_path / "cache" / f"{key}.npz").unlink()
     info, images, hit = runner.cached_cycles(scene, None, 64, seed=1, bpy=None)
     assert hit and info["cached"] == str(tmp_path / "store" / f"{key}.npz")
-    np.testing.assert_array_equal(images[0], iz)
+    assert images[0].dtype == np.float32
+    np.testing.assert_allclose(images[0], iz, rtol=2.0**-11, atol=0)
     runner.save_npz(tmp_path / "cache" / f"{key}.npz",
                     {"iz_0": iz + 1, "meta": np.array(json.dumps(meta))})  # fmt: skip
     _, images, _ = runner.cached_cycles(scene, None, 64, seed=1, bpy=None)
     np.testing.assert_array_equal(images[0], iz + 1)
     with pytest.raises(runner.ReferenceUnavailable, match="pip install bpy"):
         runner.cached_cycles(scene, None, 128, seed=1, bpy=None)
+
+
+def test_the_store_keeps_every_value_to_float16_precision():
+    """The store's float16 + power-of-two scale: relative rounding <= 2^-11 for every value
+    within 2^28 of the image's largest (dark corners next to a lamp), zeros stay zero."""
+    rng = np.random.default_rng(0)
+    img = (10.0 ** rng.uniform(-8, 4, size=(64, 64, 3))).astype(np.float32)
+    img[0, 0] = 0.0
+    half, scale = runner._half(img)
+    back = half.astype(np.float32) * np.float32(scale)
+    assert np.log2(scale) == int(np.log2(scale))
+    assert back[0, 0].tolist() == [0.0, 0.0, 0.0]
+    keep = img >= img.max() * 2.0**-28
+    rel = np.abs(back[keep] - img[keep]) / img[keep]
+    assert rel.max() <= 2.0**-11 and np.sqrt(np.mean(rel**2)) < 2.5e-4
 
 
 def test_store_needs_truths_only(capsys):

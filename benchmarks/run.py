@@ -4,9 +4,10 @@
                                         # the 32^2 half, of which the reference section
                                         # (usdahd vs Cycles at 128^2) took ~52 with Cycles'
                                         # truths cached; its 32^2 half (issue 43) adds ~15;
-                                        # each stage's uncached truths add minutes to ~1.5 h
-                                        # (Cornell boxes): `reference_bench.py --truths-only`
-                                        # at each size first
+                                        # each stage's uncached truths add minutes to ~45 min
+                                        # (Cornell boxes at 128^2): they are read from
+                                        # benchmarks/reference/truths/ when kept there
+                                        # (`reference_bench.py --truths-only --store`)
     python benchmarks/run.py --reference-stages cornell_box floor_lamp   # a subset of stages
     python benchmarks/run.py --quick    # ~2-3 min: fewer samples, texels and repeats
     usdahd bench [--quick]              # the same (or usdahd-bench): pip install -e benchmarks/

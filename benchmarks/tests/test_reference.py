@@ -1030,6 +1030,19 @@ def test_warm_baker_bakes_what_the_cli_bakes(tmp_path):
         )
 
 
+def _spy_cycles(monkeypatch) -> list:
+    """Record (spp, seed, point) of every Cycles render from now on (they still run)."""
+    calls = []
+    real = runner.run_cycles
+
+    def spy(scene_file, spp, **kw):
+        calls.append((spp, kw.get("seed"), kw.get("point", False)))
+        return real(scene_file, spp, **kw)
+
+    monkeypatch.setattr(runner, "run_cycles", spy)
+    return calls
+
+
 def test_smoke_truths_only_caches_what_bench_stage_reads(tmp_path, bpy_python, monkeypatch):
     """``reference_bench.py --truths-only`` computes the truths untimed (beforehand, e.g. at a
     low priority); a later bench_stage of the same stage and resolution renders no truth, only
@@ -1040,14 +1053,7 @@ def test_smoke_truths_only_caches_what_bench_stage_reads(tmp_path, bpy_python, m
     args = ["--truths-only", "--stages", "floor_lamp", "--resolution", "8", "--truth-spp", "8"]
     assert rb.main([*args, "--bpy-python", bpy_python]) == 0
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 3  # box, and two point halves
-    calls = []
-    real = runner.run_cycles
-
-    def spy(scene_file, spp, **kw):
-        calls.append((spp, kw.get("seed"), kw.get("point", False)))
-        return real(scene_file, spp, **kw)
-
-    monkeypatch.setattr(runner, "run_cycles", spy)
+    calls = _spy_cycles(monkeypatch)
     stage = ROOT / "samples" / "floor_lamp.usda"
     rows = rb.bench_stage(stage, 8, [4], 8, bpy_python, cycles_samples=[4])
     assert calls == [(4, compare.EQUAL_SEED, False)]
@@ -1067,14 +1073,7 @@ def test_smoke_stored_truths_serve_a_new_machine(tmp_path, bpy_python, monkeypat
     assert len(list((tmp_path / "store").glob("*.npz"))) == 3
     for f in (tmp_path / "cache").glob("*.npz"):
         f.unlink()
-    calls = []
-    real = runner.run_cycles
-
-    def spy(scene_file, spp, **kw):
-        calls.append((spp, kw.get("seed"), kw.get("point", False)))
-        return real(scene_file, spp, **kw)
-
-    monkeypatch.setattr(runner, "run_cycles", spy)
+    calls = _spy_cycles(monkeypatch)
     rb.bench_stage(ROOT / "samples" / "floor_lamp.usda", 8, [4], 8, bpy_python,
                    cycles_samples=[4])  # fmt: skip
     assert calls == [(4, compare.EQUAL_SEED, False)]

@@ -111,8 +111,8 @@ def store(paths) -> list[Path]:
     """Copy cached results into :data:`STORE_DIR`, skipping those already there; returns the
     files written. Images are kept as float16 with a power-of-two scale each (:func:`_half`:
     ~0.02 % RMS rounding, far below a 4096-spp truth's own noise; the point truth's two halves
-    round independently, so their difference counts it as truth noise) and deflated: half of
-    float32's size, ~1.4 MB for the ten stages at 32² (~23 MB at 128² in float32)."""
+    round independently, so their difference counts it as truth noise) and deflated: 720 KB
+    for the ten reference stages at 32², half of deflated float32's 1.4 MB."""
     written = []
     for src in paths:
         dst = STORE_DIR / Path(src).name

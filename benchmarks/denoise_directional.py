@@ -1,9 +1,12 @@
-"""Error of every SH band of a denoised 32^2 bake, with the directional coefficients' OIDN
-tiles cropped (``denoise.DIRECTIONAL_CROP``, the default) and uncropped, against usdahd's own
-converged bake (issue 43: the crop must not cost directional accuracy).
+"""Error of every SH band of a denoised 32^2 bake, with the directional coefficients' ratios
+averaged in the chart (``denoise.DIRECTIONAL_OIDN`` False, the default) or run through OIDN's
+directional network (cropped tiles, ``denoise.DIRECTIONAL_CROP``, or whole canvases), against
+usdahd's own converged bake (issue 43: a cheaper directional denoise must not cost
+directional accuracy).
 
     python benchmarks/denoise_directional.py --stages exterior_sun_sky stretched_boxes \
-        floor_lamp cornell_box --samples 16 64 256 --seeds 0 1 --truth-spp 4096 [--pads 10 8 6]
+        floor_lamp cornell_box --samples 16 64 256 --seeds 0 1 --truth-spp 4096 \
+        [--pads 10 8 6] [--radii 1 2 3]
 
 Every bake runs in this process (kernels loaded once, one untimed 4-spp bake first). Truth:
 the mean of two ``--no-denoise`` bakes at ``--truth-spp`` (seeds 1000 and 1001), whose
@@ -11,9 +14,10 @@ difference gives its noise (taken out of each error in quadrature). Per band (``
 i.e. I_z; ``l1``: c1-1 and c11; ``l2``: the five l=2 coefficients): RMS of the Rec. 709
 luminance of the coefficients' error over the interior covered texels, relative to the RMS
 luminance of the truth's c00, in %, mean over seeds; CPU: the bake call's process CPU seconds
-(every thread), median over seeds. Variants: ``plain`` (--no-denoise), ``full`` (uncropped),
-``cropped`` (the default), or with ``--pads`` ``pad N`` (cropped with ``mosaic.CROP_PAD``
-N). Prints one JSON row per stage, samples and variant.
+(every thread), median over seeds. Variants: ``plain`` (--no-denoise), ``mean`` (the
+default), ``oidn`` (OIDN's cropped tiles), ``oidn full`` (uncropped); with ``--pads`` ``oidn
+pad N`` (cropped with ``mosaic.CROP_PAD`` N), with ``--radii`` ``mean r N``
+(``denoise.DIRECTIONAL_RADIUS`` N). Prints one JSON row per stage, samples and variant.
 """
 
 from __future__ import annotations
@@ -86,16 +90,19 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, nargs="+", default=[16, 64, 256])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--truth-spp", type=int, default=4096)
-    ap.add_argument("--pads", type=int, nargs="+", help="cropped variants at these CROP_PAD")
+    ap.add_argument("--pads", type=int, nargs="+", help="OIDN variants at these CROP_PAD")
+    ap.add_argument("--radii", type=int, nargs="+", help="mean variants at these radii")
     a = ap.parse_args(argv)
     from usdahd.bake import denoise, mosaic
 
-    default, default_pad = denoise.DIRECTIONAL_CROP, mosaic.CROP_PAD
-    variants = [("plain", ["--no-denoise"], None, None), ("full", [], False, None)]
-    if a.pads:
-        variants += [(f"pad {p}", [], True, p) for p in a.pads]
-    else:
-        variants.append(("cropped", [], True, None))
+    saved = (denoise.DIRECTIONAL_OIDN, denoise.DIRECTIONAL_CROP, denoise.DIRECTIONAL_RADIUS,
+             mosaic.CROP_PAD)  # fmt: skip
+    # (label, flags, DIRECTIONAL_OIDN, DIRECTIONAL_CROP, CROP_PAD, DIRECTIONAL_RADIUS)
+    variants = [("plain", ["--no-denoise"], None, None, None, None),
+                ("mean", [], False, None, None, None)]  # fmt: skip
+    variants += [(f"mean r {r}", [], False, None, None, r) for r in a.radii or []]
+    variants += [("oidn", [], True, True, None, None), ("oidn full", [], True, False, None, None)]
+    variants += [(f"oidn pad {p}", [], True, True, p, None) for p in a.pads or []]
     for name in a.stages:
         src = REPO / "samples" / f"{name}.usda"
         if not src.is_file():
@@ -109,12 +116,13 @@ def main(argv=None) -> int:
             ta, _ = bake(stage, a.truth_spp, 1000, ["--no-denoise"])
             tb, _ = bake(stage, a.truth_spp, 1001, ["--no-denoise"])
             for spp in a.samples:
-                for label, flags, crop, pad in variants:
+                for label, flags, use_oidn, crop, pad, radius in variants:
                     errs, cpus = [], []
                     for seed in a.seeds:
-                        if crop is not None:
-                            denoise.DIRECTIONAL_CROP = crop
-                        mosaic.CROP_PAD = default_pad if pad is None else pad
+                        denoise.DIRECTIONAL_OIDN = saved[0] if use_oidn is None else use_oidn
+                        denoise.DIRECTIONAL_CROP = saved[1] if crop is None else crop
+                        denoise.DIRECTIONAL_RADIUS = saved[2] if radius is None else radius
+                        mosaic.CROP_PAD = saved[3] if pad is None else pad
                         est, cpu = bake(stage, spp, seed, flags)
                         errs.append(errors(est, ta, tb))
                         cpus.append(cpu)
@@ -123,7 +131,8 @@ def main(argv=None) -> int:
                     row |= {k: round(float(np.mean([e[k] for e in errs])), 3) for k in BANDS}
                     print(json.dumps(row), flush=True)
         finally:
-            denoise.DIRECTIONAL_CROP, mosaic.CROP_PAD = default, default_pad
+            (denoise.DIRECTIONAL_OIDN, denoise.DIRECTIONAL_CROP, denoise.DIRECTIONAL_RADIUS,
+             mosaic.CROP_PAD) = saved  # fmt: skip
             shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

@@ -19,9 +19,12 @@ stages per chart:
    I_z, the quantity the IrradZ models store exactly: ``usdahd.sh.iz``) are each denoised as
    HDR lightmaps (OIDN's HDR mode is scale invariant, checked 0.01..1000). Every other
    coefficient ``c_lm`` is divided by ``sqrt(2l+1) * c00`` (in [-1, 1] for non-negative
-   radiance), denoised in OIDN's ``directional`` mode and multiplied back by the denoised
-   ``c00``. ``filter="RT"`` runs OIDN's RT network with ``albedo``/``normal`` guides instead
-   (HDR for c00 and c10, the ratios mapped to [0, 1] as LDR).
+   radiance), averaged over the chart's texels within ``DIRECTIONAL_RADIUS`` and multiplied
+   back by the denoised ``c00`` (``DIRECTIONAL_OIDN``: OIDN's ``directional`` mode instead,
+   as measured there: 7 of 9 OIDN runs for a few % of directional accuracy).
+   ``filter="RT"`` runs OIDN's RT network with ``albedo``/``normal`` guides instead of
+   RTLightmap (HDR for c00 and c10; with ``DIRECTIONAL_OIDN`` the ratios mapped to [0, 1]
+   as LDR).
 3. **Blend by the noise.** A network also changes signal (the directional one moved the
    l=1, 2 coefficients of pillar_room's light hotspot by 4-20 noise deviations), so its
    output is only trusted as far as the input is noisy: per texel and coefficient,
@@ -45,8 +48,8 @@ bake): they are laid out side by side as tiles of one mosaic image per coefficie
 (:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
 chart sees its own filled context on every side (``HDR_CROP``: 10 texels for c00 and c10,
 ``DIRECTIONAL_CROP``: 8 for the others; between tiles the HDR mosaics are filled from the
-nearest tile, not 0) and the run count no longer grows with the charts (9 runs per mosaic
-instead of 9 per chart). Results differ from chart
+nearest tile, not 0) and the run count no longer grows with the charts (2 runs per mosaic
+instead of 2 per chart; 9 with ``DIRECTIONAL_OIDN``). Results differ from chart
 by chart only by the network's response to what lies beyond a canvas (another tile instead
 of the image border): docs/time-to-quality.md states the bound measured on the samples.
 """
@@ -72,8 +75,13 @@ from usdahd.bake.mosaic import plan as plan_mosaic
 from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
 from usdahd.bake.types import Texels
+from usdahd.bake.variance import (
+    canvas_noise,
+    integrator_iz_variance,
+    sh_variance,
+)
 from usdahd.errors import InputError, UsageError
-from usdahd.numerics.noise import second_differences, tile_stats
+from usdahd.numerics.noise import second_differences
 
 __all__ = ["VARIANCE_POOL", "denoise_records", "integrator_iz_variance", "sh_variance"]
 
@@ -85,11 +93,6 @@ _HDR_COEFFS = (0, 2)
 #: Smallest canvas side given to OIDN: below ~16 its output on constant images is off by
 #: 5-30 % even away from borders; tiny charts are centred in a canvas this big.
 MIN_CROP = 32
-#: Side (texels) of the tiles over which squared second differences are pooled into a noise
-#: estimate (then over the 3 x 3 neighbouring tiles: an 18 x 18 window).
-NOISE_TILE = 6
-#: Fewest second differences behind a noise estimate (else the chart's, else none: keep input).
-MIN_NOISE_SAMPLES = 8
 #: The gain with the integrator's variance (``variance_bound``: the per-texel minimum of its
 #: two upper bounds, s^2 / S and the two-halves estimate, pooled over ``VARIANCE_POOL``, and
 #: of the second-difference estimate). The weight minimising the blend's expected squared
@@ -113,12 +116,6 @@ VARIANCE_POOL = 2
 #: 1 % (0.480) and no mesh's error rises; the gradient test of EDGE_CONTRAST instead also
 #: dropped smooth gradients at high sample counts (stretched_boxes 1024 spp 0.81 -> 0.95).
 CURVATURE_CONTRAST = 4.0
-#: The noise estimate (a mean of squared second differences, so fireflies count as noise) is
-#: capped at ROBUST_CAP x the robust one (median, converted for Gaussian noise), so a bright
-#: hotspot's curvature does not pass for noise: without it the blend let OIDN's directional
-#: output through at pillar_room's light (l=2 error x5.6 at 1024 spp); 16 keeps the firefly
-#: removal at 16 spp intact (I_z error unchanged).
-ROBUST_CAP = 16.0
 #: With the integrator's variance, summed I_z is also kept per ring of texels counted from
 #: the chart's border (0: the border, 1: the ring inside it, ..., ENERGY_DEPTH: the rest),
 #: pooled over every denoised chart of a record (:func:`usdahd.bake.blend.keep_class_energy`):
@@ -130,8 +127,6 @@ ROBUST_CAP = 16.0
 #: points; depth 1 alike (-1.84 %); kept per chart instead of per record the rings re-inject
 #: the input's noise of few texels (object21_lib_0, 48 texels, relRMSE 11.6 -> 12.4 %).
 ENERGY_DEPTH = 2
-#: Median of chi-square with 1 degree of freedom: median(D^2) = 0.45494 E[D^2] for Gaussian D.
-_CHI2_1_MEDIAN = 0.454936423119572
 
 #: Canvas pixels of the charts denoised together (one mosaic image per coefficient): enough
 #: for OIDN's per-run cost to vanish, few enough to bound the memory of the charts held and
@@ -149,7 +144,22 @@ OIDN_LARGE_MEMORY_MB = 512
 #: about a third of the denoiser's CPU time (docs/time-to-quality.md, issue 43). Each chart's
 #: result does not depend on the threads (tests/bake/test_denoise.py).
 CHART_THREADS = 2
-#: The directional coefficients' OIDN tiles (7 of a mosaic's 9 runs) are cropped to the
+#: The 7 directional coefficients' ratios (c_lm / (sqrt(2l + 1) c00)) are denoised by their
+#: mean over the chart's texels within DIRECTIONAL_RADIUS (Chebyshev; 1: 3 x 3), then blended
+#: texel by texel like OIDN's output was; True runs them through OIDN's directional network
+#: instead (7 of 9 runs per mosaic, ~70 % of OIDN's pixels; the reference the mean is
+#: measured against). Measured (benchmarks/denoise_directional.py's method, 5 stages at 32^2,
+#: 16-1024 spp, seeds 0 and 1, against usdahd's own two 4096-spp bakes): the l=1 and l=2
+#: errors within -10..+9 % of OIDN's (the largest rise exterior_sun_sky at 16 spp, 1.65 ->
+#: 1.79 %; lower than OIDN's at 1024 spp there; the undenoised input 2.50 %), c00 and I_z bit
+#: for bit, the bake's CPU 0.51 -> 0.30 s (exterior_sun_sky 16 spp), 0.39 -> 0.24
+#: (stretched_boxes), 0.77 -> 0.54 (cornell_box): most of a directional error after the
+#: denoise is c00's (the ratio is multiplied by the denoised c00), so the network's better
+#: ratios bought little. Radius 2 and 3 and a c00-weighted mean: up to 10-30 % worse at
+#: 256-1024 spp (docs/time-to-quality.md).
+DIRECTIONAL_OIDN = False
+DIRECTIONAL_RADIUS = 1
+#: The directional coefficients' OIDN tiles (DIRECTIONAL_OIDN) are cropped to the
 #: chart's box and mosaic.CROP_PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
 #: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
 #: 32^2 the canvases' rounding to OIDN_BLOCK gives 4-9 OIDN pixels per texel. Their error
@@ -308,38 +318,6 @@ class _Canvas:
 # noise estimate and blending
 
 
-def _neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Mean of the valid ``tiles (th, tw, c)`` over each tile's 3 x 3 neighbourhood."""
-    th, tw = tiles.shape[:2]
-    pv = np.pad(np.where(valid, tiles, 0.0), ((1, 1), (1, 1), (0, 0)))
-    pc = np.pad(valid.astype(np.float64), ((1, 1), (1, 1), (0, 0)))
-    shifts = [(dy, dx) for dy in range(3) for dx in range(3)]
-    tot = sum(pv[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
-    cnt = sum(pc[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
-    return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), fallback)
-
-
-def _canvas_noise(
-    img: np.ndarray, mask: np.ndarray, tile: int = NOISE_TILE, support: np.ndarray | None = None
-) -> np.ndarray:
-    """(h, w, c) noise variance per texel of a one-chart canvas (0 where unknown), from the
-    second differences whose three texels are all in ``support`` ((h, w) bool, default
-    ``mask``), assigned to every ``mask`` texel."""
-    h, w, _ = img.shape
-    # per tile: E[D^2] = 6 var for iid noise
-    mean, med, cnt, fmean, fmed, fcnt = tile_stats(img, mask if support is None else support, tile)
-    ok = cnt >= MIN_NOISE_SAMPLES
-    # too few differences nearby: the whole chart's estimate, else unknown (0: keep the input)
-    enough = fcnt >= MIN_NOISE_SAMPLES
-    fmean = np.where(enough, fmean, 0.0)
-    fmed = np.where(enough, fmed, 0.0)
-    local = _neighbour_mean(mean, ok, fmean)
-    robust = _neighbour_mean(med, ok, fmed) / _CHI2_1_MEDIAN
-    local = np.minimum(local, ROBUST_CAP * robust)
-    per_texel = np.repeat(np.repeat(local, tile, axis=0), tile, axis=1)[:h, :w]
-    return np.where(mask[..., None], per_texel / 6.0, 0.0)
-
-
 def noise_variance(
     values: np.ndarray, texels: Texels, *, charts: np.ndarray | None = None
 ) -> np.ndarray:
@@ -366,7 +344,7 @@ def noise_variance(
     for c in np.unique(charts):
         sel = np.nonzero(charts == c)[0]
         cv = _Canvas(texels.xy[sel], pad=1, min_crop=1, block=1)
-        out[sel] = cv.gather(_canvas_noise(cv.image(flat[sel], fill=False), cv.mask))
+        out[sel] = cv.gather(canvas_noise(cv.image(flat[sel], fill=False), cv.mask))
     return out.reshape(values.shape)
 
 
@@ -379,41 +357,6 @@ def _check_charts(charts, n: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------
 # public
-
-
-def integrator_iz_variance(stats: dict) -> np.ndarray | None:
-    """(n,) float64 per-texel variance of the mean luminance I_z from ``bake_texels``' stats,
-    or None when it has none (e.g. a refit from a sidecar): the smaller of its two upper
-    bounds, ``iz_variance`` (s^2 / S, tight for a smooth integrand) and
-    ``iz_variance_halves`` (the two interleaved halves, tight where stratification pays
-    most: a penumbra's s^2 / S is ~8x the real variance, the halves' ~3.5x;
-    tests/bake/test_integrate.py)."""
-    s2 = stats.get("iz_variance")
-    if s2 is None:
-        return None
-    halves = stats.get("iz_variance_halves")
-    s2 = np.asarray(s2, np.float64)
-    return s2 if halves is None else np.minimum(s2, np.asarray(halves, np.float64))
-
-
-def sh_variance(sh: np.ndarray, iz_variance: np.ndarray) -> np.ndarray:
-    """Per-coefficient noise variance (n, 3, 9) float64 of radiance SH ``sh (n, 3, 9)`` from
-    the integrator's per-texel variance of luminance I_z ``iz_variance (n,)``
-    (``bake_texels``' stats), for :func:`denoise_sh`'s blend.
-
-    I_z = IZ_FROM_L10 c10, so var(c10) = var(I_z) / IZ_FROM_L10^2 in luminance; a channel's
-    noise scales with its share of the luminance (c00 of that channel / c00 luminance); every
-    coefficient is given c10's variance (all are Monte Carlo estimates of the same samples
-    weighted by a basis function of the same order of magnitude). Unlike the
-    second-difference estimate, a shadow edge or a hotspot does not read as noise here."""
-    from usdahd.numerics import sh as shm
-
-    sh = np.asarray(sh, np.float64)
-    c00 = np.maximum(sh[:, :, 0], 0.0)
-    lum = c00 @ np.asarray(shm.LUMINANCE, np.float64)
-    share = np.where(lum[:, None] > 0, c00 / np.where(lum > 0, lum, 1.0)[:, None], 1.0)
-    var = np.asarray(iz_variance, np.float64)[:, None] / shm.IZ_FROM_L10**2 * share**2
-    return np.repeat(var[:, :, None], 9, axis=2)
 
 
 def denoise_sh(
@@ -471,11 +414,14 @@ def denoise_sh(
 class _Chart:
     """One chart's state between its noise estimate, OIDN and its blend."""
 
-    def __init__(self, record, sel, cv, x, var, groups, images, guides, depth=None):
+    def __init__(self, record, sel, cv, x, var, groups, images, guides, depth=None,
+                 ratios=None):  # fmt: skip
         self.record, self.sel, self.cv, self.x, self.var = record, sel, cv, x, var
         self.groups, self.images, self.guides = groups, images, guides
         #: (m,) ring of each texel from the chart's border (border_depth), for keep_class_energy
         self.depth = depth
+        #: (m, 3, 7) denoised directional ratios (DIRECTIONAL_OIDN False), else None
+        self.ratios = ratios
 
 
 def denoise_records(
@@ -619,7 +565,7 @@ def _prepare_chart(
     if variance is None or variance_bound:
         var = np.empty_like(x)
         for g in groups:
-            noise = _canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask)
+            noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask)
             var[:, :, g] = cv.gather(noise).reshape(len(sel), 3, len(g))
         if variance is not None:
             var = np.minimum(var, vsel)
@@ -633,10 +579,10 @@ def _prepare_chart(
             guides["albedo"] = np.clip(cv.image(np.asarray(albedo)[sel]), 0.0, 1.0)
         if normal is not None:
             guides["normal"] = np.clip(cv.image(np.asarray(normal)[sel]), -1.0, 1.0)
-    # every coefficient's canvas from one fill per group (dilation and mirroring act on each
+    # every OIDN input canvas from one fill per group (dilation and mirroring act on each
     # channel alone: the same values as one canvas per coefficient, a ninth of the calls)
     filled = {}
-    for g in groups:
+    for g in groups if DIRECTIONAL_OIDN else [np.array(_HDR_COEFFS)]:
         img = cv.image(_channels(x, g))
         for j, k in enumerate(g):
             filled[int(k)] = img[:, :, j :: len(g)]
@@ -646,15 +592,30 @@ def _prepare_chart(
         band = np.maximum(filled.pop(k), 0.0)
         c00 = band if k == 0 else c00
         images[k] = band
-    safe = np.where(c00 > 0, c00, 1.0)
-    for k in RATIO_COEFFS:
-        ratio = np.where(c00 > 0, filled.pop(k) / (BAND_BOUND[k] * safe), 0.0)
-        ratio = np.clip(ratio, -1.0, 1.0)
-        images[k] = ratio if filter == "RTLightmap" else 0.5 * (ratio + 1.0)
+    ratios = None
+    if DIRECTIONAL_OIDN:
+        safe = np.where(c00 > 0, c00, 1.0)
+        for k in RATIO_COEFFS:
+            ratio = np.where(c00 > 0, filled.pop(k) / (BAND_BOUND[k] * safe), 0.0)
+            ratio = np.clip(ratio, -1.0, 1.0)
+            images[k] = ratio if filter == "RTLightmap" else 0.5 * (ratio + 1.0)
+    else:
+        ratios = _pooled(cv, directional_ratios(x), DIRECTIONAL_RADIUS)
     depth = None
     if blend and variance_bound:
         depth = cv.gather(border_depth(cv.mask, ENERGY_DEPTH))
-    return _Chart(i, sel, cv, x, var, groups, images, guides, depth)
+    return _Chart(i, sel, cv, x, var, groups, images, guides, depth, ratios)
+
+
+def directional_ratios(x: np.ndarray) -> np.ndarray:
+    """(m, 3, 7) float64 ratios c_lm / (sqrt(2l + 1) c00) of the directional coefficients
+    (``RATIO_COEFFS``) of SH ``x (m, 3, 9)``, clipped to [-1, 1] (the bound of a non-negative
+    radiance); 0 where c00 <= 0."""
+    x = np.asarray(x, np.float64)
+    c00 = np.maximum(x[:, :, :1], 0.0)
+    safe = np.where(c00 > 0, c00, 1.0)
+    r = x[:, :, list(RATIO_COEFFS)] / (BAND_BOUND[list(RATIO_COEFFS)] * safe)
+    return np.clip(np.where(c00 > 0, r, 0.0), -1.0, 1.0)
 
 
 def _pass_kind(k: int, filter: str) -> dict:
@@ -674,11 +635,10 @@ def _finish(
     den_out: list[dict] = [{} for _ in batch]
     # one layout for the HDR runs, one for the directional ones (computed once, not per run)
     fills = {"hdr": HDR_CROP, "dir": DIRECTIONAL_FILL}
-    layouts = {
-        "hdr": plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD),
-        "dir": plan_mosaic(batch, cropped=DIRECTIONAL_CROP),
-    } if mosaic else {}  # fmt: skip
-    for k in (*_HDR_COEFFS, *RATIO_COEFFS):
+    layouts = {"hdr": plan_mosaic(batch, cropped=HDR_CROP, pad=HDR_CROP_PAD)} if mosaic else {}
+    if mosaic and DIRECTIONAL_OIDN:
+        layouts["dir"] = plan_mosaic(batch, cropped=DIRECTIONAL_CROP)
+    for k in (*_HDR_COEFFS, *(RATIO_COEFFS if DIRECTIONAL_OIDN else ())):
         kind = _pass_kind(k, filter)
         use_guides = k in _HDR_COEFFS or filter == "RT"
         if mosaic:
@@ -695,7 +655,7 @@ def _finish(
     def finish_chart(ch, store):
         d = _chart_output(ch, store, filter)
         store.clear()  # the canvases are done with: free them chart by chart (peak memory)
-        ch.images = ch.guides = None
+        ch.images = ch.guides = ch.ratios = None
         x, var, cv, groups = ch.x, ch.var, ch.cv, ch.groups
         ch.x = ch.var = None  # held by the locals only from here: freed with them
         if blend and variance_bound:
@@ -737,9 +697,12 @@ def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:
     out = np.zeros((len(ch.sel), 3, 9))
     for k in _HDR_COEFFS:
         out[:, :, k] = np.maximum(cv.gather(res[k]), 0.0)
-    for k in RATIO_COEFFS:
-        r = res[k] if filter == "RTLightmap" else res[k] * 2.0 - 1.0
-        out[:, :, k] = np.clip(cv.gather(r), -1.0, 1.0) * BAND_BOUND[k] * out[:, :, 0]
+    for j, k in enumerate(RATIO_COEFFS):
+        if ch.ratios is not None:
+            r = ch.ratios[:, :, j]
+        else:
+            r = cv.gather(res[k] if filter == "RTLightmap" else res[k] * 2.0 - 1.0)
+        out[:, :, k] = np.clip(r, -1.0, 1.0) * BAND_BOUND[k] * out[:, :, 0]
     return out
 
 
@@ -768,7 +731,7 @@ def _noise_off_curvature(cv: _Canvas, x: np.ndarray, d: np.ndarray, var: np.ndar
     support = cv.mask & ~_curved_texels(cv, d, var, groups)
     out = np.empty_like(x)
     for g in groups:
-        noise = _canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask, support=support)
+        noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask, support=support)
         out[:, :, g] = cv.gather(noise).reshape(len(x), 3, len(g))
     return out
 

@@ -15,7 +15,9 @@ i.e. I_z; ``l1``: c1-1 and c11; ``l2``: the five l=2 coefficients): RMS of the R
 luminance of the coefficients' error over the interior covered texels, relative to the RMS
 luminance of the truth's c00, in %, mean over seeds; CPU: the bake call's process CPU seconds
 (every thread), median over seeds. Variants: ``plain`` (--no-denoise), ``mean`` (the
-default), ``oidn`` (OIDN's cropped tiles), ``oidn full`` (uncropped); with ``--pads`` ``oidn
+default), ``mean estimated`` (``denoise.DIRECTIONAL_NOISE_ESTIMATE``: the directional blend
+also asks the second-difference noise estimate), ``oidn`` (OIDN's cropped tiles and the
+estimate: the default until 2026-12-06), ``oidn full`` (uncropped); with ``--pads`` ``oidn
 pad N`` (cropped with ``mosaic.CROP_PAD`` N), with ``--radii`` ``mean r N``
 (``denoise.DIRECTIONAL_RADIUS`` N). Prints one JSON row per stage, samples and variant.
 """
@@ -95,14 +97,20 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from usdahd.bake import denoise, mosaic
 
-    saved = (denoise.DIRECTIONAL_OIDN, denoise.DIRECTIONAL_CROP, denoise.DIRECTIONAL_RADIUS,
-             mosaic.CROP_PAD)  # fmt: skip
-    # (label, flags, DIRECTIONAL_OIDN, DIRECTIONAL_CROP, CROP_PAD, DIRECTIONAL_RADIUS)
-    variants = [("plain", ["--no-denoise"], None, None, None, None),
-                ("mean", [], False, None, None, None)]  # fmt: skip
-    variants += [(f"mean r {r}", [], False, None, None, r) for r in a.radii or []]
-    variants += [("oidn", [], True, True, None, None), ("oidn full", [], True, False, None, None)]
-    variants += [(f"oidn pad {p}", [], True, True, p, None) for p in a.pads or []]
+    # (label, bake flags, {module attribute: value} set for the variant's bakes)
+    variants = [("plain", ["--no-denoise"], {}), ("mean", [], {})]
+    variants += [(f"mean r {r}", [], {"DIRECTIONAL_RADIUS": r}) for r in a.radii or []]
+    variants += [("mean estimated", [], {"DIRECTIONAL_NOISE_ESTIMATE": True})]
+    before = {"DIRECTIONAL_OIDN": True, "DIRECTIONAL_NOISE_ESTIMATE": True}  # until 8e47805
+    variants += [("oidn", [], before), ("oidn full", [], before | {"DIRECTIONAL_CROP": False})]
+    variants += [(f"oidn pad {p}", [], before | {"CROP_PAD": p}) for p in a.pads or []]
+    names = ("DIRECTIONAL_OIDN", "DIRECTIONAL_CROP", "DIRECTIONAL_RADIUS",
+             "DIRECTIONAL_NOISE_ESTIMATE", "CROP_PAD")  # fmt: skip
+
+    def module(name):
+        return mosaic if name == "CROP_PAD" else denoise
+
+    saved = {n: getattr(module(n), n) for n in names}
     for name in a.stages:
         src = REPO / "samples" / f"{name}.usda"
         if not src.is_file():
@@ -116,13 +124,11 @@ def main(argv=None) -> int:
             ta, _ = bake(stage, a.truth_spp, 1000, ["--no-denoise"])
             tb, _ = bake(stage, a.truth_spp, 1001, ["--no-denoise"])
             for spp in a.samples:
-                for label, flags, use_oidn, crop, pad, radius in variants:
+                for label, flags, attrs in variants:
                     errs, cpus = [], []
                     for seed in a.seeds:
-                        denoise.DIRECTIONAL_OIDN = saved[0] if use_oidn is None else use_oidn
-                        denoise.DIRECTIONAL_CROP = saved[1] if crop is None else crop
-                        denoise.DIRECTIONAL_RADIUS = saved[2] if radius is None else radius
-                        mosaic.CROP_PAD = saved[3] if pad is None else pad
+                        for n in names:
+                            setattr(module(n), n, attrs.get(n, saved[n]))
                         est, cpu = bake(stage, spp, seed, flags)
                         errs.append(errors(est, ta, tb))
                         cpus.append(cpu)
@@ -131,8 +137,8 @@ def main(argv=None) -> int:
                     row |= {k: round(float(np.mean([e[k] for e in errs])), 3) for k in BANDS}
                     print(json.dumps(row), flush=True)
         finally:
-            (denoise.DIRECTIONAL_OIDN, denoise.DIRECTIONAL_CROP, denoise.DIRECTIONAL_RADIUS,
-             mosaic.CROP_PAD) = saved  # fmt: skip
+            for n in names:
+                setattr(module(n), n, saved[n])
             shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

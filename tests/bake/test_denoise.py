@@ -200,10 +200,13 @@ def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
     """variance_bound=True: an unbounded figure gives the second-difference estimate's result
     (blended with VARIANCE_BOUND_GAIN), then each chart's summed c10 per channel is put back
     to the input's, and so is each ring's from the chart border (border_depth up to
-    ENERGY_DEPTH); a zero bound keeps the input (nothing is trusted as noise)."""
+    ENERGY_DEPTH); a zero bound keeps the input (nothing is trusted as noise). With
+    DIRECTIONAL_NOISE_ESTIMATE (the directional coefficients estimated too); by default they
+    take the bound alone: :func:`test_directional_coefficients_take_the_bound_alone`."""
     mesh, t = full_quad()
     _clean, noisy = noisy_field(t, 0.3, seed=5)
     charts = charts_of(mesh, t)
+    monkeypatch.setattr(denoise, "DIRECTIONAL_NOISE_ESTIMATE", True)
     with monkeypatch.context() as m:
         m.setattr(denoise, "BLEND_GAIN", denoise.VARIANCE_BOUND_GAIN)
         est = denoise.denoise_sh(noisy, t, charts=charts)
@@ -223,6 +226,29 @@ def test_a_variance_bound_takes_the_smaller_of_it_and_the_estimate(monkeypatch):
         )
     none = denoise.denoise_sh(noisy, t, charts=charts, variance=0.0, variance_bound=True)
     np.testing.assert_array_equal(none, noisy)
+
+
+def test_directional_coefficients_take_the_bound_alone(monkeypatch):
+    """By default (not DIRECTIONAL_NOISE_ESTIMATE) a bake's directional coefficients are
+    blended with the integrator's bound alone: an unbounded one lets their in-chart mean
+    through whole (each ratio to the output's c00 is the 3 x 3 chart mean of the input's
+    ratios), while c00 and c10 come back as with the estimate, which only they still get."""
+    assert not denoise.DIRECTIONAL_NOISE_ESTIMATE
+    mesh, t = full_quad()
+    _clean, noisy = noisy_field(t, 0.3, seed=5)
+    charts = charts_of(mesh, t)
+    loose = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
+    monkeypatch.setattr(denoise, "DIRECTIONAL_NOISE_ESTIMATE", True)
+    both = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
+    np.testing.assert_array_equal(loose[:, :, [0, 2]], both[:, :, [0, 2]])
+    cv = denoise._Canvas(t.xy)
+    mean = denoise._pooled(cv, denoise.directional_ratios(noisy), denoise.DIRECTIONAL_RADIUS)
+    ratio = list(blend.RATIO_COEFFS)
+    got = loose[:, :, ratio] / (blend.BAND_BOUND[ratio] * loose[:, :, :1])
+    ok = (noisy[:, :, 0] > 0).all(axis=1)
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(got[ok], np.clip(mean[ok], -1, 1), rtol=1e-4, atol=1e-5)
+    assert not np.allclose(loose[:, :, ratio], both[:, :, ratio])  # the estimate held some back
 
 
 def test_integrator_variance_is_the_smaller_of_its_two_bounds():

@@ -159,6 +159,15 @@ CHART_THREADS = 2
 #: 256-1024 spp (docs/time-to-quality.md).
 DIRECTIONAL_OIDN = False
 DIRECTIONAL_RADIUS = 1
+#: With the integrator's variance (a bake, ``variance_bound``), the 7 directional coefficients'
+#: blend takes that variance alone, without the per-coefficient second-difference estimate
+#: (made for c00 and c10 only: before OIDN and again off the denoised image's curvature):
+#: their mean is no network to be held back at a hotspot, and the estimate was ~3/4 of the
+#: noise kernel's work. Measured (benchmarks/denoise_directional.py's method, 5 stages at 32^2,
+#: 16-1024 spp, seeds 0 and 1): l=1 and l=2 errors 0.86-1.01x of those with the estimate
+#: (exterior_sun_sky 16 spp l=1 1.79 -> 1.56 %, below OIDN's 1.65 %), I_z bit for bit, bake CPU
+#: -0..-10 %. True estimates them too (the API's default without a variance always does).
+DIRECTIONAL_NOISE_ESTIMATE = False
 #: The directional coefficients' OIDN tiles (DIRECTIONAL_OIDN) are cropped to the
 #: chart's box and mosaic.CROP_PAD texels of context (mosaic.MOSAIC_CROP for them alone), packed on
 #: mosaic.MOSAIC_GRID columns: OIDN's run count is fixed, its time follows its pixels, and at
@@ -563,8 +572,9 @@ def _prepare_chart(
     groups = _coefficient_groups(cv.shape)  # canvases of bounded size
     vsel = None if variance is None else _pooled(cv, variance[sel], variance_pool)
     if variance is None or variance_bound:
-        var = np.empty_like(x)
-        for g in groups:
+        hdr_only = variance is not None and not DIRECTIONAL_NOISE_ESTIMATE
+        var = vsel.copy() if hdr_only else np.empty_like(x)
+        for g in _estimated_groups(groups, hdr_only):
             noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask)
             var[:, :, g] = cv.gather(noise).reshape(len(sel), 3, len(g))
         if variance is not None:
@@ -659,7 +669,8 @@ def _finish(
         x, var, cv, groups = ch.x, ch.var, ch.cv, ch.groups
         ch.x = ch.var = None  # held by the locals only from here: freed with them
         if blend and variance_bound:
-            var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups))
+            est = _estimated_groups(groups, not DIRECTIONAL_NOISE_ESTIMATE)
+            var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups, est))
         if blend:
             weights = np.empty_like(x)
             for g in groups:
@@ -725,12 +736,21 @@ def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.nd
     return curved & cv.mask
 
 
-def _noise_off_curvature(cv: _Canvas, x: np.ndarray, d: np.ndarray, var: np.ndarray, groups):
+def _estimated_groups(groups: list[np.ndarray], hdr_only: bool) -> list[np.ndarray]:
+    """The coefficient groups whose second-difference noise is estimated: all, or with
+    ``hdr_only`` c00 and c10 alone (DIRECTIONAL_NOISE_ESTIMATE False)."""
+    return [np.array(_HDR_COEFFS)] if hdr_only else groups
+
+
+def _noise_off_curvature(
+    cv: _Canvas, x: np.ndarray, d: np.ndarray, var: np.ndarray, groups, estimated=None
+) -> np.ndarray:
     """(m, 3, 9) second-difference noise variance of the chart's input ``x (m, 3, 9)`` from
-    the texels where the denoised ``d`` does not curve (:func:`_curved_texels` with ``var``)."""
+    the texels where the denoised ``d`` does not curve (:func:`_curved_texels` with ``var``),
+    for the coefficients of ``estimated`` (default ``groups``); +inf for the others."""
     support = cv.mask & ~_curved_texels(cv, d, var, groups)
-    out = np.empty_like(x)
-    for g in groups:
+    out = np.full_like(x, np.inf)
+    for g in groups if estimated is None else estimated:
         noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask, support=support)
         out[:, :, g] = cv.gather(noise).reshape(len(x), 3, len(g))
     return out

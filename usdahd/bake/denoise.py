@@ -570,7 +570,12 @@ def _prepare_chart(
     x = sh[sel].astype(np.float64)  # (m, 3, 9)
     cv = _Canvas(texels.xy[sel])
     groups = _coefficient_groups(cv.shape)  # canvases of bounded size
-    vsel = None if variance is None else _pooled(cv, variance[sel], variance_pool)
+    vsel = None
+    if variance is not None:
+        # a variance shared by the 9 coefficients (sh_variance's, broadcast: stride 0) is
+        # pooled once, not 9 times
+        v = variance[sel, :, :1] if variance.strides[-1] == 0 else variance[sel]
+        vsel = np.broadcast_to(_pooled(cv, v, variance_pool), x.shape)
     if variance is None or variance_bound:
         hdr_only = variance is not None and not DIRECTIONAL_NOISE_ESTIMATE
         var = vsel.copy() if hdr_only else np.empty_like(x)

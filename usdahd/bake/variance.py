@@ -85,7 +85,9 @@ def sh_variance(sh: np.ndarray, iz_variance: np.ndarray) -> np.ndarray:
     noise scales with its share of the luminance (c00 of that channel / c00 luminance); every
     coefficient is given c10's variance (all are Monte Carlo estimates of the same samples
     weighted by a basis function of the same order of magnitude). Unlike the
-    second-difference estimate, a shadow edge or a hotspot does not read as noise here."""
+    second-difference estimate, a shadow edge or a hotspot does not read as noise here.
+    A read-only broadcast view of one (n, 3) array (the denoiser pools it once, not per
+    coefficient)."""
     from usdahd.numerics import sh as shm
 
     sh = np.asarray(sh, np.float64)
@@ -93,4 +95,4 @@ def sh_variance(sh: np.ndarray, iz_variance: np.ndarray) -> np.ndarray:
     lum = c00 @ np.asarray(shm.LUMINANCE, np.float64)
     share = np.where(lum[:, None] > 0, c00 / np.where(lum > 0, lum, 1.0)[:, None], 1.0)
     var = np.asarray(iz_variance, np.float64)[:, None] / shm.IZ_FROM_L10**2 * share**2
-    return np.repeat(var[:, :, None], 9, axis=2)
+    return np.broadcast_to(var[:, :, None], (len(var), 3, 9))

@@ -224,7 +224,8 @@ def _bake_jobs(scene, jobs: list[PrimJob], out: Path, opts: BakeOptions) -> None
             iz_var = denoise.integrator_iz_variance(job.stats)
             var = None if iz_var is None else denoise.sh_variance(job.sh, iz_var)
             if var is not None:  # float32: the denoiser pools it on float32 canvases anyway
-                var = var.astype(np.float32)
+                # (one value per channel, broadcast over the 9 coefficients: 12 bytes a texel)
+                var = np.broadcast_to(var[:, :, :1].astype(np.float32), var.shape)
             records.append(dict(sh=job.sh, texels=job.texels, charts=job.charts, variance=var))
         # every prim's charts at once: one OIDN run per mosaic image and coefficient
         denoised = denoise.denoise_records(

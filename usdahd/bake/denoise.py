@@ -155,8 +155,9 @@ CHART_THREADS = 2
 #: for bit, the bake's CPU 0.51 -> 0.30 s (exterior_sun_sky 16 spp), 0.39 -> 0.24
 #: (stretched_boxes), 0.77 -> 0.54 (cornell_box): most of a directional error after the
 #: denoise is c00's (the ratio is multiplied by the denoised c00), so the network's better
-#: ratios bought little. Radius 2 and 3 and a c00-weighted mean: up to 10-30 % worse at
-#: 256-1024 spp (docs/time-to-quality.md).
+#: ratios bought little. Radius 2 and 3 and a c00-weighted mean: up to 16 % and 25 % above
+#: OIDN's (docs/time-to-quality.md). With DIRECTIONAL_NOISE_ESTIMATE off (below) the same
+#: runs give 0.89-1.04x OIDN's errors (geometric mean 0.98).
 DIRECTIONAL_OIDN = False
 DIRECTIONAL_RADIUS = 1
 #: With the integrator's variance (a bake, ``variance_bound``), the 7 directional coefficients'

@@ -47,7 +47,7 @@ OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every
 bake): they are laid out side by side as tiles of one mosaic image per coefficient
 (:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
 chart sees its own filled context on every side (``HDR_CROP``: 10 texels for c00 and c10,
-``DIRECTIONAL_CROP``: 8 for the others; between tiles the HDR mosaics are filled from the
+``DIRECTIONAL_CROP``: 8 for the others when OIDN runs them; between tiles the HDR mosaics are filled from the
 nearest tile, not 0) and the run count no longer grows with the charts (2 runs per mosaic
 instead of 2 per chart; 9 with ``DIRECTIONAL_OIDN``). Results differ from chart
 by chart only by the network's response to what lies beyond a canvas (another tile instead

@@ -47,10 +47,10 @@ OIDN runs on the canvases of many charts at once (:func:`denoise_records`, every
 bake): they are laid out side by side as tiles of one mosaic image per coefficient
 (:mod:`usdahd.bake.mosaic`), each HDR tile scaled by its own exposure, so a
 chart sees its own filled context on every side (``HDR_CROP``: 10 texels for c00 and c10,
-``DIRECTIONAL_CROP``: 8 for the others when OIDN runs them; between tiles the HDR mosaics are filled from the
-nearest tile, not 0) and the run count no longer grows with the charts (2 runs per mosaic
-instead of 2 per chart; 9 with ``DIRECTIONAL_OIDN``). Results differ from chart
-by chart only by the network's response to what lies beyond a canvas (another tile instead
+``DIRECTIONAL_CROP``: 8 for the others when OIDN runs them; between tiles the HDR mosaics are
+filled from the nearest tile, not 0) and the run count no longer grows with the charts (2 runs
+per mosaic instead of 2 per chart; 9 with ``DIRECTIONAL_OIDN``). Results differ from chart by
+chart only by the network's response to what lies beyond a canvas (another tile instead
 of the image border): docs/time-to-quality.md states the bound measured on the samples.
 """
 
@@ -76,6 +76,7 @@ from usdahd.bake.mosaic import run as run_mosaic
 from usdahd.bake.post import dilate
 from usdahd.bake.types import Texels
 from usdahd.bake.variance import (
+    NOISE_TILE,
     canvas_noise,
     integrator_iz_variance,
     sh_variance,
@@ -323,6 +324,24 @@ class _Canvas:
     def gather(self, img: np.ndarray) -> np.ndarray:
         return img[self.ly, self.lx]
 
+    def work(self, align: int = NOISE_TILE) -> _Canvas:
+        """The chart's bounding box as a canvas of its own, its origin on this canvas's
+        ``align`` grid, for everything but OIDN's input (``image(fill=False)``, ``gather``,
+        ``mask``): the noise estimate, the pooling and the blend need no context, and a small
+        chart's box is a fraction of its OIDN canvas (at 32² a 2 x 27 chart: 54 of 1,536
+        pixels). Results on it equal the canvas's bit for bit: the noise estimate's tiles stay
+        on the same grid, masked sums only add zeros outside the chart, and beyond its edges
+        there is no chart texel either."""
+        y0, y1, x0, x1 = self.box
+        oy, ox = y0 - y0 % align, x0 - x0 % align
+        wv = object.__new__(_Canvas)
+        wv.lx, wv.ly = self.lx - ox, self.ly - oy
+        wv.shape = (y1 - oy, x1 - ox)
+        wv.mask = self.mask[oy:y1, ox:x1]
+        wv.box = (y0 - oy, y1 - oy, x0 - ox, x1 - ox)
+        wv.mode = self.mode
+        return wv
+
 
 # --------------------------------------------------------------------------------------------
 # noise estimate and blending
@@ -427,6 +446,8 @@ class _Chart:
     def __init__(self, record, sel, cv, x, var, groups, images, guides, depth=None,
                  ratios=None):  # fmt: skip
         self.record, self.sel, self.cv, self.x, self.var = record, sel, cv, x, var
+        #: the chart's box alone (_Canvas.work): the noise estimate's and the blend's canvas
+        self.wv = cv.work()
         self.groups, self.images, self.guides = groups, images, guides
         #: (m,) ring of each texel from the chart's border (border_depth), for keep_class_energy
         self.depth = depth
@@ -570,19 +591,20 @@ def _prepare_chart(
     """A chart's canvas, noise variance and OIDN input images; None when it has no noise."""
     x = sh[sel].astype(np.float64)  # (m, 3, 9)
     cv = _Canvas(texels.xy[sel])
+    wv = cv.work()  # the box alone: noise, pooling and blend need no OIDN context
     groups = _coefficient_groups(cv.shape)  # canvases of bounded size
     vsel = None
     if variance is not None:
         # a variance shared by the 9 coefficients (sh_variance's, broadcast: stride 0) is
         # pooled once, not 9 times
         v = variance[sel, :, :1] if variance.strides[-1] == 0 else variance[sel]
-        vsel = np.broadcast_to(_pooled(cv, v, variance_pool), x.shape)
+        vsel = np.broadcast_to(_pooled(wv, v, variance_pool), x.shape)
     if variance is None or variance_bound:
         hdr_only = variance is not None and not DIRECTIONAL_NOISE_ESTIMATE
         var = vsel.copy() if hdr_only else np.empty_like(x)
         for g in _estimated_groups(groups, hdr_only):
-            noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask)
-            var[:, :, g] = cv.gather(noise).reshape(len(sel), 3, len(g))
+            noise = canvas_noise(wv.image(_channels(x, g), fill=False), wv.mask)
+            var[:, :, g] = wv.gather(noise).reshape(len(sel), 3, len(g))
         if variance is not None:
             var = np.minimum(var, vsel)
     else:
@@ -616,10 +638,10 @@ def _prepare_chart(
             ratio = np.clip(ratio, -1.0, 1.0)
             images[k] = ratio if filter == "RTLightmap" else 0.5 * (ratio + 1.0)
     else:
-        ratios = _pooled(cv, directional_ratios(x), DIRECTIONAL_RADIUS)
+        ratios = _pooled(wv, directional_ratios(x), DIRECTIONAL_RADIUS)
     depth = None
     if blend and variance_bound:
-        depth = cv.gather(border_depth(cv.mask, ENERGY_DEPTH))
+        depth = wv.gather(border_depth(wv.mask, ENERGY_DEPTH))
     return _Chart(i, sel, cv, x, var, groups, images, guides, depth, ratios)
 
 
@@ -672,7 +694,7 @@ def _finish(
         d = _chart_output(ch, store, filter)
         store.clear()  # the canvases are done with: free them chart by chart (peak memory)
         ch.images = ch.guides = ch.ratios = None
-        x, var, cv, groups = ch.x, ch.var, ch.cv, ch.groups
+        x, var, cv, groups = ch.x, ch.var, ch.wv, ch.groups  # the box: no OIDN context
         ch.x = ch.var = None  # held by the locals only from here: freed with them
         if blend and variance_bound:
             est = _estimated_groups(groups, not DIRECTIONAL_NOISE_ESTIMATE)

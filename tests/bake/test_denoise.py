@@ -452,6 +452,24 @@ def test_border_depth_and_class_energy():
         np.testing.assert_allclose(ratio, np.broadcast_to(ratio[:1, :, :1], ratio.shape))
 
 
+def test_blend_keeps_an_unlit_texel_free_of_direction():
+    """blend_sh: where the input's c00 is 0 (an unlit, noise-free texel) and the denoised one
+    is not, the texel keeps c00 = 0 (weight 0) and so gets no directional coefficient either,
+    whatever the directional weights; a lit texel's directional coefficients stay within the
+    band bound of its blended c00."""
+    x = np.zeros((2, 3, 9))
+    d = np.zeros((2, 3, 9))
+    d[:, :, 0], d[:, :, 1], d[:, :, 4] = 1.0, 0.5, -0.8  # the neighbours' light, denoised
+    x[1, :, 0], x[1, :, 1] = 2.0, 0.1  # texel 1 lit
+    w = np.ones((2, 3, 9))
+    w[:, :, 0] = w[:, :, 2] = 0.0  # c00 and c10 kept (var 0 for the unlit texel)
+    out = blend.blend_sh(x, d, w)
+    np.testing.assert_array_equal(out[0], 0.0)
+    lim = blend.BAND_BOUND[list(blend.RATIO_COEFFS)] * out[1, :, :1]
+    assert (np.abs(out[1][:, list(blend.RATIO_COEFFS)]) <= lim + 1e-12).all()
+    np.testing.assert_allclose(out[1, :, 1], 0.5 * 2.0)  # the denoised ratio, times c00
+
+
 def test_blend_weights():
     mask = np.ones((8, 8), bool)
     x = np.zeros((8, 8, 1))

@@ -444,10 +444,10 @@ class _Chart:
     """One chart's state between its noise estimate, OIDN and its blend."""
 
     def __init__(self, record, sel, cv, x, var, groups, images, guides, depth=None,
-                 ratios=None):  # fmt: skip
+                 ratios=None, wv=None):  # fmt: skip
         self.record, self.sel, self.cv, self.x, self.var = record, sel, cv, x, var
         #: the chart's box alone (_Canvas.work): the noise estimate's and the blend's canvas
-        self.wv = cv.work()
+        self.wv = cv.work() if wv is None else wv
         self.groups, self.images, self.guides = groups, images, guides
         #: (m,) ring of each texel from the chart's border (border_depth), for keep_class_energy
         self.depth = depth
@@ -642,7 +642,7 @@ def _prepare_chart(
     depth = None
     if blend and variance_bound:
         depth = wv.gather(border_depth(wv.mask, ENERGY_DEPTH))
-    return _Chart(i, sel, cv, x, var, groups, images, guides, depth, ratios)
+    return _Chart(i, sel, cv, x, var, groups, images, guides, depth, ratios, wv)
 
 
 def directional_ratios(x: np.ndarray) -> np.ndarray:

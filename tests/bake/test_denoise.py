@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usdahd.bake import blend, denoise, mosaic
+from usdahd.bake import blend, canvas, denoise, mosaic
 from usdahd.bake import texels as tx
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics import sh
@@ -241,7 +241,7 @@ def test_directional_coefficients_take_the_bound_alone(monkeypatch):
     monkeypatch.setattr(denoise, "DIRECTIONAL_NOISE_ESTIMATE", True)
     both = denoise.denoise_sh(noisy, t, charts=charts, variance=1e30, variance_bound=True)
     np.testing.assert_array_equal(loose[:, :, [0, 2]], both[:, :, [0, 2]])
-    cv = denoise._Canvas(t.xy)
+    cv = canvas.Canvas(t.xy)
     mean = denoise._pooled(cv, denoise.directional_ratios(noisy), denoise.DIRECTIONAL_RADIUS)
     ratio = list(blend.RATIO_COEFFS)
     got = loose[:, :, ratio] / (blend.BAND_BOUND[ratio] * loose[:, :, :1])
@@ -270,7 +270,7 @@ def test_variance_pool_averages_within_the_chart_only():
     first = np.nonzero(charts == 0)[0]
     spike = first[np.argmax(t.xy[first, 0])]  # on chart 0's right border
     v[spike] = 9.0
-    cv = denoise._Canvas(t.xy[first])
+    cv = canvas.Canvas(t.xy[first])
     np.testing.assert_array_equal(denoise._pooled(cv, v[first], 0), v[first])
     pooled = denoise._pooled(cv, v[first], 1)
     near = np.max(np.abs(t.xy[first] - t.xy[spike]), axis=1) <= 1
@@ -350,7 +350,7 @@ def test_noise_estimate_leaves_out_where_the_denoised_image_curves():
     the noise-free image stands in for OIDN's output, the given bound is 16x too high."""
     n, s = 32, 0.01
     yy, xx = np.mgrid[0:n, 0:n]
-    cv = denoise._Canvas(np.stack([xx.ravel(), yy.ravel()], axis=1))
+    cv = canvas.Canvas(np.stack([xx.ravel(), yy.ravel()], axis=1))
     dist = (20 - (xx + yy // 2)).ravel()  # texels from the edge, > 0 on the lit side
     clean = np.where(dist > 0, 1.0, 0.35)[:, None, None] * np.ones((1, 3, 9))
     x = clean + s * np.random.default_rng(5).standard_normal(clean.shape)
@@ -573,13 +573,13 @@ def test_canvas_sides_are_oidn_blocks_with_at_least_pad_context(w, h):
     # takes that padding as chart context, never less than PAD texels on any side.
     x0, y0 = 7, 3
     xx, yy = np.meshgrid(np.arange(x0, x0 + w), np.arange(y0, y0 + h))
-    cv = denoise._Canvas(np.stack([xx.ravel(), yy.ravel()], axis=1))
+    cv = canvas.Canvas(np.stack([xx.ravel(), yy.ravel()], axis=1))
     rows, cols = cv.shape
-    assert rows % denoise.OIDN_BLOCK == 0 and cols % denoise.OIDN_BLOCK == 0
-    assert min(rows, cols) >= denoise.MIN_CROP
-    assert cv.lx.min() >= denoise.PAD and cols - 1 - cv.lx.max() >= denoise.PAD
-    assert cv.ly.min() >= denoise.PAD and rows - 1 - cv.ly.max() >= denoise.PAD
-    assert cols < w + 2 * denoise.PAD + denoise.OIDN_BLOCK or cols == denoise.MIN_CROP
+    assert rows % mosaic.OIDN_BLOCK == 0 and cols % mosaic.OIDN_BLOCK == 0
+    assert min(rows, cols) >= canvas.MIN_CROP
+    assert cv.lx.min() >= mosaic.PAD and cols - 1 - cv.lx.max() >= mosaic.PAD
+    assert cv.ly.min() >= mosaic.PAD and rows - 1 - cv.ly.max() >= mosaic.PAD
+    assert cols < w + 2 * mosaic.PAD + mosaic.OIDN_BLOCK or cols == canvas.MIN_CROP
 
 
 # ------------------------------------------------------------------------------ mosaics
@@ -605,7 +605,7 @@ def test_layout_tiles_do_not_overlap():
     crops = [(0, int(h), 0, int(w)) for h, w in rng.integers(3, 90, size=(60, 2))]
     gap = mosaic.MOSAIC_GAP
     (H, W), pos = mosaic.layout(crops, gap)
-    assert H % denoise.OIDN_BLOCK == 0 and W % denoise.OIDN_BLOCK == 0
+    assert H % mosaic.OIDN_BLOCK == 0 and W % mosaic.OIDN_BLOCK == 0
     used = np.zeros((H, W), int)
     for (y0, y1, x0, x1), (y, x) in zip(crops, pos, strict=True):
         assert y - gap >= 0 and x - gap >= 0
@@ -754,7 +754,7 @@ def _box_charts(boxes):
     out = []
     for h, w in boxes:
         ys, xs = np.mgrid[:h, :w]
-        out.append(SimpleNamespace(cv=denoise._Canvas(np.stack([xs.ravel(), ys.ravel()], 1))))
+        out.append(SimpleNamespace(cv=canvas.Canvas(np.stack([xs.ravel(), ys.ravel()], 1))))
     return out
 
 

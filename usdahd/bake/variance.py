@@ -12,7 +12,15 @@ import numpy as np
 
 from usdahd.numerics.noise import tile_stats
 
-__all__ = ["canvas_noise", "integrator_iz_variance", "neighbour_mean", "sh_variance"]
+__all__ = [
+    "MIN_NOISE_SAMPLES",
+    "NOISE_TILE",
+    "ROBUST_CAP",
+    "canvas_noise",
+    "integrator_iz_variance",
+    "neighbour_mean",
+    "sh_variance",
+]
 
 #: Side (texels) of the tiles over which squared second differences are pooled into a noise
 #: estimate (then over the 3 x 3 neighbouring tiles: an 18 x 18 window).

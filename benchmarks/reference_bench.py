@@ -12,10 +12,12 @@ For each stage (samples/<name>.usda, lightmap UVs ``st``): usdahd bakes at each
 ``--samples`` count with otherwise default settings; Cycles bakes at the same counts; both
 are compared with the truth (Cycles at ``--truth-spp``, seed 1, cached in
 ~/.cache/usdahd-reference/) on the texels of ``benchmarks.reference.compare`` (interior,
-lit). Reported per run: overall luminance bias and relRMSE, and time: usdahd's own bake time
-(its ``--json`` report, interpreter start-up excluded) and Cycles' bake call (Blender start-up
-and scene set-up excluded); wall times of both processes are in the JSON. The truth's own
-noise is Cycles' relRMSE at spp S scaled by sqrt(S / truth spp).
+lit), less the texels whose usdahd value is not its estimate at the texel centre (filled
+from neighbours, or sampled off the centre at a contact or rim: docs/texels.md) in any run,
+for both renderers. Reported per run: overall luminance bias and relRMSE, and time:
+usdahd's own bake time (its ``--json`` report, interpreter start-up excluded) and Cycles'
+bake call (Blender start-up and scene set-up excluded); wall times of both processes are in
+the JSON. The truth's own noise is Cycles' relRMSE at spp S scaled by sqrt(S / truth spp).
 
 Writes the markdown section to ``--out``, the plot next to it (``reference_time_error.png``)
 and the raw rows to ``reference_bench.json``; prints the markdown path on stdout.
@@ -37,6 +39,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
@@ -161,6 +165,7 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
     below the 1024-spp target cost most of a stage's time and only draw its curve).
     """
     rows, box_usdahd = [], []
+    judged, filled = [], {}  # (usdahd row, its images); {mesh index: (h, w) bool} left out
     ctruth = cnoise = None
     with tempfile.TemporaryDirectory(prefix="usdahd-refbench-") as tmp:
         tmp = Path(tmp)
@@ -183,21 +188,16 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                 r = results.get(m["path"])
                 if m["baked"] and r and r.get("sidecar"):
                     ours[k] = compare.usdahd_iz(r["record"])
-            res = compare.compare_images(scene.meshes, ctruth or truth, {}, ours, n, truth_spp)
-            ov = res["overall"].get("usdahd", {})
+                    _add_left_out(filled, k, baked.get("variance") or {}, m["path"], ours[k][1])
             secs = float(baked["report"].get("seconds", baked["seconds"]))
             rows.append(
                 {"stage": stage.stem, "renderer": renderer, "spp": n, "seconds": secs,
                  "seconds_runs": [secs], "load": [load], "flags": extra,
-                 "wall": baked["seconds"], **ov, "texels": res["overall"]["compared"],
-                 "truth": "point" if ctruth else "box", "truth_noise": cnoise}
+                 "wall": baked["seconds"], "truth": "point" if ctruth else "box",
+                 "truth_noise": cnoise}
             )  # fmt: skip
-            if ctruth is None:
-                box_usdahd.append(rows[-1])  # its truth noise is known after Cycles' runs
-            else:
-                rows[-1]["rel_rmse_net"] = net_of_truth_noise(ov.get("rel_rmse", math.nan), cnoise)
-            _log(f"{stage.name}: {renderer} {n} spp {secs:.1f}s "
-                 f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
+            judged.append((rows[-1], ours))
+            _log(f"{stage.name}: {renderer} {n} spp {secs:.1f}s")
             if warm is not None:
                 if i == 0:  # loads this stage's kernels and caches into the process
                     (tmp / "warmup").mkdir()
@@ -206,11 +206,28 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
                                        ["--samples", str(n), *extra])  # fmt: skip
                 rows.append(dict(rows[-1], renderer=f"{renderer} (warm)", timing="warm",
                                  seconds=secs_w, seconds_runs=[secs_w], load=[load]))  # fmt: skip
+                judged.append((rows[-1], ours))  # the same estimate (same code and seed)
                 _log(f"{stage.name}: {renderer} (warm) {n} spp {secs_w:.2f}s")
+        # every run judged on one set of texels: those usdahd estimates at the texel centre in
+        # every run (texels any run filled from neighbours or sampled off the centre are left
+        # out for both renderers: the point truth probes the centre; compare.py reports the
+        # filled ones apart)
+        for row, ours in judged:
+            res = compare.compare_images(scene.meshes, ctruth or truth, {}, ours, row["spp"],
+                                         truth_spp, filled=filled)  # fmt: skip
+            ov = res["overall"].get("usdahd", {})
+            row.update(ov, texels=res["overall"]["compared"], left_out=_left_out_count(filled))
+            if ctruth is None:
+                box_usdahd.append(row)  # its truth noise is known after Cycles' runs
+            else:
+                row["rel_rmse_net"] = net_of_truth_noise(ov.get("rel_rmse", math.nan), cnoise)
+            _log(f"{stage.name}: {row['renderer']} {row['spp']} spp "
+                 f"relRMSE {ov.get('rel_rmse', 0):.4f}")  # fmt: skip
         for n in cycles_samples or samples:
             load = os.getloadavg()[0]
             info, images = runner.run_cycles(sf, n, seed=compare.EQUAL_SEED, bpy=bpy, quiet=True)
-            res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp)
+            res = compare.compare_images(scene.meshes, truth, images, {}, n, truth_spp,
+                                         filled=filled)  # fmt: skip
             ov = res["overall"].get("cycles", {})
             tn = res["overall"].get("truth_noise")
             net = net_of_truth_noise(ov.get("rel_rmse", math.nan), tn)
@@ -230,6 +247,33 @@ def bench_stage(stage: Path, resolution: int, samples: list[int], truth_spp: int
         r["truth_noise"] = min(box_noise) if box_noise else None
         r["rel_rmse_net"] = net_of_truth_noise(r.get("rel_rmse", math.nan), r["truth_noise"])
     return rows
+
+
+def _add_left_out(left: dict, k: int, variance: dict, path: str, covered) -> None:
+    """OR into ``left[k]`` the texels of mesh ``k`` (prim ``path``, coverage ``covered`` (h, w)
+    bool) whose value is not usdahd's estimate at the texel centre, the point the point truth
+    probes (bakevar's ``invalid``: filled from neighbours, e.g. covered by another surface or
+    inside geometry; and ``moved``: sampled off the centre, at a contact or a rim texel under a
+    low cover; docs/texels.md)."""
+    v = variance.get(path)
+    if v is None:
+        return
+    xy = np.asarray(v["xy"], np.int64)
+    h, w = covered.shape[:2]
+    if not len(xy) or xy[:, 0].max() >= w or xy[:, 1].max() >= h or xy.min() < 0:
+        return
+    out = np.asarray(v.get("invalid", np.zeros(len(xy), bool)), bool).copy()
+    moved = np.asarray(v.get("moved", np.zeros(0, bool)), bool)
+    if moved.shape == out.shape:
+        out |= moved
+    img = np.zeros((h, w), bool)
+    img[xy[:, 1], xy[:, 0]] = out
+    left[k] = img | left[k] if k in left else img
+
+
+def _left_out_count(left: dict) -> int:
+    """Texels left out of the comparison (:func:`_add_left_out`), over every mesh."""
+    return int(sum(int(f.sum()) for f in left.values()))
 
 
 def _warm_seconds(warm, stage: Path, out: Path, resolution: int, flags: list[str]) -> float:
@@ -369,6 +413,7 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
     if any(r.get("timing") == "warm" for r in rows):
         cmd += " --warm"
     loads = [x for r in rows for x in r.get("load") or []]
+    left_out = {r["stage"]: r["left_out"] for r in rows if r.get("left_out")}
     timing = (
         f" Times are the median of {n_rep} repeats, interleaved (usdahd and Cycles in turn at "
         "each sample count)" if n_rep > 1 else " Times are one run each"
@@ -386,7 +431,16 @@ def markdown(rows: list[dict], args, plot_name: str | None) -> str:
         "(relRMSE): "
         + ", ".join(f"{s} {100 * min(v):.2f} %" for s, v in noise.items())
         + ". Errors: Rec. 709 luminance of I_z on interior texels the truth lights "
-        "(benchmarks/reference/compare.py); *relRMSE* includes the truth's noise, *net* has it "
+        "(benchmarks/reference/compare.py), less the texels whose usdahd value is not its "
+        "estimate at the texel centre that the point truth probes: filled from neighbours "
+        "(covered by another surface, inside geometry) or sampled off the centre (contacts, "
+        "rim texels under a low cover; docs/texels.md), left out for both renderers"
+        + (
+            " (" + ", ".join(f"{s} {n}" for s, n in left_out.items()) + " texels)"
+            if left_out
+            else ""
+        )
+        + "; *relRMSE* includes the truth's noise, *net* has it "
         "taken out in quadrature. Time: usdahd's bake (its report) and Cycles' bake call, both "
         "on the same 2 shared cores; *(warm)* rows time the same usdahd bake as a call in a "
         "running process (benchmarks/reference/warm.py: imports and numba kernel loading, "

@@ -434,19 +434,26 @@ def reference_summary(by_size: dict[int, list[dict]]) -> list[str]:
             if not mine:
                 continue
             missed = [t["stage"] for t in mine if t["ratio"] is None]
+            reached = [t for t in mine if t["ratio"] is not None]
             target = REFERENCE_TARGETS.get(res)
             goal = f", target <= {target:g}x" if target is not None else ""
+            text = f"at {res}²"
             if missed:
-                parts.append(f"at {res}² not reached on {', '.join(missed)}{goal}")
-                continue
-            worst = max(mine, key=lambda t: t["ratio"])
+                text += f" not reached on {', '.join(missed)}"
+                if not reached:
+                    parts.append(f"{text}{goal}: **missed**" if goal else text)
+                    continue
+                text += ";"
+            worst = max(reached, key=lambda t: t["ratio"])
             verdict = ""
             if target is not None:
-                verdict = ": met" if worst["ratio"] <= target else ": **missed**"
+                ok = worst["ratio"] <= target and not missed
+                verdict = ": met" if ok else ": **missed**"
+            on = f"the {len(reached)} other" if missed else f"{len(reached)}"
             parts.append(
-                f"at {res}² at most {worst['ratio']:.2f}x on {len(mine)} stages (largest: "
-                f"{worst['stage']}; median "
-                f"{statistics.median(t['ratio'] for t in mine):.2f}x{goal}{verdict})"
+                f"{text} at most {worst['ratio']:.2f}x on {on} stages "
+                f"(largest: {worst['stage']}; median "
+                f"{statistics.median(t['ratio'] for t in reached):.2f}x{goal}{verdict})"
             )
         if parts:
             lines.append(

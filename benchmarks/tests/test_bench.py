@@ -237,8 +237,14 @@ def test_reference_summary_names_the_largest_ratio_and_stages_not_reached():
     )
     assert lines[1] == (
         "- usdahd vs Cycles (as a call in a running process), usdahd's time to Cycles' "
-        "1024-spp error over Cycles' time: at 128² not reached on b, target <= 0.1x."
+        "1024-spp error over Cycles' time: at 128² not reached on b; at most 0.04x on the 1 "
+        "other stages (largest: a; median 0.04x, target <= 0.1x: **missed**)."
     )
+    # no stage reached at a size: that size says so and misses its target
+    (line,) = bench_run.reference_summary(
+        {32: [{"stage": "b", "renderer": "usdahd", "ratio": None}]}
+    )
+    assert line.endswith("at 32² not reached on b, target <= 0.3x: **missed**.")
 
 
 def test_reference_summary_states_the_worst_ratio_at_each_size():

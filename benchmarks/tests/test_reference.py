@@ -1374,3 +1374,54 @@ def test_truth_pair_open_plane_end_to_end(bpy_python, tmp_path, monkeypatch, cap
     assert m["texels"] > 0 and abs(m["bias"]) < 1e-5 and res["cached"] == [False, False]
     assert truth_pair.main(args) == 0  # now from the cache, as a table
     assert "| truth 8 spp (seed 1) vs 16 spp (seed 3) |" in capsys.readouterr().out
+
+
+def test_reference_bench_leaves_out_texels_not_estimated_at_the_centre_for_both_renderers():
+    """Texels a bake fills from neighbours (bakevar's ``invalid``: e.g. a ceiling under an
+    emissive panel 1 cm below it) or samples off the centre (``moved``: contacts, rim texels
+    under a low cover) do not hold usdahd's estimate at the point the point truth probes:
+    every run's such texels (their union) leave the comparison for both renderers, and the
+    section says how many. emissive_only at 128^2, 256 spp: 1.47 % with them."""
+    from benchmarks import reference_bench as rb
+    from benchmarks.reference import compare
+
+    h = w = 8
+    xy = np.array([(x, y) for y in range(h) for x in range(w)])
+    inv_a = np.zeros(h * w, bool)
+    inv_a[3 * w + 3] = True  # texel (3, 3) filled in one run
+    inv_b = np.zeros(h * w, bool)
+    inv_b[4 * w + 4] = True  # texel (4, 4) in another
+    moved = np.zeros(h * w, bool)
+    moved[5 * w + 2] = True  # texel (2, 5) sampled off its centre
+    cov = np.ones((h, w), bool)
+    left = {}
+    for inv, mv in ((inv_a, np.zeros(0, bool)), (inv_b, moved)):  # an old file: no "moved"
+        var = {"/m": {"xy": xy, "s2": np.zeros(h * w), "halves": np.zeros(h * w),
+                      "invalid": inv, "moved": mv}}  # fmt: skip
+        rb._add_left_out(left, 0, var, "/m", cov)
+    assert left[0].sum() == 3 and left[0][3, 3] and left[0][4, 4] and left[0][5, 2]
+    rb._add_left_out(left, 1, {}, "/other", cov)  # no variance for a prim: nothing added
+    assert 1 not in left and rb._left_out_count(left) == 3
+    # compare_images then judges neither renderer on those texels
+    truth = np.ones((h, w, 3))
+    ours = truth.copy()
+    ours[3, 3] = ours[5, 2] = 5.0
+    meshes = [{"path": "/m", "baked": True, "resolution": [w, h]}]
+    got = compare.compare_images(meshes, {0: truth}, {0: ours}, {0: (ours, cov)}, 16, 64,
+                                 filled=left)  # fmt: skip
+    assert got["overall"]["usdahd"]["rel_rmse"] == pytest.approx(0.0)
+    assert got["overall"]["cycles"]["rel_rmse"] == pytest.approx(0.0)
+    args = type("A", (), {"resolution": 8, "samples": [16], "truth_spp": 64})
+    rows = [{"stage": "s", "renderer": "cycles", "spp": 1024, "seconds": 4.0, "rel_rmse": 0.02},
+            {"stage": "s", "renderer": "usdahd", "spp": 16, "seconds": 1.0, "rel_rmse": 0.01,
+             "left_out": 3}]  # fmt: skip
+    assert "left out for both renderers (s 3 texels)" in rb.markdown(rows, args, None)
+
+
+def test_bakevar_marks_the_texels_whose_sample_point_left_the_centre():
+    from benchmarks.reference import bakevar
+
+    xy = np.array([[0, 0], [1, 0], [2, 3], [5, 1]])
+    got = bakevar._rows_in(xy, [np.array([[2, 3]]), np.array([[5, 1], [9, 9]])])
+    assert got.tolist() == [False, False, True, True]
+    assert not bakevar._rows_in(xy, []).any()

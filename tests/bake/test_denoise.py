@@ -513,8 +513,38 @@ def test_blend_judges_edges_texel_by_texel():
     np.testing.assert_array_equal(edge[:, :5], plain[:, :5])  # flat: no edge, same weights
     assert (edge[:, :5] == 1.0).all()
     edges = blend.edge_texels(d, mask, var)[..., 0]
-    assert edges[:, n // 2 - 1 : n // 2 + 1].all()  # the two texels either side of the step
-    assert not edges[:, : n // 2 - 1].any() and not edges[:, n // 2 + 1 :].any()
+    assert edges[1:-1, n // 2 - 1 : n // 2 + 1].all()  # the two texels either side of the step
+    # (and the blur's own bend one texel further out, which the denoiser did not move)
+    assert not edges[:, : n // 2 - 2].any() and not edges[:, n // 2 + 2 :].any()
+
+
+def test_blend_edge_rule_leaves_a_soft_penumbra_to_the_window_rule():
+    """A soft penumbra is a ramp across many texels: its gradient is many noise deviations per
+    texel but it does not bend, so edge_texels (a squared second difference above
+    EDGE_CONTRAST x var) leaves it to the window rule, and where the denoiser took 1.5 noise
+    deviations of noise out of each texel the denoised value is kept; only the ramp's two
+    ends, where it bends by 8 deviations, are edges. (The earlier test, the squared
+    gradient, flagged the whole ramp and held each texel back to var / (d - x)^2 = 0.44:
+    stretched_boxes' penumbrae, docs/time-to-quality.md.)"""
+    n = 24
+    mask = np.ones((n, n), bool)
+    var = np.full((n, n, 1), 1e-4)  # sigma 0.01
+    ramp = np.clip((np.arange(n) - 4) * 0.08, 0.0, 0.96)[None, :, None].repeat(
+        n, 0
+    )  # 8 sigma a texel
+    rng = np.random.default_rng(3)
+    x = ramp + 0.015 * rng.choice([-1.0, 1.0], size=ramp.shape)  # the noisy input
+    d = ramp  # what a good denoiser returns
+    edges = blend.edge_texels(d, mask, var)[..., 0]
+    assert edges[:, 4].all() and edges[:, 16].all()  # the ramp's bends
+    assert edges.sum() == 2 * n
+    grad2 = 0.25 * (d[:, 2:, 0] - d[:, :-2, 0]) ** 2  # what the gradient test measured
+    assert (grad2[:, 4:15] > blend.EDGE_CONTRAST * 1e-4).all()  # it flagged the whole ramp
+    w_edge = blend.blend_weights(x, d, var, mask, gain=4.0, edges=True)
+    w_plain = blend.blend_weights(x, d, var, mask, gain=4.0)
+    mid = (slice(None), slice(7, 14))
+    np.testing.assert_array_equal(w_edge[mid], w_plain[mid])
+    assert (w_edge[mid] == 1.0).all()  # 1.5 sigma moves: trusted (the gradient test: 0.44)
 
 
 # ------------------------------------------------------------------------------ errors

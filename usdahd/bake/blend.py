@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from usdahd.numerics.noise import second_differences
+
 __all__ = [
     "BAND_BOUND",
     "BIAS_RADIUS",
@@ -45,13 +47,19 @@ BIAS_RADIUS = 2
 #: on the samples and still returns noise-free inputs unchanged.
 BLEND_GAIN = 4.0
 #: With the integrator's variance, a texel where the denoised image has an edge (squared
-#: central-difference gradient above EDGE_CONTRAST x the noise variance: the signal changes
-#: by more than 4 noise deviations per texel) is also judged by its own move: its weight is
-#: at most var / (d - x)^2, the MSE-optimal weight for a texel the denoiser moved by d - x.
-#: The window mean alone dilutes a one-texel-wide sun-shadow edge among flat texels.
-#: Measured (denoise_gain, 2 seeds): exterior_sun_sky's ground 1.35 / 1.15 / 1.09 -> 0.76 /
-#: 0.90 / 1.06 at 16 / 64 / 256 spp; contrasts 1-16 measured alike, ungated (every texel)
-#: it kept noise (shared Cornell box at 16 spp 0.24 -> 0.35).
+#: second differences along the row and the column summing to more than EDGE_CONTRAST x the
+#: noise variance: the signal bends by more than 4 noise deviations there) is also judged by
+#: its own move: its weight is at most var / (d - x)^2, the MSE-optimal weight for a texel
+#: the denoiser moved by d - x. The window mean alone dilutes a one-texel-wide sun-shadow
+#: edge among flat texels. Measured (denoise_gain, 2 seeds): exterior_sun_sky's ground 1.35
+#: / 1.15 / 1.09 -> 0.76 / 0.90 / 1.06 at 16 / 64 / 256 spp; contrasts 1-16 measured alike,
+#: ungated (every texel) it kept noise (shared Cornell box at 16 spp 0.24 -> 0.35). A step
+#: bends on both sides; a soft penumbra (a ramp across many texels) does not, and the test
+#: before 2026-12-07 (the squared central-difference gradient) held its noisy texels back.
+#: Against the Cycles point truth (issue 43, docs/time-to-quality.md): stretched_boxes at
+#: 128^2 0.382 / 0.221 % -> 0.366 / 0.203 % net at 64 / 256 spp, floor_lamp at 128^2 2.16 /
+#: 0.86 -> 2.04 / 0.79 %, cornell_box at 32^2 1.17 / 0.70 -> 1.08 / 0.63 % at 256 / 1024
+#: spp; exterior_sun_sky, the stage the rule is for, unchanged at both sizes (within 0.5 %).
 EDGE_CONTRAST = 16.0
 
 
@@ -106,16 +114,12 @@ def blend_weights(
 
 
 def edge_texels(img: np.ndarray, mask: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """(h, w, c) bool: chart texels whose squared central-difference gradient of ``img``
-    (both neighbours in the chart; one axis alone otherwise) exceeds EDGE_CONTRAST x
-    ``variance``."""
-    d = np.nan_to_num(np.asarray(img, np.float64))
-    g2 = np.zeros_like(d)
-    both = mask[:, 2:] & mask[:, :-2]
-    g2[:, 1:-1] += np.where(both[..., None], 0.25 * (d[:, 2:] - d[:, :-2]) ** 2, 0.0)
-    both = mask[2:] & mask[:-2]
-    g2[1:-1] += np.where(both[..., None], 0.25 * (d[2:] - d[:-2]) ** 2, 0.0)
-    return mask[..., None] & (g2 > EDGE_CONTRAST * variance)
+    """(h, w, c) bool: chart texels where ``img (h, w, c)`` bends: its squared second
+    differences along the row and the column (:func:`usdahd.numerics.noise.
+    second_differences`; an axis counts where its three texels are in the chart) sum to more
+    than EDGE_CONTRAST x ``variance (h, w, c)``."""
+    sd = second_differences(np.asarray(img, np.float64), mask)[:, :, :2]
+    return mask[..., None] & (np.nan_to_num(sd).sum(axis=2) > EDGE_CONTRAST * variance)
 
 
 def blend_sh(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:

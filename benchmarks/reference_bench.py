@@ -40,8 +40,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
@@ -255,19 +253,9 @@ def _add_left_out(left: dict, k: int, variance: dict, path: str, covered) -> Non
     probes (bakevar's ``invalid``: filled from neighbours, e.g. covered by another surface or
     inside geometry; and ``moved``: sampled off the centre, at a contact or a rim texel under a
     low cover; docs/texels.md)."""
-    v = variance.get(path)
-    if v is None:
+    img = compare.texel_mask(variance, path, covered.shape, ("invalid", "moved"))
+    if img is None:
         return
-    xy = np.asarray(v["xy"], np.int64)
-    h, w = covered.shape[:2]
-    if not len(xy) or xy[:, 0].max() >= w or xy[:, 1].max() >= h or xy.min() < 0:
-        return
-    out = np.asarray(v.get("invalid", np.zeros(len(xy), bool)), bool).copy()
-    moved = np.asarray(v.get("moved", np.zeros(0, bool)), bool)
-    if moved.shape == out.shape:
-        out |= moved
-    img = np.zeros((h, w), bool)
-    img[xy[:, 1], xy[:, 0]] = out
     left[k] = img | left[k] if k in left else img
 
 

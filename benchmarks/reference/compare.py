@@ -191,9 +191,9 @@ def bake_mean_error(variance, lit: np.ndarray, mean_truth: float) -> dict | None
     return out
 
 
-def variance_images(variance: dict, path: str, shape):
-    """(s2, halves) (h, w) images (NaN where not traced) and the (h, w) bool image of texels
-    the bake filled from neighbours (``invalid``) of one prim from ``bakevar.read``, or None."""
+def _texel_xy(variance: dict, path: str, shape):
+    """(record, its (n, 2) int texel coordinates) of one prim from ``bakevar.read``, or None
+    when the prim has none or a coordinate lies outside ``shape`` (h, w, ...)."""
     v = variance.get(path)
     if v is None:
         return None
@@ -201,14 +201,40 @@ def variance_images(variance: dict, path: str, shape):
     h, w = shape[:2]
     if not len(xy) or xy[:, 0].max() >= w or xy[:, 1].max() >= h or xy.min() < 0:
         return None
+    return v, xy
+
+
+def texel_mask(variance: dict, path: str, shape, names=("invalid",)):
+    """(h, w) bool image of one prim's texels flagged in any of its ``bakevar.read`` masks
+    ``names`` (e.g. ``invalid``: filled from neighbours; ``moved``: sampled off the centre; a
+    mask missing or empty in an older file flags nothing), or None (see :func:`_texel_xy`)."""
+    got = _texel_xy(variance, path, shape)
+    if got is None:
+        return None
+    v, xy = got
+    flag = np.zeros(len(xy), bool)
+    for name in names:
+        m = np.asarray(v.get(name, np.zeros(0, bool)), bool)
+        if m.shape == flag.shape:
+            flag |= m
+    img = np.zeros(shape[:2], bool)
+    img[xy[:, 1], xy[:, 0]] = flag
+    return img
+
+
+def variance_images(variance: dict, path: str, shape):
+    """(s2, halves) (h, w) images (NaN where not traced) and the (h, w) bool image of texels
+    the bake filled from neighbours (``invalid``) of one prim from ``bakevar.read``, or None."""
+    got = _texel_xy(variance, path, shape)
+    if got is None:
+        return None
+    v, xy = got
     out = []
     for name in ("s2", "halves"):
-        img = np.full((h, w), np.nan)
+        img = np.full(shape[:2], np.nan)
         img[xy[:, 1], xy[:, 0]] = v[name]
         out.append(img)
-    filled = np.zeros((h, w), bool)
-    filled[xy[:, 1], xy[:, 0]] = np.asarray(v.get("invalid", np.zeros(len(xy), bool)), bool)
-    return (out[0], out[1]), filled
+    return (out[0], out[1]), texel_mask(variance, path, shape)
 
 
 def compare_images(meshes, truth, equal, ours, spp: int, truth_spp: int,

@@ -6,7 +6,7 @@ Usage (project environment, from the repository root)::
         [--uv st] [--usdahd-args "--samples 1024"] [--spp N] [--truth-spp 4096] [--json]
     python -m benchmarks.reference compare samples/*.usda --resolution 32   # + a summary
     python -m benchmarks.reference bake STAGE --resolution 64 --spp 1024 -o iz.npz
-    python -m benchmarks.reference summary A.json B.json ...
+    python -m benchmarks.reference summary A.json B.json ... [--plot PNG]
 
 ``compare`` bakes the stage with usdahd from the current tree (``python -m usdahd bake`` into
 a temporary folder; the source is never written), exports the *baked* stage (its output layer
@@ -640,6 +640,11 @@ def main(argv=None) -> int:
         help="with --meshes: Cycles' bias and the truth's and the bake's standard errors on "
         "each mesh's mean",
     )
+    s.add_argument(
+        "--plot",
+        metavar="PNG",
+        help="also write per-mesh errors and time to equal error to PNG (production_plot.py)",
+    )
     a = p.parse_args(argv)
     if a.cmd == "summary":
         res = []
@@ -651,6 +656,10 @@ def main(argv=None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         print(bounds(res, noise=a.noise) if a.meshes else summary(res))
+        if a.plot:
+            from benchmarks.reference import production_plot
+
+            print(f"plot: {production_plot.plot(res, Path(a.plot))}", file=sys.stderr)
         return 0
     try:
         if a.cmd == "bake":

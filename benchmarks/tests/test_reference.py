@@ -1425,3 +1425,21 @@ def test_bakevar_marks_the_texels_whose_sample_point_left_the_centre():
     got = bakevar._rows_in(xy, [np.array([[2, 3]]), np.array([[5, 1], [9, 9]])])
     assert got.tolist() == [False, False, True, True]
     assert not bakevar._rows_in(xy, []).any()
+
+
+def test_summary_plot_times_equal_error_from_the_stored_production_rows(tmp_path, capsys):
+    """`summary --plot`: the stored quiet Sponza 64² row gives docs/benchmarks.md's time to
+    equal error (net of the truth's noise, Cycles' error as 1/sqrt(time) from its bake call:
+    (4.79 / 2.29)² x 31.7 s = 138 s against usdahd's 57.2 s, 0.41x), and a PNG is written."""
+    from benchmarks.reference import production_plot
+
+    f = Path(compare.__file__).parent / "results/compare_sponza_point1024_r64_quiet_eef9b39.json"
+    eq = production_plot.equal_error(json.loads(f.read_text()))
+    assert eq["usdahd"][1] == pytest.approx(0.0229, abs=5e-4)
+    assert eq["cycles"][1] == pytest.approx(0.0479, abs=5e-4)
+    assert eq["cycles_at_usdahd_error"] == pytest.approx(138, abs=2)
+    assert eq["ratio"] == pytest.approx(0.41, abs=0.01)
+    png = tmp_path / "p.png"
+    assert compare.main(["summary", str(f), "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "| sponza.usdc | 16609 |" in capsys.readouterr().out

@@ -597,6 +597,23 @@ def test_tile_stats_kernel_matches_the_numpy_reference(shape, tile):
         tile_stats(img, support, tile, backend="cuda")
 
 
+def test_second_differences_of_the_row_and_column_only_with_zero_outside():
+    """``second_differences(..., directions=2, fill=0.0)`` (the blend's edge rule and the
+    curvature test, which sum or take maxima) is the full 4-direction array's first two
+    directions with NaN read as 0; the values are (x[p-d] - 2 x[p] + x[p+d])^2."""
+    from usdahd.numerics.noise import second_differences
+
+    rng = np.random.default_rng(7)
+    img = rng.standard_normal((9, 11, 3))
+    support = rng.random((9, 11)) < 0.8
+    full = second_differences(img, support)
+    two = second_differences(img, support, directions=2, fill=0.0)
+    assert full.shape == (9, 11, 4, 3) and two.shape == (9, 11, 2, 3)
+    np.testing.assert_array_equal(two, np.nan_to_num(full[:, :, :2]))
+    y, x = np.argwhere(support[1:-1, 1:-1] & support[1:-1, :-2] & support[1:-1, 2:])[0] + 1
+    np.testing.assert_allclose(two[y, x, 0], (img[y, x - 1] - 2 * img[y, x] + img[y, x + 1]) ** 2)
+
+
 @pytest.mark.parametrize("w, h", [(1, 1), (5, 9), (12, 12), (13, 40), (30, 3)])
 def test_canvas_sides_are_oidn_blocks_with_at_least_pad_context(w, h):
     # OIDN pads every side to a multiple of 16 and is timed by the padded size: the canvas

@@ -118,8 +118,8 @@ def edge_texels(img: np.ndarray, mask: np.ndarray, variance: np.ndarray) -> np.n
     differences along the row and the column (:func:`usdahd.numerics.noise.
     second_differences`; an axis counts where its three texels are in the chart) sum to more
     than EDGE_CONTRAST x ``variance (h, w, c)``."""
-    sd = second_differences(np.asarray(img, np.float64), mask)[:, :, :2]
-    return mask[..., None] & (np.nan_to_num(sd).sum(axis=2) > EDGE_CONTRAST * variance)
+    sd = second_differences(np.asarray(img, np.float64), mask, directions=2, fill=0.0)
+    return mask[..., None] & (sd.sum(axis=2) > EDGE_CONTRAST * variance)
 
 
 def blend_sh(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:

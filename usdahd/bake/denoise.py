@@ -692,7 +692,7 @@ def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.nd
         g = g[np.isin(g, _HDR_COEFFS)]
         if not len(g):
             continue
-        sd = np.nan_to_num(second_differences(cv.image(_channels(d, g), fill=False), cv.mask))
+        sd = second_differences(cv.image(_channels(d, g), fill=False), cv.mask, fill=0.0)
         v = np.nan_to_num(cv.image(_channels(var, g), fill=False))
         curved |= (sd.max(axis=2) > CURVATURE_CONTRAST * 6.0 * v).any(axis=2)
     return curved & cv.mask

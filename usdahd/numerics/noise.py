@@ -26,21 +26,24 @@ DIRECTIONS = ((1, 0), (0, 1), (1, 1), (1, -1))
 _DIR = np.array(DIRECTIONS, dtype=np.int64)
 
 
-def second_differences(img: np.ndarray, support: np.ndarray) -> np.ndarray:
-    """(h, w, 4, c) float64 squared second differences of ``img (h, w, c)`` in the 4
-    :data:`DIRECTIONS` centred at each texel; NaN where p - d, p or p + d is outside
-    ``support (h, w) bool``."""
+def second_differences(
+    img: np.ndarray, support: np.ndarray, directions: int = len(DIRECTIONS), fill=np.nan
+) -> np.ndarray:
+    """(h, w, k, c) float64 squared second differences of ``img (h, w, c)`` in the first
+    ``directions`` (k) of :data:`DIRECTIONS` (all 4 by default; 2: the row and the column)
+    centred at each texel; ``fill`` (NaN by default; 0 for callers that sum or take maxima)
+    where p - d, p or p + d is outside ``support (h, w) bool``."""
     h, w, c = img.shape
     pad_v = np.pad(np.nan_to_num(img.astype(np.float64)), ((1, 1), (1, 1), (0, 0)))
     pad_m = np.pad(support, 1)
-    out = np.full((h, w, len(DIRECTIONS), c), np.nan)
-    for k, (dx, dy) in enumerate(DIRECTIONS):
+    out = np.empty((h, w, directions, c))
+    for k, (dx, dy) in enumerate(DIRECTIONS[:directions]):
         a = pad_v[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
         b = pad_v[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
         ok = support & pad_m[1 - dy : 1 - dy + h, 1 - dx : 1 - dx + w]
         ok &= pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
         d = a - 2.0 * pad_v[1 : 1 + h, 1 : 1 + w] + b
-        out[:, :, k] = np.where(ok[..., None], d * d, np.nan)
+        out[:, :, k] = np.where(ok[..., None], d * d, fill)
     return out
 
 

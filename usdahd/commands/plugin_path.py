@@ -12,8 +12,6 @@ import json
 import os
 import shlex
 
-from usdahd.usd import plugin
-
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -41,6 +39,8 @@ def export_line(path: str, existing: str | None) -> str:
 
 
 def run(args) -> int:
+    from usdahd.usd import plugin  # loads pxr: here, not when the parser is built
+
     path = plugin.plugin_path()
     if getattr(args, "json", False):
         line = export_line(path, os.environ.get("PXR_PLUGINPATH_NAME"))

@@ -17,11 +17,7 @@ import math
 from pathlib import Path
 
 from benchmarks.reference.compare import RATIO_BOUND, truth_noise
-
-
-def _net(rel: float, noise: float) -> float:
-    """An error net of the truth's noise (independent noise adds in quadrature)."""
-    return math.sqrt(max(rel * rel - noise * noise, 0.0))
+from benchmarks.reference_bench import net_of_truth_noise
 
 
 def stage_label(r: dict) -> str:
@@ -39,7 +35,7 @@ def equal_error(r: dict) -> dict | None:
     if u is None or c is None or not t_c:
         return None
     noise = ov.get("truth_noise") or truth_noise(c, r["spp"], r["truth_spp"])
-    eu, ec = _net(u, noise), _net(c, noise)
+    eu, ec = net_of_truth_noise(u, noise), net_of_truth_noise(c, noise)
     if eu <= 0 or ec <= 0:
         return None
     t_eq = t_c * (ec / eu) ** 2

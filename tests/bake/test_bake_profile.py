@@ -36,5 +36,5 @@ def test_serial_profile_sees_the_chart_work_and_restores_the_threads():
     assert "Ordered by: internal time" in text
     # on the calling thread: every chart's preparation and blend are in the profile (with
     # CHART_THREADS > 1 they run in pairs on the pool's threads, which cProfile does not see)
-    assert "_prepare_chart" in text and "blend_weights" in text
+    assert "_prepare_chart" in text and "blend_chart" in text
     assert denoise.CHART_THREADS == threads

@@ -597,6 +597,35 @@ def test_tile_stats_kernel_matches_the_numpy_reference(shape, tile):
         tile_stats(img, support, tile, backend="cuda")
 
 
+@pytest.mark.parametrize("gain, edges", [(4.0, False), (1.5, True)])
+@pytest.mark.parametrize("shape", [(1, 1), (3, 17), (24, 20)])
+def test_blend_chart_kernel_is_the_canvas_blend_bit_for_bit(shape, gain, edges, monkeypatch):
+    """``blend.blend_chart``'s numba kernel (the bake's) returns the numbers of its numpy
+    definition (float32 canvases, ``blend_weights`` per coefficient, ``blend_sh``) bit for
+    bit: on a chart with holes, unlit texels (c00 = 0, as beside a shadow), directional
+    coefficients beyond the band bound and zero variances (noise-free), in one block of
+    channels or one channel per block."""
+    rng = np.random.default_rng(shape[0] * 7 + shape[1])
+    mask = rng.random(shape) < 0.8
+    mask.flat[0] = True
+    ly, lx = np.nonzero(mask)
+    m = len(ly)
+    x = rng.exponential(size=(m, 3, 9)) * 1e2
+    x[:, :, 1:] *= rng.uniform(-1.5, 1.5, size=(m, 3, 8))
+    x[rng.random(m) < 0.1, :, 0] = 0.0
+    d = x + rng.normal(0.0, 20.0, size=x.shape)
+    var = rng.exponential(50.0, size=x.shape)
+    var[rng.random(x.shape) < 0.05] = 0.0
+    ref = blend.blend_chart(x, d, var, ly, lx, mask, gain=gain, edges=edges, backend="numpy")
+    fast = blend.blend_chart(x, d, var, ly, lx, mask, gain=gain, edges=edges)
+    np.testing.assert_array_equal(fast, ref)
+    monkeypatch.setattr(blend, "_WORK_ELEMENTS", 1)
+    np.testing.assert_array_equal(blend.blend_chart(x, d, var, ly, lx, mask, gain=gain,
+                                                    edges=edges), ref)  # fmt: skip
+    with pytest.raises(ValueError, match="backend"):
+        blend.blend_chart(x, d, var, ly, lx, mask, backend="cuda")
+
+
 def test_second_differences_of_the_row_and_column_only_with_zero_outside():
     """``second_differences(..., directions=2, fill=0.0)`` (the blend's edge rule and the
     curvature test, which sum or take maxima) is the full 4-direction array's first two

@@ -5,14 +5,19 @@ ratios to c00 (:func:`blend_sh`) and each chart's summed I_z kept (:func:`keep_c
 then each ring's from the chart border (:func:`border_depth`) over a record's charts
 (:func:`keep_class_energy`).
 
-Numerics only (numpy); arrays are float64 canvases ``(h, w, c)`` or per-texel SH ``(m, 3, 9)``.
+Numerics only (numpy, and the numba kernels of :mod:`usdahd.numerics.windows` and
+:mod:`usdahd.numerics.noise`); arrays are float64 canvases ``(h, w, c)`` or per-texel SH
+``(m, 3, 9)``.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
+from usdahd.numerics import numba_cache, windows
 from usdahd.numerics.noise import second_differences
+from usdahd.numerics.windows import box_mean, finite
 
 __all__ = [
     "BAND_BOUND",
@@ -20,6 +25,7 @@ __all__ = [
     "BLEND_GAIN",
     "EDGE_CONTRAST",
     "RATIO_COEFFS",
+    "blend_chart",
     "blend_sh",
     "blend_weights",
     "border_depth",
@@ -61,22 +67,9 @@ BLEND_GAIN = 4.0
 #: 0.86 -> 2.04 / 0.79 %, cornell_box at 32^2 1.17 / 0.70 -> 1.08 / 0.63 % at 256 / 1024
 #: spp; exterior_sun_sky, the stage the rule is for, unchanged at both sizes (within 0.5 %).
 EDGE_CONTRAST = 16.0
-
-
-def box_mean(img: np.ndarray, mask: np.ndarray, radius: int) -> np.ndarray:
-    """Mean of ``img (h, w, c)`` over the mask texels in each (2r+1)^2 window (0 if none)."""
-    h, w, _ = img.shape
-    r = radius
-    v = np.where(mask[..., None], img, 0.0)
-    s = np.pad(v, ((r + 1, r), (r + 1, r), (0, 0))).cumsum(0).cumsum(1)
-    m = np.pad(mask.astype(np.float64), ((r + 1, r), (r + 1, r))).cumsum(0).cumsum(1)
-    k = 2 * r + 1
-
-    def box(a):
-        return a[k:, k:] - a[:-k, k:] - a[k:, :-k] + a[:-k, :-k]
-
-    tot, cnt = box(s)[:h, :w], box(m)[:h, :w]
-    return tot / np.maximum(cnt, 1.0)[..., None]
+#: Canvas elements (float64) per channel block of :func:`blend_chart`'s kernel (~32 MB each
+#: of its two canvases; all 27 channels at once for charts up to ~385 x 385 texels).
+_WORK_ELEMENTS = 4_000_000
 
 
 def blend_weights(
@@ -157,6 +150,177 @@ def blend_sh(x: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
+def blend_chart(
+    x: np.ndarray,
+    d: np.ndarray,
+    var: np.ndarray,
+    ly: np.ndarray,
+    lx: np.ndarray,
+    mask: np.ndarray,
+    *,
+    gain: float = BLEND_GAIN,
+    edges: bool = False,
+    backend: str = "numba",
+) -> np.ndarray:
+    """(m, 3, 9) float64 blend of one chart: :func:`blend_weights` of every coefficient on the
+    chart's canvas (the per-texel input ``x``, OIDN's ``d`` and the noise variance ``var``,
+    each (m, 3, 9), placed at ``(ly, lx) (m,)`` of the canvas ``mask (h, w) bool`` and
+    rounded to float32 as :class:`usdahd.bake.canvas.Canvas` images are; the directional
+    coefficients ``RATIO_COEFFS`` judged texel by texel too), then :func:`blend_sh`.
+
+    ``backend="numpy"`` is that composition (the definition); the numba kernel (default)
+    computes the same numbers bit for bit texel by texel, without the (h, w, 27) canvases
+    and ~40 array passes (stretched_boxes at 128^2: its 128 x 128 chart's blend ~60 ms of
+    numpy, the kernel ~6 ms; tests/bake/test_denoise.py checks the parity)."""
+    m = len(x)
+    ly = np.asarray(ly, np.int64)
+    lx = np.asarray(lx, np.int64)
+    if backend == "numpy":
+        weights = np.empty((m, 3, 9))
+        for k in range(9):  # one coefficient at a time: each channel's weight is its own
+
+            def img(v, k=k):
+                c = np.full((*mask.shape, 3), np.nan, np.float32)
+                c[ly, lx] = v[:, :, k]
+                return c
+
+            pointwise = np.full(3, k in RATIO_COEFFS)
+            w = blend_weights(img(x), img(d), img(var), mask, pointwise, gain, edges)
+            weights[:, :, k] = w[ly, lx]
+        return blend_sh(np.asarray(x, np.float64), np.asarray(d, np.float64), weights)
+    if backend != "numba":
+        raise ValueError(f"unknown backend {backend!r}")
+    ratio = np.isin(np.arange(9), RATIO_COEFFS)
+    return _blend_chart_numba(
+        np.ascontiguousarray(x, np.float64),
+        np.ascontiguousarray(d, np.float64),
+        np.ascontiguousarray(var, np.float64),
+        np.ascontiguousarray(ly),
+        np.ascontiguousarray(lx),
+        np.ascontiguousarray(mask, np.bool_),
+        float(gain),
+        bool(edges),
+        int(BIAS_RADIUS),
+        float(EDGE_CONTRAST),
+        np.ascontiguousarray(BAND_BOUND, np.float64),
+        ratio,
+        _channel_block(mask.shape),
+    )
+
+
+def _channel_block(shape: tuple[int, int]) -> int:
+    """Channels per block of :func:`_blend_chart_numba` on a canvas of ``shape``."""
+    side = 2 * BIAS_RADIUS + 1
+    return int(np.clip(_WORK_ELEMENTS // ((shape[0] + side) * (shape[1] + side)), 1, 27))
+
+
+@numba.njit(cache=True, nogil=True)
+def _f32(v):
+    """A float64 rounded to float32 (a Canvas image's value), then read as ``np.nan_to_num``."""
+    return finite(np.float64(np.float32(v)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _blend_chart_numba(
+    x, d, var, ly, lx, mask, gain, edges, r, edge_contrast, bound, ratio, block
+):  # fmt: skip
+    m = x.shape[0]
+    nc = x.shape[1] * x.shape[2]  # 27 channels, colour-major (c * 9 + k), texel-major arrays
+    xs, ds, vs = x.reshape(m, nc), d.reshape(m, nc), var.reshape(m, nc)
+    h, w = mask.shape
+    kw = 2 * r + 1
+    hh, ww = h + 2 * r + 1, w + 2 * r + 1
+    # the mask's summed-area table (box_mean's count), once for every channel
+    cnt = np.zeros((hh, ww))
+    for y in range(h):
+        for xx in range(w):
+            if mask[y, xx]:
+                cnt[y + r + 1, xx + r + 1] = 1.0
+    for y in range(1, hh):
+        for xx in range(ww):
+            cnt[y, xx] += cnt[y - 1, xx]
+    for y in range(hh):
+        for xx in range(1, ww):
+            cnt[y, xx] += cnt[y, xx - 1]
+    weights = np.empty((m, nc))
+    # channels in blocks (bounded canvases for a large chart), texel-major within a block
+    for c0 in range(0, nc, block):
+        g = min(nc, c0 + block) - c0
+        sat = np.zeros((hh, ww, g))  # (d - x)^2 of the float32 canvases, then its table
+        dimg = np.zeros((h, w, g))  # the denoised canvas (float32 values)
+        diff2 = np.empty((m, g))
+        vv = np.empty((m, g))
+        for i in range(m):
+            y, xx = ly[i], lx[i]
+            for j in range(g):
+                df = _f32(ds[i, c0 + j])
+                dx = df - _f32(xs[i, c0 + j])
+                diff2[i, j] = dx * dx
+                sat[y + r + 1, xx + r + 1, j] = dx * dx
+                dimg[y, xx, j] = df
+                vv[i, j] = _f32(vs[i, c0 + j])
+        for y in range(1, hh):  # cumsum(0), cumsum(1): box_mean's order
+            for xx in range(ww):
+                for j in range(g):
+                    sat[y, xx, j] += sat[y - 1, xx, j]
+        for y in range(hh):
+            for xx in range(1, ww):
+                for j in range(g):
+                    sat[y, xx, j] += sat[y, xx - 1, j]
+        for i in range(m):
+            y, xx = ly[i], lx[i]
+            n = cnt[y + kw, xx + kw] - cnt[y, xx + kw] - cnt[y + kw, xx]
+            n = max(n + cnt[y, xx], 1.0)
+            # the edge rule's row and column: both neighbours in the chart
+            row = xx >= 1 and xx + 1 < w and mask[y, xx - 1] and mask[y, xx + 1]
+            col = y >= 1 and y + 1 < h and mask[y - 1, xx] and mask[y + 1, xx]
+            for j in range(g):
+                tot = sat[y + kw, xx + kw, j] - sat[y, xx + kw, j] - sat[y + kw, xx, j]
+                change = (tot + sat[y, xx, j]) / n
+                if ratio[(c0 + j) % 9]:
+                    change = max(change, diff2[i, j])
+                v = vv[i, j]
+                vg = gain * v
+                wt = vg / max(max(change, vg), 1e-300) if vg > 0 else 0.0
+                if edges:
+                    sd = 0.0
+                    if row:
+                        q = dimg[y, xx - 1, j] - 2.0 * dimg[y, xx, j]
+                        q = q + dimg[y, xx + 1, j]
+                        sd += q * q
+                    if col:
+                        q = dimg[y - 1, xx, j] - 2.0 * dimg[y, xx, j]
+                        q = q + dimg[y + 1, xx, j]
+                        sd += q * q
+                    if sd > edge_contrast * v:
+                        own = v / max(max(diff2[i, j], v), 1e-300) if v > 0 else 0.0
+                        wt = min(wt, own)
+                weights[i, c0 + j] = wt
+    # blend_sh, texel by texel
+    out = np.empty_like(x)
+    nk = x.shape[2]
+    for i in range(m):
+        for c in range(x.shape[1]):
+            for k in range(nk):
+                out[i, c, k] = x[i, c, k] + weights[i, c * nk + k] * (d[i, c, k] - x[i, c, k])
+            out[i, c, 0] = max(out[i, c, 0], abs(out[i, c, 2]) / bound[2])
+            x00, d00 = x[i, c, 0], d[i, c, 0]
+            ok = x00 > 0 and d00 > 0
+            for k in range(nk):
+                if not ratio[k]:
+                    continue
+                b = bound[k]
+                if ok:
+                    rx = min(max(x[i, c, k] / x00, -b), b)
+                    rd = min(max(d[i, c, k] / d00, -b), b)
+                    wk = weights[i, c * nk + k]
+                    out[i, c, k] = (rx + wk * (rd - rx)) * out[i, c, 0]
+                else:
+                    lim = b * max(out[i, c, 0], 0.0)
+                    out[i, c, k] = min(max(out[i, c, k], -lim), lim)
+    return out
+
+
 def keep_chart_energy(x: np.ndarray, d: np.ndarray) -> np.ndarray:
     """``d (m, 3, 9)`` scaled per colour channel so the chart's summed c10 (the coefficient
     proportional to I_z) equals the input's ``x (m, 3, 9)``: an unbiased input's chart sum is
@@ -220,3 +384,7 @@ def class_scale(s_in: np.ndarray, s_out: np.ndarray) -> np.ndarray:
     ``s_in`` (1 where the sums are not both positive)."""
     ok = (s_out > 0) & (s_in > 0)
     return np.where(ok, s_in / np.where(ok, s_out, 1.0), 1.0)
+
+
+# _blend_chart_numba links windows.finite: an edit there recompiles it
+numba_cache.track(globals(), windows)

@@ -62,10 +62,8 @@ from usdahd.bake.blend import (
     BAND_BOUND,
     BLEND_GAIN,
     RATIO_COEFFS,
-    blend_sh,
-    blend_weights,
+    blend_chart,
     border_depth,
-    box_mean,
     class_scale,
     class_sums,
     keep_chart_energy,
@@ -82,6 +80,7 @@ from usdahd.bake.variance import (
 )
 from usdahd.errors import InputError, UsageError
 from usdahd.numerics.noise import second_differences
+from usdahd.numerics.windows import box_mean_texels
 
 __all__ = ["VARIANCE_POOL", "denoise_records", "integrator_iz_variance", "sh_variance"]
 
@@ -186,7 +185,7 @@ HDR_CROP = True
 DIRECTIONAL_FILL = False
 #: Elements (float64) of the noise estimate's work arrays per pass (~32 MB each).
 _WORK_ELEMENTS = 4_000_000
-#: Texels blended at once (blend_sh's temporaries are ~10 (m, 3, 9) float64 arrays).
+#: Texels scaled at once by the ring energy pass (_keep_ring_energy: bounded temporaries).
 _BLEND_BLOCK = 65536
 
 
@@ -634,23 +633,8 @@ def _finish(
             est = _estimated_groups(groups, not DIRECTIONAL_NOISE_ESTIMATE)
             var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups, est))
         if blend:
-            weights = np.empty_like(x)
-            for g in groups:
-                w = blend_weights(
-                    cv.image(_channels(x, g), fill=False),
-                    cv.image(_channels(d, g), fill=False),
-                    cv.image(_channels(var, g), fill=False),
-                    cv.mask,
-                    pointwise=np.tile(np.isin(g, RATIO_COEFFS), 3),
-                    gain=VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN,
-                    edges=variance_bound,
-                )
-                weights[:, :, g] = cv.gather(w).reshape(len(x), 3, len(g))
-            # texel by texel, so in blocks (bounded temporaries; d is this chart's own array)
-            for a in range(0, len(x), _BLEND_BLOCK):
-                b = a + _BLEND_BLOCK
-                d[a:b] = blend_sh(x[a:b], d[a:b], weights[a:b])
-            del weights
+            gain = VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN
+            d = blend_chart(x, d, var, cv.ly, cv.lx, cv.mask, gain=gain, edges=variance_bound)
             if variance_bound:
                 d = keep_chart_energy(x, d)
         outs[ch.record][ch.sel] = d.astype(np.float32)  # charts are disjoint: no race
@@ -732,14 +716,9 @@ def _channels(v: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 def _pooled(cv: _Canvas, v: np.ndarray, radius: int) -> np.ndarray:
     """Per-texel ``v (m, 3, 9)`` averaged over the chart texels within ``radius`` (Chebyshev)
-    of each texel; ``v`` itself for radius 0."""
+    of each texel (:func:`usdahd.numerics.windows.box_mean_texels`: the chart's canvas,
+    float32 as its images); ``v`` itself for radius 0."""
     if radius <= 0:
         return np.asarray(v, np.float64)
     flat = v.reshape(len(v), -1)
-    out = np.empty(flat.shape, np.float64)
-    # channels in groups (each channel's mean is its own): canvases of at most ~_WORK_ELEMENTS
-    per = max(1, _WORK_ELEMENTS // (cv.shape[0] * cv.shape[1]))
-    for a in range(0, flat.shape[1], per):
-        img = np.nan_to_num(cv.image(flat[:, a : a + per], fill=False).astype(np.float64))
-        out[:, a : a + per] = cv.gather(box_mean(img, cv.mask, radius))
-    return out.reshape(v.shape)
+    return box_mean_texels(flat, cv.ly, cv.lx, cv.shape, radius).reshape(v.shape)

@@ -3,7 +3,7 @@
 Two sources: the integrator's own per-texel bounds (:func:`integrator_iz_variance`, spread to
 every coefficient by :func:`sh_variance`), and second differences of neighbouring texels of
 one chart (:func:`canvas_noise`; ``usdahd.bake.denoise.noise_variance`` for texels). Numpy and
-the numba kernels of :mod:`usdahd.numerics.noise` only.
+the numba kernels of :mod:`usdahd.numerics.noise` and :mod:`usdahd.numerics.windows` only.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdahd.numerics.noise import tile_stats
+from usdahd.numerics.windows import neighbour_mean
 
 __all__ = [
     "MIN_NOISE_SAMPLES",
@@ -35,17 +36,6 @@ MIN_NOISE_SAMPLES = 8
 ROBUST_CAP = 16.0
 #: Median of chi-square with 1 degree of freedom: median(D^2) = 0.45494 E[D^2] for Gaussian D.
 _CHI2_1_MEDIAN = 0.454936423119572
-
-
-def neighbour_mean(tiles: np.ndarray, valid: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Mean of the valid ``tiles (th, tw, c)`` over each tile's 3 x 3 neighbourhood."""
-    th, tw = tiles.shape[:2]
-    pv = np.pad(np.where(valid, tiles, 0.0), ((1, 1), (1, 1), (0, 0)))
-    pc = np.pad(valid.astype(np.float64), ((1, 1), (1, 1), (0, 0)))
-    shifts = [(dy, dx) for dy in range(3) for dx in range(3)]
-    tot = sum(pv[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
-    cnt = sum(pc[dy : dy + th, dx : dx + tw] for dy, dx in shifts)
-    return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), fallback)
 
 
 def canvas_noise(

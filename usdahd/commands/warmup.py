@@ -126,11 +126,21 @@ def _solve_seams() -> None:
 
 
 def _noise_stats() -> None:
-    """Compile the denoiser's noise statistics (usdahd.numerics.noise) on a small canvas."""
-    from usdahd.numerics import noise
+    """Compile the denoiser's noise statistics, window means and blend (usdahd.numerics.noise,
+    usdahd.numerics.windows, usdahd.bake.blend) on a small chart."""
+    from usdahd.bake import blend
+    from usdahd.numerics import noise, windows
 
-    img = np.random.default_rng(0).normal(size=(12, 12, 27))
-    noise.tile_stats(img, np.ones((12, 12), bool), 6)
+    rng = np.random.default_rng(0)
+    img = rng.normal(size=(12, 12, 27))
+    mask = np.ones((12, 12), bool)
+    ly, lx = np.nonzero(mask)
+    mean, _, cnt, fmean, _, _ = noise.tile_stats(img, mask, 6)
+    windows.neighbour_mean(mean, cnt > 0, fmean)
+    windows.box_mean_texels(img[ly, lx], ly, lx, mask.shape, 2)
+    noise.second_differences(img, mask, 4, 0.0)
+    sh = img[ly, lx].reshape(-1, 3, 9)
+    blend.blend_chart(sh, sh, np.abs(sh), ly, lx, mask, gain=1.5, edges=True)
 
 
 def _second_worker() -> tuple[list[str], list[str]]:

@@ -54,13 +54,21 @@ __all__ = [
 #: traced texels' SH; the bake meanwhile compiles the rasteriser, the direct-light callees
 #: (``_texel_delta``), the camera-ray tracer and, last, ``native_pass`` itself, and reaches
 #: ``trace_paths`` about when the second process (~2 s to start) has it ready. "noise": the
-#: denoiser's statistics; "fit": the IrradZ models' fit (ahd, hhd, hlsh).
+#: denoiser's statistics, window means and blend (usdahd.numerics.noise, .windows,
+#: usdahd.bake.blend);
+#: "fit": the IrradZ models' fit (ahd, hhd, hlsh).
 GROUPS = {
     "trace": (
         "usdahd.bake.kernels.paths.trace_paths",
         "usdahd.bake.kernels.integrate.native_result",
     ),
-    "noise": ("usdahd.numerics.noise._tile_stats_numba",),
+    "noise": (
+        "usdahd.numerics.windows._box_mean_texels_numba",
+        "usdahd.numerics.noise._tile_stats_numba",
+        "usdahd.numerics.windows._neighbour_mean_numba",
+        "usdahd.numerics.noise._second_differences_numba",
+        "usdahd.bake.blend._blend_chart_numba",
+    ),
     "fit": ("usdahd.models.irradz.kernel._fit_kernel",),
 }
 

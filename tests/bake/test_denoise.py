@@ -597,6 +597,30 @@ def test_tile_stats_kernel_matches_the_numpy_reference(shape, tile):
         tile_stats(img, support, tile, backend="cuda")
 
 
+def test_tile_stats_takes_the_chart_median_only_where_a_needed_tile_falls_back():
+    """``need``: the chart-wide median (the fallback of a tile with no well-filled tile
+    around it) is computed only when a needed tile has none; else NaN. Both backends."""
+    from usdahd.numerics.noise import tile_stats
+
+    rng = np.random.default_rng(3)
+    img = rng.standard_normal((24, 30, 3))
+    support = np.ones((24, 30), bool)
+    support[:, 12:] = False  # tiles of columns 2-4 hold no difference
+    full = tile_stats(img, support, 6)
+    for backend in ("numba", "numpy"):
+        need = np.zeros((4, 5), bool)
+        need[:, :2] = True  # the filled tiles: each has a filled neighbour
+        out = tile_stats(img, support, 6, backend, need=need, min_count=8)
+        assert np.isnan(out[4]).all() and np.isfinite(full[4]).all()
+        for a, b in zip(out[:4] + out[5:], full[:4] + full[5:], strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-12, equal_nan=True)
+        need[0, 4] = True  # two tiles from any filled one: falls back to the chart's
+        out = tile_stats(img, support, 6, backend, need=need, min_count=8)
+        np.testing.assert_allclose(out[4], full[4], rtol=1e-12)
+    with pytest.raises(ValueError, match="need"):
+        tile_stats(img, support, 6, need=np.ones((2, 2), bool))
+
+
 @pytest.mark.parametrize("gain, edges", [(4.0, False), (1.5, True)])
 @pytest.mark.parametrize("shape", [(1, 1), (3, 17), (24, 20)])
 def test_blend_chart_kernel_is_the_canvas_blend_bit_for_bit(shape, gain, edges, monkeypatch):

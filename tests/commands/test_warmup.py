@@ -22,7 +22,7 @@ BAKE_KERNELS = {
     "usdahd.bake.kernels.embree.intersect_batch",
     "usdahd.models.irradz.kernel._fit_kernel",
     "usdahd.numerics.noise._tile_stats_numba",
-    "usdahd.numerics.noise._second_differences_numba",
+    "usdahd.numerics.noise._bends_numba",
     "usdahd.numerics.windows._box_mean_texels_numba",
     "usdahd.numerics.windows._neighbour_mean_numba",
     "usdahd.bake.blend._blend_chart_numba",

@@ -118,3 +118,26 @@ def test_box_mean_texels_is_the_canvas_box_mean_bit_for_bit(shape, channels, rad
     np.testing.assert_array_equal(windows.box_mean_texels(values, ly, lx, shape, radius), ref)
     monkeypatch.setattr(windows, "_WORK_ELEMENTS", 1)  # one channel per block
     np.testing.assert_array_equal(windows.box_mean_texels(values, ly, lx, shape, radius), ref)
+
+
+@pytest.mark.parametrize("shape, channels", [((1, 1), 1), ((2, 9), 6), ((23, 31), 6)])
+def test_bends_kernel_is_the_canvas_route_bit_for_bit(shape, channels):
+    """``noise.bends`` (the denoiser's curvature test): a texel bends where some channel's
+    squared second difference in any direction exceeds factor x its variance; the kernel
+    equals the canvas route (float32 canvases, 4-direction second differences, maxima)."""
+    rng = np.random.default_rng(shape[1] + channels)
+    mask = rng.random(shape) < 0.8
+    mask.flat[0] = True
+    ly, lx = np.nonzero(mask)
+    values = rng.exponential(size=(len(ly), channels)) * 1e3
+    variance = rng.exponential(1e4, size=(len(ly), channels))
+    variance[rng.random(variance.shape) < 0.1] = 0.0  # noise free: any curvature bends
+    ref = noise.bends(values, variance, ly, lx, shape, 24.0, backend="numpy")
+    fast = noise.bends(values, variance, ly, lx, shape, 24.0)
+    assert fast.dtype == bool and fast.shape == shape
+    np.testing.assert_array_equal(fast, ref)
+    assert not fast[~mask].any()
+    if shape == (23, 31):
+        assert 0 < fast.sum() < mask.sum()  # the case is not trivial
+    with pytest.raises(ValueError, match="backend"):
+        noise.bends(values, variance, ly, lx, shape, 24.0, backend="cuda")

@@ -79,7 +79,7 @@ from usdahd.bake.variance import (
     sh_variance,
 )
 from usdahd.errors import InputError, UsageError
-from usdahd.numerics.noise import second_differences
+from usdahd.numerics.noise import bends
 from usdahd.numerics.windows import box_mean_texels
 
 __all__ = ["VARIANCE_POOL", "denoise_records", "integrator_iz_variance", "sh_variance"]
@@ -663,7 +663,7 @@ def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:
     return out
 
 
-def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.ndarray:
+def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray) -> np.ndarray:
     """(h, w) bool: chart texels where the denoised SH ``d (m, 3, 9)`` has a squared second
     difference (any direction and channel of c00 or c10) above CURVATURE_CONTRAST x 6 ``var``
     (m, 3, 9), the squared second difference of pure noise of that variance. The directional
@@ -671,15 +671,9 @@ def _curved_texels(cv: _Canvas, d: np.ndarray, var: np.ndarray, groups) -> np.nd
     curvature took texels out of the noise estimate of c00 and c10 too, and I_z was
     denoised less (floor_lamp 32^2, 16 spp: I_z error vs a 4096-spp bake 2.41 % ->
     2.14 %, 64 spp 1.01 -> 0.94 %; docs/time-to-quality.md)."""
-    curved = np.zeros(cv.shape, bool)
-    for g in groups:
-        g = g[np.isin(g, _HDR_COEFFS)]
-        if not len(g):
-            continue
-        sd = second_differences(cv.image(_channels(d, g), fill=False), cv.mask, fill=0.0)
-        v = np.nan_to_num(cv.image(_channels(var, g), fill=False))
-        curved |= (sd.max(axis=2) > CURVATURE_CONTRAST * 6.0 * v).any(axis=2)
-    return curved & cv.mask
+    g = np.array(_HDR_COEFFS)
+    factor = CURVATURE_CONTRAST * 6.0
+    return bends(_channels(d, g), _channels(var, g), cv.ly, cv.lx, cv.shape, factor)
 
 
 def _estimated_groups(groups: list[np.ndarray], hdr_only: bool) -> list[np.ndarray]:
@@ -694,7 +688,7 @@ def _noise_off_curvature(
     """(m, 3, 9) second-difference noise variance of the chart's input ``x (m, 3, 9)`` from
     the texels where the denoised ``d`` does not curve (:func:`_curved_texels` with ``var``),
     for the coefficients of ``estimated`` (default ``groups``); +inf for the others."""
-    support = cv.mask & ~_curved_texels(cv, d, var, groups)
+    support = cv.mask & ~_curved_texels(cv, d, var)
     out = np.full_like(x, np.inf)
     for g in groups if estimated is None else estimated:
         noise = canvas_noise(cv.image(_channels(x, g), fill=False), cv.mask, support=support)

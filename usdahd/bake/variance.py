@@ -45,8 +45,15 @@ def canvas_noise(
     second differences whose three texels are all in ``support`` ((h, w) bool, default
     ``mask``), assigned to every ``mask`` texel."""
     h, w, _ = img.shape
+    th, tw = -(-h // tile), -(-w // tile)
+    # the tiles holding chart texels (only theirs are used: the chart-wide median is taken
+    # only when one of them falls back to it)
+    need = np.pad(mask, ((0, th * tile - h), (0, tw * tile - w)))
+    need = need.reshape(th, tile, tw, tile).any(axis=(1, 3))
     # per tile: E[D^2] = 6 var for iid noise
-    mean, med, cnt, fmean, fmed, fcnt = tile_stats(img, mask if support is None else support, tile)
+    mean, med, cnt, fmean, fmed, fcnt = tile_stats(
+        img, mask if support is None else support, tile, need=need, min_count=MIN_NOISE_SAMPLES
+    )
     ok = cnt >= MIN_NOISE_SAMPLES
     # too few differences nearby: the whole chart's estimate, else unknown (0: keep the input)
     enough = fcnt >= MIN_NOISE_SAMPLES

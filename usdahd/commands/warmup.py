@@ -138,7 +138,7 @@ def _noise_stats() -> None:
     mean, _, cnt, fmean, _, _ = noise.tile_stats(img, mask, 6)
     windows.neighbour_mean(mean, cnt > 0, fmean)
     windows.box_mean_texels(img[ly, lx], ly, lx, mask.shape, 2)
-    noise.second_differences(img, mask, 4, 0.0)
+    noise.bends(img[ly, lx, :6], np.abs(img[ly, lx, 6:12]), ly, lx, mask.shape, 24.0)
     sh = img[ly, lx].reshape(-1, 3, 9)
     blend.blend_chart(sh, sh, np.abs(sh), ly, lx, mask, gain=1.5, edges=True)
 

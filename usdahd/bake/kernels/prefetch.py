@@ -66,7 +66,7 @@ GROUPS = {
         "usdahd.numerics.windows._box_mean_texels_numba",
         "usdahd.numerics.noise._tile_stats_numba",
         "usdahd.numerics.windows._neighbour_mean_numba",
-        "usdahd.numerics.noise._second_differences_numba",
+        "usdahd.numerics.noise._bends_numba",
         "usdahd.bake.blend._blend_chart_numba",
     ),
     "fit": ("usdahd.models.irradz.kernel._fit_kernel",),

@@ -646,8 +646,17 @@ def test_blend_chart_kernel_is_the_canvas_blend_bit_for_bit(shape, gain, edges, 
     monkeypatch.setattr(blend, "_WORK_ELEMENTS", 1)
     np.testing.assert_array_equal(blend.blend_chart(x, d, var, ly, lx, mask, gain=gain,
                                                     edges=edges), ref)  # fmt: skip
+    # into d itself (the bake's call: no second copy of the chart's SH), both backends
+    for backend in ("numba", "numpy"):
+        into = d.copy()
+        got = blend.blend_chart(x, into, var, ly, lx, mask, gain=gain, edges=edges,
+                                backend=backend, out=into)  # fmt: skip
+        assert got is into
+        np.testing.assert_array_equal(into, ref)
     with pytest.raises(ValueError, match="backend"):
         blend.blend_chart(x, d, var, ly, lx, mask, backend="cuda")
+    with pytest.raises(ValueError, match="out must be"):
+        blend.blend_chart(x, d, var, ly, lx, mask, out=np.empty((m, 3, 9), np.float32))
 
 
 def test_second_differences_of_the_row_and_column_only_with_zero_outside():

@@ -161,6 +161,7 @@ def blend_chart(
     gain: float = BLEND_GAIN,
     edges: bool = False,
     backend: str = "numba",
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """(m, 3, 9) float64 blend of one chart: :func:`blend_weights` of every coefficient on the
     chart's canvas (the per-texel input ``x``, OIDN's ``d`` and the noise variance ``var``,
@@ -173,8 +174,14 @@ def blend_chart(
     and ~40 array passes (a 128 x 128 chart, 27 channels: numpy 72 ms, the kernel 12 ms on
     one core; tests/bake/test_denoise.py checks the parity). A change to the
     blend's rule goes into the numpy functions (the definition, what an experiment patches
-    and runs with ``backend="numpy"``), then into the kernel until the parity test passes."""
+    and runs with ``backend="numpy"``), then into the kernel until the parity test passes.
+    ``out``: a C-contiguous (m, 3, 9) float64 array to write into and return (``d`` itself
+    is fine: no second copy of a large chart's SH); default a new array."""
     m = len(x)
+    if out is not None and not (
+        out.shape == (m, 3, 9) and out.dtype == np.float64 and out.flags.c_contiguous
+    ):
+        raise ValueError(f"out must be a C-contiguous ({m}, 3, 9) float64 array")
     ly = np.asarray(ly, np.int64)
     lx = np.asarray(lx, np.int64)
     if backend == "numpy":
@@ -189,7 +196,11 @@ def blend_chart(
             pointwise = np.full(3, k in RATIO_COEFFS)
             w = blend_weights(img(x), img(d), img(var), mask, pointwise, gain, edges)
             weights[:, :, k] = w[ly, lx]
-        return blend_sh(np.asarray(x, np.float64), np.asarray(d, np.float64), weights)
+        blended = blend_sh(np.asarray(x, np.float64), np.asarray(d, np.float64), weights)
+        if out is None:
+            return blended
+        out[...] = blended
+        return out
     if backend != "numba":
         raise ValueError(f"unknown backend {backend!r}")
     ratio = np.isin(np.arange(9), RATIO_COEFFS)
@@ -207,6 +218,7 @@ def blend_chart(
         np.ascontiguousarray(BAND_BOUND, np.float64),
         ratio,
         _channel_block(mask.shape),
+        np.empty((m, 3, 9)) if out is None else out,
     )
 
 
@@ -224,7 +236,7 @@ def _f32(v):
 
 @numba.njit(cache=True, nogil=True)
 def _blend_chart_numba(
-    x, d, var, ly, lx, mask, gain, edges, r, edge_contrast, bound, ratio, block
+    x, d, var, ly, lx, mask, gain, edges, r, edge_contrast, bound, ratio, block, out
 ):  # fmt: skip
     m = x.shape[0]
     nc = x.shape[1] * x.shape[2]  # 27 channels, colour-major (c * 9 + k), texel-major arrays
@@ -298,14 +310,15 @@ def _blend_chart_numba(
                         own = v / max(max(diff2[i, j], v), 1e-300) if v > 0 else 0.0
                         wt = min(wt, own)
                 weights[i, c0 + j] = wt
-    # blend_sh, texel by texel
-    out = np.empty_like(x)
+    # blend_sh, texel by texel, into ``out`` (may be ``d`` itself: a texel's values are
+    # read into ``t`` before its row is written)
     nk = x.shape[2]
+    t = np.empty(nk)
     for i in range(m):
         for c in range(x.shape[1]):
             for k in range(nk):
-                out[i, c, k] = x[i, c, k] + weights[i, c * nk + k] * (d[i, c, k] - x[i, c, k])
-            out[i, c, 0] = max(out[i, c, 0], abs(out[i, c, 2]) / bound[2])
+                t[k] = x[i, c, k] + weights[i, c * nk + k] * (d[i, c, k] - x[i, c, k])
+            t[0] = max(t[0], abs(t[2]) / bound[2])
             x00, d00 = x[i, c, 0], d[i, c, 0]
             ok = x00 > 0 and d00 > 0
             for k in range(nk):
@@ -316,10 +329,12 @@ def _blend_chart_numba(
                     rx = min(max(x[i, c, k] / x00, -b), b)
                     rd = min(max(d[i, c, k] / d00, -b), b)
                     wk = weights[i, c * nk + k]
-                    out[i, c, k] = (rx + wk * (rd - rx)) * out[i, c, 0]
+                    t[k] = (rx + wk * (rd - rx)) * t[0]
                 else:
-                    lim = b * max(out[i, c, 0], 0.0)
-                    out[i, c, k] = min(max(out[i, c, k], -lim), lim)
+                    lim = b * max(t[0], 0.0)
+                    t[k] = min(max(t[k], -lim), lim)
+            for k in range(nk):
+                out[i, c, k] = t[k]
     return out
 
 

@@ -634,7 +634,8 @@ def _finish(
             var = np.minimum(var, _noise_off_curvature(cv, x, d, var, groups, est))
         if blend:
             gain = VARIANCE_BOUND_GAIN if variance_bound else BLEND_GAIN
-            d = blend_chart(x, d, var, cv.ly, cv.lx, cv.mask, gain=gain, edges=variance_bound)
+            d = blend_chart(x, d, var, cv.ly, cv.lx, cv.mask, gain=gain, edges=variance_bound,
+                            out=d)  # fmt: skip
             if variance_bound:
                 d = keep_chart_energy(x, d)
         outs[ch.record][ch.sel] = d.astype(np.float32)  # charts are disjoint: no race

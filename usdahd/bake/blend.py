@@ -17,7 +17,7 @@ import numpy as np
 
 from usdahd.numerics import numba_cache, windows
 from usdahd.numerics.noise import second_differences
-from usdahd.numerics.windows import box_mean, finite
+from usdahd.numerics.windows import box_mean, count_table, finite, summed, window
 
 __all__ = [
     "BAND_BOUND",
@@ -243,19 +243,8 @@ def _blend_chart_numba(
     xs, ds, vs = x.reshape(m, nc), d.reshape(m, nc), var.reshape(m, nc)
     h, w = mask.shape
     kw = 2 * r + 1
-    hh, ww = h + 2 * r + 1, w + 2 * r + 1
-    # the mask's summed-area table (box_mean's count), once for every channel
-    cnt = np.zeros((hh, ww))
-    for y in range(h):
-        for xx in range(w):
-            if mask[y, xx]:
-                cnt[y + r + 1, xx + r + 1] = 1.0
-    for y in range(1, hh):
-        for xx in range(ww):
-            cnt[y, xx] += cnt[y - 1, xx]
-    for y in range(hh):
-        for xx in range(1, ww):
-            cnt[y, xx] += cnt[y, xx - 1]
+    hh, ww = h + kw, w + kw
+    cnt = count_table(ly, lx, h, w, r)  # the mask's summed-area table (box_mean's count)
     weights = np.empty((m, nc))
     # channels in blocks (bounded canvases for a large chart), texel-major within a block
     for c0 in range(0, nc, block):
@@ -273,24 +262,15 @@ def _blend_chart_numba(
                 sat[y + r + 1, xx + r + 1, j] = dx * dx
                 dimg[y, xx, j] = df
                 vv[i, j] = _f32(vs[i, c0 + j])
-        for y in range(1, hh):  # cumsum(0), cumsum(1): box_mean's order
-            for xx in range(ww):
-                for j in range(g):
-                    sat[y, xx, j] += sat[y - 1, xx, j]
-        for y in range(hh):
-            for xx in range(1, ww):
-                for j in range(g):
-                    sat[y, xx, j] += sat[y, xx - 1, j]
+        summed(sat)
         for i in range(m):
             y, xx = ly[i], lx[i]
-            n = cnt[y + kw, xx + kw] - cnt[y, xx + kw] - cnt[y + kw, xx]
-            n = max(n + cnt[y, xx], 1.0)
+            n = max(window(cnt, y, xx, 0, kw), 1.0)
             # the edge rule's row and column: both neighbours in the chart
             row = xx >= 1 and xx + 1 < w and mask[y, xx - 1] and mask[y, xx + 1]
             col = y >= 1 and y + 1 < h and mask[y - 1, xx] and mask[y + 1, xx]
             for j in range(g):
-                tot = sat[y + kw, xx + kw, j] - sat[y, xx + kw, j] - sat[y + kw, xx, j]
-                change = (tot + sat[y, xx, j]) / n
+                change = window(sat, y, xx, j, kw) / n
                 if ratio[(c0 + j) % 9]:
                     change = max(change, diff2[i, j])
                 v = vv[i, j]

@@ -19,7 +19,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["box_mean", "box_mean_texels", "finite", "neighbour_mean"]
+__all__ = [
+    "box_mean",
+    "box_mean_texels",
+    "count_table",
+    "finite",
+    "neighbour_mean",
+    "summed",
+    "window",
+]
 
 _BACKENDS = ("numba", "numpy")
 #: Canvas elements (float64) of :func:`box_mean_texels`' summed-area table per channel block.
@@ -62,35 +70,55 @@ def _box_mean_numpy(img, mask, radius):
 def _box_mean_numba(img, mask, r):
     h, w, c = img.shape
     k = 2 * r + 1
-    hh, ww = h + 2 * r + 1, w + 2 * r + 1
-    # the reference's zero-padded arrays (r + 1 before, r after), then cumsum(0), cumsum(1)
-    s = np.zeros((hh, ww, c))
-    m = np.zeros((hh, ww))
-    for y in range(h):
-        for x in range(w):
-            if mask[y, x]:
-                m[y + r + 1, x + r + 1] = 1.0
-                for ch in range(c):
-                    s[y + r + 1, x + r + 1, ch] = img[y, x, ch]
-    for y in range(1, hh):
-        for x in range(ww):
-            m[y, x] += m[y - 1, x]
-            for ch in range(c):
-                s[y, x, ch] += s[y - 1, x, ch]
-    for y in range(hh):
-        for x in range(1, ww):
-            m[y, x] += m[y, x - 1]
-            for ch in range(c):
-                s[y, x, ch] += s[y, x - 1, ch]
+    ly, lx = np.nonzero(mask)
+    cnt = count_table(ly, lx, h, w, r)
+    # the reference's zero-padded array (r + 1 before, r after), then cumsum(0), cumsum(1)
+    s = np.zeros((h + k, w + k, c))
+    for i in range(len(ly)):
+        for ch in range(c):
+            s[ly[i] + r + 1, lx[i] + r + 1, ch] = img[ly[i], lx[i], ch]
+    summed(s)
     out = np.empty((h, w, c))
     for y in range(h):
         for x in range(w):
-            cnt = m[y + k, x + k] - m[y, x + k] - m[y + k, x] + m[y, x]
-            cnt = max(cnt, 1.0)
+            n = max(window(cnt, y, x, 0, k), 1.0)
             for ch in range(c):
-                tot = s[y + k, x + k, ch] - s[y, x + k, ch] - s[y + k, x, ch] + s[y, x, ch]
-                out[y, x, ch] = tot / cnt
+                out[y, x, ch] = window(s, y, x, ch, k) / n
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def summed(a):
+    """In place: ``a (hh, ww, g)`` float64 -> its summed-area table, ``a.cumsum(0).cumsum(1)``
+    (the same additions in the same order)."""
+    hh, ww, g = a.shape
+    for y in range(1, hh):
+        for x in range(ww):
+            for j in range(g):
+                a[y, x, j] += a[y - 1, x, j]
+    for y in range(hh):
+        for x in range(1, ww):
+            for j in range(g):
+                a[y, x, j] += a[y, x - 1, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def window(a, y, x, j, k):
+    """Channel ``j``'s sum over the k x k window of the summed-area table ``a`` whose padded
+    corner is ``(y, x)``, in :func:`box_mean`'s order of operations."""
+    return a[y + k, x + k, j] - a[y, x + k, j] - a[y + k, x, j] + a[y, x, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def count_table(ly, lx, h, w, r):
+    """(h + 2r + 1, w + 2r + 1, 1) summed-area table of the mask of texels ``(ly, lx)`` on an
+    (h, w) canvas padded as :func:`box_mean` pads it (r + 1 before, r after)."""
+    k = 2 * r + 1
+    cnt = np.zeros((h + k, w + k, 1))
+    for i in range(len(ly)):
+        cnt[ly[i] + r + 1, lx[i] + r + 1, 0] = 1.0
+    summed(cnt)
+    return cnt
 
 
 def box_mean_texels(
@@ -147,38 +175,19 @@ def finite(v):
 def _box_mean_texels_numba(values, ly, lx, h, w, r, block):
     m, nc = values.shape
     k = 2 * r + 1
-    hh, ww = h + 2 * r + 1, w + 2 * r + 1
-    cnt = np.zeros((hh, ww))
-    for i in range(m):
-        cnt[ly[i] + r + 1, lx[i] + r + 1] = 1.0
-    for y in range(1, hh):
-        for x in range(ww):
-            cnt[y, x] += cnt[y - 1, x]
-    for y in range(hh):
-        for x in range(1, ww):
-            cnt[y, x] += cnt[y, x - 1]
+    cnt = count_table(ly, lx, h, w, r)
     out = np.empty((m, nc))
     for c0 in range(0, nc, block):
         g = min(nc, c0 + block) - c0
-        s = np.zeros((hh, ww, g))
+        s = np.zeros((h + k, w + k, g))
         for i in range(m):
             for j in range(g):
                 s[ly[i] + r + 1, lx[i] + r + 1, j] = finite(np.float64(values[i, c0 + j]))
-        for y in range(1, hh):
-            for x in range(ww):
-                for j in range(g):
-                    s[y, x, j] += s[y - 1, x, j]
-        for y in range(hh):
-            for x in range(1, ww):
-                for j in range(g):
-                    s[y, x, j] += s[y, x - 1, j]
+        summed(s)
         for i in range(m):
-            y, x = ly[i], lx[i]
-            n = cnt[y + k, x + k] - cnt[y, x + k] - cnt[y + k, x] + cnt[y, x]
-            n = max(n, 1.0)
+            n = max(window(cnt, ly[i], lx[i], 0, k), 1.0)
             for j in range(g):
-                tot = s[y + k, x + k, j] - s[y, x + k, j] - s[y + k, x, j] + s[y, x, j]
-                out[i, c0 + j] = tot / n
+                out[i, c0 + j] = window(s, ly[i], lx[i], j, k) / n
     return out
 
 

@@ -771,8 +771,8 @@ def test_mosaic_matches_chart_by_chart_up_to_oidns_context():
 def test_chart_threads_change_nothing(monkeypatch):
     """The charts' noise estimates and blends on CHART_THREADS threads (issue 43: they were a
     third of the denoiser's CPU time, on one core): bit for bit the single-threaded result,
-    on records of several charts each (windows of 2 charts, an odd chart count included),
-    in place too."""
+    on records of several charts each (charts prepared ahead across records while a batch is
+    finished, an odd chart count included), in place too."""
     recs = []
     for k, (make, level) in enumerate([(two_chart_plane, 1.0), (quad_and_sliver, 100.0),
                                       (full_quad, 0.01)]):  # fmt: skip
@@ -802,6 +802,30 @@ def test_chart_threads_change_nothing(monkeypatch):
     for a, b, c in zip(inplace, single, copies, strict=True):
         assert a is c["sh"]
         np.testing.assert_array_equal(a, b)
+
+
+def test_in_order_yields_in_order_with_a_bounded_lookahead():
+    """denoise._in_order: results in the items' order however the threads finish, and at
+    most ``ahead`` items submitted beyond the one awaited (bounded memory)."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    started, lock = [], threading.Lock()
+
+    def fn(k):
+        with lock:
+            started.append(k)
+        time.sleep(0.002 * (5 - k % 5))  # later items finish first
+        return k * k
+
+    with ThreadPoolExecutor(2) as pool:
+        got = []
+        for r in denoise._in_order(pool, fn, iter(range(12)), 2):
+            got.append(r)
+            assert len(started) <= len(got) + 2
+    assert got == [k * k for k in range(12)]
+    assert list(denoise._in_order(None, fn, range(4), 2)) == [0, 1, 4, 9]
 
 
 def test_denoise_records_checks_every_record_first():

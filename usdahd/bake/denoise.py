@@ -427,35 +427,36 @@ def denoise_records(
     depths = [np.full(len(c[1]), -1, np.int8) if rings else None for c in checked]
     sums_in = [np.zeros((ENERGY_DEPTH + 1, 3)) for _ in checked]
     try:
-        for i, (sh, texels, charts, albedo, normal, variance) in enumerate(checked):
 
-            def prepare(sel, i=i, sh=sh, texels=texels, albedo=albedo, normal=normal,
-                        variance=variance):  # fmt: skip
-                return _prepare_chart(
-                    i, sel, sh, texels, albedo, normal, variance, filter, blend,
-                    variance_bound, variance_pool,
-                )  # fmt: skip
+        def tasks():
+            for i, (_, _, charts, *_) in enumerate(checked):
+                for c in np.unique(charts):
+                    yield i, np.nonzero(charts == c)[0]
 
-            sels = [np.nonzero(charts == c)[0] for c in np.unique(charts)]
-            # CHART_THREADS charts at a time (numpy and the noise kernel release the GIL),
-            # in order; a window, not every chart at once, so memory stays one batch's
-            for a in range(0, len(sels), CHART_THREADS):
-                window = sels[a : a + CHART_THREADS]
-                done = (
-                    pool.map(prepare, window) if pool and len(window) > 1 else map(prepare, window)
-                )
-                for chart in done:
-                    if chart is None:
-                        continue  # noise free (or too small to tell): nothing to remove
-                    if rings:
-                        depths[i][chart.sel] = chart.depth
-                        sums_in[i] += class_sums(chart.x, chart.depth, ENERGY_DEPTH + 1)
-                    batch.append(chart)
-                    pixels += chart.cv.shape[0] * chart.cv.shape[1]
-                    if pixels >= MOSAIC_PIXELS:
-                        den = den or _Denoiser(quality)
-                        _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
-                        batch, pixels = [], 0
+        def prepare(task):
+            i, sel = task
+            sh, texels, _, albedo, normal, variance = checked[i]
+            return _prepare_chart(
+                i, sel, sh, texels, albedo, normal, variance, filter, blend, variance_bound,
+                variance_pool,
+            )  # fmt: skip
+
+        # on CHART_THREADS threads (the kernels and numpy release the GIL), taken in order
+        # across records (a record's one big chart beside the next record's small ones); at
+        # most CHART_THREADS charts prepared ahead of the batch, so memory stays one batch's
+        for chart in _in_order(pool, prepare, tasks(), CHART_THREADS):
+            if chart is None:
+                continue  # noise free (or too small to tell): nothing to remove
+            i = chart.record
+            if rings:
+                depths[i][chart.sel] = chart.depth
+                sums_in[i] += class_sums(chart.x, chart.depth, ENERGY_DEPTH + 1)
+            batch.append(chart)
+            pixels += chart.cv.shape[0] * chart.cv.shape[1]
+            if pixels >= MOSAIC_PIXELS:
+                den = den or _Denoiser(quality)
+                _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
+                batch, pixels = [], 0
         if batch:
             den = den or _Denoiser(quality)
             _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
@@ -644,9 +645,27 @@ def _finish(
         for ch, store in zip(batch, den_out, strict=True):
             finish_chart(ch, store)
         return
-    # in windows of CHART_THREADS, so at most that many charts' blend temporaries at once
-    for a in range(0, len(batch), CHART_THREADS):
-        list(pool.map(finish_chart, batch[a : a + CHART_THREADS], den_out[a : a + CHART_THREADS]))
+    # every chart to the pool at once: a thread that finishes a small chart takes the next
+    # (no barrier per window), and the pool's CHART_THREADS threads bound the blend
+    # temporaries held at once
+    list(pool.map(finish_chart, batch, den_out))
+
+
+def _in_order(pool, fn, items, ahead: int):
+    """``fn(item)`` of each of ``items`` on ``pool``'s threads (in the calling thread when
+    None), yielded in order, with at most ``ahead`` items submitted beyond the one awaited."""
+    if pool is None:
+        yield from map(fn, items)
+        return
+    from collections import deque
+
+    queued = deque()
+    for item in items:
+        queued.append(pool.submit(fn, item))
+        if len(queued) > ahead:
+            yield queued.popleft().result()
+    while queued:
+        yield queued.popleft().result()
 
 
 def _chart_output(ch: _Chart, res: dict, filter: str) -> np.ndarray:

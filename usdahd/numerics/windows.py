@@ -3,15 +3,20 @@
 
 :func:`box_mean`: the mean of an image over the chart texels in each (2r+1)^2 window;
 :func:`box_mean_texels`: the same from and to per-texel values (no canvas for the caller);
-:func:`neighbour_mean`: the mean of valid tiles over each tile's 3 x 3 neighbourhood.
+:func:`neighbour_mean`: the mean of valid tiles over each tile's 3 x 3 neighbourhood;
+and the pieces other kernels share: :func:`summed` (a summed-area table in place),
+:func:`window` (a window's sum from it), :func:`count_table` (the table of a chart's mask),
+:func:`finite` (``np.nan_to_num`` of one value).
 
 Two implementations behind each function: a numba kernel (default) and a numpy reference
 (``backend="numpy"``, the definition). The kernels repeat the reference's arithmetic in the
 same order (a summed-area table from sequential cumulative sums; the nine shifts summed in the
 same order), so they return the same numbers bit for bit (tests/numerics/test_windows.py).
-Why: a chart's canvases are small (at 32^2 a few hundred texels), and there the reference's
-~15 numpy calls each (``np.pad`` alone ~20 us a call) were most of the denoiser's non-OIDN time
-(issue 43: ~37 of a stretched_boxes 32^2 bake's 72 ms of denoise, single-threaded).
+Why: a chart's canvases are small (at 32^2 a few hundred texels), where the reference's ~15
+numpy calls each (``np.pad`` alone ~20 us a call) are mostly per-call overhead, and at 128^2 a
+chart's numpy passes ran on one core. With the blend's and the noise estimate's kernels the
+denoise of a stretched_boxes bake went 93.6 -> ~72 ms at 32^2, 483 -> ~285 ms at 128^2
+(issue 43, docs/time-to-quality.md).
 """
 
 from __future__ import annotations

@@ -11,9 +11,9 @@ Two implementations behind each function: a numba kernel (default) and a numpy r
 (``backend="numpy"``, the definition; tests/bake/test_denoise.py checks their parity). The numpy
 tile statistics materialize a (h, w, 4, c) array and sort every block: on a 46 x 46 canvas of
 27 channels 7 ms, the kernel ~1 ms (usdahd/bake/denoise.py's noise estimate ran twice per chart
-and was a third of the denoise time). :func:`second_differences`' kernel returns the
-reference's numbers bit for bit (the same arithmetic, without its padded copies: on a chart of
-a 32^2 bake the reference's ~12 numpy calls were ~50 us, the kernel ~3 us).
+and was a third of the denoise time). :func:`second_differences`' and :func:`bends`' kernels return
+their references' numbers bit for bit (the same arithmetic without the padded copies and the
+(h, w, 4, c) array; :func:`bends` is the denoiser's curvature test, a chart at a time).
 """
 
 from __future__ import annotations

@@ -172,9 +172,9 @@ def blend_chart(
     ``backend="numpy"`` is that composition (the definition); the numba kernel (default)
     computes the same numbers bit for bit texel by texel, without the (h, w, 27) canvases
     and ~40 array passes (a 128 x 128 chart, 27 channels: numpy 72 ms, the kernel 12 ms on
-    one core; tests/bake/test_denoise.py checks the parity). A change to the
-    blend's rule goes into the numpy functions (the definition, what an experiment patches
-    and runs with ``backend="numpy"``), then into the kernel until the parity test passes.
+    one core; tests/bake/test_denoise.py checks the parity). A change to the blend's rule
+    goes into the numpy functions (the definition, what an experiment patches and runs with
+    ``backend="numpy"``), then into the kernel until the parity test passes.
     ``out``: a C-contiguous (m, 3, 9) float64 array to write into and return (``d`` itself
     is fine: no second copy of a large chart's SH); default a new array."""
     m = len(x)

@@ -21,7 +21,12 @@ from benchmarks.reference_bench import net_of_truth_noise
 
 
 def stage_label(r: dict) -> str:
-    """``sponza 64²`` from a result's stage path and its meshes' resolution."""
+    """``sponza 64²`` from a result's stage path and its meshes' resolution; ``classroom
+    auto`` for a bake at usdahd's automatic texel density (no ``--resolution``: each mesh's
+    resolution is its own)."""
+    args = r.get("usdahd_args") or []
+    if "--resolution" not in args and "--texel-density" not in args:
+        return f"{Path(r['stage']).stem} auto"
     res = next((m["resolution"][0] for m in r["meshes"] if m.get("resolution")), None)
     return f"{Path(r['stage']).stem}" + ("" if res is None else f" {res}²")
 
@@ -57,7 +62,7 @@ def plot(results: list[dict], path: Path) -> Path:
     from benchmarks.common import pyplot, save_figure
 
     plt = pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.6))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 5.6))
     lo, hi = 1.0, 0.0
     for i, r in enumerate(results):
         colour = f"C{i}"
@@ -89,7 +94,7 @@ def plot(results: list[dict], path: Path) -> Path:
            ylabel="relRMSE net of the truth's noise, %")  # fmt: skip
     title = "Time to equal error (o usdahd, ■ Cycles at equal spp, x Cycles at usdahd's error)"
     bx.set_title(title, fontsize=8)
-    bx.legend(fontsize=7)
+    bx.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14))
     for a in (ax, bx):
         a.yaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
         a.yaxis.set_minor_formatter(plt.FuncFormatter(_minor_label))

@@ -1443,3 +1443,18 @@ def test_summary_plot_times_equal_error_from_the_stored_production_rows(tmp_path
     assert compare.main(["summary", str(f), "--plot", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| sponza.usdc | 16609 |" in capsys.readouterr().out
+
+
+def test_production_plot_labels_a_bake_at_the_automatic_density_auto():
+    """A compare run without --resolution (usdahd's automatic texel density: each mesh its
+    own resolution) is labelled "<stage> auto", not by its first mesh's resolution; the
+    stored classroom run at the defaults gives the ratio docs/benchmarks.md states."""
+    from benchmarks.reference import production_plot
+
+    base = Path(compare.__file__).parent / "results"
+    auto = json.loads((base / "compare_classroom_point1024_auto_cfed267.json").read_text())
+    assert production_plot.stage_label(auto) == "classroom auto"
+    fixed = json.loads((base / "compare_classroom_point1024_r64_quiet_b4536ba.json").read_text())
+    assert production_plot.stage_label(fixed) == "classroom 64²"
+    eq = production_plot.equal_error(auto)
+    assert eq["ratio"] == pytest.approx(1.63, abs=0.01)

@@ -8,6 +8,8 @@ share the baker's interpretation of UsdLux and UsdPreviewSurface:
 - geometry: every visible, active ``UsdGeom.Mesh`` (render/default purpose, instance proxies
   included), triangulated as fans, in world space, wound counter-clockwise about its front
   (``orientation`` and mirroring transforms taken into account);
+  coincident opposite-facing faces (a doubled sheet) moved 0.5 mm apart, which Cycles needs
+  to shade them (``twins.py``);
 - normals per corner: ``primvars:normals`` or ``normals`` (any interpolation) transformed by
   the inverse transpose; without authored normals, ``subdivisionScheme = "none"`` meshes get
   a crease-angle rule decided per pair of faces (a corner averages, weighted by corner angle,
@@ -42,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.reference.npzio import save_npz
+from benchmarks.reference.twins import TWIN_GAP, separate_twins
 
 #: Crease angle (degrees) for meshes without authored normals and subdivisionScheme "none".
 CREASE_DEG = 30.0
@@ -772,12 +775,22 @@ def export_stage(
             "usdahd first (the compare command does)"
         )
     lights, dome, dome_color = _lights(stage, xf, warn)
+    all_p, twins = separate_twins(np.concatenate(tri_p))
+    all_mesh = np.concatenate(tri_mesh)
+    if twins.any():
+        names = [meshes[k]["path"] for k in np.unique(all_mesh[twins])]
+        warn(
+            f"{int(twins.sum())} faces coincide with an opposite-facing face (a doubled sheet) "
+            f"on {len(names)} meshes ({', '.join(names[:4])}{', ...' if len(names) > 4 else ''}): "
+            f"moved {TWIN_GAP / 2 * 1000:g} mm toward their fronts for Cycles, which otherwise "
+            "shadows both sides (benchmarks/reference/twins.py)"
+        )
     return Scene(
-        tri_p=np.concatenate(tri_p),
+        tri_p=all_p,
         tri_n=np.concatenate(tri_n),
         tri_uv=np.concatenate(tri_uv),
         tri_tuv=np.concatenate(tri_tuv),
-        tri_mesh=np.concatenate(tri_mesh),
+        tri_mesh=all_mesh,
         tri_mat=np.concatenate(tri_mat),
         meshes=meshes,
         materials=materials,

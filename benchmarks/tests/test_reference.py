@@ -340,7 +340,8 @@ def test_left_handed_box_without_normals_faces_its_front(tmp_path):
 
 def test_subdivision_mesh_without_normals_is_smooth(tmp_path):
     st = new_stage("Y", path=tmp_path / "s.usda")
-    _plane(st)
+    # the plane below the box, not under its bottom face (coincident faces are moved apart)
+    UsdGeom.Xformable(_plane(st)).AddTranslateOp().Set(Gf.Vec3d(0, -1, 0))
     _box(st, "/Box", scheme=None)  # catmullClark fallback: smooth normals
     sc = _export(st)
     k = [m["path"] for m in sc.meshes].index("/Box")

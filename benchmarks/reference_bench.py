@@ -253,7 +253,7 @@ def _add_left_out(left: dict, k: int, variance: dict, path: str, covered) -> Non
     probes (bakevar's ``invalid``: filled from neighbours, e.g. covered by another surface or
     inside geometry; and ``moved``: sampled off the centre, at a contact or a rim texel under a
     low cover; docs/texels.md)."""
-    img = compare.texel_mask(variance, path, covered.shape, ("invalid", "moved"))
+    img = compare.texel_mask(variance, path, covered.shape, compare.NOT_AT_CENTRE)
     if img is None:
         return
     left[k] = img | left[k] if k in left else img

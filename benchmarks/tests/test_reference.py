@@ -432,6 +432,24 @@ def test_texels_the_bake_filled_are_reported_apart():
     assert "filled" not in row
 
 
+def test_compare_reports_apart_what_the_sample_benchmark_leaves_out():
+    """compare.py's ``filled`` mask is the sample benchmark's left-out rule: bakevar's
+    ``invalid`` and ``moved`` texels (sampled off the centre), an old file's missing ``moved``
+    flagging nothing."""
+    h = w = 4
+    xy = np.array([(x, y) for y in range(h) for x in range(w)])
+    inv, mv = np.zeros(h * w, bool), np.zeros(h * w, bool)
+    inv[1 * w + 1], mv[2 * w + 3] = True, True
+    var = {"/m": {"xy": xy, "s2": np.ones(h * w), "halves": np.ones(h * w),
+                  "invalid": inv, "moved": mv}}  # fmt: skip
+    (_, _), mask = compare.variance_images(var, "/m", (h, w))
+    assert mask.sum() == 2 and mask[1, 1] and mask[2, 3]
+    var["/m"]["moved"] = np.zeros(0, bool)
+    (_, _), mask = compare.variance_images(var, "/m", (h, w))
+    assert mask.sum() == 1 and mask[1, 1]
+    assert compare.NOT_AT_CENTRE == ("invalid", "moved")
+
+
 def test_texels_next_to_unlit_ones_are_reported_apart():
     """A dark footprint (a box standing on the floor) in the middle of a lit chart: its lit
     neighbours are 'contact' texels, not part of the main figures."""

@@ -36,6 +36,7 @@ PHASES = (
     ("plan (per prim)", "plan_job", "pipeline/plan"),
     ("rasterize texels", "rasterize", "bake/texels"),
     ("contacts pushed off", "push_off_contacts", "bake/texels"),
+    ("trace, every prim (_trace_jobs)", "_trace_jobs", "pipeline/stages"),
     ("trace (bake_texels)", "bake_texels", "bake/integrate"),
     ("fill invalid", "fill_invalid", "bake/post"),
     ("denoise (denoise_records)", "denoise_records", "bake/denoise"),
@@ -105,22 +106,24 @@ def main(argv=None) -> int:
     ap.add_argument("--sort", default="cumulative", help="--top's order (cumulative, tottime)")
     ap.add_argument(
         "--serial", action="store_true",
-        help="the denoiser's chart work on the calling thread (denoise.CHART_THREADS = 1), so "
-        "cProfile sees it (on its threads it shows as a wait)",
+        help="the denoiser's chart work and the prims' tracing on the calling thread "
+        "(denoise.CHART_THREADS = stages.JOB_THREADS = 1), so cProfile sees them (on other "
+        "threads they show as a wait)",
     )  # fmt: skip
     a = ap.parse_args(argv)
     if not a.stage.is_file():
         print(f"error: {a.stage}: no such stage", file=sys.stderr)
         return 2
     from usdahd.bake import denoise
+    from usdahd.pipeline import stages
 
-    threads = denoise.CHART_THREADS
+    threads = denoise.CHART_THREADS, stages.JOB_THREADS
     if a.serial:
-        denoise.CHART_THREADS = 1
+        denoise.CHART_THREADS = stages.JOB_THREADS = 1
     try:
         cpu, wall, rep, stats, px = profile(a.stage, a.resolution, a.samples, shlex.split(a.flags))
     finally:
-        denoise.CHART_THREADS = threads
+        denoise.CHART_THREADS, stages.JOB_THREADS = threads
     rays = sum(p.get("rays", 0) for p in rep.get("prims", []))
     covered = sum(p.get("texels", 0) for p in rep.get("prims", []))
     print(

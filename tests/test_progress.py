@@ -31,3 +31,19 @@ def test_no_hint_without_a_compile():
     with progress.CompileNotice(stream=stream):
         np.sqrt(4.0)
     assert stream.getvalue() == ""
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_a_bar_told_not_to_draw_records_without_drawing():
+    """Prims traced at once share one terminal line: the bar of a prim that waits for another
+    keeps its count but draws nothing until it may (``update(..., draw=False)``)."""
+    term = _Terminal()
+    bar = progress.Progress("[2/3] /World/B", stream=term)
+    bar.update(10, 100, draw=False)
+    assert term.getvalue() == ""
+    bar.update(20, 100)
+    assert "[2/3] /World/B" in term.getvalue() and "20.0%" in term.getvalue()

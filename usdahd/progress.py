@@ -88,9 +88,11 @@ class Progress:
         parts.append(f"{_si(rate)} {self.unit}/s")
         return "  ".join(parts)[:160]
 
-    def update(self, done: float, total: float | None = None) -> None:
+    def update(self, done: float, total: float | None = None, *, draw: bool = True) -> None:
+        """Record ``done`` of ``total`` units; redraw unless ``draw`` is False (a bar waiting
+        for another on the same terminal line: only one prim's bar draws at a time)."""
         self._done, self._total = done, total
-        if self.quiet:
+        if self.quiet or not draw:
             return
         now = time.perf_counter()
         interval = 0.2 if self.tty else 10.0

@@ -29,7 +29,9 @@ def _run(*flags: str) -> str:
 
 
 def test_serial_profile_sees_the_chart_work_and_restores_the_threads():
-    threads = denoise.CHART_THREADS
+    from usdahd.pipeline import stages
+
+    threads = denoise.CHART_THREADS, stages.JOB_THREADS
     text = _run("--serial")
     assert text.startswith("# floor_lamp 16^2 4 spp")
     assert "| denoise (denoise_records) |" in text and "| trace (bake_texels) |" in text
@@ -37,4 +39,4 @@ def test_serial_profile_sees_the_chart_work_and_restores_the_threads():
     # on the calling thread: every chart's preparation and blend are in the profile (with
     # CHART_THREADS > 1 they run in pairs on the pool's threads, which cProfile does not see)
     assert "_prepare_chart" in text and "blend_chart" in text
-    assert denoise.CHART_THREADS == threads
+    assert (denoise.CHART_THREADS, stages.JOB_THREADS) == threads

@@ -156,6 +156,31 @@ def test_backends_give_the_same_hits():
     assert nat.rays_traced == ref.rays_traced == 2 * m
 
 
+def test_a_fork_shares_the_bvh_and_threads_and_counts_its_own_rays():
+    """Prims traced at once each trace on a fork: the same hits from two threads at once as
+    from the original, one ray count per fork, the original's untouched."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    scene = load_scene(_cluttered_stage())
+    tr = Tracer(scene, backend="native")
+    a, b = tr.fork(), tr.fork()
+    assert a._pool is tr._pool and a.native_tables() is tr.native_tables()
+    rng = np.random.default_rng(1)
+    m = 40000
+    o = rng.uniform([-4, -4, 0.01], [4, 4, 3], (m, 3))
+    d = rng.normal(size=(m, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    want = tr.intersect(o, d)["tri"]
+    with ThreadPoolExecutor(2) as pool:
+        got = list(pool.map(lambda t: t.intersect(o, d)["tri"], [a, b]))
+    for g in got:
+        np.testing.assert_array_equal(g, want)
+    assert (a.rays_traced, b.rays_traced, tr.rays_traced) == (m, m, m)
+    b.occluded(o[:10], d[:10], np.full(10, np.inf))
+    assert (a.rays_traced, b.rays_traced, tr.rays_traced) == (m, m + 10, m)
+    tr.close()
+
+
 @pytest.mark.parametrize("m", [1, 2, 3, 16, 17, 18, 35, 4099])
 def test_packets_give_the_same_hits_as_single_rays(m):
     """16-ray packets (and their single-ray tails) against rtcIntersect1 / rtcOccluded1: the

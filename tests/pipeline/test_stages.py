@@ -124,3 +124,62 @@ def test_a_dark_stage_traces_nothing_and_writes_black(tmp_path):
         assert job.stats["rays"] == 0
         _, px = _read_sidecar(job.results.textures[schema.SIDECAR_ROLE])
         assert (px[px[:, 27] > 0, :27] == 0).all()
+
+
+def _sample_jobs(resolution=8, samples=16):
+    from usdahd.pipeline.settings import resolve_settings as resolve
+
+    opts = BakeOptions(resolution=resolution, samples=samples, denoise=False, quiet=True)
+    scene = load_scene(str(Path(__file__).parents[2] / "samples" / "stretched_boxes.usda"))
+    jobs = []
+    for mesh in scene.meshes:
+        settings = resolve(opts, {}, scene.meters_per_unit)
+        record_time(settings, scene)
+        report = {"path": mesh.path, "warnings": [], "reason": "no previous bake"}
+        jobs.append(PrimJob(mesh.path, mesh, settings, (resolution,) * 2, report=report))
+    return scene, jobs, opts
+
+
+def test_prims_traced_at_once_give_the_same_bake_as_one_at_a_time(monkeypatch):
+    """JOB_THREADS prims in flight share the tracer's threads; each prim's SH, statistics and
+    ray count are those of a bake that traces the prims one after another."""
+    from usdahd.pipeline import stages
+
+    baked = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(stages, "JOB_THREADS", threads)
+        scene, jobs, opts = _sample_jobs()
+        assert len(jobs) == 3
+        stages._trace_jobs(scene, jobs, opts)
+        baked[threads] = jobs
+    for one, two in zip(baked[1], baked[2], strict=True):
+        assert one.path == two.path
+        np.testing.assert_array_equal(one.sh, two.sh)
+        assert one.report["rays"] == two.report["rays"] == one.stats["rays"] > 0
+        np.testing.assert_array_equal(one.stats["samples"], two.stats["samples"])
+        np.testing.assert_array_equal(one.stats["invalid"], two.stats["invalid"])
+
+
+def test_a_prim_that_breaks_stops_the_prims_in_flight(monkeypatch):
+    """An unexpected error in one prim (not a UsdAhdError, which marks only that prim failed)
+    reaches the caller, and the other prim in flight stops at its next chunk instead of
+    tracing on."""
+    from usdahd.bake import integrate
+    from usdahd.pipeline import stages
+
+    real = integrate.bake_texels
+    calls = []
+
+    def bake_texels(scene, tracer, texels, **kw):
+        calls.append(kw["mesh"])
+        if kw["mesh"] == 1:
+            raise RuntimeError("boom")
+        return real(scene, tracer, texels, **kw)
+
+    monkeypatch.setattr(integrate, "bake_texels", bake_texels)
+    monkeypatch.setattr(integrate, "NATIVE_CHUNK_RAYS", 64 * 64)  # 16 chunks of 64 texels
+    scene, jobs, opts = _sample_jobs(resolution=32, samples=64)
+    with pytest.raises(RuntimeError, match="boom"):
+        stages._trace_jobs(scene, jobs, opts)
+    assert 2 not in calls  # the third prim never started
+    assert jobs[0].sh is None  # the first stopped at a chunk after the error

@@ -29,6 +29,7 @@ material/texture tables for numba.
 
 from __future__ import annotations
 
+import copy
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -459,6 +460,17 @@ class Tracer:
         hit = tri >= 0
         one = self.tri_one_sided[np.where(hit, tri, 0)]
         return hit & one & (np.einsum("ij,ij->i", d, ng) > 0)
+
+    def fork(self) -> Tracer:
+        """A tracer sharing this one's BVH, tables and threads, with its own ``rays_traced``
+        (from 0): one per prim traced at once (:func:`usdahd.pipeline.stages._trace_jobs`), so
+        each counts its own rays. Queries are thread-safe (a committed Embree scene; the
+        cached tables are built here, before any sharing). Close only the original."""
+        if self.backend == "native":
+            self.native_tables()
+        twin = copy.copy(self)
+        twin.rays_traced = 0
+        return twin
 
     @property
     def native_handle(self) -> int:

@@ -69,69 +69,150 @@ def _job_seed(seed: int, path: str) -> int:
     return int.from_bytes(hashlib.sha256(f"{seed}:{path}".encode()).digest()[:4], "little")
 
 
+#: Prims traced at once. Each prim's texels are spread over the tracer's threads, but a prim
+#: ends with a tail (its last parts on one thread) and has serial steps around its tracing
+#: (contacts, chunk set-up, the inside-geometry test); a second prim in flight fills both.
+#: Results do not depend on it (each prim has its own random stream and ray count).
+JOB_THREADS = 2
+
+
+class _Cancelled(Exception):
+    """Raised in a prim's progress callback once another prim has failed unexpectedly."""
+
+
 def _trace_jobs(scene, jobs: list[PrimJob], opts: BakeOptions) -> None:
-    """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats);
-    with ``--workers`` / ``--scheduler`` the tracing runs in tiles on a Dask cluster
-    (:mod:`usdahd.pipeline.distributed`), with the same results."""
-    from usdahd.bake.contacts import push_off_contacts
-    from usdahd.bake.integrate import bake_texels
+    """Rasterise texels and integrate radiance SH for each job (sets job.texels/sh/stats),
+    ``JOB_THREADS`` prims at a time; with ``--workers`` / ``--scheduler`` the tracing runs in
+    tiles on a Dask cluster (:mod:`usdahd.pipeline.distributed`), with the same results."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
     from usdahd.bake.texels import rasterize
     from usdahd.bake.trace import Tracer
-    from usdahd.errors import UsdAhdError
-    from usdahd.progress import Progress
 
     dark = is_dark(scene)
     cluster = not dark and (opts.workers is not None or opts.scheduler is not None)
+    if cluster:
+        remote = []
+        for job in jobs:
+            try:
+                if job.texels is None:
+                    job.texels = rasterize(job.mesh, job.resolution)
+                _check_covered(job)
+            except UsdAhdError as exc:
+                job.report.update(status="failed", error=str(exc))
+                continue
+            mesh = next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None)
+            remote.append((job, mesh, _job_seed(opts.seed, job.path)))
+        if remote:
+            from usdahd.pipeline import distributed
+
+            distributed.trace_jobs(scene, remote, opts, _record_trace)
+        return
     tracer = None
-    if not dark and not cluster:
+    if not dark:
         t0 = time.perf_counter()
         tracer = Tracer(scene)
         _status(opts, f"BVH: {scene.triangle_count} triangles in {time.perf_counter() - t0:.2f}s")
-    remote = []
-    for k, job in enumerate(jobs):
-        t1 = time.perf_counter()
+    running: list[int] = []  # jobs being traced; on a terminal the first one draws its bar
+    lock = threading.Lock()
+    stop = threading.Event()
+
+    def first(k: int) -> bool:
+        with lock:
+            return not running or running[0] == k
+
+    def one(k: int, job: PrimJob) -> None:
+        if stop.is_set():  # another prim broke: start no more
+            return
+        with lock:
+            running.append(k)
         try:
-            if job.texels is None:
-                job.texels = rasterize(job.mesh, job.resolution)
-            if len(job.texels) == 0:
-                raise BakeError(
-                    f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "
-                    f"its UVs {job.settings['uv']!r} are degenerate or outside [0,1]"
-                )
-            mesh = next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None)
-            if dark:  # nothing emits light: the radiance is exactly zero, trace nothing
-                n = len(job.texels)
-                job.sh = np.zeros((n, 3, 9), np.float32)
-                job.stats = {"rays": 0, "invalid": np.zeros(n, bool)}
-            elif cluster:
-                remote.append((job, mesh, _job_seed(opts.seed, job.path)))
-                continue
-            else:
-                # sample points on contacts moved in front of the surface they touch
-                # (docs/texels.md, "Contacts"); the rest of the texel stays as rasterised
-                job.texels, contact_invalid = push_off_contacts(job.texels, job.mesh, tracer)
-                bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
-                job.sh, job.stats = bake_texels(
-                    scene,
-                    tracer,
-                    job.texels,
-                    samples=int(job.settings["samples"]),
-                    bounces=int(job.settings["bounces"]),
-                    seed=_job_seed(opts.seed, job.path),
-                    adaptive=bool(job.settings["adaptive"]),
-                    progress=bar.update,
-                    mesh=mesh,
-                )
-                bar.close()
-                job.stats["invalid"] = job.stats["invalid"] | contact_invalid
+            _trace_job(scene, tracer, k, jobs, opts, first, stop)
         except UsdAhdError as exc:
             job.report.update(status="failed", error=str(exc))
-            continue
-        _record_trace(job, t1)
-    if remote:
-        from usdahd.pipeline import distributed
+        except _Cancelled:
+            pass
+        except BaseException:
+            stop.set()
+            raise
+        finally:
+            with lock:
+                running.remove(k)
 
-        distributed.trace_jobs(scene, remote, opts, _record_trace)
+    try:
+        if len(jobs) < 2 or JOB_THREADS < 2:
+            for k, job in enumerate(jobs):
+                one(k, job)
+            return
+        with ThreadPoolExecutor(JOB_THREADS, thread_name_prefix="usdahd-prim") as pool:
+            futures = [pool.submit(one, k, job) for k, job in enumerate(jobs)]
+            try:
+                for f in futures:
+                    f.result()
+            except BaseException:  # Ctrl-C or a bug: the prims in flight stop at their next chunk
+                stop.set()
+                for f in futures:
+                    f.cancel()
+                raise
+    finally:
+        if tracer is not None:
+            tracer.close()
+
+
+def _check_covered(job: PrimJob) -> None:
+    if len(job.texels) == 0:
+        raise BakeError(
+            f"{job.path}: no texel covered at {job.resolution[0]}x{job.resolution[1]}: "
+            f"its UVs {job.settings['uv']!r} are degenerate or outside [0,1]"
+        )
+
+
+def _trace_job(scene, tracer, k: int, jobs: list[PrimJob], opts, first, stop) -> None:
+    """Trace ``jobs[k]`` on its own fork of ``tracer`` (None: the scene is dark); ``first(k)``
+    says whether its bar may draw on a terminal, ``stop`` (set) cancels it at its next chunk."""
+    from usdahd.bake.contacts import push_off_contacts
+    from usdahd.bake.integrate import bake_texels
+    from usdahd.bake.texels import rasterize
+    from usdahd.progress import Progress
+
+    job = jobs[k]
+    t1 = time.perf_counter()
+    if job.texels is None:
+        job.texels = rasterize(job.mesh, job.resolution)
+    _check_covered(job)
+    if tracer is None:  # nothing emits light: the radiance is exactly zero, trace nothing
+        n = len(job.texels)
+        job.sh = np.zeros((n, 3, 9), np.float32)
+        job.stats = {"rays": 0, "invalid": np.zeros(n, bool)}
+        _record_trace(job, t1)
+        return
+    own = tracer.fork()
+    mesh = next((i for i, m in enumerate(scene.meshes) if m is job.mesh), None)
+    # sample points on contacts moved in front of the surface they touch
+    # (docs/texels.md, "Contacts"); the rest of the texel stays as rasterised
+    job.texels, contact_invalid = push_off_contacts(job.texels, job.mesh, own)
+    bar = Progress(f"[{k + 1}/{len(jobs)}] {job.path}", quiet=opts.quiet)
+
+    def progress(done, total=None):
+        if stop.is_set():
+            raise _Cancelled
+        bar.update(done, total, draw=not bar.tty or first(k))
+
+    job.sh, job.stats = bake_texels(
+        scene,
+        own,
+        job.texels,
+        samples=int(job.settings["samples"]),
+        bounces=int(job.settings["bounces"]),
+        seed=_job_seed(opts.seed, job.path),
+        adaptive=bool(job.settings["adaptive"]),
+        progress=progress,
+        mesh=mesh,
+    )
+    bar.close()
+    job.stats["invalid"] = job.stats["invalid"] | contact_invalid
+    _record_trace(job, t1)
 
 
 def _record_trace(job: PrimJob, t1: float) -> None:

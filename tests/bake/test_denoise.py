@@ -782,12 +782,18 @@ def test_chart_threads_change_nothing(monkeypatch):
         recs.append(dict(sh=noisy * level, texels=t, charts=charts_of(mesh, t), variance=var))
     kw = dict(variance_bound=True, variance_pool=denoise.VARIANCE_POOL)
     assert denoise.CHART_THREADS == 2
+    # a small call stays on the calling thread; these records are small: threads all the same
+    assert denoise._chart_pool(denoise.CHART_THREADS_MIN_TEXELS - 1) is None
+    monkeypatch.setattr(denoise, "CHART_THREADS_MIN_TEXELS", 0)
+    pool = denoise._chart_pool(1)
+    assert pool is not None
+    pool.shutdown()
     threaded = denoise.denoise_records(recs, **kw)
     monkeypatch.setattr(denoise, "MOSAIC_PIXELS", 1)  # a batch per chart: many _finish calls
     per_chart = denoise.denoise_records(recs, **kw)
     monkeypatch.undo()
     monkeypatch.setattr(denoise, "CHART_THREADS", 1)
-    assert denoise._chart_pool() is None
+    assert denoise._chart_pool(10**9) is None
     single = denoise.denoise_records(recs, **kw)
     for a, b in zip(threaded, single, strict=True):
         np.testing.assert_array_equal(a, b)

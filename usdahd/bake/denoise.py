@@ -140,6 +140,13 @@ OIDN_LARGE_MEMORY_MB = 512
 #: about a third of the denoiser's CPU time (docs/time-to-quality.md, issue 43). Each chart's
 #: result does not depend on the threads (tests/bake/test_denoise.py).
 CHART_THREADS = 2
+#: Below this many texels in a denoise_records call the charts' work stays on the calling
+#: thread: handing small charts to threads cost more than it saved (denoise_records of warm
+#: 256-spp bakes, 2 threads vs 1: stretched_boxes 32² (2,199 texels) 58 vs 53 ms, pillar_room
+#: 32² (2,599) 78 vs 68, exterior_sun_sky 32² (2,950) 80 vs 72; even at ~7,000
+#: (stretched_boxes 64², cornell_box 32²); threads ahead from cornell_box 64² (23,320: 177
+#: vs 193 ms) and stretched_boxes 128² (234 vs 264)).
+CHART_THREADS_MIN_TEXELS = 4096
 #: The 7 directional coefficients' ratios (c_lm / (sqrt(2l + 1) c00)) are denoised by their
 #: mean over the chart's texels within DIRECTIONAL_RADIUS (Chebyshev; 1: 3 x 3), then blended
 #: texel by texel like OIDN's output was; True runs them through OIDN's directional network
@@ -421,7 +428,7 @@ def denoise_records(
     den = None
     batch: list[_Chart] = []
     pixels = 0
-    pool = _chart_pool()
+    pool = _chart_pool(sum(len(c[0]) for c in checked))
     rings = blend and variance_bound  # I_z kept per ring class of each record (ENERGY_DEPTH)
     # per record: (n,) ring of each denoised texel (-1: chart not denoised), the input's sums
     depths = [np.full(len(c[1]), -1, np.int8) if rings else None for c in checked]
@@ -484,11 +491,12 @@ def _keep_ring_energy(out: np.ndarray, depth: np.ndarray, s_in: np.ndarray) -> N
         out[b] *= scale[depth[b].astype(np.intp)][:, :, None].astype(out.dtype)
 
 
-def _chart_pool():
-    """Threads for the charts' noise estimates and blends (None for one thread): each chart's
-    work is its own (disjoint texels, deterministic), so the results are the same in any
-    order; OIDN's runs stay on the calling thread (OIDN uses every core itself)."""
-    if CHART_THREADS <= 1:
+def _chart_pool(texels: int):
+    """Threads for the charts' noise estimates and blends of ``texels`` texels in all (None:
+    the calling thread, for one thread or fewer than CHART_THREADS_MIN_TEXELS texels): each
+    chart's work is its own (disjoint texels, deterministic), so the results are the same in
+    any order; OIDN's runs stay on the calling thread (OIDN uses every core itself)."""
+    if CHART_THREADS <= 1 or texels < CHART_THREADS_MIN_TEXELS:
         return None
     from concurrent.futures import ThreadPoolExecutor
 

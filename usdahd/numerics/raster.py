@@ -206,7 +206,11 @@ def _polygon_next(cnt: np.ndarray, kmax: int) -> np.ndarray:
 def clip_square(c: np.ndarray, P: np.ndarray, area2: np.ndarray):
     """Area (m,) and centroid (m, 2) of the part of the unit square centred at each c (m, 2)
     inside its triangle P (m, 3, 2) (area 0, centroid nan where they do not overlap)."""
-    poly, cnt = _clip_square(c, P, area2)
+    return _area_centroid(c, *_clip_square(c, P, area2))
+
+
+def _area_centroid(c: np.ndarray, poly: np.ndarray, cnt: np.ndarray):
+    """:func:`clip_square`'s area and centroid from :func:`_clip_square`'s polygons."""
     kmax = poly.shape[1]
     q1 = np.take_along_axis(poly, _polygon_next(cnt, kmax)[..., None], axis=1)
     cr = np.where(np.arange(kmax)[None, :] < cnt[:, None], cross2(poly, q1), 0.0)
@@ -236,7 +240,7 @@ def conservative_points(c: np.ndarray, P: np.ndarray, area2: np.ndarray, inset: 
         better = (k < cnt) & (dk < best_d2)
         best = np.where(better[:, None], qk, best)
         best_d2 = np.where(better, dk, best_d2)
-    area, cen = clip_square(c, P, area2)
+    area, cen = _area_centroid(c, poly, cnt)
     ok = (area > CENTROID_MIN_AREA) & np.isfinite(cen).all(axis=1) & (cnt >= 3)
     inner = c + best + inset * (cen - (c + best))
     return np.where(ok[:, None], inner, q)

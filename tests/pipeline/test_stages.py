@@ -146,18 +146,19 @@ def test_prims_traced_at_once_give_the_same_bake_as_one_at_a_time(monkeypatch):
     from usdahd.pipeline import stages
 
     baked = {}
-    for threads in (1, 2):
+    for threads in (1, 2, 3):
         monkeypatch.setattr(stages, "JOB_THREADS", threads)
         scene, jobs, opts = _sample_jobs()
         assert len(jobs) == 3
         stages._trace_jobs(scene, jobs, opts)
         baked[threads] = jobs
-    for one, two in zip(baked[1], baked[2], strict=True):
-        assert one.path == two.path
-        np.testing.assert_array_equal(one.sh, two.sh)
-        assert one.report["rays"] == two.report["rays"] == one.stats["rays"] > 0
-        np.testing.assert_array_equal(one.stats["samples"], two.stats["samples"])
-        np.testing.assert_array_equal(one.stats["invalid"], two.stats["invalid"])
+    for threads in (2, 3):
+        for one, two in zip(baked[1], baked[threads], strict=True):
+            assert one.path == two.path
+            np.testing.assert_array_equal(one.sh, two.sh)
+            assert one.report["rays"] == two.report["rays"] == one.stats["rays"] > 0
+            np.testing.assert_array_equal(one.stats["samples"], two.stats["samples"])
+            np.testing.assert_array_equal(one.stats["invalid"], two.stats["invalid"])
 
 
 def test_a_prim_that_breaks_stops_the_prims_in_flight(monkeypatch):
@@ -177,6 +178,7 @@ def test_a_prim_that_breaks_stops_the_prims_in_flight(monkeypatch):
         return real(scene, tracer, texels, **kw)
 
     monkeypatch.setattr(integrate, "bake_texels", bake_texels)
+    monkeypatch.setattr(stages, "JOB_THREADS", 2)  # two of the three prims in flight
     monkeypatch.setattr(integrate, "NATIVE_CHUNK_RAYS", 64 * 64)  # 16 chunks of 64 texels
     scene, jobs, opts = _sample_jobs(resolution=32, samples=64)
     with pytest.raises(RuntimeError, match="boom"):

@@ -71,9 +71,11 @@ def _job_seed(seed: int, path: str) -> int:
 
 #: Prims traced at once. Each prim's texels are spread over the tracer's threads, but a prim
 #: ends with a tail (its last parts on one thread) and has serial steps around its tracing
-#: (contacts, chunk set-up, the inside-geometry test); a second prim in flight fills both.
-#: Results do not depend on it (each prim has its own random stream and ray count).
-JOB_THREADS = 2
+#: (contacts, chunk set-up, the inside-geometry test); other prims in flight fill both.
+#: Results do not depend on it (each prim has its own random stream and ray count). Warm
+#: 256-spp bakes at 32² (report seconds, medians of 5-7): 2 -> 3 prims stretched_boxes 232 ->
+#: 226-228 ms, exterior_sun_sky 257 -> 249, cornell_box 1,180 -> 1,172; 4: no better.
+JOB_THREADS = 3
 
 
 class _Cancelled(Exception):

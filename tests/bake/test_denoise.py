@@ -1042,3 +1042,40 @@ def test_iz_mosaic_is_cropped_and_filled():
         den.close()
     hdr = [c for c, kw in seen if kw.get("hdr")]
     assert len(hdr) == 2 and all((c > 0).all() for c in hdr)
+
+
+def test_one_oidn_denoiser_is_kept_between_calls_and_never_shared(monkeypatch):
+    """A process baking stage after stage keeps one OIDN device and its last small filters (a
+    new filter's first run costs more): the next call takes them and returns the same bits;
+    two denoisers at once never share one (the second makes its own, released when it
+    closes); large filters and the least recently used are not kept; the quality is part of
+    a filter's key."""
+    mesh, t = two_chart_plane()
+    _, noisy = noisy_field(t, 0.05, seed=3)
+    rec = dict(sh=noisy, texels=t, charts=charts_of(mesh, t))
+    first = denoise.denoise_records([rec])[0]
+    assert len(denoise._IDLE) == 1
+    kept = denoise._IDLE[0]
+    assert 0 < len(kept.filters) <= denoise.IDLE_FILTERS
+    a = denoise._Denoiser.take("high")
+    assert a is kept and not denoise._IDLE
+    b = denoise._Denoiser.take("high")
+    assert b is not kept and not b.filters
+    b.close()
+    assert denoise._IDLE == [b]  # the first one back is kept
+    a.close()
+    assert denoise._IDLE == [b]  # one at most: a released
+    np.testing.assert_array_equal(denoise.denoise_records([rec])[0], first)
+    den = denoise._IDLE[0]
+    fast = denoise.denoise_records([rec], quality="fast")[0]
+    assert denoise._IDLE == [den] and den.quality == den.qualities["fast"]
+    assert list(den.filters)[-1][-1] == den.qualities["fast"]  # the latest kept last
+    assert np.isfinite(fast).all()
+    # at most IDLE_FILTERS, only small ones, the most recently used
+    den = denoise._Denoiser.take("high")
+    img = np.ones((8, 8, 3), np.float32)
+    for w in (8, 9, 10):
+        den.run(img[:, :1].repeat(w, axis=1), filter_type="RT", hdr=True)
+    monkeypatch.setattr(denoise, "IDLE_FILTER_PIXELS", 8 * 9)
+    den.close()
+    assert [k[3] for k in den.filters] == [(8, 8, 3), (8, 9, 3)]

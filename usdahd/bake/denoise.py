@@ -56,6 +56,8 @@ of the image border): docs/time-to-quality.md states the bound measured on the s
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from usdahd.bake.blend import (
@@ -207,24 +209,53 @@ def _pyoidn():
     return pyoidn
 
 
+#: One OIDN device, with up to IDLE_FILTERS of its filters (images of at most
+#: IDLE_FILTER_PIXELS pixels: OIDN's scratch follows the image, ~0.6 KB a pixel), kept between
+#: denoise_records calls for a process that bakes stage after stage (a DCC plug-in, a farm
+#: worker, the warm benchmarks): a new device's or filter's first run costs more than a later
+#: one (a 144 x 112 mosaic: 18-25 ms on a new filter, 14 ms on a kept one; 2026-12-07). Taken
+#: by one caller at a time (a second caller at once makes its own), so never shared between
+#: threads; a later bake whose mosaics have other shapes gains only the device.
+IDLE_FILTERS = 2
+IDLE_FILTER_PIXELS = 1 << 16
+_IDLE: list = []
+_IDLE_LOCK = threading.Lock()
+
+
 class _Denoiser:
     """One OIDN device; one filter per kind of call (type, mode, image shape, guides), reused:
     a filter's first commit sets up its network (~0.5 ms per call on small charts), a later
     commit with new images of the same shape only swaps the buffers (same output, checked).
     At most ``MAX_FILTERS`` are kept (each holds ~0.05 MB: a stage of thousands of charts of
-    different shapes would otherwise keep hundreds of MB); a chart's runs share two."""
+    different shapes would otherwise keep hundreds of MB); a chart's runs share two. Made by
+    :meth:`take` (the one kept from an earlier call when there is one, ``_IDLE``)."""
 
     MAX_FILTERS = 8
+
+    @classmethod
+    def take(cls, quality: str) -> _Denoiser:
+        """The denoiser kept idle by an earlier call (its quality set to ``quality``), or a
+        new one."""
+        with _IDLE_LOCK:
+            den = _IDLE.pop() if _IDLE else None
+        if den is not None and type(den) is not cls:  # kept by a subclass (a test's)
+            den._release()
+            den = None
+        if den is None:
+            return cls(quality)
+        den.quality = den.qualities[quality]
+        return den
 
     def __init__(self, quality: str):
         self.oidn = _pyoidn()
         self.device = self.oidn.Device()
         self.device.commit()
-        self.quality = {
+        self.qualities = {
             "high": self.oidn.OIDN_QUALITY_HIGH,
             "balanced": self.oidn.OIDN_QUALITY_BALANCED,
             "fast": self.oidn.OIDN_QUALITY_FAST,
-        }[quality]
+        }
+        self.quality = self.qualities[quality]
         self.filters = {}
 
     def _filter(self, key, filter_type, hdr, directional):
@@ -249,7 +280,8 @@ class _Denoiser:
         color = np.ascontiguousarray(color, dtype=np.float32)
         out = np.zeros_like(color)
         key = (filter_type, bool(hdr), bool(directional), color.shape,
-               albedo is not None, normal is not None, input_scale is not None)  # fmt: skip
+               albedo is not None, normal is not None, input_scale is not None,
+               self.quality)  # fmt: skip
         flt = self._filter(key, filter_type, hdr, directional)
         large = color.shape[0] * color.shape[1] > MOSAIC_PIXELS
         if large:
@@ -276,6 +308,20 @@ class _Denoiser:
         return out
 
     def close(self):
+        """Done with for now: kept for the next call (``_IDLE``) with its IDLE_FILTERS most
+        recently used filters of at most IDLE_FILTER_PIXELS pixels, the others released; or,
+        when one is kept already, released with its device."""
+        small = [k for k in self.filters if k[3][0] * k[3][1] <= IDLE_FILTER_PIXELS]
+        kept = set(small[-IDLE_FILTERS:])  # the dict's order: least recently used first
+        for key in [k for k in self.filters if k not in kept]:
+            self.filters.pop(key).release()
+        with _IDLE_LOCK:  # published only once pruned: the next taker has it alone
+            if not _IDLE:
+                _IDLE.append(self)
+                return
+        self._release()
+
+    def _release(self):
         for flt in self.filters.values():
             flt.release()
         self.filters.clear()
@@ -461,11 +507,11 @@ def denoise_records(
             batch.append(chart)
             pixels += chart.cv.shape[0] * chart.cv.shape[1]
             if pixels >= MOSAIC_PIXELS:
-                den = den or _Denoiser(quality)
+                den = den or _Denoiser.take(quality)
                 _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
                 batch, pixels = [], 0
         if batch:
-            den = den or _Denoiser(quality)
+            den = den or _Denoiser.take(quality)
             _finish(den, batch, outs, filter, blend, variance_bound, mosaic, pool)
         if rings:
             for out, depth, s_in in zip(outs, depths, sums_in, strict=True):

@@ -14,6 +14,7 @@ from pxr import Gf, UsdGeom, UsdLux
 
 from tests.scenes import define_box, define_quad, new_stage, preview_material
 from tests.stats import assert_mean
+from usdahd.bake import contacts
 from usdahd.bake.integrate import bake_texels
 from usdahd.bake.trace import Tracer
 from usdahd.bake.types import Texels
@@ -483,6 +484,59 @@ def test_texels_inside_geometry_flagged_invalid(bottom):
     out, stats = _bake(st, _texels(pts), samples=64)
     assert stats["invalid"].tolist() == [True, False]
     assert stats["backface_fraction"][0] > 0.9
+
+
+def test_a_texel_plainly_inside_stops_after_the_pilot(monkeypatch):
+    """The inside pilot (contacts.inside_pilot): a texel under a box standing in the floor
+    gets INSIDE_SAMPLES samples, not ``samples`` (a path from inside bounces until Russian
+    roulette ends it), and is inside geometry as before; a texel under a one-sided card (its
+    hemisphere mostly the card's back, but not walled in) and one in the open are traced in
+    full, bit for bit as without the pilot on the native path. At INSIDE_SAMPLES samples or
+    fewer there is no pilot."""
+    from usdahd.bake import integrate
+
+    st = new_stage()
+    _ground(st)
+    box = define_box(
+        st, "/box", (-0.5,) * 3, (0.5,) * 3, preview_material(st, "/mat/g"), inward=False
+    )
+    idx = list(box.GetFaceVertexIndicesAttr().Get())  # no bottom face, as game assets
+    box.GetFaceVertexIndicesAttr().Set(idx[:16] + idx[20:])
+    box.GetFaceVertexCountsAttr().Set([4] * 5)
+    define_quad(st, "/card", [(2, -1, 0.05), (4, -1, 0.05), (4, 1, 0.05), (2, 1, 0.05)])
+    UsdLux.DomeLight.Define(st, "/dome")
+    pts = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [8.0, 0.0, 0.0]], np.float32)
+    out, stats = _bake(st, _texels(pts), samples=64, bounces=8)
+    assert stats["invalid"].tolist() == [True, False, False]
+    assert stats["samples"].tolist() == [integrate.INSIDE_SAMPLES, 64, 64]
+    assert stats["backface_fraction"][0] > contacts.INSIDE_PILOT
+    assert stats["backface_fraction"][1] > 0.5  # the card's back: estimated all the same
+    monkeypatch.setattr(integrate, "inside_pilot", lambda p, g, o, t: np.zeros(len(p)))
+    full, stats_full = _bake(st, _texels(pts), samples=64, bounces=8)
+    assert stats_full["samples"].tolist() == [64, 64, 64]
+    assert stats_full["invalid"].tolist() == [True, False, False]
+    assert stats["rays"] < stats_full["rays"]
+    if BACKEND == "native":  # each texel's samples are its own (the numpy path's draws shift)
+        np.testing.assert_array_equal(out[1:], full[1:])
+    monkeypatch.undo()
+    _, few = _bake(st, _texels(pts), samples=integrate.INSIDE_SAMPLES, bounces=8)
+    assert few["samples"].tolist() == [integrate.INSIDE_SAMPLES] * 3
+
+
+def test_inside_pilot_asks_the_normal_then_the_hemisphere_then_the_walls():
+    """contacts.inside_pilot: above INSIDE_PILOT under a box on the floor; 0 in the open
+    (its normal ray meets nothing), 0 under a one-sided card (the hemisphere is the card's
+    back, but the gap is open along the ground: not walled in) and 0 beside the box."""
+    st = new_stage()
+    _ground(st)
+    define_box(st, "/box", (-0.5,) * 3, (0.5,) * 3, preview_material(st, "/mat/g"), inward=False)
+    define_quad(st, "/card", [(2, -1, 0.05), (4, -1, 0.05), (4, 1, 0.05), (2, 1, 0.05)])
+    scene = load_scene(st)
+    tr = Tracer(scene, backend=BACKEND)
+    pts = np.array([[0, 0, 0], [3, 0, 0], [8, 0, 0], [0.7, 0, 0]], np.float64)
+    g = np.tile([0.0, 0.0, 1.0], (4, 1))
+    frac = contacts.inside_pilot(pts, g, np.full(4, 1e-4), tr)
+    assert frac[0] > contacts.INSIDE_PILOT and (frac[1:] == 0).all()
 
 
 def test_beside_a_lone_one_sided_wall_is_estimated_not_filled():

@@ -24,6 +24,7 @@ from usdahd.numerics.sampling import (
     cosine_hemisphere,
     orthonormal_basis,
     r2_sequence,
+    texel_hemisphere,
     to_world,
     uniform_hemisphere,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "COVERED",
     "COVERED_DISTANCE",
     "covered",
+    "inside_pilot",
     "move_off_covers",
     "push_off_contacts",
     "texel_sizes",
@@ -252,6 +254,46 @@ def _push_off_chunk(half, pos, ng, scales, tracer):
         todo = go
     moved &= ~invalid
     return pos, moved, invalid
+
+
+#: The inside pilot (:func:`inside_pilot`): rays per texel over its hemisphere (the first
+#: R2 points through the integrator's texel hemisphere mapping, in every texel's frame), and
+#: the fraction of them that must meet a back face. 0.75 of 8 where the integrator's rule is
+#: 0.25 of all its samples: only texels far past that rule stop early (under a box resting on
+#: a floor all 8 meet its inside); a texel near it is traced in full and judged as before.
+INSIDE_PILOT_RAYS = 8
+INSIDE_PILOT = 0.75
+
+
+def inside_pilot(position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray, tracer):
+    """(n,) float64 pilot back-face fraction of each texel (asked only of texels whose ray along
+    the normal meets a back face), 0 where it is not also :func:`walled_in`: the texels with a fraction above ``INSIDE_PILOT`` are inside geometry
+    before any path is traced (:func:`usdahd.bake.integrate.bake_texels` gives them a few
+    samples only: their estimate is replaced by their neighbours', and a path from inside a
+    closed box bounces until Russian roulette ends it: 10.3 rays a sample under
+    stretched_boxes' boxes against 2.4 on the open floor, 9x the time).
+
+    position, geom_normal : (n, 3); offsets : (n,) float64 ray-origin offsets
+    (``tracer.texel_offsets``); tracer : usdahd.bake.trace.Tracer."""
+    p = np.asarray(position, np.float64)
+    g = np.asarray(geom_normal, np.float64)
+    if len(p) == 0:
+        return np.zeros(0)
+    offsets = np.asarray(offsets, np.float64)
+    origin = tracer.offset(p, g, g, offsets)
+    frac = np.zeros(len(p))
+    # one ray along the normal first: only a texel that meets a back face there is asked
+    tri = tracer.intersect(origin, g)["tri"]
+    hn = tracer.geom_normal[np.maximum(tri, 0)].astype(np.float64)
+    ask = np.nonzero(tracer.back_face(tri, g, hn))[0]
+    if len(ask):
+        local, _ = texel_hemisphere(r2_sequence(INSIDE_PILOT_RAYS))
+        frac[ask] = _back_fraction(origin[ask], g[ask], local, tracer)
+    high = np.nonzero(frac > INSIDE_PILOT)[0]
+    if len(high):
+        frac[high[~walled_in(p[high], g[high], offsets[high], tracer)]] = 0.0
+    frac[frac <= INSIDE_PILOT] = 0.0
+    return frac
 
 
 #: Directions of the walled-in test: evenly spread azimuths in the surface's tangent plane.

@@ -69,7 +69,7 @@ import time
 
 import numpy as np
 
-from usdahd.bake.contacts import covered, texel_sizes, walled_in
+from usdahd.bake.contacts import covered, inside_pilot, texel_sizes, walled_in
 from usdahd.bake.kernels.integrate import native_pass, native_result, native_work
 from usdahd.bake.kernels.layout import (
     CFG_LEN,
@@ -102,6 +102,10 @@ NATIVE_CHUNK_RAYS = 1 << 18
 #: a safety cap, not a truncation: the energy it drops is at most albedo^64 of the first bounce's
 #: (2e-3 % for a white furnace of albedo 0.8; a 3-bounce cap drops 41 % there).
 DEFAULT_BOUNCES = 64
+#: Samples of a texel the inside pilot finds inside geometry (``contacts.inside_pilot``):
+#: enough for an estimate where no neighbour can replace it (a chart wholly inside, warned
+#: about); its back-face fraction is the pilot's, so it is judged inside as the pilot found.
+INSIDE_SAMPLES = 16
 #: Adaptive: number of passes the sample budget is split into, relative tolerance (the floor
 #: is ``reference.ADAPTIVE_FLOOR``).
 ADAPTIVE_PASSES = 4
@@ -187,13 +191,19 @@ def bake_texels(
         ctx = NativeCtx(scene, tracer, bounces, estimator, strategy, mesh)
     chunk = chunk_texels(samples, adaptive, native)
     offsets = tracer.texel_offsets(texels, mesh)  # ray-origin offset per texel
+    # texels plainly inside geometry (under a box on a floor): INSIDE_SAMPLES samples, not
+    # ``samples`` (each texel's samples are its own, so the others are traced as before)
+    pilot = np.zeros(n)
+    if samples > INSIDE_SAMPLES:
+        pilot = inside_pilot(texels.position, texels.geom_normal, offsets, tracer)
     est_rays_per_sample = None
     saved = 0
     for start in range(0, n, chunk):
         sl = slice(start, min(n, start + chunk))
         rng = np.random.default_rng([seed, stream, first + start])
         acc = Accum(sl.stop - sl.start)
-        active = np.arange(sl.stop - sl.start)
+        stopped = np.nonzero(pilot[sl] > 0)[0]
+        active = np.nonzero(pilot[sl] <= 0)[0]
         P = texels.position[sl].astype(np.float64)
         NG = texels.geom_normal[sl].astype(np.float64)
         F = texels.frame[sl].astype(np.float64)
@@ -228,8 +238,16 @@ def bake_texels(
                 left = samples - (k + 1) * per_pass
                 saved += int(done.sum()) * left * ctx.rays_per_sample
                 active = active[~done]
+        if len(stopped):  # after the others: the numpy path's generator draws for them first
+            if native:
+                ctx.native_pass(INSIDE_SAMPLES, 0, acc, stopped, True)
+            else:
+                ctx.hemisphere_pass(P[stopped], NG[stopped], F[stopped], E[stopped],
+                                    INSIDE_SAMPLES, 0, rng, acc, stopped)  # fmt: skip
+            acc.n_half[stopped] += (INSIDE_SAMPLES + 1) // 2
         res, bf = ctx.result(acc) if native else acc.result(estimator)
         out[sl] = res
+        bf[stopped] = np.maximum(bf[stopped], pilot[sl][stopped])
         backfrac[sl] = bf
         used[sl] = acc.count
         iz_var[sl] = acc.iz_variance()

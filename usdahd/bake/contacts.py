@@ -267,11 +267,12 @@ INSIDE_PILOT = 0.75
 
 def inside_pilot(position: np.ndarray, geom_normal: np.ndarray, offsets: np.ndarray, tracer):
     """(n,) float64 pilot back-face fraction of each texel (asked only of texels whose ray along
-    the normal meets a back face), 0 where it is not also :func:`walled_in`: the texels with a fraction above ``INSIDE_PILOT`` are inside geometry
-    before any path is traced (:func:`usdahd.bake.integrate.bake_texels` gives them a few
-    samples only: their estimate is replaced by their neighbours', and a path from inside a
-    closed box bounces until Russian roulette ends it: 10.3 rays a sample under
-    stretched_boxes' boxes against 2.4 on the open floor, 9x the time).
+    the normal meets a back face), 0 where it is not also :func:`walled_in`: the texels with a
+    fraction above ``INSIDE_PILOT`` are inside geometry before any path is traced
+    (:func:`usdahd.bake.integrate.bake_texels` gives them a few samples only: their estimate
+    is replaced by their neighbours', and a path from inside a closed box bounces until
+    Russian roulette ends it: 10.3 rays a sample under stretched_boxes' boxes against 2.4 on
+    the open floor, 9x the time).
 
     position, geom_normal : (n, 3); offsets : (n,) float64 ray-origin offsets
     (``tracer.texel_offsets``); tracer : usdahd.bake.trace.Tracer."""

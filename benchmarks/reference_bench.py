@@ -557,9 +557,12 @@ SECTION_PLANS = {
         },
         # 32^2 per mesh: Cycles' 1024-spp bake takes 1-10 s here, so per-bake fixed costs
         # decide the ratio (docs/time-to-quality.md); was a separate run (docs/benchmarks-32.md).
+        # 512 too: with a fixed cost a the time a + b s is convex in log-log against the error
+        # c s^-1/2, so the chord between 256 and 1024 (where Cycles' 1024-spp error falls at
+        # this size) overstates the time between them; a run there measures it instead.
         {
             "resolution": 32,
-            "samples": [16, 64, 256, 1024],
+            "samples": [16, 64, 256, 512, 1024],
             "cycles_samples": [256, 1024],
             "truth_spp": 4096,
             "variants": [],

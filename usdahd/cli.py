@@ -40,6 +40,9 @@ COMMANDS = {
 
 #: Commands that load numba kernels in every run (:func:`_numba_without_scipy_blas` first).
 NUMBA_COMMANDS = ("bake", "warmup")
+#: Commands whose threads allocate: the process's malloc arenas capped first
+#: (:func:`usdahd.budget.cap_malloc_arenas`: peak memory).
+ARENA_COMMANDS = ("bake", "validate", "preview", "warmup")
 
 
 def _numba_without_scipy_blas() -> None:
@@ -220,6 +223,10 @@ def main(argv: list[str] | None = None) -> int:
             raise
         command = args.command
         as_json = bool(getattr(args, "json", False))
+        if command in ARENA_COMMANDS:
+            from usdahd import budget
+
+            budget.cap_malloc_arenas()
         if command in NUMBA_COMMANDS:
             _numba_without_scipy_blas()
         return _run_captured(args, command)
